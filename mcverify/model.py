@@ -1,0 +1,175 @@
+"""The model's numbers: every value the paper states, and a named default for every value it leaves open.
+
+All lengths in metres, speeds in m/s, accelerations in m/s^2, angles in radians, times in seconds.
+Road frame: x along the road (direction of ego travel), y to the left; the ego lane centre is y = 0
+and the opposing lane centre is y = +lane_width_m.
+
+Each dataclass is frozen: a campaign builds new instances with :func:`dataclasses.replace`, and the
+resolved values are written to every run's ``manifest.json``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+
+
+@dataclass(frozen=True)
+class VehicleGeometry:
+    """Footprint of every vehicle (paper Sec. VI-A: Toyota Camry)."""
+
+    length_m: float = 4.885
+    width_m: float = 1.840
+
+
+@dataclass(frozen=True)
+class Road:
+    """Two-lane, two-way road (paper Sec. VI-A: lane width 3.5 m)."""
+
+    lane_width_m: float = 3.5
+
+    @property
+    def ego_lane_y_m(self) -> float:
+        return 0.0
+
+    @property
+    def opp_lane_y_m(self) -> float:
+        return self.lane_width_m
+
+
+@dataclass(frozen=True)
+class EgoLimits:
+    """Input and state bounds of the ego kinematic bicycle (eq.kinematic_bicycle).
+
+    The paper states only the speed limit (19.4 m/s = 70 km/h). The rest are named defaults:
+    ``accel_max_mps2`` 3.0 (a Camry's 0-100 km/h in about 8 s), ``accel_min_mps2`` -6.0 (firm
+    braking on dry asphalt), slip angle |beta| <= 0.15 rad, heading |psi| <= 0.35 rad, the c.g.
+    kept on the road (ego-lane outer edge to opposing-lane outer edge, minus half a width), and the
+    rear axle to c.g. distance ``l_r_m`` = 1.4 m (about half the Camry's 2.825 m wheelbase).
+    """
+
+    accel_min_mps2: float = -6.0
+    accel_max_mps2: float = 3.0
+    slip_max_rad: float = 0.15
+    speed_min_mps: float = 0.0
+    speed_max_mps: float = 19.4
+    heading_max_rad: float = 0.35
+    y_min_m: float = -0.83
+    y_max_m: float = 4.33
+    l_r_m: float = 1.4
+
+
+@dataclass(frozen=True)
+class Barrier:
+    """Varying-level CBF to the front vehicle (eq.VL-CBF, Theorem thm.VL-CBF_levelset).
+
+    h_ef(x_e, t) = ((x_e - x_f)/a)^2 + ((y_e - y_f)/b)^2 - 1 is the ellipse of fig.relative_CBF in the
+    standard form (the paper's beta_1 = 1/a^2, beta_2 = 1/b^2, beta_3 = 1 up to a common scale).
+
+    The default axes are the smallest-area ellipse through the corners (+-L, +-W) of the
+    Minkowski sum of two aligned footprints: a = sqrt(2) L, b = sqrt(2) W. With the ego c.g. outside
+    it, two aligned footprints cannot touch.
+
+    ``lambdas_m`` are (lambda_1, ..., lambda_m), all > 0, so kappa~(h) = sum lambda_i h^(2i-1) is class K_e.
+    The level is either ``epsilon`` (then lambda_0 = -kappa~(epsilon)) or ``lambda0`` directly.
+    """
+
+    ellipse_a_m: float = math.sqrt(2.0) * 4.885
+    ellipse_b_m: float = math.sqrt(2.0) * 1.840
+    lambdas_m: tuple[float, ...] = (1.0, 0.5)
+    epsilon: float | None = 0.3
+    lambda0: float | None = None
+
+    @property
+    def order_m(self) -> int:
+        return len(self.lambdas_m)
+
+
+@dataclass(frozen=True)
+class Mpc:
+    """TO-CBF-MPC settings (box eq.tompc).
+
+    Paper: N = 50, goal reaction time phi = 1.8 s (x_g = x_f + phi v_f). Named defaults: the upper
+    bound on every stage interval ``dt_max_s`` (eq.tompc_t; 0.3 s gives a 15 s horizon, enough for
+    the slowest Table II overtake), the lower bound ``dt_min_s`` = 1e-4 s (the paper's "maximum time
+    resolution"), the lateral goal tolerance ``eps_y_m`` (eq.tompc_y), and a small input-smoothing
+    weight (the paper's Remark after eq.tompc allows it; it does not touch the safety constraints and
+    makes the time-optimal problem well conditioned).
+    """
+
+    horizon: int = 50
+    dt_max_s: float = 0.3
+    dt_min_s: float = 1e-4
+    phi_s: float = 1.8
+    eps_y_m: float = 0.25
+    smooth_weight: float = 1e-3
+    max_iter: int = 150
+    tol: float = 1e-6
+
+
+@dataclass(frozen=True)
+class Noise:
+    """Perception noise (paper Sec. VI-A), applied to what the planner measures of other vehicles.
+
+    ``kind``: "paper" or "none". Position noise uniform in +-``pos_far_m`` when the footprint gap to
+    the measured vehicle exceeds ``near_threshold_m``, else +-``pos_near_m``; speed noise uniform in
+    +-``speed_rel`` of the true speed. ``scale`` multiplies all three half-widths (a stronger noise
+    for sweeps). The ego's own state is measured exactly (odometry); the paper's noise is on "the
+    measured objects".
+    """
+
+    kind: str = "paper"
+    pos_far_m: float = 0.5
+    pos_near_m: float = 0.1
+    near_threshold_m: float = 2.0
+    speed_rel: float = 0.1
+    scale: float = 1.0
+
+
+@dataclass(frozen=True)
+class Simulation:
+    """Closed-loop timing.
+
+    ``control_period_s``: the planner's sampling period (paper: 50 Hz towards the opposing vehicle).
+    ``substeps``: RK4 sub-steps per control period under zero-order hold; every safety check is
+    evaluated at every sub-step. ``max_time_s``: an episode that has neither overtaken nor gone back
+    by then ends as a timeout.
+    """
+
+    control_period_s: float = 0.02
+    substeps: int = 10
+    max_time_s: float = 25.0
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """Initial conditions (paper Sec. VI-B: ego at x = 10 m, 10 m/s; front vehicle at x = 64 m).
+
+    ``front_accel_mps2`` > 0 makes the front vehicle accelerate from ``front_accel_onset_s`` on, up
+    to ``front_speed_max_mps`` (it never switches sign, the paper's assumption).
+    """
+
+    ego_x_m: float = 10.0
+    ego_speed_mps: float = 10.0
+    front_x_m: float = 64.0
+    front_speed_mps: float = 25.0 / 3.6
+    front_accel_mps2: float = 0.0
+    front_accel_onset_s: float = 0.0
+    front_speed_max_mps: float = 30.0
+
+
+@dataclass(frozen=True)
+class ModelParams:
+    """Everything that defines one cell of a campaign, except the episode count and seed."""
+
+    geometry: VehicleGeometry = field(default_factory=VehicleGeometry)
+    road: Road = field(default_factory=Road)
+    ego: EgoLimits = field(default_factory=EgoLimits)
+    barrier: Barrier = field(default_factory=Barrier)
+    mpc: Mpc = field(default_factory=Mpc)
+    noise: Noise = field(default_factory=Noise)
+    sim: Simulation = field(default_factory=Simulation)
+    scenario: Scenario = field(default_factory=Scenario)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
