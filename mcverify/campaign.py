@@ -1,0 +1,435 @@
+"""Campaign files: TOML specs, validated at load, expanded into cells.
+
+A campaign file looks like::
+
+    [campaign]
+    name = "table2"
+    seed = 2024
+    episodes = 30                 # per cell
+    controller = "vlcbf"          # the dual TO-CBF-MPC
+
+    [model.barrier]               # any field of mcverify.model.ModelParams, by section
+    epsilon = 0.3
+
+    [grid]                        # cartesian product: one cell per combination
+    "scenario.front_speed_kmh" = [25, 28, 32, 36]
+
+    [reference]                   # optional: the paper's numbers, shown beside ours in report.md
+    table = "II"
+    [reference.cells."front_speed_kmh=25"]
+    overtake_time_min_s = 4.13
+
+Every problem is reported as a :class:`CampaignError` whose message names the file, the field and
+what to do; the CLI prints that one line and exits with status 2.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import itertools
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import tomllib
+
+from mcverify import barriers
+from mcverify.model import ModelParams
+
+CONTROLLERS = ("vlcbf",)
+
+#: Grid/model keys in other units, converted on load: alias -> (field, factor).
+UNIT_ALIASES: dict[str, tuple[str, float]] = {
+    "scenario.front_speed_kmh": ("scenario.front_speed_mps", 1.0 / 3.6),
+    "scenario.ego_speed_kmh": ("scenario.ego_speed_mps", 1.0 / 3.6),
+    "ego.speed_max_kmh": ("ego.speed_max_mps", 1.0 / 3.6),
+}
+
+_CAMPAIGN_KEYS = {"name", "description", "seed", "episodes", "controller", "common_random_numbers"}
+_TOP_KEYS = {"campaign", "model", "grid", "reference"}
+
+
+class CampaignError(ValueError):
+    """A campaign file or parameter is invalid; the message is one line meant for the user."""
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One combination of grid values: its own parameters, episode count and deterministic keys."""
+
+    index: int
+    name: str
+    overrides: dict[str, Any]
+    params: ModelParams
+    episodes: int
+    lambda0: float
+    epsilon: float
+    episode_offset: int = 0  # global id of this cell's episode 0 (episode ids are unique in a run)
+
+
+@dataclass(frozen=True)
+class Campaign:
+    name: str
+    description: str
+    seed: int
+    episodes_per_cell: int
+    controller: str
+    common_random_numbers: bool
+    base: ModelParams
+    grid: dict[str, list[Any]]
+    cells: tuple[Cell, ...]
+    reference: dict[str, Any] = field(default_factory=dict)
+    source: str = "<memory>"
+    raw: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def total_episodes(self) -> int:
+        return sum(c.episodes for c in self.cells)
+
+    def cell(self, name_or_index: str | int) -> Cell:
+        for c in self.cells:
+            if c.name == name_or_index or c.index == name_or_index:
+                return c
+        raise CampaignError(f"campaign {self.name!r} has no cell {name_or_index!r}")
+
+
+# --------------------------------------------------------------------------------------------- load
+
+
+def load_campaign(
+    path: str | Path, *, episodes: int | None = None, seed: int | None = None
+) -> Campaign:
+    """Read, validate and expand a campaign file; ``episodes``/``seed`` override the file's values."""
+    path = Path(path)
+    if not path.is_file():
+        raise CampaignError(f"campaign file not found: {path}")
+    try:
+        raw = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as err:
+        raise CampaignError(f"{path}: malformed TOML: {err}") from None
+    except UnicodeDecodeError:
+        raise CampaignError(f"{path}: not a text file") from None
+    return campaign_from_dict(raw, source=str(path), episodes=episodes, seed=seed)
+
+
+def campaign_from_dict(
+    raw: Mapping[str, Any],
+    *,
+    source: str = "<memory>",
+    episodes: int | None = None,
+    seed: int | None = None,
+) -> Campaign:
+    where = source
+    _check_keys(raw, _TOP_KEYS, where)
+    head = raw.get("campaign")
+    if not isinstance(head, Mapping):
+        raise CampaignError(f"{where}: missing [campaign] table (name, seed, episodes)")
+    _check_keys(head, _CAMPAIGN_KEYS, f"{where} [campaign]")
+    name = _typed(head, "name", str, f"{where} [campaign]", required=True)
+    if not name.strip():
+        raise CampaignError(f"{where} [campaign].name: must not be empty")
+    seed_v = seed if seed is not None else _typed(head, "seed", int, f"{where} [campaign]", default=0)
+    n_ep = episodes if episodes is not None else _typed(
+        head, "episodes", int, f"{where} [campaign]", required=True
+    )
+    if n_ep < 1:
+        raise CampaignError(f"{where} [campaign].episodes: must be >= 1, got {n_ep}")
+    if seed_v < 0:
+        raise CampaignError(f"{where} [campaign].seed: must be >= 0, got {seed_v}")
+    controller = _typed(head, "controller", str, f"{where} [campaign]", default="vlcbf")
+    if controller not in CONTROLLERS:
+        raise CampaignError(
+            f"{where} [campaign].controller: unknown controller {controller!r}; valid: {', '.join(CONTROLLERS)}"
+        )
+    crn = _typed(head, "common_random_numbers", bool, f"{where} [campaign]", default=False)
+
+    base = apply_overrides(ModelParams(), _flatten_model(raw.get("model", {}), where), where)
+    grid = _read_grid(raw.get("grid", {}), where)
+    cells = tuple(_expand_cells(base, grid, n_ep, where))
+    reference = raw.get("reference", {})
+    if not isinstance(reference, Mapping):
+        raise CampaignError(f"{where} [reference]: must be a table")
+    return Campaign(
+        name=name,
+        description=_typed(head, "description", str, f"{where} [campaign]", default=""),
+        seed=seed_v,
+        episodes_per_cell=n_ep,
+        controller=controller,
+        common_random_numbers=crn,
+        base=base,
+        grid=grid,
+        cells=cells,
+        reference=dict(reference),
+        source=source,
+        raw=dict(raw),
+    )
+
+
+# ------------------------------------------------------------------------------------ overrides
+
+
+def model_fields() -> dict[str, type]:
+    """Every settable ``section.field`` of ModelParams with its type, plus the unit aliases."""
+    out: dict[str, type] = {}
+    for sec in dataclasses.fields(ModelParams):
+        sub = sec.default_factory()  # type: ignore[misc]
+        for f in dataclasses.fields(sub):
+            out[f"{sec.name}.{f.name}"] = type(getattr(sub, f.name)) if getattr(sub, f.name) is not None else float
+    for alias in UNIT_ALIASES:
+        out[alias] = float
+    return out
+
+
+def apply_overrides(params: ModelParams, overrides: Mapping[str, Any], where: str) -> ModelParams:
+    """Return ``params`` with dotted ``section.field`` overrides applied, each type-checked."""
+    known = model_fields()
+    sections: dict[str, dict[str, Any]] = {}
+    for key, value in overrides.items():
+        if key not in known:
+            raise CampaignError(f"{where}: unknown model field {key!r}{_suggest(key, known)}")
+        value = _coerce(value, known[key], f"{where}: {key}")
+        if key in UNIT_ALIASES:
+            key, factor = UNIT_ALIASES[key]
+            value = value * factor
+        sec, name = key.split(".", 1)
+        sections.setdefault(sec, {})[name] = value
+    barrier = sections.get("barrier", {})
+    if "lambda0" in barrier and "epsilon" in barrier:
+        raise CampaignError(f"{where}: set barrier.epsilon or barrier.lambda0, not both (one defines the other)")
+    # The level is given one way or the other: setting one clears the other's inherited value.
+    if "lambda0" in barrier:
+        barrier["epsilon"] = None
+    elif "epsilon" in barrier:
+        barrier["lambda0"] = None
+    new = params
+    for sec, values in sections.items():
+        new = dataclasses.replace(new, **{sec: dataclasses.replace(getattr(new, sec), **values)})
+    validate_params(new, where)
+    return new
+
+
+def validate_params(p: ModelParams, where: str) -> None:
+    """Reject impossible parameter combinations with a message naming the field."""
+
+    def bad(key: str, why: str) -> CampaignError:
+        return CampaignError(f"{where}: {key}: {why}")
+
+    e, b, m, n, s, sc = p.ego, p.barrier, p.mpc, p.noise, p.sim, p.scenario
+    positive = {
+        "geometry.length_m": p.geometry.length_m,
+        "geometry.width_m": p.geometry.width_m,
+        "road.lane_width_m": p.road.lane_width_m,
+        "ego.accel_max_mps2": e.accel_max_mps2,
+        "ego.slip_max_rad": e.slip_max_rad,
+        "ego.speed_max_mps": e.speed_max_mps,
+        "ego.heading_max_rad": e.heading_max_rad,
+        "ego.l_r_m": e.l_r_m,
+        "barrier.ellipse_a_m": b.ellipse_a_m,
+        "barrier.ellipse_b_m": b.ellipse_b_m,
+        "mpc.dt_max_s": m.dt_max_s,
+        "mpc.dt_min_s": m.dt_min_s,
+        "mpc.eps_y_m": m.eps_y_m,
+        "mpc.tol": m.tol,
+        "sim.control_period_s": s.control_period_s,
+        "sim.max_time_s": s.max_time_s,
+    }
+    for key, v in positive.items():
+        if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
+            raise bad(key, f"must be a finite number > 0, got {v!r}")
+    nonneg = {
+        "mpc.phi_s": m.phi_s,
+        "mpc.smooth_weight": m.smooth_weight,
+        "noise.pos_far_m": n.pos_far_m,
+        "noise.pos_near_m": n.pos_near_m,
+        "noise.near_threshold_m": n.near_threshold_m,
+        "noise.speed_rel": n.speed_rel,
+        "noise.scale": n.scale,
+        "scenario.ego_speed_mps": sc.ego_speed_mps,
+        "scenario.front_speed_mps": sc.front_speed_mps,
+        "scenario.front_accel_onset_s": sc.front_accel_onset_s,
+        "scenario.front_speed_max_mps": sc.front_speed_max_mps,
+        "ego.speed_min_mps": e.speed_min_mps,
+    }
+    for key, v in nonneg.items():
+        if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
+            raise bad(key, f"must be a finite number >= 0, got {v!r}")
+    if e.accel_min_mps2 >= 0:
+        raise bad("ego.accel_min_mps2", f"must be < 0 (braking), got {e.accel_min_mps2}")
+    if e.y_min_m >= e.y_max_m:
+        raise bad("ego.y_min_m", f"must be below ego.y_max_m ({e.y_max_m}), got {e.y_min_m}")
+    if m.dt_min_s >= m.dt_max_s:
+        raise bad("mpc.dt_min_s", f"must be below mpc.dt_max_s ({m.dt_max_s}), got {m.dt_min_s}")
+    if m.horizon < 2:
+        raise bad("mpc.horizon", f"must be >= 2, got {m.horizon}")
+    if m.max_iter < 1:
+        raise bad("mpc.max_iter", f"must be >= 1, got {m.max_iter}")
+    if s.substeps < 1:
+        raise bad("sim.substeps", f"must be >= 1, got {s.substeps}")
+    if s.max_time_s < s.control_period_s:
+        raise bad("sim.max_time_s", "must be at least one control period")
+    if n.kind not in ("paper", "none"):
+        raise bad("noise.kind", f"unknown noise model {n.kind!r}; valid: paper, none")
+    if not b.lambdas_m or any(not (isinstance(x, int | float) and x > 0) for x in b.lambdas_m):
+        raise bad("barrier.lambdas_m", f"needs one or more values, all > 0, got {list(b.lambdas_m)!r}")
+    if (b.epsilon is None) == (b.lambda0 is None):
+        raise bad("barrier.epsilon", "set exactly one of barrier.epsilon and barrier.lambda0")
+    if b.epsilon is not None and not (math.isfinite(b.epsilon) and b.epsilon >= 0):
+        raise bad("barrier.epsilon", f"must be >= 0 (the level eps of the VL-CBF), got {b.epsilon}")
+    if b.lambda0 is not None and not (math.isfinite(b.lambda0) and b.lambda0 <= 0):
+        raise bad("barrier.lambda0", f"must be <= 0 (Theorem 2 needs lambda_0 <= 0), got {b.lambda0}")
+    if not (e.speed_min_mps <= sc.ego_speed_mps <= e.speed_max_mps):
+        raise bad(
+            "scenario.ego_speed_mps",
+            f"{sc.ego_speed_mps:.3f} m/s is outside the ego speed range "
+            f"[{e.speed_min_mps}, {e.speed_max_mps}] m/s",
+        )
+    if sc.front_speed_mps > sc.front_speed_max_mps:
+        raise bad(
+            "scenario.front_speed_mps",
+            f"{sc.front_speed_mps:.3f} m/s is above scenario.front_speed_max_mps ({sc.front_speed_max_mps})",
+        )
+    if sc.front_x_m <= sc.ego_x_m:
+        raise bad("scenario.front_x_m", f"the front vehicle must start ahead of the ego (x > {sc.ego_x_m})")
+    eps = level_epsilon(p)
+    h0 = ((sc.ego_x_m - sc.front_x_m) / b.ellipse_a_m) ** 2 - 1.0
+    if h0 < eps:
+        raise bad(
+            "scenario.front_x_m",
+            f"infeasible scenario: the ego starts inside the level set h >= eps of the front "
+            f"vehicle's ellipse (h0 = {h0:.3f} < eps = {eps:.3f}); start further behind",
+        )
+
+
+def level_epsilon(p: ModelParams) -> float:
+    b = p.barrier
+    if b.epsilon is not None:
+        return float(b.epsilon)
+    return barriers.epsilon_from_lambda0_np(b.lambdas_m, float(b.lambda0))
+
+
+def level_lambda0(p: ModelParams) -> float:
+    b = p.barrier
+    if b.lambda0 is not None:
+        return float(b.lambda0)
+    return barriers.lambda0_from_epsilon_np(b.lambdas_m, float(b.epsilon))
+
+
+# ------------------------------------------------------------------------------------- helpers
+
+
+def _flatten_model(model: Any, where: str) -> dict[str, Any]:
+    if not isinstance(model, Mapping):
+        raise CampaignError(f"{where} [model]: must be a table of sections, e.g. [model.barrier]")
+    sections = {f.name for f in dataclasses.fields(ModelParams)}
+    flat: dict[str, Any] = {}
+    for sec, values in model.items():
+        if sec not in sections:
+            raise CampaignError(f"{where}: unknown model section [model.{sec}]{_suggest(sec, sections)}")
+        if not isinstance(values, Mapping):
+            raise CampaignError(f"{where} [model.{sec}]: must be a table")
+        for k, v in values.items():
+            flat[f"{sec}.{k}"] = v
+    return flat
+
+
+def _read_grid(grid: Any, where: str) -> dict[str, list[Any]]:
+    if not isinstance(grid, Mapping):
+        raise CampaignError(f"{where} [grid]: must be a table of 'section.field' = [values]")
+    known = model_fields()
+    out: dict[str, list[Any]] = {}
+    for key, values in grid.items():
+        if key not in known:
+            raise CampaignError(f"{where} [grid]: unknown field {key!r}{_suggest(key, known)}")
+        if not isinstance(values, list) or not values:
+            raise CampaignError(f"{where} [grid].{key}: must be a non-empty list of values")
+        out[key] = list(values)
+    return out
+
+
+def _expand_cells(base: ModelParams, grid: dict[str, list[Any]], episodes: int, where: str):
+    keys = list(grid)
+    combos = itertools.product(*(grid[k] for k in keys)) if keys else [()]
+    names: set[str] = set()
+    for index, combo in enumerate(combos):
+        overrides = dict(zip(keys, combo, strict=True))
+        name = ",".join(f"{k.split('.', 1)[1]}={_fmt(v)}" for k, v in overrides.items()) or "all"
+        if name in names:
+            raise CampaignError(f"{where} [grid]: duplicate cell {name!r}; grid values must be distinct")
+        names.add(name)
+        params = apply_overrides(base, overrides, f"{where} cell {name!r}")
+        yield Cell(
+            episode_offset=index * episodes,
+            index=index,
+            name=name,
+            overrides=overrides,
+            params=params,
+            episodes=episodes,
+            lambda0=level_lambda0(params),
+            epsilon=level_epsilon(params),
+        )
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, float) and v.is_integer():
+        return str(int(v))
+    if isinstance(v, list):
+        return "[" + ",".join(_fmt(x) for x in v) + "]"
+    return str(v)
+
+
+def _coerce(value: Any, expected: type, where: str) -> Any:
+    if expected is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise CampaignError(f"{where}: expected a number, got {type(value).__name__} {value!r}")
+        return float(value)
+    if expected is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise CampaignError(f"{where}: expected an integer, got {type(value).__name__} {value!r}")
+        return value
+    if expected is tuple:
+        if not isinstance(value, list) or any(
+            isinstance(x, bool) or not isinstance(x, int | float) for x in value
+        ):
+            raise CampaignError(f"{where}: expected a list of numbers, got {value!r}")
+        return tuple(float(x) for x in value)
+    if not isinstance(value, expected):
+        raise CampaignError(
+            f"{where}: expected {expected.__name__}, got {type(value).__name__} {value!r}"
+        )
+    return value
+
+
+def _typed(
+    table: Mapping[str, Any],
+    key: str,
+    expected: type,
+    where: str,
+    *,
+    required: bool = False,
+    default: Any = None,
+) -> Any:
+    if key not in table:
+        if required:
+            raise CampaignError(f"{where}: missing required field {key!r}")
+        return default
+    value = table[key]
+    ok = isinstance(value, expected) and not (expected is int and isinstance(value, bool))
+    if not ok:
+        raise CampaignError(
+            f"{where}.{key}: expected {expected.__name__}, got {type(value).__name__} {value!r}"
+        )
+    return value
+
+
+def _check_keys(table: Mapping[str, Any], valid: set[str], where: str) -> None:
+    for key in table:
+        if key not in valid:
+            raise CampaignError(f"{where}: unknown key {key!r}{_suggest(key, valid)}")
+
+
+def _suggest(key: str, valid) -> str:
+    close = difflib.get_close_matches(key, list(valid), n=1, cutoff=0.5)
+    return f" (did you mean {close[0]!r}?)" if close else ""

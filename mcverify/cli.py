@@ -1,0 +1,155 @@
+"""The ``mcverify`` command line.
+
+Every user error (bad campaign, missing run folder, bad argument) ends with one line on stderr and
+exit status 2; a replay that does not reproduce exits with status 1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+EXIT_USAGE = 2
+EXIT_MISMATCH = 1
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = _parser()
+    args = parser.parse_args(argv)
+    if not hasattr(args, "func"):
+        parser.print_help()
+        return EXIT_USAGE
+    from mcverify.campaign import CampaignError
+    from mcverify.store import RunError
+
+    try:
+        return args.func(args) or 0
+    except (CampaignError, RunError) as err:
+        print(f"mcverify: error: {err}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print("mcverify: interrupted; finished chunks are kept (mcverify run --resume RUN_DIR)", file=sys.stderr)
+        return 130
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="mcverify", description=__doc__.splitlines()[0])
+    sub = p.add_subparsers(metavar="COMMAND")
+
+    run = sub.add_parser("run", help="run a campaign into a run folder")
+    run.add_argument("campaign", nargs="?", type=Path, help="campaign TOML file")
+    run.add_argument("--episodes", type=_positive_int, help="episodes per cell (overrides the file)")
+    run.add_argument("--seed", type=_nonneg_int, help="campaign seed (overrides the file)")
+    run.add_argument("--out", type=Path, help="run folder (default: results/<name>-<timestamp>)")
+    run.add_argument("--workers", type=_positive_int, default=None, help="worker processes (default: cores)")
+    run.add_argument("--chunk-size", type=_positive_int, default=8, help="episodes per vmapped chunk")
+    run.add_argument("--resume", type=Path, metavar="RUN_DIR", help="finish an interrupted run")
+    run.add_argument("--no-progress", action="store_true", help="no progress bar")
+    run.set_defaults(func=_cmd_run)
+
+    rep = sub.add_parser("replay", help="re-simulate one stored episode and write its trajectory")
+    rep.add_argument("run_dir", type=Path)
+    rep.add_argument("episode_id", type=_nonneg_int)
+    rep.add_argument("--out", type=Path, help="folder for the trajectory and plot (default: RUN_DIR/replay)")
+    rep.set_defaults(func=_cmd_replay)
+
+    rpt = sub.add_parser("report", help="regenerate summary.json and report.md from stored data")
+    rpt.add_argument("run_dir", type=Path)
+    rpt.set_defaults(func=_cmd_report)
+
+    ker = sub.add_parser("kernels", help="the compiled-solver cache")
+    ksub = ker.add_subparsers(metavar="ACTION")
+    kl = ksub.add_parser("list", help="list cached kernels")
+    kl.set_defaults(func=_cmd_kernels_list)
+    kc = ksub.add_parser("clear", help="delete cached kernels")
+    kc.set_defaults(func=_cmd_kernels_clear)
+    return p
+
+
+def _cmd_run(args) -> int:
+    from mcverify import executors, runner
+    from mcverify.campaign import CampaignError, load_campaign
+
+    workers = args.workers or executors.default_workers()
+    progress = not args.no_progress
+    if args.resume:
+        if args.campaign:
+            raise CampaignError("give either a campaign file or --resume RUN_DIR, not both")
+        path = runner.resume(args.resume, workers=workers, progress=progress)
+    else:
+        if args.campaign is None:
+            raise CampaignError("missing campaign file, e.g. `mcverify run campaigns/smoke.toml`")
+        campaign = load_campaign(args.campaign, episodes=args.episodes, seed=args.seed)
+        out = args.out or runner.default_run_dir(campaign)
+        print(runner.describe(campaign), file=sys.stderr)
+        print(f"run folder: {out}", file=sys.stderr)
+        path = runner.run(campaign, out, workers=workers, chunk_size=args.chunk_size, progress=progress)
+    print(path.read_text())
+    print(f"report: {path}", file=sys.stderr)
+    return 0
+
+
+def _cmd_replay(args) -> int:
+    from mcverify.replay import ReplayMismatch, replay
+
+    try:
+        res = replay(args.run_dir, args.episode_id, args.out)
+    except ReplayMismatch as err:
+        print(f"mcverify: replay FAILED: {err}", file=sys.stderr)
+        return EXIT_MISMATCH
+    print(f"episode {res.episode_id} reproduced exactly ({res.row['outcome']}, safe={res.row['safe']})")
+    print(f"trajectory: {res.trajectory_path}")
+    print(f"plot: {res.plot_path}")
+    return 0
+
+
+def _cmd_report(args) -> int:
+    from mcverify import report
+
+    path = report.write(args.run_dir)
+    print(f"report: {path}")
+    return 0
+
+
+def _cmd_kernels_list(args) -> int:
+    from mcverify import kernels
+
+    rows = kernels.list_kernels()
+    if not rows:
+        print("no cached kernels")
+    for r in rows:
+        print("  ".join(f"{k}={v}" for k, v in r.items()))
+    return 0
+
+
+def _cmd_kernels_clear(args) -> int:
+    from mcverify import kernels
+
+    print(f"removed {kernels.clear_kernels()} kernel(s)")
+    return 0
+
+
+def _positive_int(text: str) -> int:
+    value = _int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
+    return value
+
+
+def _nonneg_int(text: str) -> int:
+    value = _int(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
+    return value
+
+
+def _int(text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,76 @@
+"""Perception noise of the paper's Sec. VI-A and the per-step random keys that drive it.
+
+Key discipline: every draw is a pure function of (episode key, step index, stream), obtained with
+``jax.random.fold_in`` (:func:`step_key`). It never depends on which other episodes share a
+batch, on the batch size, or on how many draws earlier steps made, so replaying one episode alone
+reproduces its noise exactly. Streams separate independent uses within a step (e.g. stream 0 for
+the front vehicle's measurement); callers own the stream numbering.
+"""
+
+from __future__ import annotations
+
+from typing import TypeAlias
+
+import jax
+import jax.numpy as jnp
+
+from mcverify.model import Noise
+
+Array: TypeAlias = jax.Array
+ArrayLike: TypeAlias = jax.typing.ArrayLike
+
+#: The noise models :func:`measure_vehicle` knows.
+NOISE_KINDS: tuple[str, ...] = ("paper", "none")
+
+
+def step_key(episode_key: Array, step_index: ArrayLike, stream: ArrayLike) -> Array:
+    """The key for draw ``stream`` at control step ``step_index`` of one episode.
+
+    ``fold_in(fold_in(episode_key, stream), step_index)``: a pure function of its three
+    arguments (each may be traced), independent of batch composition.
+
+    Args:
+        episode_key: the episode's root PRNG key (as from ``jax.random.PRNGKey``/``fold_in``).
+        step_index: control step, integer scalar >= 0.
+        stream: which independent use within the step, integer scalar >= 0.
+    """
+    return jax.random.fold_in(jax.random.fold_in(episode_key, stream), step_index)
+
+
+def measure_vehicle(
+    key: Array,
+    true_x_m: ArrayLike,
+    true_y_m: ArrayLike,
+    true_speed_mps: ArrayLike,
+    gap_m: ArrayLike,
+    noise: Noise,
+) -> tuple[Array, Array, Array]:
+    """What the planner measures of another vehicle (paper Sec. VI-A).
+
+    kind "paper": x and y each get independent uniform noise in +-pos_far_m when ``gap_m`` (the
+    footprint gap to that vehicle, m) exceeds ``near_threshold_m``, else +-pos_near_m; the speed
+    gets uniform noise in +-speed_rel * |true speed|. ``noise.scale`` multiplies all three
+    half-widths. kind "none": the true values, exactly.
+
+    Args:
+        key: this draw's key (see :func:`step_key`).
+        true_x_m, true_y_m, true_speed_mps, gap_m: scalars (m, m, m/s, m).
+        noise: the noise model; static (the kind selects the code path at trace time).
+
+    Returns:
+        (x_m, y_m, speed_mps) measured, scalars.
+
+    Raises:
+        ValueError: for a kind not in :data:`NOISE_KINDS`.
+    """
+    x = jnp.asarray(true_x_m, dtype=float)
+    y = jnp.asarray(true_y_m, dtype=float)
+    v = jnp.asarray(true_speed_mps, dtype=float)
+    if noise.kind == "none":
+        return x, y, v
+    if noise.kind != "paper":
+        raise ValueError(f"unknown noise kind {noise.kind!r}; valid kinds: {', '.join(NOISE_KINDS)}")
+    unit = jax.random.uniform(key, (3,), dtype=float, minval=-1.0, maxval=1.0)
+    pos_half_m = noise.scale * jnp.where(gap_m > noise.near_threshold_m, noise.pos_far_m, noise.pos_near_m)
+    speed_half_mps = noise.scale * noise.speed_rel * jnp.abs(v)
+    return x + pos_half_m * unit[0], y + pos_half_m * unit[1], v + speed_half_mps * unit[2]
