@@ -6,13 +6,18 @@ A campaign file looks like::
     name = "table2"
     seed = 2024
     episodes = 30                 # per cell
-    controller = "vlcbf"          # the dual TO-CBF-MPC
 
     [model.barrier]               # any field of mcverify.model.ModelParams, by section
     epsilon = 0.3
 
-    [grid]                        # cartesian product: one cell per combination
+    [grid]                        # one axis per field: cells are the cartesian product
     "scenario.front_speed_kmh" = [25, 28, 32, 36]
+
+    [axes.method."MPC-DC"]        # a named axis whose values are bundles of overrides
+    "mpc.controller" = "mpcdc"
+    [axes.method."VL-CBF eps=0.3"]
+    "barrier.epsilon" = 0.3
+    episodes = 60                 # a bundle may set its cells' episode count
 
     [reference]                   # optional: the paper's numbers, shown beside ours in report.md
     table = "II"
@@ -39,7 +44,9 @@ import tomllib
 from mcverify import barriers
 from mcverify.model import ModelParams
 
-CONTROLLERS = ("vlcbf",)
+CONTROLLERS = ("vlcbf", "mpcdc")
+BACKENDS = ("ipopt",)
+OPPOSING_KINDS = ("none", "autonomous", "human")
 
 #: Grid/model keys in other units, converted on load: alias -> (field, factor).
 UNIT_ALIASES: dict[str, tuple[str, float]] = {
@@ -48,8 +55,8 @@ UNIT_ALIASES: dict[str, tuple[str, float]] = {
     "ego.speed_max_kmh": ("ego.speed_max_mps", 1.0 / 3.6),
 }
 
-_CAMPAIGN_KEYS = {"name", "description", "seed", "episodes", "controller", "common_random_numbers"}
-_TOP_KEYS = {"campaign", "model", "grid", "reference"}
+_CAMPAIGN_KEYS = {"name", "description", "seed", "episodes", "common_random_numbers"}
+_TOP_KEYS = {"campaign", "model", "grid", "axes", "reference"}
 
 
 class CampaignError(ValueError):
@@ -62,12 +69,17 @@ class Cell:
 
     index: int
     name: str
-    overrides: dict[str, Any]
+    overrides: dict[str, Any]  # every model override of this cell (axes' bundles and grid values)
     params: ModelParams
     episodes: int
     lambda0: float
     epsilon: float
     episode_offset: int = 0  # global id of this cell's episode 0 (episode ids are unique in a run)
+    labels: dict[str, str] = field(default_factory=dict)  # axis -> value label, e.g. {"method": "MPC-DC"}
+
+    @property
+    def controller(self) -> str:
+        return self.params.mpc.controller
 
 
 @dataclass(frozen=True)
@@ -76,11 +88,11 @@ class Campaign:
     description: str
     seed: int
     episodes_per_cell: int
-    controller: str
     common_random_numbers: bool
     base: ModelParams
     grid: dict[str, list[Any]]
     cells: tuple[Cell, ...]
+    axes: dict[str, dict[str, dict[str, Any]]] = field(default_factory=dict)
     reference: dict[str, Any] = field(default_factory=dict)
     source: str = "<memory>"
     raw: dict[str, Any] = field(default_factory=dict)
@@ -139,16 +151,12 @@ def campaign_from_dict(
         raise CampaignError(f"{where} [campaign].episodes: must be >= 1, got {n_ep}")
     if seed_v < 0:
         raise CampaignError(f"{where} [campaign].seed: must be >= 0, got {seed_v}")
-    controller = _typed(head, "controller", str, f"{where} [campaign]", default="vlcbf")
-    if controller not in CONTROLLERS:
-        raise CampaignError(
-            f"{where} [campaign].controller: unknown controller {controller!r}; valid: {', '.join(CONTROLLERS)}"
-        )
     crn = _typed(head, "common_random_numbers", bool, f"{where} [campaign]", default=False)
 
     base = apply_overrides(ModelParams(), _flatten_model(raw.get("model", {}), where), where)
     grid = _read_grid(raw.get("grid", {}), where)
-    cells = tuple(_expand_cells(base, grid, n_ep, where))
+    axes = _read_axes(raw.get("axes", {}), where)
+    cells = tuple(_expand_cells(base, axes, grid, n_ep, where, episodes_forced=episodes is not None))
     reference = raw.get("reference", {})
     if not isinstance(reference, Mapping):
         raise CampaignError(f"{where} [reference]: must be a table")
@@ -157,11 +165,11 @@ def campaign_from_dict(
         description=_typed(head, "description", str, f"{where} [campaign]", default=""),
         seed=seed_v,
         episodes_per_cell=n_ep,
-        controller=controller,
         common_random_numbers=crn,
         base=base,
         grid=grid,
         cells=cells,
+        axes=axes,
         reference=dict(reference),
         source=source,
         raw=dict(raw),
@@ -270,6 +278,10 @@ def validate_params(p: ModelParams, where: str) -> None:
         raise bad("sim.substeps", f"must be >= 1, got {s.substeps}")
     if s.max_time_s < s.control_period_s:
         raise bad("sim.max_time_s", "must be at least one control period")
+    if m.controller not in CONTROLLERS:
+        raise bad("mpc.controller", f"unknown controller {m.controller!r}; valid: {', '.join(CONTROLLERS)}")
+    if m.backend not in BACKENDS:
+        raise bad("mpc.backend", f"unknown solver backend {m.backend!r}; valid: {', '.join(BACKENDS)}")
     if n.kind not in ("paper", "none"):
         raise bad("noise.kind", f"unknown noise model {n.kind!r}; valid: paper, none")
     if not b.lambdas_m or any(not (isinstance(x, int | float) and x > 0) for x in b.lambdas_m):
@@ -293,6 +305,7 @@ def validate_params(p: ModelParams, where: str) -> None:
         )
     if sc.front_x_m <= sc.ego_x_m:
         raise bad("scenario.front_x_m", f"the front vehicle must start ahead of the ego (x > {sc.ego_x_m})")
+    _validate_front_and_opposing(p, bad)
     eps = level_epsilon(p)
     h0 = ((sc.ego_x_m - sc.front_x_m) / b.ellipse_a_m) ** 2 - 1.0
     if h0 < eps:
@@ -301,6 +314,41 @@ def validate_params(p: ModelParams, where: str) -> None:
             f"infeasible scenario: the ego starts inside the level set h >= eps of the front "
             f"vehicle's ellipse (h0 = {h0:.3f} < eps = {eps:.3f}); start further behind",
         )
+
+
+def _validate_front_and_opposing(p: ModelParams, bad) -> None:
+    b, sc, o = p.barrier, p.scenario, p.opposing
+    rng = sc.front_accel_range_mps2
+    if rng and (len(rng) != 2 or not (0 <= rng[0] < rng[1]) or not all(math.isfinite(x) for x in rng)):
+        raise bad("scenario.front_accel_range_mps2",
+                  f"must be [lo, hi] with 0 <= lo < hi (alpha_f is drawn in (lo, hi]), got {list(rng)!r}")
+    if sc.front_accel_mps2 < 0:
+        raise bad("scenario.front_accel_mps2", f"must be >= 0 (the front vehicle never switches sign), got "
+                  f"{sc.front_accel_mps2}")
+    if not (math.isfinite(b.decel_max_mps2) and b.decel_max_mps2 > 0):
+        raise bad("barrier.decel_max_mps2", f"must be > 0 (a_l of h_eo), got {b.decel_max_mps2}")
+    if not (math.isfinite(b.opp_epsilon_m) and b.opp_epsilon_m >= 0):
+        raise bad("barrier.opp_epsilon_m", f"must be >= 0 (the level of h_eo, m), got {b.opp_epsilon_m}")
+    for key, lam in (("barrier.opp_lambdas_m", b.opp_lambdas_m), ("opposing.lambdas_m", o.lambdas_m)):
+        if not lam or any(not (isinstance(x, int | float) and x > 0) for x in lam):
+            raise bad(key, f"needs one or more values, all > 0, got {list(lam)!r}")
+    if o.kind not in OPPOSING_KINDS:
+        raise bad("opposing.kind", f"unknown opposing vehicle {o.kind!r}; valid: {', '.join(OPPOSING_KINDS)}")
+    for key in ("speed_mps", "accel_mps2", "epsilon_m"):
+        v = getattr(o, key)
+        if not (math.isfinite(v) and v >= 0):
+            raise bad(f"opposing.{key}", f"must be a finite number >= 0, got {v!r}")
+    for key in ("speed_limit_mps", "accel_max_mps2", "brake_max_mps2", "cruise_gain_per_s", "detect_range_m"):
+        v = getattr(o, key)
+        if not (math.isfinite(v) and v > 0):
+            raise bad(f"opposing.{key}", f"must be a finite number > 0, got {v!r}")
+    if o.kind != "none":
+        if o.speed_mps > o.speed_limit_mps:
+            raise bad("opposing.speed_mps", f"{o.speed_mps:.3f} m/s is above opposing.speed_limit_mps "
+                      f"({o.speed_limit_mps})")
+        if o.x_m <= sc.front_x_m:
+            raise bad("opposing.x_m", f"the opposing vehicle must start ahead of the front vehicle "
+                      f"(x > {sc.front_x_m}), got {o.x_m}")
 
 
 def level_epsilon(p: ModelParams) -> float:
@@ -349,27 +397,81 @@ def _read_grid(grid: Any, where: str) -> dict[str, list[Any]]:
     return out
 
 
-def _expand_cells(base: ModelParams, grid: dict[str, list[Any]], episodes: int, where: str):
-    keys = list(grid)
-    combos = itertools.product(*(grid[k] for k in keys)) if keys else [()]
+def _read_axes(axes: Any, where: str) -> dict[str, dict[str, dict[str, Any]]]:
+    """``[axes.<axis>.<label>]`` tables: each label a bundle of dotted model overrides (and
+    optionally ``episodes``). Checked here; values are applied per cell."""
+    if not isinstance(axes, Mapping):
+        raise CampaignError(f"{where} [axes]: must be a table of axes, e.g. [axes.method.\"MPC-DC\"]")
+    known = model_fields()
+    out: dict[str, dict[str, dict[str, Any]]] = {}
+    for axis, labels in axes.items():
+        if not isinstance(labels, Mapping) or not labels:
+            raise CampaignError(f"{where} [axes.{axis}]: must hold one or more tables, e.g. [axes.{axis}.A]")
+        out[axis] = {}
+        for label, bundle in labels.items():
+            here = f"{where} [axes.{axis}.{label}]"
+            if not isinstance(bundle, Mapping):
+                raise CampaignError(f"{here}: must be a table of 'section.field' = value")
+            for key, value in bundle.items():
+                if key == "episodes":
+                    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                        raise CampaignError(f"{here}.episodes: must be an integer >= 1, got {value!r}")
+                elif key not in known:
+                    raise CampaignError(f"{here}: unknown field {key!r}{_suggest(key, list(known) + ['episodes'])}")
+            out[axis][str(label)] = dict(bundle)
+    return out
+
+
+def _expand_cells(
+    base: ModelParams,
+    axes: dict[str, dict[str, dict[str, Any]]],
+    grid: dict[str, list[Any]],
+    episodes: int,
+    where: str,
+    *,
+    episodes_forced: bool = False,
+):
+    """Cells: the product of the axes (in file order) and then the grid fields.
+
+    Episode ids are unique in a run: cell k's episode 0 has id sum of the earlier cells' counts.
+    ``episodes_forced`` (the CLI's --episodes) overrides any bundle's own ``episodes``.
+    """
+    dims: list[list[tuple[str, str, dict[str, Any]]]] = []
+    for axis, labels in axes.items():
+        dims.append([(axis, label, bundle) for label, bundle in labels.items()])
+    for key, values in grid.items():
+        dims.append([(key.split(".", 1)[1], _fmt(v), {key: v}) for v in values])
     names: set[str] = set()
-    for index, combo in enumerate(combos):
-        overrides = dict(zip(keys, combo, strict=True))
-        name = ",".join(f"{k.split('.', 1)[1]}={_fmt(v)}" for k, v in overrides.items()) or "all"
+    offset = 0
+    for index, combo in enumerate(itertools.product(*dims)):
+        labels = {axis: label for axis, label, _ in combo}
+        overrides: dict[str, Any] = {}
+        n_ep = episodes
+        for axis, _, bundle in combo:
+            for key, value in bundle.items():
+                if key == "episodes":
+                    n_ep = episodes if episodes_forced else value
+                    continue
+                if key in overrides:
+                    raise CampaignError(f"{where}: cell {labels!r} sets {key!r} twice (axis {axis!r} and another)")
+                overrides[key] = value
+        name = ",".join(f"{axis}={label}" for axis, label in labels.items()) or "all"
         if name in names:
-            raise CampaignError(f"{where} [grid]: duplicate cell {name!r}; grid values must be distinct")
+            raise CampaignError(f"{where}: duplicate cell {name!r}; grid values and axis labels must be distinct")
         names.add(name)
         params = apply_overrides(base, overrides, f"{where} cell {name!r}")
         yield Cell(
-            episode_offset=index * episodes,
+            episode_offset=offset,
             index=index,
             name=name,
             overrides=overrides,
             params=params,
-            episodes=episodes,
+            episodes=n_ep,
             lambda0=level_lambda0(params),
             epsilon=level_epsilon(params),
+            labels=labels,
         )
+        offset += n_ep
 
 
 def _fmt(v: Any) -> str:

@@ -72,6 +72,13 @@ class Barrier:
 
     ``lambdas_m`` are (lambda_1, ..., lambda_m), all > 0, so kappa~(h) = sum lambda_i h^(2i-1) is class K_e.
     The level is either ``epsilon`` (then lambda_0 = -kappa~(epsilon)) or ``lambda0`` directly.
+
+    Opposing vehicle (eq.two_way_value_function_e): h_eo = x_o - x_e - (v_e - v_o)^2 / (2 a_l) (m)
+    with a_l = ``decel_max_mps2``, the ego's own Lambda_eo = [-kappa~_eo(opp_epsilon_m),
+    opp_lambdas_m...] (kappa~_eo(h) = sum lambda_i h^(2i-1), h in metres, so lambda_1 is in 1/s).
+    The paper gives neither a_l nor Lambda_eo: a_l = 6 m/s^2 is the ego's braking limit, the
+    level 1 m keeps a metre of stopping margin, and the linear kappa~ (m = 1) keeps the constraint
+    well scaled when h_eo is tens of metres.
     """
 
     ellipse_a_m: float = math.sqrt(2.0) * 4.885
@@ -79,6 +86,9 @@ class Barrier:
     lambdas_m: tuple[float, ...] = (1.0, 0.5)
     epsilon: float | None = 0.3
     lambda0: float | None = None
+    decel_max_mps2: float = 6.0
+    opp_lambdas_m: tuple[float, ...] = (1.0,)
+    opp_epsilon_m: float = 1.0
 
     @property
     def order_m(self) -> int:
@@ -95,8 +105,15 @@ class Mpc:
     resolution"), the lateral goal tolerance ``eps_y_m`` (eq.tompc_y), and a small input-smoothing
     weight (the paper's Remark after eq.tompc allows it; it does not touch the safety constraints and
     makes the time-optimal problem well conditioned).
+
+    ``controller``: "vlcbf" (the paper's dual TO-CBF-MPC, Q1 and Q2 with VL-CBF constraints) or
+    "mpcdc" (the Sec. VI-D baseline: the same time-optimal MPC and horizon with the ellipses as
+    distance constraints at the nodes, no Q2 backup). ``backend``: the NLP solver ("ipopt", the
+    reference).
     """
 
+    controller: str = "vlcbf"
+    backend: str = "ipopt"
     horizon: int = 50
     dt_max_s: float = 0.3
     dt_min_s: float = 1e-4
@@ -147,6 +164,8 @@ class Scenario:
 
     ``front_accel_mps2`` > 0 makes the front vehicle accelerate from ``front_accel_onset_s`` on, up
     to ``front_speed_max_mps`` (it never switches sign, the paper's assumption).
+    ``front_accel_range_mps2`` = (lo, hi), when given, replaces it: every episode draws its own
+    alpha_f uniformly in (lo, hi] from its key (the paper's Table III ranges (1,3], (3,5], (5,7]).
     """
 
     ego_x_m: float = 10.0
@@ -154,8 +173,43 @@ class Scenario:
     front_x_m: float = 64.0
     front_speed_mps: float = 25.0 / 3.6
     front_accel_mps2: float = 0.0
+    front_accel_range_mps2: tuple[float, ...] = ()
     front_accel_onset_s: float = 0.0
     front_speed_max_mps: float = 30.0
+
+
+@dataclass(frozen=True)
+class Opposing:
+    """The opposing vehicle veh_o: a double integrator (eq.double_integrator) on the opposing lane
+    centre, driving towards -x (its road-frame velocity is -speed).
+
+    ``kind``:
+    * "none": no opposing vehicle (Table II);
+    * "autonomous": a cruise law alpha = ``cruise_gain_per_s`` (speed_mps - speed) filtered by its
+      own VL-CBF on h_oe (eq.tompcAdd_cbf_oe) with Lambda_o = [-kappa~_o(``epsilon_m``),
+      ``lambdas_m``...], solved exactly at every control step; its parameters are known to the
+      ego (the paper's "via communications"), so the planner predicts it with the same law;
+    * "human": accelerates towards ``speed_limit_mps`` at ``accel_mps2`` (the paper's Case 2 uses
+      1.6 m/s^2; 0 = constant speed, Table IV). The planner does not know this law and predicts the
+      worst case: ``accel_max_mps2`` towards the ego, capped at ``speed_limit_mps`` (Sec. V-C).
+
+    ``x_m``: initial c.g. position; ``speed_mps`` >= 0: initial (and cruise) speed magnitude;
+    ``detect_range_m``: the ego's sensors see veh_o (and Algorithm 1 adds eq.tompcAdd) once the
+    longitudinal distance x_o - x_e is below it; ``brake_max_mps2``: the largest deceleration of
+    veh_o (its CBF filter is clipped to it).
+    """
+
+    kind: str = "none"
+    x_m: float = 250.0
+    speed_mps: float = 15.0
+    accel_mps2: float = 0.0
+    speed_limit_mps: float = 19.4
+    accel_max_mps2: float = 3.0
+    brake_max_mps2: float = 6.0
+    cruise_gain_per_s: float = 1.0
+    lambdas_m: tuple[float, ...] = (1.0,)
+    epsilon_m: float = 1.0
+    detect_range_m: float = 200.0
 
 
 @dataclass(frozen=True)
@@ -170,6 +224,7 @@ class ModelParams:
     noise: Noise = field(default_factory=Noise)
     sim: Simulation = field(default_factory=Simulation)
     scenario: Scenario = field(default_factory=Scenario)
+    opposing: Opposing = field(default_factory=Opposing)
 
     def to_dict(self) -> dict:
         return asdict(self)

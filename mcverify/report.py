@@ -41,8 +41,8 @@ def render(manifest: dict[str, Any], summ: dict[str, Any]) -> str:
         "",
         camp.get("description", "") or "",
         "",
-        f"- episodes: {summ['episodes']} ({camp['episodes_per_cell']} per cell, {len(summ['cells'])} cells),"
-        f" seed {camp['seed']}, controller `{camp['controller']}`",
+        f"- episodes: {summ['episodes']} ({len(summ['cells'])} cells), seed {camp['seed']}, controllers "
+        + ", ".join(sorted({f"`{c['controller']}`" for c in manifest['cells']})),
         f"- intervals: {summ['interval_method']} at {summ['confidence_level']:.0%}; for a cell with no"
         " event the exact one-sided upper bound is given",
         f"- code: git `{manifest['environment'].get('git_commit')}`, kernels "

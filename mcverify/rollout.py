@@ -186,9 +186,24 @@ def episode_key(seed: int, cell_index: int | None, episode_id: int) -> Array:
     return jax.random.fold_in(key, episode_id)
 
 
+#: fold_in stream of the per-episode scenario draws, apart from the per-step noise streams.
+SCENARIO_STREAM = 1_000_000
+
+
 def sample_scenario(key: Array, params: ModelParams) -> dict[str, float]:
-    """Per-episode scenario values drawn from the episode key (stream 1 000 000, apart from noise)."""
-    return {"front_accel_mps2": float(params.scenario.front_accel_mps2)}
+    """Per-episode scenario values drawn from the episode key.
+
+    alpha_f: ``scenario.front_accel_range_mps2`` = (lo, hi) draws it uniformly in (lo, hi] (the
+    paper's Table III ranges are left-open); otherwise the fixed ``front_accel_mps2``.
+    """
+    sc = params.scenario
+    if sc.front_accel_range_mps2:
+        lo, hi = sc.front_accel_range_mps2
+        unit = jax.random.uniform(jax.random.fold_in(key, SCENARIO_STREAM), (), dtype=float)  # [0, 1)
+        accel = hi - (hi - lo) * float(unit)  # (lo, hi]
+    else:
+        accel = sc.front_accel_mps2
+    return {"front_accel_mps2": float(accel)}
 
 
 # ------------------------------------------------------------------------------ host loop
@@ -326,6 +341,8 @@ def _control_step(
         log.record_solve(sol)
         if sol.success:
             log.warm[direction] = sol.warm
+        else:
+            log.warm.pop(direction, None)  # never restart from a stale point
         sols[direction] = sol
     q1_ok = Q1 in sols and sols[Q1].success
     q2_ok = sols[Q2].success

@@ -8,6 +8,7 @@ same ``warm``) give bit-identical outputs; nothing depends on wall time or on ea
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 
@@ -95,6 +96,7 @@ class MpcSolution:
     dt_plan: np.ndarray  # (N,)
     warm: WarmStart | None  # what to pass to the next solve of the same problem; None on failure
     max_violation: float = float("nan")  # largest constraint or bound violation of the returned plan
+    retried_cold: bool = False  # the warm start failed and this is the cold retry's result
 
 
 class MpcSolver:
@@ -150,8 +152,23 @@ class MpcSolver:
         if not np.all(np.isfinite(p)):
             return self._failure("invalid_input: non-finite ego_state, front_xyv or lambda0", t0)
         use_warm = warm is not None and warm.direction == direction and warm.x.size == self.layout.n_w
+        if use_warm:
+            sol = self._run(p, direction, t0, warm=warm)
+            if sol.success:
+                return sol
+            # A warm start that fails is not evidence of infeasibility: the interior point was
+            # started next to the previous active set (mu_init 1e-7) and, when that set changes
+            # (e.g. Q2's goal switches from braking behind veh_f to a lane change), IPOPT stalls
+            # or wrongly reports local infeasibility. Along Table II closed loops every such Q2
+            # failure solved from the cold guess (40-60 iterations). The retry is counted.
+            cold = self._run(p, direction, t0, warm=None, ego_state=ego_state, front_xyv=front_xyv)
+            return dataclasses.replace(cold, iterations=sol.iterations + cold.iterations, retried_cold=True)
+        return self._run(p, direction, t0, warm=None, ego_state=ego_state, front_xyv=front_xyv)
+
+    def _run(self, p, direction, t0, *, warm, ego_state=None, front_xyv=None) -> MpcSolution:
+        """One IPOPT call: warm from ``warm`` or cold from :func:`~mcverify.ocp.initial_guess`."""
         try:
-            if use_warm:
+            if warm is not None:
                 res = self._warm(
                     x0=warm.x, lam_x0=warm.lam_x, lam_g0=warm.lam_g, p=p,
                     lbx=self._lbx, ubx=self._ubx, lbg=self._lbg, ubg=self._ubg,

@@ -76,7 +76,7 @@ def test_grid_over_lambda0():
         (spec(model={"noise": {"kind": "gaussian"}}), "unknown noise model"),
         (spec(model={"mpc": {"dt_min_s": 0.5}}), "mpc.dt_min_s: must be below"),
         (spec(model={"barrier": {"lambdas_m": [1.0, -1.0]}}), "all > 0"),
-        (spec(campaign={"name": "t", "episodes": 1, "controller": "lqr"}), "unknown controller"),
+        (spec(model={"mpc": {"controller": "lqr"}}), "unknown controller"),
         ({"campaign": {"seed": 1, "episodes": 1}}, "missing required field 'name'"),
         ({"campaing": {}}, "did you mean 'campaign'"),
     ],
@@ -108,3 +108,53 @@ def test_malformed_toml_and_missing_file(tmp_path):
         load_campaign(bad)
     with pytest.raises(CampaignError, match="not found"):
         load_campaign(tmp_path / "nope.toml")
+
+
+def test_bundle_axes_times_grid_with_own_episode_counts():
+    axes = {
+        "scenario": {"A": {"opposing.speed_mps": 18.0}, "B": {"opposing.speed_mps": 10.0}},
+        "method": {
+            "MPC-DC": {"mpc.controller": "mpcdc", "episodes": 5},
+            "VL-CBF eps=0.3": {"barrier.epsilon": 0.3},
+        },
+    }
+    camp = campaign_from_dict(spec(axes=axes, model={"opposing": {"kind": "human"}}))
+    names = [c.name for c in camp.cells]
+    assert names == [
+        "scenario=A,method=MPC-DC", "scenario=A,method=VL-CBF eps=0.3",
+        "scenario=B,method=MPC-DC", "scenario=B,method=VL-CBF eps=0.3",
+    ]
+    assert [c.episodes for c in camp.cells] == [5, 3, 5, 3]
+    assert [c.episode_offset for c in camp.cells] == [0, 5, 8, 13]  # ids unique across the run
+    assert [c.controller for c in camp.cells] == ["mpcdc", "vlcbf", "mpcdc", "vlcbf"]
+    assert camp.cells[2].params.opposing.speed_mps == 10.0
+    assert camp.cells[0].labels == {"scenario": "A", "method": "MPC-DC"}
+    # --episodes from the command line wins over a bundle's count
+    forced = campaign_from_dict(spec(axes=axes, model={"opposing": {"kind": "human"}}), episodes=2)
+    assert [c.episodes for c in forced.cells] == [2, 2, 2, 2]
+
+
+def test_front_accel_range_grid_and_validation():
+    camp = campaign_from_dict(spec(grid={"scenario.front_accel_range_mps2": [[1, 3], [3, 5]]}))
+    assert [c.params.scenario.front_accel_range_mps2 for c in camp.cells] == [(1.0, 3.0), (3.0, 5.0)]
+    assert camp.cells[0].name == "front_accel_range_mps2=[1,3]"
+    with pytest.raises(CampaignError, match="0 <= lo < hi"):
+        campaign_from_dict(spec(model={"scenario": {"front_accel_range_mps2": [5, 3]}}))
+
+
+@pytest.mark.parametrize(
+    "raw, fragment",
+    [
+        (spec(axes={"m": {"x": {"mpc.controler": "mpcdc"}}}), "did you mean 'mpc.controller'"),
+        (spec(axes={"m": {"x": {"episodes": 0}}}), "episodes: must be an integer >= 1"),
+        (spec(axes={"m": {}}), "one or more tables"),
+        (spec(axes={"m": {"x": {"noise.scale": 2.0}}}, grid={"noise.scale": [1.0]}), "sets 'noise.scale' twice"),
+        (spec(model={"opposing": {"kind": "robot"}}), "unknown opposing vehicle"),
+        (spec(model={"opposing": {"kind": "human", "speed_mps": 30.0}}), "above opposing.speed_limit_mps"),
+        (spec(model={"opposing": {"kind": "human", "x_m": 50.0}}), "must start ahead of the front vehicle"),
+        (spec(model={"mpc": {"backend": "magic"}}), "unknown solver backend"),
+    ],
+)
+def test_axes_and_opposing_errors_name_the_problem(raw, fragment):
+    with pytest.raises(CampaignError, match=fragment):
+        campaign_from_dict(raw)
