@@ -16,25 +16,43 @@ EXIT_MISMATCH = 1
 
 def main(argv: list[str] | None = None) -> int:
     parser = _parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except _UsageError as err:
+        print(f"mcverify: error: {err}", file=sys.stderr)
+        return EXIT_USAGE
     if not hasattr(args, "func"):
         parser.print_help()
         return EXIT_USAGE
     from mcverify.campaign import CampaignError
+    from mcverify.kernels import KernelBuildError
     from mcverify.store import RunError
 
     try:
         return args.func(args) or 0
-    except (CampaignError, RunError) as err:
+    except (CampaignError, RunError, KernelBuildError) as err:
         print(f"mcverify: error: {err}", file=sys.stderr)
+        return EXIT_USAGE
+    except OSError as err:  # a folder that cannot be written, a full disk: the environment, not a bug
+        where = f": {err.filename}" if err.filename else ""
+        print(f"mcverify: error: {err.strerror or err}{where}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
         print("mcverify: interrupted; finished chunks are kept (mcverify run --resume RUN_DIR)", file=sys.stderr)
         return 130
 
 
+class _UsageError(Exception):
+    """A command-line usage error (argparse's), reported as one line instead of usage + message."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):  # argparse would print the usage block and exit
+        raise _UsageError(f"{self.prog}: {message} (see `{self.prog} --help`)")
+
+
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="mcverify", description=__doc__.splitlines()[0])
+    p = _Parser(prog="mcverify", description=__doc__.splitlines()[0])
     sub = p.add_subparsers(metavar="COMMAND")
 
     run = sub.add_parser("run", help="run a campaign into a run folder")
@@ -42,8 +60,22 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--episodes", type=_positive_int, help="episodes per cell (overrides the file)")
     run.add_argument("--seed", type=_nonneg_int, help="campaign seed (overrides the file)")
     run.add_argument("--out", type=Path, help="run folder (default: results/<name>-<timestamp>)")
-    run.add_argument("--workers", type=_positive_int, default=None, help="worker processes (default: cores)")
-    run.add_argument("--chunk-size", type=_positive_int, default=8, help="episodes per vmapped chunk")
+    run.add_argument(
+        "--executor", choices=("local", "ray"), default="local",
+        help="local worker processes (default) or tasks on a Ray cluster",
+    )
+    run.add_argument(
+        "--address", metavar="ADDR",
+        help="Ray cluster to join (HOST:PORT, ray://HOST:PORT or auto; default $RAY_ADDRESS, else a local Ray)",
+    )
+    run.add_argument(
+        "--workers", type=_positive_int, default=None,
+        help="local: worker processes (default: all cores); ray: tasks in flight (default: the cluster's CPUs)",
+    )
+    run.add_argument(
+        "--chunk-size", type=_positive_int, default=None, metavar="K",
+        help="episodes per chunk, the unit of work and of crash safety (default 8; a resume keeps the run's)",
+    )
     run.add_argument("--resume", type=Path, metavar="RUN_DIR", help="finish an interrupted run")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     run.set_defaults(func=_cmd_run)
@@ -69,22 +101,35 @@ def _parser() -> argparse.ArgumentParser:
 
 def _cmd_run(args) -> int:
     from mcverify import executors, runner
-    from mcverify.campaign import CampaignError, load_campaign
+    from mcverify.campaign import load_campaign
+    from mcverify.store import RunError
 
-    workers = args.workers or executors.default_workers()
+    if args.address is not None and args.executor != "ray":
+        raise RunError("--address is for the Ray executor: add --executor ray")
     progress = not args.no_progress
     if args.resume:
-        if args.campaign:
-            raise CampaignError("give either a campaign file or --resume RUN_DIR, not both")
-        path = runner.resume(args.resume, workers=workers, progress=progress)
+        if args.episodes is not None or args.seed is not None:
+            raise RunError("--resume keeps the run's episodes and seed: leave out --episodes and --seed")
+        if args.out is not None:
+            raise RunError("--resume writes into RUN_DIR: leave out --out")
+        # A campaign file given with --resume is a check: it must be the one the run started with.
+        campaign = load_campaign(args.campaign) if args.campaign else None
+        executor = executors.make_executor(args.executor, workers=args.workers, address=args.address)
+        path = runner.resume(
+            args.resume, executor=executor, progress=progress, campaign=campaign, chunk_size=args.chunk_size
+        )
     else:
         if args.campaign is None:
-            raise CampaignError("missing campaign file, e.g. `mcverify run campaigns/smoke.toml`")
+            raise RunError("missing campaign file, e.g. `mcverify run campaigns/smoke.toml`")
         campaign = load_campaign(args.campaign, episodes=args.episodes, seed=args.seed)
         out = args.out or runner.default_run_dir(campaign)
+        executor = executors.make_executor(args.executor, workers=args.workers, address=args.address)
         print(runner.describe(campaign), file=sys.stderr)
         print(f"run folder: {out}", file=sys.stderr)
-        path = runner.run(campaign, out, workers=workers, chunk_size=args.chunk_size, progress=progress)
+        path = runner.run(
+            campaign, out, executor=executor, chunk_size=args.chunk_size or runner.DEFAULT_CHUNK_SIZE,
+            progress=progress,
+        )
     print(path.read_text())
     print(f"report: {path}", file=sys.stderr)
     return 0
