@@ -55,12 +55,27 @@ UNIT_ALIASES: dict[str, tuple[str, float]] = {
     "ego.speed_max_kmh": ("ego.speed_max_mps", 1.0 / 3.6),
 }
 
+#: Most episodes per cell: a run plans one chunk per few episodes up front, and an episode id is
+#: folded into its JAX key as a 32-bit integer; 10 million closed-loop episodes are months of CPU.
+MAX_EPISODES_PER_CELL = 10_000_000
+#: Largest seed (jax.random.PRNGKey takes a signed 64-bit integer).
+MAX_SEED = 2**63 - 1
+#: Bounds that keep one episode computable (the kernel's size grows with the horizon; an episode
+#: runs max_time_s / control_period_s steps of ``substeps`` RK4 sub-steps each).
+MAX_HORIZON = 500
+MAX_SUBSTEPS = 1000
+MAX_CONTROL_STEPS = 1_000_000
+
 _CAMPAIGN_KEYS = {"name", "description", "seed", "episodes", "common_random_numbers"}
 _TOP_KEYS = {"campaign", "model", "grid", "axes", "reference"}
 
 
 class CampaignError(ValueError):
     """A campaign file or parameter is invalid; the message is one line meant for the user."""
+
+    def __init__(self, message: str) -> None:
+        # One line whatever the file held (a label or key may contain a line break).
+        super().__init__(str(message).replace("\r", "\\r").replace("\n", "\\n"))
 
 
 @dataclass(frozen=True)
@@ -116,14 +131,18 @@ def load_campaign(
 ) -> Campaign:
     """Read, validate and expand a campaign file; ``episodes``/``seed`` override the file's values."""
     path = Path(path)
+    if path.is_dir():
+        raise CampaignError(f"{path} is a folder, not a campaign file (give a .toml file)")
     if not path.is_file():
         raise CampaignError(f"campaign file not found: {path}")
     try:
-        raw = tomllib.loads(path.read_text())
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as err:
         raise CampaignError(f"{path}: malformed TOML: {err}") from None
     except UnicodeDecodeError:
-        raise CampaignError(f"{path}: not a text file") from None
+        raise CampaignError(f"{path}: not a text file (UTF-8 TOML expected)") from None
+    except OSError as err:
+        raise CampaignError(f"cannot read campaign file {path}: {err.strerror or err}") from None
     return campaign_from_dict(raw, source=str(path), episodes=episodes, seed=seed)
 
 
@@ -147,10 +166,12 @@ def campaign_from_dict(
     n_ep = episodes if episodes is not None else _typed(
         head, "episodes", int, f"{where} [campaign]", required=True
     )
-    if n_ep < 1:
-        raise CampaignError(f"{where} [campaign].episodes: must be >= 1, got {n_ep}")
-    if seed_v < 0:
-        raise CampaignError(f"{where} [campaign].seed: must be >= 0, got {seed_v}")
+    if not 1 <= n_ep <= MAX_EPISODES_PER_CELL:
+        raise CampaignError(
+            f"{where} [campaign].episodes: must be >= 1 and <= {MAX_EPISODES_PER_CELL:,} per cell, got {n_ep}"
+        )
+    if not 0 <= seed_v <= MAX_SEED:
+        raise CampaignError(f"{where} [campaign].seed: must be >= 0 and < 2**63, got {seed_v}")
     crn = _typed(head, "common_random_numbers", bool, f"{where} [campaign]", default=False)
 
     base = apply_overrides(ModelParams(), _flatten_model(raw.get("model", {}), where), where)
@@ -197,7 +218,7 @@ def apply_overrides(params: ModelParams, overrides: Mapping[str, Any], where: st
     sections: dict[str, dict[str, Any]] = {}
     for key, value in overrides.items():
         if key not in known:
-            raise CampaignError(f"{where}: unknown model field {key!r}{_suggest(key, known)}")
+            raise CampaignError(f"{where}: unknown model field {_short(key)}{_suggest(key, known)}")
         value = _coerce(value, known[key], f"{where}: {key}")
         if key in UNIT_ALIASES:
             key, factor = UNIT_ALIASES[key]
@@ -225,6 +246,12 @@ def validate_params(p: ModelParams, where: str) -> None:
     def bad(key: str, why: str) -> CampaignError:
         return CampaignError(f"{where}: {key}: {why}")
 
+    for sec in dataclasses.fields(p):  # NaN and inf pass every comparison below: refuse them first
+        for f in dataclasses.fields(getattr(p, sec.name)):
+            v = getattr(getattr(p, sec.name), f.name)
+            values = v if isinstance(v, tuple) else (v,)
+            if any(isinstance(x, float) and not math.isfinite(x) for x in values):
+                raise bad(f"{sec.name}.{f.name}", f"must be finite, got {_short(v)}")
     e, b, m, n, s, sc = p.ego, p.barrier, p.mpc, p.noise, p.sim, p.scenario
     positive = {
         "geometry.length_m": p.geometry.length_m,
@@ -246,7 +273,7 @@ def validate_params(p: ModelParams, where: str) -> None:
     }
     for key, v in positive.items():
         if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
-            raise bad(key, f"must be a finite number > 0, got {v!r}")
+            raise bad(key, f"must be a finite number > 0, got {_short(v)}")
     nonneg = {
         "mpc.phi_s": m.phi_s,
         "mpc.smooth_weight": m.smooth_weight,
@@ -263,29 +290,33 @@ def validate_params(p: ModelParams, where: str) -> None:
     }
     for key, v in nonneg.items():
         if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
-            raise bad(key, f"must be a finite number >= 0, got {v!r}")
+            raise bad(key, f"must be a finite number >= 0, got {_short(v)}")
     if e.accel_min_mps2 >= 0:
         raise bad("ego.accel_min_mps2", f"must be < 0 (braking), got {e.accel_min_mps2}")
     if e.y_min_m >= e.y_max_m:
         raise bad("ego.y_min_m", f"must be below ego.y_max_m ({e.y_max_m}), got {e.y_min_m}")
     if m.dt_min_s >= m.dt_max_s:
         raise bad("mpc.dt_min_s", f"must be below mpc.dt_max_s ({m.dt_max_s}), got {m.dt_min_s}")
-    if m.horizon < 2:
-        raise bad("mpc.horizon", f"must be >= 2, got {m.horizon}")
+    if not 2 <= m.horizon <= MAX_HORIZON:
+        raise bad("mpc.horizon", f"must be >= 2 and <= {MAX_HORIZON} (the paper's N is 50), got {m.horizon}")
     if m.max_iter < 1:
         raise bad("mpc.max_iter", f"must be >= 1, got {m.max_iter}")
-    if s.substeps < 1:
-        raise bad("sim.substeps", f"must be >= 1, got {s.substeps}")
+    if not 1 <= s.substeps <= MAX_SUBSTEPS:
+        raise bad("sim.substeps", f"must be >= 1 and <= {MAX_SUBSTEPS}, got {s.substeps}")
     if s.max_time_s < s.control_period_s:
-        raise bad("sim.max_time_s", "must be at least one control period")
+        raise bad("sim.max_time_s",
+                  f"must be at least one control period (sim.control_period_s = {s.control_period_s:.4g})")
+    if s.max_time_s / s.control_period_s > MAX_CONTROL_STEPS:
+        raise bad("sim.max_time_s", f"is more than {MAX_CONTROL_STEPS:,} control periods of sim.control_period_s = "
+                  f"{s.control_period_s:.4g} s")
     if m.controller not in CONTROLLERS:
-        raise bad("mpc.controller", f"unknown controller {m.controller!r}; valid: {', '.join(CONTROLLERS)}")
+        raise bad("mpc.controller", f"unknown controller {_short(m.controller)}; valid: {', '.join(CONTROLLERS)}")
     if m.backend not in BACKENDS:
-        raise bad("mpc.backend", f"unknown solver backend {m.backend!r}; valid: {', '.join(BACKENDS)}")
+        raise bad("mpc.backend", f"unknown solver backend {_short(m.backend)}; valid: {', '.join(BACKENDS)}")
     if n.kind not in ("paper", "none"):
-        raise bad("noise.kind", f"unknown noise model {n.kind!r}; valid: paper, none")
-    if not b.lambdas_m or any(not (isinstance(x, int | float) and x > 0) for x in b.lambdas_m):
-        raise bad("barrier.lambdas_m", f"needs one or more values, all > 0, got {list(b.lambdas_m)!r}")
+        raise bad("noise.kind", f"unknown noise model {_short(n.kind)}; valid: paper, none")
+    if not b.lambdas_m or any(not (isinstance(x, int | float) and math.isfinite(x) and x > 0) for x in b.lambdas_m):
+        raise bad("barrier.lambdas_m", f"needs one or more values, all > 0, got {_short(list(b.lambdas_m))}")
     if (b.epsilon is None) == (b.lambda0 is None):
         raise bad("barrier.epsilon", "set exactly one of barrier.epsilon and barrier.lambda0")
     if b.epsilon is not None and not (math.isfinite(b.epsilon) and b.epsilon >= 0):
@@ -295,24 +326,30 @@ def validate_params(p: ModelParams, where: str) -> None:
     if not (e.speed_min_mps <= sc.ego_speed_mps <= e.speed_max_mps):
         raise bad(
             "scenario.ego_speed_mps",
-            f"{sc.ego_speed_mps:.3f} m/s is outside the ego speed range "
-            f"[{e.speed_min_mps}, {e.speed_max_mps}] m/s",
+            f"{sc.ego_speed_mps:.4g} m/s is outside the ego speed range [ego.speed_min_mps, "
+            f"ego.speed_max_mps] = [{e.speed_min_mps:.4g}, {e.speed_max_mps:.4g}] m/s",
         )
     if sc.front_speed_mps > sc.front_speed_max_mps:
         raise bad(
             "scenario.front_speed_mps",
-            f"{sc.front_speed_mps:.3f} m/s is above scenario.front_speed_max_mps ({sc.front_speed_max_mps})",
+            f"{sc.front_speed_mps:.4g} m/s is above scenario.front_speed_max_mps ({sc.front_speed_max_mps:.4g})",
         )
     if sc.front_x_m <= sc.ego_x_m:
-        raise bad("scenario.front_x_m", f"the front vehicle must start ahead of the ego (x > {sc.ego_x_m})")
+        raise bad("scenario.front_x_m", f"the front vehicle must start ahead of the ego (x > scenario.ego_x_m = "
+                  f"{sc.ego_x_m:.4g})")
     _validate_front_and_opposing(p, bad)
-    eps = level_epsilon(p)
-    h0 = ((sc.ego_x_m - sc.front_x_m) / b.ellipse_a_m) ** 2 - 1.0
-    if h0 < eps:
+    level = "barrier.epsilon" if b.epsilon is not None else "barrier.lambda0"
+    try:
+        eps = level_epsilon(p)
+        level_lambda0(p)
+        h0 = ((sc.ego_x_m - sc.front_x_m) / b.ellipse_a_m) ** 2 - 1.0
+    except (ArithmeticError, ValueError) as err:  # e.g. an overflow from an absurd lambda0
+        raise bad(level, f"cannot compute the level eps ({err})") from None
+    if not (h0 >= eps):
         raise bad(
             "scenario.front_x_m",
             f"infeasible scenario: the ego starts inside the level set h >= eps of the front "
-            f"vehicle's ellipse (h0 = {h0:.3f} < eps = {eps:.3f}); start further behind",
+            f"vehicle's ellipse (h0 = {h0:.4g} < eps = {eps:.4g}, from {level}); start further behind",
         )
 
 
@@ -321,7 +358,7 @@ def _validate_front_and_opposing(p: ModelParams, bad) -> None:
     rng = sc.front_accel_range_mps2
     if rng and (len(rng) != 2 or not (0 <= rng[0] < rng[1]) or not all(math.isfinite(x) for x in rng)):
         raise bad("scenario.front_accel_range_mps2",
-                  f"must be [lo, hi] with 0 <= lo < hi (alpha_f is drawn in (lo, hi]), got {list(rng)!r}")
+                  f"must be [lo, hi] with 0 <= lo < hi (alpha_f is drawn in (lo, hi]), got {_short(list(rng))}")
     if sc.front_accel_mps2 < 0:
         raise bad("scenario.front_accel_mps2", f"must be >= 0 (the front vehicle never switches sign), got "
                   f"{sc.front_accel_mps2}")
@@ -330,25 +367,25 @@ def _validate_front_and_opposing(p: ModelParams, bad) -> None:
     if not (math.isfinite(b.opp_epsilon_m) and b.opp_epsilon_m >= 0):
         raise bad("barrier.opp_epsilon_m", f"must be >= 0 (the level of h_eo, m), got {b.opp_epsilon_m}")
     for key, lam in (("barrier.opp_lambdas_m", b.opp_lambdas_m), ("opposing.lambdas_m", o.lambdas_m)):
-        if not lam or any(not (isinstance(x, int | float) and x > 0) for x in lam):
-            raise bad(key, f"needs one or more values, all > 0, got {list(lam)!r}")
+        if not lam or any(not (isinstance(x, int | float) and math.isfinite(x) and x > 0) for x in lam):
+            raise bad(key, f"needs one or more values, all > 0, got {_short(list(lam))}")
     if o.kind not in OPPOSING_KINDS:
-        raise bad("opposing.kind", f"unknown opposing vehicle {o.kind!r}; valid: {', '.join(OPPOSING_KINDS)}")
+        raise bad("opposing.kind", f"unknown opposing vehicle {_short(o.kind)}; valid: {', '.join(OPPOSING_KINDS)}")
     for key in ("speed_mps", "accel_mps2", "epsilon_m"):
         v = getattr(o, key)
         if not (math.isfinite(v) and v >= 0):
-            raise bad(f"opposing.{key}", f"must be a finite number >= 0, got {v!r}")
+            raise bad(f"opposing.{key}", f"must be a finite number >= 0, got {_short(v)}")
     for key in ("speed_limit_mps", "accel_max_mps2", "brake_max_mps2", "cruise_gain_per_s", "detect_range_m"):
         v = getattr(o, key)
         if not (math.isfinite(v) and v > 0):
-            raise bad(f"opposing.{key}", f"must be a finite number > 0, got {v!r}")
+            raise bad(f"opposing.{key}", f"must be a finite number > 0, got {_short(v)}")
     if o.kind != "none":
         if o.speed_mps > o.speed_limit_mps:
-            raise bad("opposing.speed_mps", f"{o.speed_mps:.3f} m/s is above opposing.speed_limit_mps "
-                      f"({o.speed_limit_mps})")
+            raise bad("opposing.speed_mps", f"{o.speed_mps:.4g} m/s is above opposing.speed_limit_mps "
+                      f"({o.speed_limit_mps:.4g})")
         if o.x_m <= sc.front_x_m:
             raise bad("opposing.x_m", f"the opposing vehicle must start ahead of the front vehicle "
-                      f"(x > {sc.front_x_m}), got {o.x_m}")
+                      f"(x > scenario.front_x_m = {sc.front_x_m:.4g}), got {o.x_m:.4g}")
 
 
 def level_epsilon(p: ModelParams) -> float:
@@ -390,9 +427,13 @@ def _read_grid(grid: Any, where: str) -> dict[str, list[Any]]:
     out: dict[str, list[Any]] = {}
     for key, values in grid.items():
         if key not in known:
-            raise CampaignError(f"{where} [grid]: unknown field {key!r}{_suggest(key, known)}")
+            raise CampaignError(f"{where} [grid]: unknown field {_short(key)}{_suggest(key, known)}")
         if not isinstance(values, list) or not values:
             raise CampaignError(f"{where} [grid].{key}: must be a non-empty list of values")
+        labels = [_fmt(v) for v in values]
+        twice = next((label for label in labels if labels.count(label) > 1), None)
+        if twice is not None:
+            raise CampaignError(f"{where} [grid].{key}: the value {_short(twice)} is listed twice (cells must differ)")
         out[key] = list(values)
     return out
 
@@ -414,10 +455,14 @@ def _read_axes(axes: Any, where: str) -> dict[str, dict[str, dict[str, Any]]]:
                 raise CampaignError(f"{here}: must be a table of 'section.field' = value")
             for key, value in bundle.items():
                 if key == "episodes":
-                    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                        raise CampaignError(f"{here}.episodes: must be an integer >= 1, got {value!r}")
+                    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_EPISODES_PER_CELL:
+                        raise CampaignError(
+                            f"{here}.episodes: must be an integer >= 1 and <= {MAX_EPISODES_PER_CELL:,}, "
+                            f"got {_short(value)}"
+                        )
                 elif key not in known:
-                    raise CampaignError(f"{here}: unknown field {key!r}{_suggest(key, list(known) + ['episodes'])}")
+                    hint = _suggest(key, list(known) + ["episodes"])
+                    raise CampaignError(f"{here}: unknown field {_short(key)}{hint}")
             out[axis][str(label)] = dict(bundle)
     return out
 
@@ -453,13 +498,15 @@ def _expand_cells(
                     n_ep = episodes if episodes_forced else value
                     continue
                 if key in overrides:
-                    raise CampaignError(f"{where}: cell {labels!r} sets {key!r} twice (axis {axis!r} and another)")
+                    raise CampaignError(
+                        f"{where}: cell {_short(labels)} sets {key!r} twice (axis {_short(axis)} and another)"
+                    )
                 overrides[key] = value
         name = ",".join(f"{axis}={label}" for axis, label in labels.items()) or "all"
         if name in names:
-            raise CampaignError(f"{where}: duplicate cell {name!r}; grid values and axis labels must be distinct")
+            raise CampaignError(f"{where}: duplicate cell {_short(name)}; grid values and axis labels must be distinct")
         names.add(name)
-        params = apply_overrides(base, overrides, f"{where} cell {name!r}")
+        params = apply_overrides(base, overrides, f"{where} cell {_short(name)}")
         yield Cell(
             episode_offset=offset,
             index=index,
@@ -485,21 +532,21 @@ def _fmt(v: Any) -> str:
 def _coerce(value: Any, expected: type, where: str) -> Any:
     if expected is float:
         if isinstance(value, bool) or not isinstance(value, int | float):
-            raise CampaignError(f"{where}: expected a number, got {type(value).__name__} {value!r}")
+            raise CampaignError(f"{where}: expected a number, got {type(value).__name__} {_short(value)}")
         return float(value)
     if expected is int:
         if isinstance(value, bool) or not isinstance(value, int):
-            raise CampaignError(f"{where}: expected an integer, got {type(value).__name__} {value!r}")
+            raise CampaignError(f"{where}: expected an integer, got {type(value).__name__} {_short(value)}")
         return value
     if expected is tuple:
         if not isinstance(value, list) or any(
             isinstance(x, bool) or not isinstance(x, int | float) for x in value
         ):
-            raise CampaignError(f"{where}: expected a list of numbers, got {value!r}")
+            raise CampaignError(f"{where}: expected a list of numbers, got {_short(value)}")
         return tuple(float(x) for x in value)
     if not isinstance(value, expected):
         raise CampaignError(
-            f"{where}: expected {expected.__name__}, got {type(value).__name__} {value!r}"
+            f"{where}: expected {expected.__name__}, got {type(value).__name__} {_short(value)}"
         )
     return value
 
@@ -521,7 +568,7 @@ def _typed(
     ok = isinstance(value, expected) and not (expected is int and isinstance(value, bool))
     if not ok:
         raise CampaignError(
-            f"{where}.{key}: expected {expected.__name__}, got {type(value).__name__} {value!r}"
+            f"{where}.{key}: expected {expected.__name__}, got {type(value).__name__} {_short(value)}"
         )
     return value
 
@@ -529,7 +576,13 @@ def _typed(
 def _check_keys(table: Mapping[str, Any], valid: set[str], where: str) -> None:
     for key in table:
         if key not in valid:
-            raise CampaignError(f"{where}: unknown key {key!r}{_suggest(key, valid)}")
+            raise CampaignError(f"{where}: unknown key {_short(key)}{_suggest(key, valid)}")
+
+
+def _short(value: Any, limit: int = 60) -> str:
+    """``repr(value)`` cut to ``limit`` characters (messages stay one short line)."""
+    text = f"{value:.6g}" if isinstance(value, float) else repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def _suggest(key: str, valid) -> str:
