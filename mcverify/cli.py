@@ -115,8 +115,13 @@ def _cmd_run(args) -> int:
         # A campaign file given with --resume is a check: it must be the one the run started with.
         campaign = load_campaign(args.campaign) if args.campaign else None
         executor = executors.make_executor(args.executor, workers=args.workers, address=args.address)
+
+        def resuming(planned: int, done: int) -> None:
+            print(f"resuming {args.resume}: {done} of {planned} chunks already done", file=sys.stderr)
+
         path = runner.resume(
-            args.resume, executor=executor, progress=progress, campaign=campaign, chunk_size=args.chunk_size
+            args.resume, executor=executor, progress=progress, campaign=campaign, chunk_size=args.chunk_size,
+            on_start=resuming,
         )
     else:
         if args.campaign is None:
@@ -124,11 +129,15 @@ def _cmd_run(args) -> int:
         campaign = load_campaign(args.campaign, episodes=args.episodes, seed=args.seed)
         out = args.out or runner.default_run_dir(campaign)
         executor = executors.make_executor(args.executor, workers=args.workers, address=args.address)
-        print(runner.describe(campaign), file=sys.stderr)
-        print(f"run folder: {out}", file=sys.stderr)
+
+        def starting(planned: int, done: int) -> None:  # after every check: errors stay one line
+            print(runner.describe(campaign), file=sys.stderr)
+            how = ", ".join(f"{k} {v}" for k, v in executor.describe().items() if v is not None)
+            print(f"run folder: {out} ({planned} chunks; {how})", file=sys.stderr)
+
         path = runner.run(
             campaign, out, executor=executor, chunk_size=args.chunk_size or runner.DEFAULT_CHUNK_SIZE,
-            progress=progress,
+            progress=progress, on_start=starting,
         )
     print(path.read_text())
     print(f"report: {path}", file=sys.stderr)

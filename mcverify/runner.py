@@ -146,13 +146,15 @@ def run(
     episode_fn: EpisodeFn = executors.simulate,
     record_first: bool = True,
     on_chunk: Callable[[store.ChunkRecord], None] | None = None,
+    on_start: Callable[[int, int], None] | None = None,
 ) -> Path:
     """Run ``campaign`` into a new folder ``run_dir``; returns the report path.
 
     executor: default a :class:`~mcverify.executors.LocalExecutor` on all cores; episode_fn: the
     episode simulation (tests inject cheap ones); record_first: write the trajectory of every
     cell's first episode to ``trajectories/``; on_chunk: called with each ledger record, after the
-    chunk is safely on disk.
+    chunk is safely on disk; on_start: called with (chunks planned, chunks already done) once every
+    check has passed and the executor is up, just before the first chunk runs.
     """
     run_dir = Path(run_dir)
     if chunk_size < 1:
@@ -170,7 +172,7 @@ def run(
             manifest["sessions"].append(_session(executor, resumed=False))
             store.write_json_atomic(run_dir / store.MANIFEST, manifest)
             return _execute(
-                campaign, run_dir, chunk_size, executor, progress, episode_fn, record_first, on_chunk
+                campaign, run_dir, chunk_size, executor, progress, episode_fn, record_first, on_chunk, on_start
             )
 
 
@@ -184,6 +186,7 @@ def resume(
     episode_fn: EpisodeFn = executors.simulate,
     record_first: bool = True,
     on_chunk: Callable[[store.ChunkRecord], None] | None = None,
+    on_start: Callable[[int, int], None] | None = None,
 ) -> Path:
     """Finish an interrupted run in ``run_dir``: only chunks that are not done are run.
 
@@ -241,7 +244,9 @@ def resume(
         with store.run_lock(run_dir):
             manifest["sessions"] = [*manifest.get("sessions", []), _session(executor, resumed=True)]
             store.write_json_atomic(run_dir / store.MANIFEST, manifest)
-            return _execute(rebuilt, run_dir, planned, executor, progress, episode_fn, record_first, on_chunk)
+            return _execute(
+                rebuilt, run_dir, planned, executor, progress, episode_fn, record_first, on_chunk, on_start
+            )
 
 
 def _execute(
@@ -253,10 +258,13 @@ def _execute(
     episode_fn: EpisodeFn,
     record_first: bool,
     on_chunk: Callable[[store.ChunkRecord], None] | None,
+    on_start: Callable[[int, int], None] | None = None,
 ) -> Path:
     chunks = store.plan_chunks([c.episodes for c in campaign.cells], chunk_size)
     done = store.done_chunks(run_dir, chunks)
     todo = [c for c in chunks if c.name not in done]
+    if on_start is not None:
+        on_start(len(chunks), len(done))
     done_episodes = sum(len(c.episode_ids) for c in chunks if c.name in done)
     record = [(c.index, 0) for c in campaign.cells if c.episodes > 0] if record_first else []
     bar = tqdm(
