@@ -246,12 +246,17 @@ def validate_params(p: ModelParams, where: str) -> None:
     def bad(key: str, why: str) -> CampaignError:
         return CampaignError(f"{where}: {key}: {why}")
 
-    for sec in dataclasses.fields(p):  # NaN and inf pass every comparison below: refuse them first
-        for f in dataclasses.fields(getattr(p, sec.name)):
-            v = getattr(getattr(p, sec.name), f.name)
-            values = v if isinstance(v, tuple) else (v,)
-            if any(isinstance(x, float) and not math.isfinite(x) for x in values):
-                raise bad(f"{sec.name}.{f.name}", f"must be finite, got {_short(v)}")
+    # NaN and inf slip through the comparisons below: refuse them first (inf only where the model's
+    # own default is inf, meaning "no limit", e.g. scenario.front_accel_duration_s).
+    for sec in dataclasses.fields(p):
+        section = getattr(p, sec.name)
+        for f in dataclasses.fields(section):
+            v = getattr(section, f.name)
+            default = getattr(type(section)(), f.name)
+            unbounded = isinstance(default, float) and math.isinf(default)
+            for x in v if isinstance(v, tuple) else (v,):
+                if isinstance(x, float) and not math.isfinite(x) and not (unbounded and x == default):
+                    raise bad(f"{sec.name}.{f.name}", f"must be finite, got {_short(v)}")
     e, b, m, n, s, sc = p.ego, p.barrier, p.mpc, p.noise, p.sim, p.scenario
     positive = {
         "geometry.length_m": p.geometry.length_m,

@@ -7,6 +7,7 @@ executors' interface; the last group runs the real closed loop with failing solv
 
 from __future__ import annotations
 
+import copy
 import functools
 import math
 import socket
@@ -167,7 +168,7 @@ class FailingSolver:
     def __init__(self, n=50):
         self.n = n
 
-    def solve(self, ego, front, direction, lambda0, warm=None):
+    def solve(self, ego, front, direction, lambda0, warm=None, **kw):
         n = self.n
         return MpcSolution(
             success=False, status="Infeasible_Problem_Detected", iterations=3, solve_time_s=0.0,
@@ -199,10 +200,13 @@ class NanSolver(FailingSolver):
 
 
 def with_solver(solver_factory):
+    """The real closed loop, with the planner's compiled solver replaced by ``solver_factory()``."""
     from mcverify.rollout import run_episodes
 
     def fn(cell, episode_ids, seed, crn, record):
-        return run_episodes(cell, list(episode_ids), seed, solver_factory(), common_random_numbers=crn)
+        planner = copy.copy(executors.solver_for(cell.params))
+        planner.plain = solver_factory()
+        return run_episodes(cell, list(episode_ids), seed, planner, common_random_numbers=crn)
 
     return fn
 
