@@ -38,7 +38,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"mcverify: error: {err.strerror or err}{where}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
-        print("mcverify: interrupted; finished chunks are kept (mcverify run --resume RUN_DIR)", file=sys.stderr)
+        run_dir = getattr(args, "run_dir", None) or "RUN_DIR"
+        print(f"mcverify: interrupted; finished chunks are kept (mcverify run --resume {run_dir})", file=sys.stderr)
         return 130
 
 
@@ -115,6 +116,7 @@ def _cmd_run(args) -> int:
         # A campaign file given with --resume is a check: it must be the one the run started with.
         campaign = load_campaign(args.campaign) if args.campaign else None
         executor = executors.make_executor(args.executor, workers=args.workers, address=args.address)
+        args.run_dir = args.resume
 
         def resuming(planned: int, done: int) -> None:
             print(f"resuming {args.resume}: {done} of {planned} chunks already done", file=sys.stderr)
@@ -127,7 +129,7 @@ def _cmd_run(args) -> int:
         if args.campaign is None:
             raise RunError("missing campaign file, e.g. `mcverify run campaigns/smoke.toml`")
         campaign = load_campaign(args.campaign, episodes=args.episodes, seed=args.seed)
-        out = args.out or runner.default_run_dir(campaign)
+        out = args.run_dir = args.out or runner.default_run_dir(campaign)
         executor = executors.make_executor(args.executor, workers=args.workers, address=args.address)
 
         def starting(planned: int, done: int) -> None:  # after every check: errors stay one line
