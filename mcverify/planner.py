@@ -222,7 +222,8 @@ class Planner:
             state.held = (q1.u_plan, q1.dt_plan, t_s)
             return q1.u_plan[0], StepRecord(Source.Q1, state.mode, detected, q1, None, -1)
         state.q1_fail_steps += 1
-        return self._no_plan(state, t_s, ego, front_meas, StepRecord(Source.FALLBACK, state.mode, detected, q1, None, -1))
+        record = StepRecord(Source.FALLBACK, state.mode, detected, q1, None, -1)
+        return self._no_plan(state, t_s, ego, front_meas, record)
 
     def _solve(self, state, solver, ego, front_meas, direction, lambda0, opp) -> MpcSolution:
         key = (direction, opp is not None)
