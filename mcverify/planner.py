@@ -59,6 +59,8 @@ class EpisodeState:
     cold_retries: int = 0
     switched_to_q2_at_s: float = math.nan
     went_back_reason: str = ""
+    first_unsafe_s: float = math.nan  # start of the control period in which the ego first left the safe set
+    first_unsafe_cause: str = ""  # what drove it then (rollout.UNSAFE_CAUSES)
     table_one_rows: dict[int, int] = field(default_factory=dict)
     iterations: list[int] = field(default_factory=list)
     solve_times_s: list[float] = field(default_factory=list)

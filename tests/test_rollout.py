@@ -90,7 +90,9 @@ def test_mpcdc_squeezes_in_where_vlcbf_declines():
     camp, cell = cell_of(TABLE4_A, episodes=1)
     vl = run_episodes(cell, [0], camp.seed, executors.solver_for(cell.params)).rows[0]
     assert vl["outcome"] == "went_back" and vl["safe"] and math.isnan(vl["min_gap_opp_m"])
+    assert vl["first_unsafe_cause"] == "" and math.isnan(vl["first_unsafe_s"])
     camp, cell = cell_of({**TABLE4_A, "mpc": {"controller": "mpcdc"}}, episodes=1)
     dc = run_episodes(cell, [0], camp.seed, executors.solver_for(cell.params)).rows[0]
     assert dc["controller"] == "mpcdc" and not dc["safe"], dc
     assert dc["min_gap_opp_m"] < 5.0
+    assert dc["first_unsafe_cause"] in ("planned", "held", "fallback") and dc["first_unsafe_s"] > 0
