@@ -90,11 +90,15 @@ class StepRecord:
 class Planner:
     """The compiled solvers of one parameter set and the per-step decision logic."""
 
-    def __init__(self, params: ModelParams, kernel_dir=None) -> None:
+    def __init__(self, params: ModelParams, kernel_dir=None, solver_factory=None) -> None:
+        """solver_factory(params, structure) -> a solver with :class:`MpcSolver`'s ``solve``,
+        ``guess_from_plan`` and ``kernel_hash``; default the compiled-kernel :class:`MpcSolver`
+        (the benchmark's naive reference passes its own, :mod:`mcverify.naive`)."""
         self.params = params
-        self.plain = MpcSolver(params, OcpStructure.from_params(params, with_opposing=False), kernel_dir)
+        make = solver_factory or (lambda p, s: MpcSolver(p, s, kernel_dir))
+        self.plain = make(params, OcpStructure.from_params(params, with_opposing=False))
         self.with_opp = (
-            MpcSolver(params, OcpStructure.from_params(params, with_opposing=True), kernel_dir)
+            make(params, OcpStructure.from_params(params, with_opposing=True))
             if params.opposing.kind != "none"
             else None
         )
