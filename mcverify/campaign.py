@@ -120,7 +120,8 @@ class Campaign:
         for c in self.cells:
             if c.name == name_or_index or c.index == name_or_index:
                 return c
-        raise CampaignError(f"campaign {self.name!r} has no cell {name_or_index!r}")
+        names = ", ".join(repr(c.name) for c in self.cells)
+        raise CampaignError(f"campaign {self.name!r} has no cell {name_or_index!r}; its cells: {names}")
 
 
 # --------------------------------------------------------------------------------------------- load

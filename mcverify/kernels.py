@@ -12,7 +12,8 @@ else ``~/.cache/mcverify/kernels``. Each kernel lives in ``<name>-<hash12>/`` wi
 The hash covers only what changes the compiled code: :data:`mcverify.ocp.FORMULATION_VERSION`, a
 digest of the NLP's maths (:func:`mcverify.ocp.formulation_digest`, so that no edit of the
 formulation can be served a stale kernel), the :class:`~mcverify.ocp.OcpStructure`, the CasADi
-version, the compiler command and flags, and the machine architecture. Numeric values (bounds, lambdas, ellipse axes, l_r, phi, eps_y, weights,
+version, the compiler command and flags, and the machine architecture. Numeric values (bounds,
+lambdas, ellipse axes, l_r, phi, eps_y, weights,
 measurements) are runtime parameters or bounds, not compiled in, so they do not enter the hash.
 
 Concurrency: a kernel is built in a temporary folder next to its final place and moved there with

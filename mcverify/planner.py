@@ -59,6 +59,8 @@ class EpisodeState:
     cold_retries: int = 0
     switched_to_q2_at_s: float = math.nan
     went_back_reason: str = ""
+    first_unsafe_s: float = math.nan  # start of the control period in which the ego first left the safe set
+    first_unsafe_cause: str = ""  # what drove it then (rollout.UNSAFE_CAUSES)
     table_one_rows: dict[int, int] = field(default_factory=dict)
     iterations: list[int] = field(default_factory=list)
     solve_times_s: list[float] = field(default_factory=list)
@@ -88,11 +90,15 @@ class StepRecord:
 class Planner:
     """The compiled solvers of one parameter set and the per-step decision logic."""
 
-    def __init__(self, params: ModelParams, kernel_dir=None) -> None:
+    def __init__(self, params: ModelParams, kernel_dir=None, solver_factory=None) -> None:
+        """solver_factory(params, structure) -> a solver with :class:`MpcSolver`'s ``solve``,
+        ``guess_from_plan`` and ``kernel_hash``; default the compiled-kernel :class:`MpcSolver`
+        (the benchmark's naive reference passes its own, :mod:`mcverify.naive`)."""
         self.params = params
-        self.plain = MpcSolver(params, OcpStructure.from_params(params, with_opposing=False), kernel_dir)
+        make = solver_factory or (lambda p, s: MpcSolver(p, s, kernel_dir))
+        self.plain = make(params, OcpStructure.from_params(params, with_opposing=False))
         self.with_opp = (
-            MpcSolver(params, OcpStructure.from_params(params, with_opposing=True), kernel_dir)
+            make(params, OcpStructure.from_params(params, with_opposing=True))
             if params.opposing.kind != "none"
             else None
         )
@@ -222,7 +228,8 @@ class Planner:
             state.held = (q1.u_plan, q1.dt_plan, t_s)
             return q1.u_plan[0], StepRecord(Source.Q1, state.mode, detected, q1, None, -1)
         state.q1_fail_steps += 1
-        return self._no_plan(state, t_s, ego, front_meas, StepRecord(Source.FALLBACK, state.mode, detected, q1, None, -1))
+        record = StepRecord(Source.FALLBACK, state.mode, detected, q1, None, -1)
+        return self._no_plan(state, t_s, ego, front_meas, record)
 
     def _solve(self, state, solver, ego, front_meas, direction, lambda0, opp) -> MpcSolution:
         key = (direction, opp is not None)

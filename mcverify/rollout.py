@@ -127,6 +127,7 @@ def run_episodes(
         if not active.any():
             break
         subs = world.advance(u, active)
+        _note_first_unsafe(states, world.trace(), records, t_s)
         if rec is not None:
             rec.add(t_s, world.substeps_of(subs), u, records, front_meas, opp_meas, active)
         if on_step is not None:
@@ -143,6 +144,21 @@ def run_episodes(
     if rec is None:
         return ChunkResult(rows)
     return ChunkResult(rows, *rec.tables(ids))
+
+
+#: What drove the ego in the control period where it first left the safe set (``first_unsafe_cause``):
+#: "planned" - a solved Q1/Q2 (or MPC-DC) plan, so the plan itself or the noise let it in (for MPC-DC:
+#: the ellipse held only at its nodes); "held" - a failed problem's old plan (no backup problem);
+#: "fallback" - no plan at all.
+UNSAFE_CAUSES = {Source.Q1: "planned", Source.Q2: "planned", Source.HELD: "held", Source.FALLBACK: "fallback"}
+
+
+def _note_first_unsafe(states: list[EpisodeState], trace: SafetyTrace, records: dict[int, StepRecord], t_s: float):
+    unsafe = (np.asarray(trace.min_h_front) < 0) | np.asarray(trace.collision_front) | np.asarray(trace.collision_opp)
+    for b, st in enumerate(states):
+        if unsafe[b] and not st.first_unsafe_cause and b in records:
+            st.first_unsafe_s = t_s
+            st.first_unsafe_cause = UNSAFE_CAUSES[records[b].source]
 
 
 def _finish(st: EpisodeState, t_s: float, outcome: str) -> None:
@@ -192,6 +208,8 @@ def episode_row(cell: Cell, seed: int, st: EpisodeState, sample: dict[str, float
         "min_h_opp": min_h_opp if has_opp else math.nan,
         "ellipse_violation": min_h < 0.0,
         "safe": (not collision_front) and (not collision_opp) and min_h >= 0.0,
+        "first_unsafe_s": st.first_unsafe_s,
+        "first_unsafe_cause": st.first_unsafe_cause,
         "h0_front": h0,
         "epsilon": eps,
         "lambda0": cell.lambda0,

@@ -334,7 +334,8 @@ def test_autonomous_prediction_is_its_law(opp_solvers):
         top = float(agents.ego_top_edge_m(x, P.geometry.length_m, P.geometry.width_m))
         if 1.0 < top < 2.0:  # near the line the OCP's smooth gate and the plant's exact one differ
             continue
-        exact = float(agents.autonomous_accel(sol.opp_plan[i], x, sol.u_plan[i], ego_in_opposing_lane=top > 1.75, **law))
+        in_lane = top > 1.75
+        exact = float(agents.autonomous_accel(sol.opp_plan[i], x, sol.u_plan[i], ego_in_opposing_lane=in_lane, **law))
         assert accel_o[i] == pytest.approx(exact, abs=ocp.SMOOTH_ACCEL_MPS2), i
         compared += 1
     assert compared >= 20
