@@ -308,7 +308,7 @@ def distance_histograms(
     fig, axes = _grid(len(names), 4, 3.0, 2.3, sharex=True)
     for ax, name, x in zip(axes, names, finite, strict=True):
         if x.size:
-            ax.hist(x, bins=bins, color="tab:blue", alpha=0.75)
+            ax.hist(x, bins=bins, color="tab:blue", alpha=0.75, histtype="stepfilled")  # one patch: fast
             ax.set_title(f"{name}\nmin {x.min():.2f} · n = {x.size}", fontsize=7)
         else:
             ax.text(0.5, 0.5, "no value", transform=ax.transAxes, ha="center", va="center", fontsize=8)

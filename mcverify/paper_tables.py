@@ -35,7 +35,18 @@ from dataclasses import dataclass
 from typing import Any
 
 from mcverify import stats, summary
-from mcverify.tables import DASH, Section, Table, fmt_mean_ci, fmt_num, fmt_p, fmt_rate, fmt_rel, is_missing
+from mcverify.tables import (
+    DASH,
+    Section,
+    Table,
+    fmt_mean_ci,
+    fmt_num,
+    fmt_p,
+    fmt_rate,
+    fmt_rel,
+    is_missing,
+    method_name,
+)
 
 #: The paper's episodes per cell ("30 runs per group" in every table).
 PAPER_RUNS = 30
@@ -189,9 +200,9 @@ def paper_table(summ: Mapping[str, Any], reference: Mapping[str, Any]) -> Table 
 
     level = summ["confidence_level"]
     notes = [
-        f"ours: counts as k/n [exact {summ['interval_method']} {level:.0%} interval], with the exact one-sided bound "
-        "(≤ u or ≥ l) when k is 0 or n; means with their percentile-bootstrap interval; minima and maxima over all "
-        "episodes of the cell.",
+        f"ours: counts as k/n [{method_name(summ['interval_method'])} {level:.0%} interval], with the exact "
+        "one-sided bound (≤ u or ≥ l) when k is 0 or n; means with their percentile-bootstrap interval; minima "
+        "and maxima over all episodes of the cell.",
         f"ours − paper: for counts, the difference of rates (ours − paper/{runs}) with Newcombe's {level:.0%} hybrid "
         "score interval, the paper's runs being a sample too; for values, the difference and the relative gap.",
     ]

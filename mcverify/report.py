@@ -38,6 +38,7 @@ from mcverify.tables import (
     fmt_num,
     fmt_rate,
     is_missing,
+    method_name,
     to_latex,
     to_markdown,
 )
@@ -142,7 +143,7 @@ def report_tables(summ: Mapping[str, Any], manifest: Mapping[str, Any]) -> list[
 
 def _rate_note(summ: Mapping[str, Any]) -> str:
     return (f"k/n [low, high]: k episodes of n with the two-sided {summ['confidence_level']:.0%} "
-            f"{summ['interval_method']} interval; 0/n (≤ u) and n/n (≥ l): the exact one-sided "
+            f"{method_name(summ['interval_method'])} interval; 0/n (≤ u) and n/n (≥ l): the exact one-sided "
             f"{summ['confidence_level']:.0%} bound when no or every episode counts.")
 
 
@@ -299,7 +300,7 @@ def facts(manifest: Mapping[str, Any], summ: Mapping[str, Any]) -> list[tuple[st
         ("grid", "; ".join(f"{a}: {', '.join(v)}" for a, v in axes.items()) or "one cell"),
         ("seed", f"{camp.get('seed')} (common random numbers: {'yes' if camp.get('common_random_numbers') else 'no'})"),
         ("controllers", ", ".join(controllers)),
-        ("intervals", f"two-sided {summ['confidence_level']:.0%} {summ['interval_method']} for rates; exact one-sided "
+        ("intervals", f"two-sided {summ['confidence_level']:.0%} {method_name(summ['interval_method'])} for rates; exact one-sided "
                       f"bounds when no or every episode counts; percentile bootstrap "
                       f"({summ['bootstrap']['resamples']} resamples, seed {summ['bootstrap']['seed']}) for means"),
         ("code", f"git {(manifest.get('environment') or {}).get('git_commit') or DASH}; kernels "

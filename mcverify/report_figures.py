@@ -21,6 +21,7 @@ import pyarrow as pa
 
 from mcverify import figures, summary
 from mcverify.paper_tables import pretty_label
+from mcverify.tables import method_name
 
 FIGURES_DIR = "figures"
 TRAJECTORY_DIRS = ("trajectories", "replay")
@@ -124,8 +125,8 @@ def write_figures(
     else:
         draw("rates", "Rates per cell",
              f"Left: safe, collision and ellipse-violation rates per cell (points) with their two-sided {level:.0%} "
-             f"{summ['interval_method']} intervals (bars). Right: share of the cell's episodes by outcome, with "
-             "counts.",
+             f"{method_name(summ['interval_method'])} intervals (bars). Right: share of the cell's episodes by "
+             "outcome, with counts.",
              figures.rates_per_cell, cells)
 
     x_axis = sweep_axis(cells, axes)

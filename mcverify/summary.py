@@ -119,12 +119,11 @@ def summarise(
     info = _manifest_cells(manifest)
     cols = Columns.from_table(table)
     idx = cols["cell_index"].astype(np.int64) if cols.num_rows else np.zeros(0, dtype=np.int64)
-    order = np.argsort(idx, kind="stable")
-    starts = np.searchsorted(idx[order], sorted(set(idx.tolist()) | set(info)))
-    indices = sorted(set(idx.tolist()) | set(info))
+    order = np.argsort(idx, kind="stable")  # rows grouped by cell, episode order kept within a cell
+    grouped = idx[order]
     cells = []
-    for cell_index, start in zip(indices, starts, strict=True):
-        stop = int(np.searchsorted(idx[order], cell_index, side="right"))
+    for cell_index in sorted(set(idx.tolist()) | set(info)):
+        start, stop = np.searchsorted(grouped, cell_index, "left"), np.searchsorted(grouped, cell_index, "right")
         sub = cols.take(order[start:stop])
         cells.append(
             cell_summary(

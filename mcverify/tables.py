@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import html
 import math
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -77,6 +78,11 @@ def fmt_p(x: Any) -> str:
     if x > 0.99:
         return f"{x:.4f}"
     return f"{x:.3f}"
+
+
+def method_name(method: str) -> str:
+    """How a rate interval method is named in rendered text."""
+    return {"clopper-pearson": "exact Clopper-Pearson", "wilson": "Wilson score"}.get(method, method)
 
 
 def fmt_rate(r: Mapping[str, Any] | None) -> str:
@@ -167,7 +173,9 @@ def latex_escape(text: str) -> str:
             parts[-1] = (math_mode, parts[-1][1] + piece)
         else:
             parts.append((math_mode, piece))
-    return "".join(f"${p}$" if m else p for m, p in parts)
+    out = "".join(f"${p}$" if m else p for m, p in parts)
+    # a hyphen that starts a number is a minus sign (not a word's hyphen, as in "VL-CBF")
+    return re.sub(r"(?<![\w.$])-(?=\d)", "$-$", out)
 
 
 def to_latex(t: Table) -> str:

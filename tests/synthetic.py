@@ -151,10 +151,12 @@ def make_run(
     opposing: bool = False,
     trajectories: bool = True,
     plans_files: bool = True,
+    trajectory_cells: tuple[int, ...] | None = None,
     seed: int | None = None,
 ) -> Path:
     """Write a synthetic run folder: manifest.json (as the runner writes it), episodes.parquet and,
-    with ``trajectories``, the first episode of every cell under trajectories/."""
+    with ``trajectories``, the first episode of every cell (or of ``trajectory_cells``) under
+    trajectories/."""
     camp = campaign_from_dict(raw, seed=seed)
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -166,6 +168,8 @@ def make_run(
     if trajectories:
         (run_dir / "trajectories").mkdir(exist_ok=True)
         for cell in camp.cells:
+            if trajectory_cells is not None and cell.index not in trajectory_cells:
+                continue
             traj = trajectory(opposing=opposing, went_back=cell.index % 2 == 1)
             stem = run_dir / "trajectories" / f"episode-{cell.episode_offset:06d}"
             pq.write_table(pa.table(traj), f"{stem}.parquet")

@@ -74,6 +74,7 @@ def test_latex_escape():
     assert latex_escape("50% & #1 $x ~ {y}") == r"50\% \& \#1 \$x \textasciitilde{} \{y\}"
     assert latex_escape("≤ 0.095") == r"$\le$ 0.095"
     assert latex_escape("–") == "--"
+    assert latex_escape("VL-CBF -0.15 (-67%) [-0.1, +0.2] x-1") == r"VL-CBF $-$0.15 ($-$67\%) [$-$0.1, +0.2] x-1"
     assert latex_escape("≤ε") == r"$\le\varepsilon$"  # one math run
 
 
