@@ -258,6 +258,7 @@ def validate_params(p: ModelParams, where: str) -> None:
         "scenario.ego_speed_mps": sc.ego_speed_mps,
         "scenario.front_speed_mps": sc.front_speed_mps,
         "scenario.front_accel_onset_s": sc.front_accel_onset_s,
+        "scenario.front_accel_duration_s": 0.0 if sc.front_accel_duration_s == math.inf else sc.front_accel_duration_s,
         "scenario.front_speed_max_mps": sc.front_speed_max_mps,
         "ego.speed_min_mps": e.speed_min_mps,
     }

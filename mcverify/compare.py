@@ -33,9 +33,10 @@ from mcverify.tables import DASH, Section, Table, fmt_num, fmt_p, is_missing, to
 
 #: Rates compared (those both runs have).
 RATES = ("safe", "collision", "collision_front", "collision_opp", "ellipse_violation", "invariance_breach",
-         "overtook", "went_back", "timeout")
+         "opp_invariance_breach", "overtook", "went_back", "timeout")
 #: Values whose means are compared (and whose minima are shown).
-VALUES = ("min_dist_front_m", "min_gap_front_m", "min_gap_opp_m", "min_h_front", "overtake_time_s")
+VALUES = ("min_dist_front_m", "min_gap_front_m", "min_gap_opp_m", "min_gap_opp_any_m", "min_h_front",
+          "overtake_time_s")
 
 
 @dataclass(frozen=True)

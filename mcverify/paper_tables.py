@@ -113,6 +113,8 @@ def pretty_label(axis: str, label: str) -> str:
     """A column header for an axis label, in the paper's notation where the axis is a known one."""
     if axis == "front_speed_kmh":
         return f"v_f = {label} km/h"
+    if axis == "alpha_f" and label[:1] in "([":
+        return f"α_f ∈ {label}"
     if axis == "front_accel_range_mps2":
         m = re.fullmatch(r"\[([^,\]]+),([^\]]+)\]", label)
         return f"α_f ∈ ({m.group(1)},{m.group(2)}]" if m else f"α_f ∈ {label}"

@@ -128,7 +128,8 @@ def build_summary(manifest: Mapping[str, Any], table: pa.Table, opts: Options = 
 
 def report_tables(summ: Mapping[str, Any], manifest: Mapping[str, Any]) -> list[Table]:
     """Every table of the report, in order: the paper's layout (if the campaign names one), the
-    outcomes, the pivot tables of a two-axis grid, distances, times, theorem checks and solver."""
+    outcomes, the pivot tables of a two-axis grid, distances, times, theorem checks, decisions and
+    solver."""
     out: list[Table] = []
     ref = manifest["campaign"].get("reference") or {}
     if ref:
@@ -137,7 +138,7 @@ def report_tables(summ: Mapping[str, Any], manifest: Mapping[str, Any]) -> list[
             out.append(paper)
     out.append(outcome_table(summ))
     out += pivot_tables(summ)
-    out += [distance_table(summ), time_table(summ), theorem_table(summ)]
+    out += [distance_table(summ), time_table(summ), theorem_table(summ), solver_table(summ)]
     return out
 
 
@@ -156,7 +157,7 @@ def outcome_table(summ: Mapping[str, Any]) -> Table:
         names += ["collision_front", "collision_opp"]
     else:
         names += ["collision_front"]
-    names += ["ellipse_violation", "invariance_breach", "overtook", "went_back", "timeout"]
+    names += ["ellipse_violation", "invariance_breach", "opp_invariance_breach", "overtook", "went_back", "timeout"]
     names = [n for n in names if has.get(n)]
     errors = any(c["rates"]["error"]["k"] for c in cells)
     columns = ["cell", "episodes", *(summary.METRICS[n].label for n in names)] + (["errors"] if errors else [])
@@ -216,8 +217,11 @@ def distance_table(summ: Mapping[str, Any]) -> Table:
     opp = any(c["values"].get("min_gap_opp_m", {}).get("count") for c in cells)
     columns = ["cell", "min dist. veh_f: min (m)", "5 % quantile", "median", "mean [CI]", "min gap veh_f (m)",
                "min h_ef"]
+    any_time = opp and any(c["values"].get("min_gap_opp_any_m", {}).get("count") for c in cells)
     if opp:
         columns += ["min dist. veh_o: min (m)", "median", "episodes in opp. lane"]
+    if any_time:
+        columns += ["min gap veh_o, any time (m)"]
     rows = []
     for c in cells:
         d = _value(c, "min_dist_front_m")
@@ -226,6 +230,8 @@ def distance_table(summ: Mapping[str, Any]) -> Table:
         if opp:
             o = _value(c, "min_gap_opp_m")
             row += [_stat(o, "min"), _stat(o, "q50"), str(o["count"]) if o else DASH]
+        if any_time:
+            row += [_stat(_value(c, "min_gap_opp_any_m"), "min")]
         rows.append(row)
     notes = ["min dist. veh_f is the paper's \"min dist. with veh_f\": signed distance from the ego c.g. to the safety "
              "ellipse, negative inside; the min column is the smallest over the cell's episodes, the others describe "
@@ -251,27 +257,67 @@ def time_table(summ: Mapping[str, Any]) -> Table:
     return Table("times", "Overtaking times per cell", columns, rows, notes)
 
 
+def _int(d: Mapping[str, Any], key: str) -> str:
+    return str(d[key]) if key in d else DASH
+
+
+def _counted(counts: Mapping[str, int] | None) -> str:
+    return ", ".join(f"{k} {v}" for k, v in (counts or {}).items()) or "none"
+
+
 def theorem_table(summ: Mapping[str, Any]) -> Table:
-    """Theorem checks (2: invariance of the level set; 5: one of Q1/Q2 feasible) and the solver."""
-    columns = ["cell", "invariance breaches (Thm 2)", "episodes with Q1 and Q2 unsolved (Thm 5)", "such steps",
-               "fallback steps", "Q1 failed steps", "Q2 failed steps", "Q2-driven steps", "solves", "mean / max iters",
-               "mean / max solve time (ms)", "IPOPT statuses other than success"]
+    """Theorem checks per cell (2: the level set is invariant; 5: Q1 or Q2 is always feasible) and
+    what drove the ego when it first left the safe set."""
+    cells = summ["cells"]
+    opp = any("opp_invariance_breaches" in c["theorem_checks"] for c in cells)
+    held = any("held_steps" in c["theorem_checks"] for c in cells)
+    cause = any("first_unsafe_cause" in c.get("counts", {}) for c in cells)
+    columns = ["cell", "invariance breaches (Thm 2)"] + (["h_eo breaches"] if opp else []) + [
+        "episodes with Q1 and Q2 unsolved (Thm 5)", "such steps", "episodes with fallback", "fallback steps"]
+    columns += (["episodes holding a failed plan", "held steps"] if held else [])
+    columns += (["first unsafe step driven by"] if cause else [])
     rows = []
-    for c in summ["cells"]:
-        t, s = c["theorem_checks"], c["solver"]
+    for c in cells:
+        t = c["theorem_checks"]
+        row = [c["cell"], _int(t, "invariance_breaches")] + ([_int(t, "opp_invariance_breaches")] if opp else [])
+        row += [_int(t, "episodes_with_both_infeasible"), _int(t, "both_infeasible_steps"),
+                _int(t, "episodes_with_fallback"), _int(t, "fallback_steps")]
+        row += ([_int(t, "episodes_with_held"), _int(t, "held_steps")] if held else [])
+        row += ([_counted(c.get("counts", {}).get("first_unsafe_cause"))] if cause else [])
+        rows.append(row)
+    notes = ["Counts over the cell's episodes (steps: control steps). Fallback: neither problem solved, the ego "
+             "brakes towards its lane."]
+    if cause:
+        notes.append("First unsafe step driven by: the plan source in the control period where the ego first left "
+                     "the safe set (planned: a solved plan; held: a failed problem's old plan; fallback: no plan).")
+    return Table("theorem-checks", "Theorem checks per cell", columns, rows, notes,
+                 align="l" + "r" * (len(columns) - 2) + ("l" if cause else "r"))
+
+
+def solver_table(summ: Mapping[str, Any]) -> Table:
+    """Decisions (Algorithm 1) and the solver per cell."""
+    cells = summ["cells"]
+    reasons = any("went_back_reason" in c.get("counts", {}) for c in cells)
+    table_one = any(c.get("counts", {}).get("table_one_rows") for c in cells)
+    columns = ["cell", "Q1 failed steps", "Q2 failed steps", "Q2-driven steps", "Q1 rescue steps", "solves",
+               "cold retries", "mean / max iters", "mean / max solve time (ms)", "IPOPT statuses other than success"]
+    columns += (["went back because"] if reasons else []) + (["Table I rows met (steps)"] if table_one else [])
+    rows = []
+    for c in cells:
+        t, s, counts = c["theorem_checks"], c["solver"], c.get("counts", {})
         statuses = {k: v for k, v in s.get("statuses", {}).items() if k != "Solve_Succeeded"}
-        rows.append([
-            c["cell"], str(t.get("invariance_breaches", DASH)), str(t.get("episodes_with_both_infeasible", DASH)),
-            str(t.get("both_infeasible_steps", DASH)), str(t.get("fallback_steps", DASH)),
-            str(t.get("q1_fail_steps", DASH)), str(t.get("q2_fail_steps", DASH)), str(t.get("q2_driven_steps", DASH)),
-            str(s.get("solves", DASH)),
-            f"{fmt_num(s.get('iterations_mean'), 1)} / {s.get('iterations_max', DASH)}",
-            f"{_ms(s.get('solve_time_mean_s'))} / {_ms(s.get('solve_time_max_s'))}",
-            ", ".join(f"{k} {v}" for k, v in statuses.items()) or "none",
-        ])
-    notes = ["Counts are summed over the cell's episodes. Solve times are the only machine-dependent numbers of the "
-             "report (they come from the stored episodes, so regenerating the report does not change them)."]
-    return Table("theorem-checks", "Theorem checks and solver per cell", columns, rows, notes)
+        row = [c["cell"], _int(t, "q1_fail_steps"), _int(t, "q2_fail_steps"), _int(t, "q2_driven_steps"),
+               _int(t, "q1_rescue_steps"), _int(s, "solves"), _int(s, "cold_retries"),
+               f"{fmt_num(s.get('iterations_mean'), 1)} / {s.get('iterations_max', DASH)}",
+               f"{_ms(s.get('solve_time_mean_s'))} / {_ms(s.get('solve_time_max_s'))}", _counted(statuses)]
+        row += ([_counted(counts.get("went_back_reason"))] if reasons else [])
+        rows_met = {f"row {k}:": v for k, v in counts.get("table_one_rows", {}).items()}
+        row += ([_counted(rows_met)] if table_one else [])
+        rows.append(row)
+    notes = ["Solve times are the only machine-dependent numbers of the report (they come from the stored "
+             "episodes, so regenerating the report does not change them)."]
+    return Table("solver", "Decisions and solver per cell", columns, rows, notes,
+                 align="l" + "r" * 8 + "l" * (len(columns) - 9))
 
 
 def _ms(x: Any) -> str:

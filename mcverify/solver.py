@@ -35,10 +35,10 @@ MAX_VIOLATION = 1e-5
 def ipopt_options(params: ModelParams, warm: bool) -> dict:
     """IPOPT options of the cold (``warm=False``) or warm-started solver.
 
-    * ``tol`` and ``max_iter`` from :class:`~mcverify.model.Mpc`; ``constr_viol_tol`` 1e-7 (default
-      1e-4) so that "Solve_Succeeded" implies our own 1e-5 feasibility check; the acceptable-level
-      exit (15 iterations at ``acceptable_tol``) keeps the default 1e-6 but its constraint tolerance
-      is tightened from 1e-2 to 1e-6 for the same reason.
+    * ``tol`` and ``max_iter`` (warm) / ``max_iter_cold`` from :class:`~mcverify.model.Mpc`;
+      ``constr_viol_tol`` 1e-7 (default 1e-4) so that "Solve_Succeeded" implies our own 1e-5
+      feasibility check; the acceptable-level exit (15 iterations at ``acceptable_tol``) keeps the
+      default 1e-6 but its constraint tolerance is tightened from 1e-2 to 1e-6 for the same reason.
     * Warm: ``warm_start_init_point`` with small bound pushes (1e-6), so the previous primal-dual
       point is kept nearly as is, and ``mu_init`` 1e-7 instead of 0.1, which would push the iterate
       back to the central path and throw the warm start away. Measured along Table II closed loops
@@ -52,7 +52,7 @@ def ipopt_options(params: ModelParams, warm: bool) -> dict:
     opts = {
         "print_level": 0,
         "sb": "yes",
-        "max_iter": params.mpc.max_iter,
+        "max_iter": params.mpc.max_iter if warm else params.mpc.max_iter_cold,
         "tol": params.mpc.tol,
         "constr_viol_tol": 1e-7,
         "acceptable_constr_viol_tol": 1e-6,
@@ -97,6 +97,7 @@ class MpcSolution:
     warm: WarmStart | None  # what to pass to the next solve of the same problem; None on failure
     max_violation: float = float("nan")  # largest constraint or bound violation of the returned plan
     retried_cold: bool = False  # the warm start failed and this is the cold retry's result
+    opp_plan: np.ndarray | None = None  # (N+1, 2) predicted veh_o [x_o, v_o]; None without one
 
 
 class MpcSolver:
@@ -137,16 +138,23 @@ class MpcSolver:
         direction: int,
         lambda0: float,
         warm: WarmStart | None = None,
+        opp_xv: np.ndarray | None = None,
+        guess: np.ndarray | None = None,
     ) -> MpcSolution:
         """Solve Q1 (direction +1) or Q2 (-1) from the measured states.
 
         ego_state (4,) [x m, y m, psi rad, v m/s]; front_xyv (3,) [x_f m, y_f m, v_f m/s];
         lambda0: level parameter (<= 0); warm: the ``warm`` of the previous solution of the same
-        direction, or None for a cold start from :func:`~mcverify.ocp.initial_guess`.
+        direction, or None for a cold start from :func:`~mcverify.ocp.initial_guess`;
+        opp_xv (2,) [x_o m, v_o m/s signed]: the measured opposing vehicle, required (only) when the
+        structure has one; guess (n_w,): a primal starting point for a cold solve instead of
+        :func:`~mcverify.ocp.initial_guess` (e.g. the plain problem's plan, :func:`guess_from_plan`).
         """
         t0 = time.perf_counter()
         try:
-            p = pack_params(self.params, ego_state, front_xyv, direction, lambda0)
+            p = pack_params(
+                self.params, ego_state, front_xyv, direction, lambda0, opp_xv=opp_xv, structure=self.structure
+            )
         except ValueError as exc:  # wrong shapes or direction: a caller error, not numerics
             raise ValueError(f"MpcSolver.solve: {exc}") from exc
         if not np.all(np.isfinite(p)):
@@ -161,11 +169,25 @@ class MpcSolver:
             # (e.g. Q2's goal switches from braking behind veh_f to a lane change), IPOPT stalls
             # or wrongly reports local infeasibility. Along Table II closed loops every such Q2
             # failure solved from the cold guess (40-60 iterations). The retry is counted.
-            cold = self._run(p, direction, t0, warm=None, ego_state=ego_state, front_xyv=front_xyv)
+            cold = self._run(p, direction, t0, warm=None, ego_state=ego_state, front_xyv=front_xyv, opp_xv=opp_xv,
+                             guess=guess)
             return dataclasses.replace(cold, iterations=sol.iterations + cold.iterations, retried_cold=True)
-        return self._run(p, direction, t0, warm=None, ego_state=ego_state, front_xyv=front_xyv)
+        return self._run(p, direction, t0, warm=None, ego_state=ego_state, front_xyv=front_xyv, opp_xv=opp_xv,
+                         guess=guess)
 
-    def _run(self, p, direction, t0, *, warm, ego_state=None, front_xyv=None) -> MpcSolution:
+    def guess_from_plan(self, plan: MpcSolution, opp_xv: np.ndarray | None) -> np.ndarray | None:
+        """A primal guess for this solver's structure from a plan of another structure (the same
+        ego variables; veh_o, if this structure has one, extrapolated at its measured speed)."""
+        if not plan.success:
+            return None
+        xo = None
+        if self.structure.with_opposing:
+            t = np.concatenate([[0.0], np.cumsum(plan.dt_plan)])
+            x_o, v_o = np.asarray(opp_xv, dtype=float).reshape(2)
+            xo = np.column_stack([x_o + v_o * t, np.full(t.size, v_o)])
+        return self.layout.pack(plan.x_plan, plan.u_plan, plan.dt_plan, xo)
+
+    def _run(self, p, direction, t0, *, warm, ego_state=None, front_xyv=None, opp_xv=None, guess=None) -> MpcSolution:
         """One IPOPT call: warm from ``warm`` or cold from :func:`~mcverify.ocp.initial_guess`."""
         try:
             if warm is not None:
@@ -175,7 +197,9 @@ class MpcSolver:
                 )
                 stats = self._warm.stats()
             else:
-                w0 = initial_guess(self.params, self.structure, ego_state, front_xyv, direction)
+                w0 = guess if guess is not None else initial_guess(
+                    self.params, self.structure, ego_state, front_xyv, direction, opp_xv
+                )
                 res = self._cold(x0=w0, p=p, lbx=self._lbx, ubx=self._ubx, lbg=self._lbg, ubg=self._ubg)
                 stats = self._cold.stats()
         except Exception as exc:  # noqa: BLE001 - IPOPT/CasADi errors become a failed solution
@@ -213,6 +237,7 @@ class MpcSolver:
             dt_plan=dt_plan,
             warm=warm,
             max_violation=violation,
+            opp_plan=self.layout.unpack_opposing(w) if self.structure.with_opposing else None,
         )
 
     def _failure(self, status: str, t0: float) -> MpcSolution:

@@ -54,6 +54,8 @@ RATE_METRICS: tuple[Metric, ...] = (
            "ellipse around the front vehicle"),
     Metric("invariance_breach", "invariance breach", "h_ef started at or above the level ε and fell below it "
            "(Theorem 2 says it cannot)"),
+    Metric("opp_invariance_breach", "h_eo breach", "h_eo fell below its level while the ego borrowed the opposing "
+           "lane"),
     Metric("overtook", "overtook", "the episode ended with the paper's convergence test met ahead of the front vehicle "
            "(a successful overtake)"),
     Metric("went_back", "went back", "the episode ended behind the front vehicle in the ego lane (Q2's goal: the "
@@ -69,6 +71,8 @@ VALUE_METRICS: tuple[Metric, ...] = (
     Metric("min_gap_opp_m", "min dist. veh_o", "the paper's \"min dist. with veh_o\": smallest bumper gap to the "
            "opposing vehicle while the ego footprint reaches into the opposing lane (no value if it never did)", "m"),
     Metric("min_h_front", "min h_ef", "minimum of the barrier h_ef along the true trajectory"),
+    Metric("min_gap_opp_any_m", "min gap veh_o (any time)", "smallest footprint gap to the opposing vehicle at any "
+           "time", "m"),
     Metric("min_h_opp", "min h_eo", "minimum of h_eo while borrowing the opposing lane", "m"),
     Metric("invariance_margin", "min h_ef − ε", "min h_ef minus the level ε; negative means the level set was left"),
     Metric("overtake_time_s", "overtake time", "time from the episode start to the paper's convergence test "
@@ -76,6 +80,7 @@ VALUE_METRICS: tuple[Metric, ...] = (
     Metric("lane_borrow_time_s", "lane-borrow time", "from the first to the last sub-step at which the ego footprint "
            "reaches into the opposing lane", "s"),
     Metric("end_time_s", "episode length", "simulated time until the episode ended", "s"),
+    Metric("first_unsafe_s", "first unsafe time", "when the ego first left the safe set (unsafe episodes only)", "s"),
     Metric("sample_front_accel_mps2", "α_f drawn", "the front vehicle's acceleration drawn for the episode", "m/s²"),
 )
 
@@ -88,6 +93,29 @@ QUANTILES = (0.0, 0.05, 0.25, 0.5, 0.75, 0.95, 1.0)
 
 #: Outcomes in report order; "error" episodes are kept apart from the safety statistics.
 OUTCOMES = ("overtook", "went_back", "timeout", "error")
+
+#: Categorical episode columns counted per cell (empty strings are not counted): what drove the ego
+#: when it first left the safe set ("planned", "held", "fallback") and why it went back.
+CATEGORY_COLUMNS = ("first_unsafe_cause", "went_back_reason")
+#: JSON-count episode columns summed per cell: Table I rows met, IPOPT return statuses.
+JSON_COUNT_COLUMNS = ("table_one_rows",)
+
+#: ``theorem_checks`` of a cell: key -> (episode column, "sum" over episodes or "episodes" with a
+#: positive value). Theorem 2: invariance breaches; Theorem 5: steps with Q1 and Q2 both unsolved.
+THEOREM_CHECKS: dict[str, tuple[str, str]] = {
+    "invariance_breaches": ("invariance_breach", "sum"),
+    "opp_invariance_breaches": ("opp_invariance_breach", "sum"),
+    "episodes_with_both_infeasible": ("both_infeasible_steps", "episodes"),
+    "both_infeasible_steps": ("both_infeasible_steps", "sum"),
+    "episodes_with_fallback": ("fallback_steps", "episodes"),
+    "fallback_steps": ("fallback_steps", "sum"),
+    "episodes_with_held": ("held_steps", "episodes"),
+    "held_steps": ("held_steps", "sum"),
+    "q1_fail_steps": ("q1_fail_steps", "sum"),
+    "q2_fail_steps": ("q2_fail_steps", "sum"),
+    "q2_driven_steps": ("q2_driven_steps", "sum"),
+    "q1_rescue_steps": ("q1_rescue_steps", "sum"),
+}
 
 _COLLISION_COLUMNS = ("collision_front", "collision_opp")
 
@@ -163,8 +191,10 @@ def cell_summary(
     ``noise`` (kind and scale), ``epsilon``, ``lambda0``, ``overrides``, ``episodes_planned``,
     ``episodes`` (rows), ``valid`` (rows without error), ``outcomes`` (counts of
     :data:`OUTCOMES`), ``rates`` (name -> :func:`stats.rate_summary`, over valid episodes;
-    ``error`` over all), ``values`` (name -> :func:`value_summary`), ``theorem_checks``,
-    ``solver`` (iterations, solve times, IPOPT return statuses summed over episodes).
+    ``error`` over all), ``values`` (name -> :func:`value_summary`), ``counts`` (per
+    :data:`CATEGORY_COLUMNS` and :data:`JSON_COUNT_COLUMNS` the run has: value -> episodes, or
+    summed counts), ``theorem_checks``, ``solver`` (iterations, solve times, cold retries, IPOPT
+    return statuses summed over episodes).
     """
     t = t if isinstance(t, Columns) else Columns.from_table(t)
     n_all = t.num_rows
@@ -206,6 +236,7 @@ def cell_summary(
         "outcomes": {o: int((outcome == o).sum()) for o in OUTCOMES},
         "rates": rates,
         "values": values,
+        "counts": _counts(v),
         "theorem_checks": _theorem_checks(v),
         "solver": _solver(v),
     }
@@ -265,7 +296,8 @@ def cells_table(summ: Mapping[str, Any]) -> pa.Table:
     ``opposing_kind``, ``epsilon``, ``lambda0``, ``episodes_planned``, ``episodes``, ``valid``,
     ``outcome_<o>``; per rate ``<rate>_{k,n,rate,low,high,lower_one_sided,upper_one_sided}``; per
     value ``<value>_{count,min,max,mean,mean_low,mean_high,std,q5,q25,q50,q75,q95}``; then
-    ``thm_<check>`` and ``solver_<field>``. Missing statistics are nulls; the column order is fixed.
+    ``thm_<check>``, ``count_<column>`` (JSON object strings) and ``solver_<field>``. Missing
+    statistics are nulls; the column order is fixed.
     """
     cells = summ["cells"]
     axes = []
@@ -276,8 +308,9 @@ def cells_table(summ: Mapping[str, Any]) -> pa.Table:
     rate_names = [r for r in (*RATE_NAMES, "error") if any(r in c["rates"] for c in cells)]
     value_names = [m for m in VALUE_NAMES if any(m in c["values"] for c in cells)]
     qkeys = [stats.quantile_key(q) for q in QUANTILES if 0.0 < q < 1.0]
-    thm_keys = list(_theorem_checks(None))
-    solver_keys = ["solves", "iterations_mean", "iterations_max", "solve_time_mean_s", "solve_time_max_s"]
+    thm_keys = [k for k in THEOREM_CHECKS if any(k in c["theorem_checks"] for c in cells)]
+    solver_keys = ["solves", "cold_retries", "iterations_mean", "iterations_max", "solve_time_mean_s",
+                   "solve_time_max_s"]
     columns: dict[str, tuple[pa.DataType, list[Any]]] = {}
 
     def put(col: str, typ: pa.DataType, value: Any) -> None:
@@ -311,8 +344,12 @@ def cells_table(summ: Mapping[str, Any]) -> pa.Table:
                 put(f"{m}_{q}", pa.float64(), vs.get("quantiles", {}).get(q))
         for key in thm_keys:
             put(f"thm_{key}", pa.int64(), c["theorem_checks"].get(key))
+        for key in (*CATEGORY_COLUMNS, *JSON_COUNT_COLUMNS):
+            if any(key in x.get("counts", {}) for x in cells):
+                counts = c.get("counts", {}).get(key)
+                put(f"count_{key}", pa.string(), None if counts is None else json.dumps(counts, sort_keys=True))
         for key in solver_keys:
-            typ = pa.int64() if key in ("solves", "iterations_max") else pa.float64()
+            typ = pa.int64() if key in ("solves", "cold_retries", "iterations_max") else pa.float64()
             put(f"solver_{key}", typ, c["solver"].get(key))
     return pa.table({name: pa.array(vals, type=typ) for name, (typ, vals) in columns.items()})
 
@@ -337,32 +374,13 @@ def _manifest_cells(manifest: Mapping[str, Any] | None) -> dict[int, dict[str, A
     return {int(c["index"]): dict(c) for c in manifest.get("cells", []) if "index" in c}
 
 
-def _theorem_checks(v: Columns | None) -> dict[str, int]:
-    keys = {
-        "invariance_breaches": "invariance_breach",
-        "episodes_with_both_infeasible": None,
-        "both_infeasible_steps": "both_infeasible_steps",
-        "fallback_steps": "fallback_steps",
-        "episodes_with_fallback": None,
-        "q1_fail_steps": "q1_fail_steps",
-        "q2_fail_steps": "q2_fail_steps",
-        "q2_driven_steps": "q2_driven_steps",
-    }
-    if v is None:
-        return dict.fromkeys(keys, 0)
+def _theorem_checks(v: Columns) -> dict[str, int]:
     out = {}
-    for key, col in keys.items():
-        if key == "episodes_with_both_infeasible":
-            out[key] = _count_positive(v, "both_infeasible_steps")
-        elif key == "episodes_with_fallback":
-            out[key] = _count_positive(v, "fallback_steps")
-        elif col in v.column_names:
-            out[key] = int(np.nansum(_floats(v, col)))
+    for key, (col, how) in THEOREM_CHECKS.items():
+        if col in v.column_names:
+            x = _floats(v, col)
+            out[key] = int((x > 0).sum()) if how == "episodes" else int(np.nansum(x))
     return out
-
-
-def _count_positive(v: Columns, col: str) -> int:
-    return int((_floats(v, col) > 0).sum()) if col in v.column_names else 0
 
 
 def _solver(v: Columns) -> dict[str, Any]:
@@ -374,15 +392,33 @@ def _solver(v: Columns) -> dict[str, Any]:
     if "iterations_mean" in v.column_names:
         out["iterations_mean"] = float(np.average(_floats(v, "iterations_mean"), weights=weights))
         out["iterations_max"] = int(np.nanmax(_floats(v, "iterations_max")))
+    if "cold_retries" in v.column_names:
+        out["cold_retries"] = int(np.nansum(_floats(v, "cold_retries")))
     if "solve_time_mean_s" in v.column_names:
         out["solve_time_mean_s"] = float(np.average(_floats(v, "solve_time_mean_s"), weights=weights))
         out["solve_time_max_s"] = float(np.nanmax(_floats(v, "solve_time_max_s")))
     if "solver_statuses" in v.column_names:
-        totals: dict[str, int] = {}
-        for text in v["solver_statuses"]:
-            for status, count in (json.loads(text) if text else {}).items():
-                totals[status] = totals.get(status, 0) + int(count)
-        out["statuses"] = dict(sorted(totals.items()))
+        out["statuses"] = _json_counts(v["solver_statuses"])
+    return out
+
+
+def _json_counts(texts: np.ndarray) -> dict[str, int]:
+    totals: dict[str, int] = {}
+    for text in texts:
+        for key, count in (json.loads(text) if text else {}).items():
+            totals[key] = totals.get(key, 0) + int(count)
+    return dict(sorted(totals.items()))
+
+
+def _counts(v: Columns) -> dict[str, dict[str, int]]:
+    out: dict[str, dict[str, int]] = {}
+    for name in CATEGORY_COLUMNS:
+        if name in v.column_names:
+            values = [str(x) for x in v[name] if x is not None and str(x) != ""]
+            out[name] = {k: values.count(k) for k in sorted(set(values))}
+    for name in JSON_COUNT_COLUMNS:
+        if name in v.column_names:
+            out[name] = _json_counts(v[name])
     return out
 
 

@@ -83,6 +83,13 @@ def episode_rows(cell: Cell, seed: int, probs: Probs, *, opposing: bool, crn: bo
             "solve_time_mean_s": 0.03,
             "solve_time_max_s": 0.2,
             "solver_statuses": json.dumps({"Infeasible_Problem_Detected": int(10 * u[5]), "Solve_Succeeded": 790}),
+            "first_unsafe_s": 4.0 + u[4] if unsafe else math.nan,
+            "first_unsafe_cause": ("planned" if u[4] < 0.5 else "held") if unsafe else "",
+            "held_steps": int(unsafe and u[4] >= 0.5) * 5,
+            "q1_rescue_steps": 0,
+            "went_back_reason": "q1_not_solved" if outcome == "went_back" else "",
+            "table_one_rows": json.dumps({"1": 300, "2": 100}),
+            "cold_retries": int(3 * u[5]),
         }
         if opposing:
             borrowed = outcome in ("overtook", "went_back")
@@ -91,6 +98,8 @@ def episode_rows(cell: Cell, seed: int, probs: Probs, *, opposing: bool, crn: bo
                 "opposing_kind": "human",
                 "collision_opp": bool(unsafe and not collision),
                 "min_gap_opp_m": (5.0 + 80.0 * u[3]) if borrowed else math.nan,
+                "min_gap_opp_any_m": 3.0 + 80.0 * u[3],
+                "opp_invariance_breach": bool(borrowed and u[3] < 0.05),
                 "min_h_opp": (3.0 + 50.0 * u[3]) if borrowed else math.nan,
             }
         rows.append(row)

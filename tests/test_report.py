@@ -56,11 +56,15 @@ def test_report_contents(t4_run):
     assert md.startswith("# mcverify report: t4\n")
     assert "### Table IV: minimum distance with surrounding vehicles" in md
     assert md.index("Table IV") < md.index("### Safety and outcomes per cell")  # the paper's layout first
-    for table in ("paper-table-IV", "outcomes", "pivot-safe", "distances", "times", "theorem-checks"):
+    for table in ("paper-table-IV", "outcomes", "pivot-safe", "distances", "times", "theorem-checks", "solver"):
         assert (t4_run / "tables" / f"{table}.md").read_text() in md
         tex = (t4_run / "tables" / f"{table}.tex").read_text()
         assert r"\toprule" in tex and r"\bottomrule" in tex
     assert "collision veh_o" in md and "min dist. veh_o" in md  # opposing columns used when present
+    solver = (t4_run / "tables" / "solver.md").read_text()
+    assert "went back because" in solver and "Table I rows met" in solver and "row 1: " in solver
+    thm = (t4_run / "tables" / "theorem-checks.md").read_text()
+    assert "first unsafe step driven by" in thm and "h_eo breaches" in thm
     for f in re.findall(r"!\[[^]]*\]\((figures/[^)]+)\)", md):
         assert (t4_run / f).is_file()
     assert str(t4_run) not in md and "/tmp" not in md

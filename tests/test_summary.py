@@ -137,3 +137,30 @@ def test_cells_table_is_flat_and_null_for_missing():
     assert t.column("overtake_time_s_mean").to_pylist() == [None, None]
     strict = json.dumps(summary.json_ready(s), allow_nan=False)  # strict JSON: no NaN anywhere
     assert "overtake_time_s" in strict
+
+
+def test_theorem_checks_counts_and_solver():
+    t = _table(
+        cell=["a"] * 4, cell_index=[0] * 4, outcome=["overtook", "went_back", "went_back", "error"],
+        safe=[True, False, True, False], both_infeasible_steps=[0, 3, 0, 9], fallback_steps=[0, 2, 1, 9],
+        held_steps=[0, 4, 0, 0], invariance_breach=[False, True, False, False],
+        first_unsafe_cause=["", "held", "", "fallback"], went_back_reason=["", "q1_not_solved", "table_one_row_3", ""],
+        table_one_rows=['{"1": 10}', '{"1": 5, "3": 2}', '{"3": 1}', "{}"], solves=[10, 20, 30, 5],
+        cold_retries=[0, 1, 2, 7], iterations_mean=[10.0, 20.0, 30.0, 5.0], iterations_max=[12, 40, 33, 5],
+        solver_statuses=['{"Solve_Succeeded": 10}', '{"Solve_Succeeded": 18, "Infeasible_Problem_Detected": 2}',
+                         '{"Solve_Succeeded": 30}', "{}"],
+    )
+    c = summary.summarise(t)["cells"][0]  # the error episode is left out of everything below
+    assert c["theorem_checks"] == {
+        "invariance_breaches": 1, "episodes_with_both_infeasible": 1, "both_infeasible_steps": 3,
+        "episodes_with_fallback": 2, "fallback_steps": 3, "episodes_with_held": 1, "held_steps": 4}
+    assert c["counts"] == {"first_unsafe_cause": {"held": 1},
+                           "went_back_reason": {"q1_not_solved": 1, "table_one_row_3": 1},
+                           "table_one_rows": {"1": 15, "3": 3}}
+    assert c["solver"]["solves"] == 60 and c["solver"]["cold_retries"] == 3
+    assert c["solver"]["iterations_mean"] == pytest.approx((100 + 400 + 900) / 60)
+    assert c["solver"]["statuses"] == {"Infeasible_Problem_Detected": 2, "Solve_Succeeded": 58}
+    cells = summary.cells_table(summary.summarise(t))
+    assert json.loads(cells.column("count_went_back_reason")[0].as_py()) == {"q1_not_solved": 1,
+                                                                             "table_one_row_3": 1}
+    assert cells.column("thm_held_steps").to_pylist() == [4]
