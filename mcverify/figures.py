@@ -47,7 +47,8 @@ MAX_PANELS = 48
 
 EGO, FRONT, OPP = "tab:green", "tab:red", "tab:blue"
 Q1_COLOUR, Q2_COLOUR = "tab:green", "tab:orange"
-_PROBLEM_COLOURS = {1: Q1_COLOUR, 2: Q2_COLOUR, 3: "tab:red"}
+#: Background colour per ``active_problem`` code (decision.Source): Q1, Q2, fallback, held MPC-DC plan.
+_PROBLEM_COLOURS = {1: Q1_COLOUR, 2: Q2_COLOUR, 3: "tab:red", 4: "tab:purple"}
 _OUTCOME_COLOURS = {"overtook": "tab:green", "went_back": "tab:orange", "timeout": "tab:gray", "error": "black"}
 
 Trajectory = Mapping[str, np.ndarray]
@@ -456,7 +457,7 @@ def snapshots(
 
 
 def _shade_problems(ax: plt.Axes, t: np.ndarray, problem: np.ndarray | None) -> None:
-    """Background colour per active problem: Q1 green, Q2 orange, fallback red."""
+    """Background colour per active problem: Q1 green, Q2 orange, fallback red, held plan purple."""
     if problem is None or len(t) == 0:
         return
     start = 0
@@ -518,7 +519,7 @@ def barrier_series(
     episodes: Sequence[tuple[str, Trajectory, float]], path: Path, *, opp: bool = False
 ) -> dict[str, int]:
     """One panel per ``(title, trajectory, level)``: h_ef(t) (``opp``: h_eo(t), m) against its
-    level, the active problem shaded (Q1 green, Q2 orange, fallback red)."""
+    level, the active problem shaded (Q1 green, Q2 orange, fallback red, held MPC-DC plan purple)."""
     fig, axes = _grid(len(episodes), 2, 6.0, 2.6)
     for ax, (title, traj, level) in zip(axes, episodes, strict=True):
         barrier_panel(ax, traj, level, opp=opp, clip=None if opp else _barrier_clip(level))

@@ -177,8 +177,8 @@ def _histograms(cells: Sequence[Mapping[str, Any]], table: pa.Table, draw) -> No
          "into the opposing lane (the paper's \"min dist. with veh_o\"); episodes that never did have no value."),
     )
     for key, col, title, xlabel, boundary, blabel, caption in specs:
-        if col not in table.column_names:
-            continue
+        if col not in table.column_names or not any(col in c["values"] for c in cells):
+            continue  # e.g. no opposing vehicle in any cell
         x = np.array([np.nan if v is None else float(v) for v in table.column(col).to_pylist()], dtype=float)
         samples = [x[(idx == c["cell_index"]) & valid] for c in cells]
         draw(key, title, caption, figures.distance_histograms, [c["cell"] for c in cells], samples,
@@ -243,8 +243,9 @@ def _trajectory_figures(
     for key, title, series, caption, fn, kw in (
         ("barrier-h-ef", "h_ef(t) against its level ε", series_h,
          "h_ef along the true trajectory of each cell's stored episode, against the level ε (dashed) and the "
-         "ellipse h = 0 (dotted); the view is clipped above; background: problem driving the ego (Q1 green, Q2 "
-         "orange, fallback red)." + note, figures.barrier_series, {}),
+         "ellipse h = 0 (dotted); the view is clipped above; background: what drove the ego (Q1 green, Q2 "
+         "orange, fallback red, a held MPC-DC plan purple; MPC-DC's own plans count as Q1)." + note,
+         figures.barrier_series, {}),
         ("barrier-h-eo", "h_eo(t) against its level", series_opp,
          "h_eo (m) while the ego borrows the opposing lane, against its level (dashed)." + note,
          figures.barrier_series, {"opp": True}),

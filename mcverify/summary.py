@@ -119,6 +119,10 @@ THEOREM_CHECKS: dict[str, tuple[str, str]] = {
 
 _COLLISION_COLUMNS = ("collision_front", "collision_opp")
 
+#: Metrics about the opposing vehicle: left out of a cell that has none (the rollout writes them
+#: as False / NaN there), so runs without opposing traffic show no empty veh_o columns.
+OPPOSING_METRICS = ("collision_opp", "opp_invariance_breach", "min_gap_opp_m", "min_gap_opp_any_m", "min_h_opp")
+
 
 def summarise(
     table: pa.Table,
@@ -197,6 +201,10 @@ def cell_summary(
     return statuses summed over episodes).
     """
     t = t if isinstance(t, Columns) else Columns.from_table(t)
+    params = info.get("params") or {}
+    opposing_kind = params.get("opposing", {}).get("kind") or _first(t, "opposing_kind")  # None: not recorded
+    if opposing_kind == "none":
+        t = t.drop(OPPOSING_METRICS)
     n_all = t.num_rows
     outcome = _strings(t, "outcome")
     error = outcome == "error"
@@ -219,13 +227,12 @@ def cell_summary(
                 _floats(v, m.name), level=level, n_resamples=bootstrap_resamples, seed=seed
             )
 
-    params = info.get("params") or {}
     return {
         "cell": name,
         "cell_index": cell_index,
         "labels": dict(info.get("labels") or {}),
         "controller": info.get("controller") or _first(t, "controller") or params.get("mpc", {}).get("controller"),
-        "opposing_kind": params.get("opposing", {}).get("kind") or _first(t, "opposing_kind") or "none",
+        "opposing_kind": opposing_kind,
         "noise": {"kind": params.get("noise", {}).get("kind"), "scale": params.get("noise", {}).get("scale")},
         "epsilon": _num(info.get("epsilon", _first(t, "epsilon"))),
         "lambda0": _num(info.get("lambda0", _first(t, "lambda0"))),
@@ -459,6 +466,9 @@ class Columns:
 
     def __getitem__(self, name: str) -> np.ndarray:
         return self._data[name]
+
+    def drop(self, names: Sequence[str]) -> Columns:
+        return Columns({k: v for k, v in self._data.items() if k not in names}, self.num_rows)
 
     def take(self, rows: np.ndarray) -> Columns:
         rows = np.asarray(rows, dtype=np.int64)

@@ -164,3 +164,17 @@ def test_theorem_checks_counts_and_solver():
     assert json.loads(cells.column("count_went_back_reason")[0].as_py()) == {"q1_not_solved": 1,
                                                                              "table_one_row_3": 1}
     assert cells.column("thm_held_steps").to_pylist() == [4]
+
+
+def test_opposing_metrics_are_left_out_of_cells_without_an_opposing_vehicle():
+    # the rollout writes collision_opp = False and NaN gaps when there is no opposing vehicle
+    t = _table(cell=["a", "a", "b", "b"], cell_index=[0, 0, 1, 1], outcome=["overtook"] * 4,
+               opposing_kind=["none", "none", "human", "human"], collision_front=[False] * 4,
+               collision_opp=[False, False, True, False], min_gap_opp_m=[np.nan, np.nan, 0.0, 30.0],
+               opp_invariance_breach=[False] * 4)
+    none, human = summary.summarise(t)["cells"]
+    assert none["opposing_kind"] == "none" and human["opposing_kind"] == "human"
+    assert "collision_opp" not in none["rates"] and "min_gap_opp_m" not in none["values"]
+    assert "opp_invariance_breaches" not in none["theorem_checks"]
+    assert human["rates"]["collision_opp"]["k"] == 1 and human["values"]["min_gap_opp_m"]["min"] == 0.0
+    assert human["rates"]["collision"]["k"] == 1 and none["rates"]["collision"]["k"] == 0
