@@ -69,6 +69,13 @@ class Run:
                 return int(c["index"])
         return None
 
+    def opposing_kind(self, name: str) -> str | None:
+        """The cell's opposing vehicle ("none", "human", "autonomous"), None if not recorded."""
+        for c in self.manifest.get("cells", []):
+            if c["name"] == name:
+                return (c.get("params") or {}).get("opposing", {}).get("kind")
+        return None
+
     def rows(self, name: str) -> pa.Table:
         mask = np.array([n == name for n in self.table.column("cell").to_pylist()], dtype=bool)
         return self.table.filter(pa.array(mask))
@@ -161,8 +168,11 @@ def _compare_cells(a: Run, cell_a: str, b: Run, cell_b: str, level: float, test:
             left = int(ok_a.sum() + ok_b.sum() - 2 * common.size)
             if left:
                 reason += f"; {left} episode(s) ran in one cell only and are left out"
+    # without an opposing vehicle in either cell its metrics are placeholders (False / NaN)
+    no_opp = a.opposing_kind(cell_a) == "none" and b.opposing_kind(cell_b) == "none"
+    skip = set(summary.OPPOSING_METRICS) | {"collision"} if no_opp else set()
     rates = {}
-    for name in RATES:
+    for name in (r for r in RATES if r not in skip):
         fa, fb = _flags(ta, name), _flags(tb, name)
         if fa is None or fb is None:
             continue
@@ -177,7 +187,7 @@ def _compare_cells(a: Run, cell_a: str, b: Run, cell_b: str, level: float, test:
             r = stats.compare_unpaired(ka, na, kb, nb, level=level, test=test)
             rates[name] = {**r, "k_a": ka, "n_a": na, "k_b": kb, "n_b": nb}
     values = {}
-    for name in VALUES:
+    for name in (v for v in VALUES if v not in skip):
         if name not in ta.column_names or name not in tb.column_names:
             continue
         va, vb = _floats(ta, name), _floats(tb, name)
