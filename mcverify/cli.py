@@ -87,8 +87,15 @@ def _parser() -> argparse.ArgumentParser:
     rep.add_argument("--out", type=Path, help="folder for the trajectory and plot (default: RUN_DIR/replay)")
     rep.set_defaults(func=_cmd_replay)
 
-    rpt = sub.add_parser("report", help="regenerate summary.json and report.md from stored data")
+    rpt = sub.add_parser(
+        "report", help="regenerate summary.json, cells.parquet, tables, figures, report.md and report.html"
+    )
     rpt.add_argument("run_dir", type=Path)
+    rpt.add_argument("--level", type=_level, default=0.95, help="confidence level of every interval (default 0.95)")
+    rpt.add_argument("--method", choices=("clopper-pearson", "wilson"), default="clopper-pearson",
+                     help="two-sided interval for rates (default: exact Clopper-Pearson)")
+    rpt.add_argument("--bootstrap-resamples", type=_positive_int, default=2000,
+                     help="resamples of the (seeded) bootstrap interval of every mean (default 2000)")
     rpt.set_defaults(func=_cmd_report)
 
     bench = sub.add_parser("bench", help="the engine against the naive reference loop, in one run")
@@ -99,6 +106,17 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--backend", help="the engine's solver backend (default: the cell's)")
     bench.add_argument("--no-write", action="store_true", help="do not append to results/BENCHMARKS.md")
     bench.set_defaults(func=_cmd_bench)
+
+    cmp = sub.add_parser("compare", help="per-cell differences between two runs (paired when they share episode keys)")
+    cmp.add_argument("run_a", type=Path)
+    cmp.add_argument("run_b", type=Path)
+    cmp.add_argument("--level", type=_level, default=0.95, help="confidence level of the intervals (default 0.95)")
+    cmp.add_argument("--test", choices=("fisher", "boschloo"), default="fisher",
+                     help="exact test for unpaired cells (paired cells always use the exact McNemar test)")
+    cmp.add_argument("--pair", nargs=2, action="append", metavar=("CELL_A", "CELL_B"),
+                     help="compare these two cells (repeatable; default: cells with the same name)")
+    cmp.add_argument("--out", type=Path, help="also write compare.md, compare.json and compare.tex here")
+    cmp.set_defaults(func=_cmd_compare)
 
     ker = sub.add_parser("kernels", help="the compiled-solver cache")
     ksub = ker.add_subparsers(metavar="ACTION")
@@ -172,8 +190,27 @@ def _cmd_replay(args) -> int:
 def _cmd_report(args) -> int:
     from mcverify import report
 
-    path = report.write(args.run_dir)
-    print(f"report: {path}")
+    path = report.write(
+        args.run_dir, level=args.level, method=args.method, bootstrap_resamples=args.bootstrap_resamples
+    )
+    print(f"report: {path} (also report.html, summary.json, cells.parquet, tables/, figures/)")
+    return 0
+
+
+def _cmd_compare(args) -> int:
+    from mcverify import compare
+
+    result = compare.compare_runs(
+        compare.load_run(args.run_a),
+        compare.load_run(args.run_b),
+        level=args.level,
+        test=args.test,
+        pairs=[tuple(p) for p in args.pair] if args.pair else None,
+    )
+    print(compare.render_markdown(result))
+    if args.out:
+        for path in compare.write(args.out, result):
+            print(f"wrote {path}", file=sys.stderr)
     return 0
 
 
@@ -223,6 +260,16 @@ def _nonneg_int(text: str) -> int:
     value = _int(text)
     if value < 0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
+    return value
+
+
+def _level(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {text!r}") from None
+    if not 0.0 < value < 1.0:
+        raise argparse.ArgumentTypeError(f"must be in (0, 1), e.g. 0.95, got {value}")
     return value
 
 

@@ -8,10 +8,15 @@ binomial proportion k/n:
 - ``"wilson"``: the score interval [Wil27]; its coverage oscillates around the nominal level and
   dips below it for some (n, p), most markedly when n p is small [BCD01].
 
+Exact one-sided bounds (:func:`one_sided_upper`, :func:`one_sided_lower`) are what a cell with no
+event (or only events) reports: 0 collisions in 30 episodes bounds the collision rate by 0.095 at
+95 %, and 30/30 safe bounds the safe rate below by 0.905.
+
 Comparisons of two cells: Newcombe's hybrid score interval for p1 - p2 (method 10 of [New98a])
 with Fisher's or Boschloo's exact test for independent cells, and for paired episodes (the same
 seeds run under two configurations) Newcombe's method 10 for paired data [New98b] with the exact
-McNemar test.
+McNemar test; differences of means (e.g. of minimum distances) by a paired or unpaired
+percentile bootstrap (:func:`bootstrap_mean_difference`).
 
 References:
     [CP34] Clopper, C. J. & Pearson, E. S. (1934). The use of confidence or fiducial limits
@@ -42,6 +47,7 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+from scipy import special as sc
 from scipy import stats as sps
 
 #: Interval methods for one proportion that :func:`proportion_interval` knows.
@@ -131,15 +137,17 @@ def clopper_pearson_arrays(k: npt.ArrayLike, n: npt.ArrayLike, level: float = 0.
     """Vectorised two-sided Clopper-Pearson interval for k successes out of n (broadcast).
 
     Returns ``(low, high)`` float arrays: low = Beta(alpha/2; k, n-k+1), high = Beta(1-alpha/2;
-    k+1, n-k) with alpha = 1 - level, and exactly 0 at k = 0 and exactly 1 at k = n [CP34].
+    k+1, n-k) with alpha = 1 - level (beta quantiles by ``scipy.special.betaincinv``, the same
+    Boost routine as ``scipy.stats.beta.ppf`` without its per-call overhead), and exactly 0 at
+    k = 0 and exactly 1 at k = n [CP34].
     Equivalently, P(X >= k | low) = P(X <= k | high) = alpha/2 for X ~ Bin(n, p).
     """
     level = _check_level(level)
     kf, nf = _check_kn_arrays(k, n)
     alpha = 1.0 - level
     # Safe shape parameters where the edge value is used instead (avoids NaN warnings).
-    low = np.where(kf == 0, 0.0, sps.beta.ppf(alpha / 2.0, np.maximum(kf, 1.0), nf - kf + 1.0))
-    high = np.where(kf == nf, 1.0, sps.beta.ppf(1.0 - alpha / 2.0, kf + 1.0, np.maximum(nf - kf, 1.0)))
+    low = np.where(kf == 0, 0.0, sc.betaincinv(np.maximum(kf, 1.0), nf - kf + 1.0, alpha / 2.0))
+    high = np.where(kf == nf, 1.0, sc.betaincinv(kf + 1.0, np.maximum(nf - kf, 1.0), 1.0 - alpha / 2.0))
     return low, high
 
 
@@ -197,27 +205,56 @@ def one_sided_upper(k: int, n: int, level: float = 0.95) -> float:
         return 1.0
     if k == 0:
         return zero_event_upper_bound(n, level)
-    return float(sps.beta.ppf(level, k + 1, n - k))
+    return float(sc.betaincinv(k + 1, n - k, level))
+
+
+def one_sided_lower(k: int, n: int, level: float = 0.95) -> float:
+    """Exact one-sided (Clopper-Pearson) lower confidence bound on p after k events in n trials.
+
+    Returns Beta(1 - level; k, n-k+1), the p at which P(X >= k) = 1 - level [CP34]; 0 at k = 0 and
+    (1 - level)^(1/n) at k = n (closed form). It is the bound to quote for a rate such as the safe
+    rate when every episode was safe: 30/30 safe gives p >= 0.905 at 95 %, i.e. the unsafe rate is
+    at most :func:`zero_event_upper_bound` (30) = 0.095.
+    """
+    k, n = _check_kn(k, n)
+    level = _check_level(level)
+    if k == 0:
+        return 0.0
+    if k == n:
+        return 1.0 - zero_event_upper_bound(n, level)
+    return float(sc.betaincinv(k, n - k + 1, 1.0 - level))
+
+
+def interval_arrays(
+    k: npt.ArrayLike, n: npt.ArrayLike, level: float = 0.95, method: str = "clopper-pearson"
+) -> tuple[np.ndarray, np.ndarray]:
+    """Vectorised two-sided interval by name: :func:`clopper_pearson_arrays` or :func:`wilson_arrays`."""
+    fn = clopper_pearson_arrays if _check_method(method) == "clopper-pearson" else wilson_arrays
+    return fn(k, n, level)
 
 
 def rate_summary(k: int, n: int, level: float = 0.95, method: str = "clopper-pearson") -> dict[str, Any]:
     """JSON-friendly summary of a rate: k events in n episodes.
 
     Returns a dict with ``k``, ``n`` (ints), ``rate`` = k/n, ``low``/``high`` (two-sided interval
-    of :func:`proportion_interval` with ``method``), ``level``, ``method`` and ``upper_one_sided``
+    of :func:`proportion_interval` with ``method``), ``level``, ``method``, ``upper_one_sided``
     (exact one-sided upper bound of :func:`one_sided_upper`; for k = 0 it equals
-    :func:`zero_event_upper_bound`). All numbers but k and n are Python floats.
+    :func:`zero_event_upper_bound`) and ``lower_one_sided`` (exact one-sided lower bound of
+    :func:`one_sided_lower`; for k = n it is 1 - zero_event_upper_bound). The one-sided bounds are
+    always exact (Clopper-Pearson), whatever ``method`` the two-sided interval uses. All numbers
+    but k and n are Python floats.
 
-    An empty cell (n = 0, which requires k = 0) does not raise: rate, low, high and
-    upper_one_sided are NaN.
+    An empty cell (n = 0, which requires k = 0) does not raise: rate, low, high and the one-sided
+    bounds are NaN.
     """
     k, n = _check_kn(k, n, allow_empty=True)
     level, method = _check_level(level), _check_method(method)
     if n == 0:
-        rate = low = high = upper = math.nan
+        rate = low = high = upper = lower = math.nan
     else:
         ci = proportion_interval(k, n, level, method)
-        rate, low, high, upper = k / n, ci.low, ci.high, one_sided_upper(k, n, level)
+        rate, low, high = k / n, ci.low, ci.high
+        upper, lower = one_sided_upper(k, n, level), one_sided_lower(k, n, level)
     return {
         "k": k,
         "n": n,
@@ -227,6 +264,7 @@ def rate_summary(k: int, n: int, level: float = 0.95, method: str = "clopper-pea
         "level": level,
         "method": method,
         "upper_one_sided": float(upper),
+        "lower_one_sided": float(lower),
     }
 
 
@@ -254,16 +292,78 @@ def bootstrap_mean_interval(
     method = "percentile-bootstrap"
     if x.size < 2:
         return Interval(math.nan, math.nan, level, method)
-    rng = np.random.default_rng(seed)
+    means = _resample_means(x, n_resamples, np.random.default_rng(seed))
+    low, high = np.quantile(means, [(1.0 - level) / 2.0, (1.0 + level) / 2.0])
+    return Interval(float(low), float(high), level, method)
+
+
+def bootstrap_mean_difference(
+    values_a: npt.ArrayLike,
+    values_b: npt.ArrayLike,
+    *,
+    paired: bool,
+    level: float = 0.95,
+    n_resamples: int = 2000,
+    seed: int = 0,
+) -> dict[str, Any]:
+    """Difference of means mean(a) - mean(b) with a percentile-bootstrap interval [ET93].
+
+    ``paired=True``: a[i] and b[i] belong to the same episode (equal lengths required); pairs with
+    a non-finite member are dropped and the interval is that of the mean of d = a - b
+    (:func:`bootstrap_mean_interval`). ``paired=False``: non-finite values are dropped from each
+    sample separately and the two samples are resampled independently from one generator seeded
+    with ``seed``. Returns a JSON-friendly dict: ``n_a``, ``n_b`` (finite values used; equal when
+    paired), ``mean_a``, ``mean_b``, ``diff``, ``low``, ``high``, ``level``, ``method``
+    ("paired-percentile-bootstrap" or "percentile-bootstrap") and ``paired``. With fewer than 2
+    usable values on a side, diff/low/high are NaN (the means are NaN only for 0 values).
+    """
+    level = _check_level(level)
+    if isinstance(n_resamples, bool) or not isinstance(n_resamples, Integral) or n_resamples < 1:
+        raise ValueError(f"n_resamples must be an integer >= 1, got {n_resamples!r}")
+    a = np.asarray(values_a, dtype=np.float64).ravel()
+    b = np.asarray(values_b, dtype=np.float64).ravel()
+    if paired:
+        if a.shape != b.shape:
+            raise ValueError(f"paired samples must have equal lengths, got {a.size} and {b.size}")
+        keep = np.isfinite(a) & np.isfinite(b)
+        a, b = a[keep], b[keep]
+        ci = bootstrap_mean_interval(a - b, level=level, n_resamples=n_resamples, seed=seed)
+        low, high = ci.low, ci.high
+        method = "paired-percentile-bootstrap"
+    else:
+        a, b = a[np.isfinite(a)], b[np.isfinite(b)]
+        method = "percentile-bootstrap"
+        low = high = math.nan
+        if a.size >= 2 and b.size >= 2:
+            rng = np.random.default_rng(seed)
+            diffs = _resample_means(a, n_resamples, rng) - _resample_means(b, n_resamples, rng)
+            low, high = (float(x) for x in np.quantile(diffs, [(1.0 - level) / 2.0, (1.0 + level) / 2.0]))
+    usable = a.size >= 2 and b.size >= 2
+    mean_a = float(a.mean()) if a.size else math.nan
+    mean_b = float(b.mean()) if b.size else math.nan
+    return {
+        "n_a": int(a.size),
+        "n_b": int(b.size),
+        "mean_a": mean_a,
+        "mean_b": mean_b,
+        "diff": mean_a - mean_b if usable else math.nan,
+        "low": float(low),
+        "high": float(high),
+        "level": level,
+        "method": method,
+        "paired": bool(paired),
+    }
+
+
+def _resample_means(x: np.ndarray, n_resamples: int, rng: np.random.Generator) -> np.ndarray:
+    """Means of ``n_resamples`` resamples of ``x`` with replacement, drawn in memory-bounded chunks."""
     chunk = max(1, _BOOTSTRAP_CHUNK_VALUES // x.size)
-    means = np.concatenate(
+    return np.concatenate(
         [
             x[rng.integers(0, x.size, size=(min(chunk, n_resamples - start), x.size))].mean(axis=1)
             for start in range(0, n_resamples, chunk)
         ]
     )
-    low, high = np.quantile(means, [(1.0 - level) / 2.0, (1.0 + level) / 2.0])
-    return Interval(float(low), float(high), level, method)
 
 
 def quantile_key(q: float) -> str:

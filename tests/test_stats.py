@@ -11,11 +11,13 @@ from scipy import stats as sps
 from mcverify import stats
 from mcverify.stats import (
     Interval,
+    bootstrap_mean_difference,
     bootstrap_mean_interval,
     clopper_pearson_arrays,
     compare_paired,
     compare_unpaired,
     mcnemar_exact_pvalue,
+    one_sided_lower,
     one_sided_upper,
     proportion_interval,
     quantiles,
@@ -25,7 +27,10 @@ from mcverify.stats import (
 )
 
 COVERAGE_PS = (0.001, 0.01, 0.1, 0.5)
-COVERAGE_NS = (30, 100, 1000)
+# n = 30 is the paper's group size; n = 1000 makes n p = 1 at p = 0.001, where a rare-event
+# interval is hardest to get right; n = 3000 (n p = 3 at p = 0.001, 1500 at p = 0.5) is the size of
+# a large campaign cell. Each (p, n) is 1,000 synthetic Bernoulli-source repetitions, vectorised.
+COVERAGE_NS = (30, 100, 1000, 3000)
 REPS = 1000
 
 
@@ -165,7 +170,7 @@ def test_one_sided_upper(k, n):
 @pytest.mark.parametrize("method", ("clopper-pearson", "wilson"))
 def test_rate_summary_zero_failures(n, method):
     r = rate_summary(0, n, method=method)
-    assert set(r) == {"k", "n", "rate", "low", "high", "level", "method", "upper_one_sided"}
+    assert set(r) == {"k", "n", "rate", "low", "high", "level", "method", "upper_one_sided", "lower_one_sided"}
     assert (r["k"], r["n"], r["rate"], r["low"], r["method"]) == (0, n, 0.0, 0.0, method)
     assert r["upper_one_sided"] == pytest.approx(1 - 0.05 ** (1 / n), rel=1e-12)
     assert r["upper_one_sided"] == zero_event_upper_bound(n)
@@ -368,3 +373,86 @@ def test_compare_paired_accepts_01_integers():
 def test_bad_arguments_raise(call, match):
     with pytest.raises(ValueError, match=match):
         call()
+
+
+# ------------------------------------------------------------------------------------------
+# the path the reports use: rate_summary, one-sided bounds, differences of means
+
+
+@pytest.mark.parametrize("p, n", [(0.001, 1000), (0.001, 3000), (0.01, 300), (0.1, 30), (0.5, 30), (0.5, 1000)])
+@pytest.mark.parametrize("method", ("clopper-pearson", "wilson"))
+def test_rate_summary_coverage_on_bernoulli_source(p, n, method):
+    # What summary.py stores for every cell: 1,000 cells of n Bernoulli(p) episodes each. The
+    # two-sided interval must cover p in >= 93 % of them (Clopper-Pearson is >= 95 % in exact
+    # coverage; Wilson, the option, is allowed its documented dip where n p is small), and the
+    # exact one-sided bounds must cover from their side in >= 93 %.
+    rng = np.random.default_rng(int(1e6 * p) + n)
+    episodes = rng.random((REPS, n)) < p  # the synthetic Bernoulli source, episode by episode
+    ks = episodes.sum(axis=1)
+    summaries = [rate_summary(int(k), n, method=method) for k in ks]
+    covered = np.mean([s["low"] <= p <= s["high"] for s in summaries])
+    assert covered >= (0.93 if method == "clopper-pearson" or n * p >= 5 else 0.86)
+    assert np.mean([p <= s["upper_one_sided"] for s in summaries]) >= 0.93
+    assert np.mean([s["lower_one_sided"] <= p for s in summaries]) >= 0.93
+
+
+def test_zero_failure_cells_report_the_exact_one_sided_bound():
+    for n in (1, 30, 100, 3000):
+        r = rate_summary(0, n)
+        assert r["upper_one_sided"] == pytest.approx(1 - 0.05 ** (1 / n), rel=1e-12)
+        assert sps.binom.pmf(0, n, r["upper_one_sided"]) == pytest.approx(0.05, rel=1e-9)
+        safe = rate_summary(n, n)  # every episode safe: the safe rate's exact lower bound
+        assert safe["lower_one_sided"] == pytest.approx(0.05 ** (1 / n), rel=1e-12)
+        assert safe["lower_one_sided"] == pytest.approx(1 - r["upper_one_sided"], rel=1e-12)
+
+
+@pytest.mark.parametrize("k, n", [(0, 30), (1, 30), (5, 100), (29, 30), (30, 30)])
+def test_one_sided_lower(k, n):
+    lb = one_sided_lower(k, n)
+    if k == 0:
+        assert lb == 0.0
+    else:
+        assert sps.binom.sf(k - 1, n, lb) == pytest.approx(0.05, rel=1e-8)  # P(X >= k | lb) = alpha
+        assert lb == pytest.approx(sps.binomtest(k, n, alternative="greater").proportion_ci(0.95).low, rel=1e-9)
+    assert lb <= k / n
+    # symmetric to the upper bound of the complementary count
+    assert lb == pytest.approx(1 - one_sided_upper(n - k, n), abs=1e-12)
+
+
+def test_interval_arrays_dispatch():
+    k = np.array([0, 3, 30])
+    assert np.array_equal(np.stack(stats.interval_arrays(k, 30)), np.stack(clopper_pearson_arrays(k, 30)))
+    assert np.array_equal(np.stack(stats.interval_arrays(k, 30, method="wilson")), np.stack(wilson_arrays(k, 30)))
+    with pytest.raises(ValueError, match="method must be one of"):
+        stats.interval_arrays(k, 30, method="wald")
+
+
+def test_bootstrap_mean_difference_paired_and_unpaired():
+    rng = np.random.default_rng(9)
+    base = rng.normal(0.0, 3.0, size=400)  # a shared disturbance makes the pairs correlated
+    a = base + 1.0 + rng.normal(0.0, 0.2, size=400)
+    b = base + rng.normal(0.0, 0.2, size=400)
+    paired = bootstrap_mean_difference(a, b, paired=True, seed=1)
+    unpaired = bootstrap_mean_difference(a, b, paired=False, seed=1)
+    for r in (paired, unpaired):
+        assert r["diff"] == pytest.approx(a.mean() - b.mean())
+        assert r["low"] <= r["diff"] <= r["high"]
+    assert paired["low"] <= 1.0 <= paired["high"]
+    assert paired["high"] - paired["low"] < 0.2 * (unpaired["high"] - unpaired["low"])  # pairing pays
+    assert paired == bootstrap_mean_difference(a, b, paired=True, seed=1)  # deterministic
+    assert (paired["method"], unpaired["method"]) == ("paired-percentile-bootstrap", "percentile-bootstrap")
+
+
+def test_bootstrap_mean_difference_drops_non_finite_and_small_samples():
+    a = np.array([1.0, np.nan, 3.0, 4.0])
+    b = np.array([0.0, 1.0, np.inf, 2.0])
+    r = bootstrap_mean_difference(a, b, paired=True)
+    assert (r["n_a"], r["n_b"]) == (2, 2) and r["diff"] == pytest.approx(1.5)  # pairs 0 and 3 only
+    u = bootstrap_mean_difference(a, b, paired=False)
+    assert (u["n_a"], u["n_b"]) == (3, 3)
+    tiny = bootstrap_mean_difference([1.0], [2.0, 3.0], paired=False)
+    assert math.isnan(tiny["diff"]) and math.isnan(tiny["low"]) and tiny["mean_a"] == 1.0
+    with pytest.raises(ValueError, match="equal lengths"):
+        bootstrap_mean_difference([1.0, 2.0], [1.0], paired=True)
+    with pytest.raises(ValueError, match="n_resamples"):
+        bootstrap_mean_difference([1.0, 2.0], [1.0, 2.0], paired=False, n_resamples=0)
