@@ -108,11 +108,11 @@ def run_python(code: str, env: dict, timeout: float = 120) -> subprocess.Complet
 
 
 def test_second_process_reuses_cached_kernel_without_compiler(tmp_path):
-    """The default cache holds the N = 50 kernel; a process whose gcc always fails still solves."""
-    kernels.get_kernel(OcpStructure.from_params(ModelParams()))  # make sure it is cached (default dir)
+    """The cache holds the N = 50 kernel; a process whose gcc always fails still solves."""
+    kernels.get_kernel(OcpStructure.from_params(ModelParams()))  # make sure it is cached (same dir as below)
     marker = tmp_path / "compiler-was-called"
     fake = fake_compiler_dir(tmp_path, f'touch "{marker}"; exit 1')
-    env = {k: v for k, v in os.environ.items() if k != kernels.ENV_KERNEL_DIR}
+    env = dict(os.environ)  # same cache directory ($MCVERIFY_KERNEL_DIR or the default) as this process
     env["PATH"] = f"{fake}{os.pathsep}{env['PATH']}"
     proc = run_python(
         """
