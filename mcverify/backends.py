@@ -1,43 +1,40 @@
-"""Solver backends for the TO-CBF-MPC NLP: IPOPT (the reference) and an SQP fast path.
+"""Solver backends for the TO-CBF-MPC NLP: IPOPT (the reference) and a fast interior-point path.
 
 A backend solves the NLP of :func:`mcverify.ocp.build_nlp` (through the compiled kernel of
 :mod:`mcverify.kernels`) for one parameter vector ``p`` from a warm start (the primal-dual point of
 the previous solve of the same problem) or cold (from :func:`mcverify.ocp.initial_guess`), and
 returns a :class:`BackendResult`: the point, the multipliers, a status, an iteration count and its
-own success verdict. :class:`mcverify.solver.MpcSolver` adds the common feasibility check (largest
-violation <= 1e-5) and builds the :class:`~mcverify.solver.MpcSolution`. Selection:
-``params.mpc.backend`` ("ipopt" or "sqp"; see :data:`BACKENDS`).
+own success verdict, combined by :meth:`Problem.accept` with the common feasibility check (largest
+violation <= 1e-5). :class:`mcverify.solver.MpcSolver` builds the
+:class:`~mcverify.solver.MpcSolution` from it. Selection: ``params.mpc.backend`` (:data:`BACKENDS`).
 
-``ipopt``: IPOPT with MUMPS, cold or warm started, a failed warm start retried cold (the behaviour
-the project's results so far were made with).
+``ipopt``: IPOPT with MUMPS through CasADi, cold or warm started, a failed warm start retried cold
+(the behaviour of every result so far).
 
-``sqp``: :class:`mcverify.sqp.Sqp` (exact-Hessian SQP, primal-dual active-set QPs on a banded KKT
-system, generated C called directly) from the warm start; IPOPT for everything the SQP is not
-meant for or does not finish:
+``ipm``: the interior-point method of :mod:`mcverify.ipm` - IPOPT's algorithm, run in C on a
+banded factorisation of the KKT system with the kernel's functions called directly - warm
+started like the reference, with a second, more central attempt; IPOPT is its fallback:
 
-* a cold start (the first solve of each problem in an episode, and after any failure) is solved by
-  IPOPT: the SQP needs a primal-dual point with a meaningful active set;
-* when the SQP fails (a QP it cannot settle, no convergence in ``max_iter`` iterations, anything
-  non-finite), the same solve is handed to the IPOPT reference path (warm, then cold), and the
-  result is marked with the status prefix ``"fallback:"``. So a failed solve always means "the
-  reference could not solve it either", never "the fast path gave up";
-* the SQP's own success has the same contract as IPOPT's: every constraint and bound within
-  1e-6 (then checked again by MpcSolver at 1e-5) and the scaled dual infeasibility within
-  ``params.mpc.tol``, at a point where every active constraint holds with a multiplier of the
-  right sign.
+* whatever the IPM does not solve (no convergence in its iteration limit, a failed line search,
+  anything non-finite, a point that fails the common feasibility check) goes to the IPOPT
+  reference path (warm, then cold) for the same solve, and the result's status carries the prefix
+  ``"fallback:"``. So a failed solve always means "the reference could not solve it either",
+  never "the fast path gave up";
+* an IPM success has IPOPT's contract: scaled KKT error <= ``params.mpc.tol``, unscaled
+  constraint violation <= 1e-7, then the common 1e-5 check.
 
 Safety of the fast path (the paper's continuous-time CBF condition at the sample). The node-0 row
 of eq.tompc_cbf, hdot(x_0, u_0, t_0) + Lambda H(h(x_0, t_0)) >= 0, is affine in u_0 once x_0 and
 t_0 are fixed, because the bicycle is control-affine (h depends on the state and time only, so
-hdot = L_f h + L_g h u + dh/dt). Before its first QP the SQP sets X[:, 0] and t_0 of the
-linearisation point to the measured state and 0 (the rows with a single constant Jacobian entry,
-"initial value embedding"), and those rows are linear, so every QP step keeps them exactly. The
-QP's linearisation of the node-0 CBF row is then the row itself: whenever a QP is solved, the u_0
-it returns satisfies the CBF condition at the sample exactly (to the QP's linear-algebra
-accuracy), even before the SQP has converged. The returned plan is used only once it has
-converged as above, so the guarantee reported with a success is the same as IPOPT's, and the QP
-argument says the first-iteration input would already have been safe. Tests:
-``tests/test_backends.py::test_node0_cbf_row_exact_after_one_qp``.
+hdot = L_f h + L_g h u + dh/dt). The IPM sets X[:, 0] and t_0 of its starting point to the
+measured state and 0 (the rows with a single constant Jacobian entry, "initial value embedding",
+:class:`mcverify.kkt.KktStructure`); those rows are linear, so every Newton step keeps them exact,
+and the node-0 CBF row is then linear in the only variables that move it. Its residual
+g - s (s the row's slack, kept strictly above 0 by the barrier) is therefore multiplied by exactly
+(1 - alpha) by a step of length alpha: after the first full step (usually the first or second
+iteration) the returned u_0 satisfies the CBF condition at the sample exactly, with a positive
+margin, whether or not the rest of the plan has converged; and a converged plan satisfies it like
+every other row. Tests: ``tests/test_backends.py``.
 """
 
 from __future__ import annotations
@@ -51,12 +48,12 @@ import casadi as ca
 import numpy as np
 
 from mcverify.cfun import CFunction
+from mcverify.ipm import COLD, WARM_ATTEMPTS, Ipm
 from mcverify.kernels import Kernel, get_runtime_library
 from mcverify.model import ModelParams
-from mcverify.sqp import Sqp, SqpOptions
 
 #: Backend names accepted in ``params.mpc.backend``.
-BACKENDS = ("ipopt", "sqp")
+BACKENDS = ("ipopt", "ipm")
 
 #: IPOPT's return_status values that count as solved (before the common feasibility check).
 SOLVED_STATUSES = frozenset({"Solve_Succeeded", "Solved_To_Acceptable_Level"})
@@ -231,38 +228,50 @@ def _failed(problem: Problem, status: str) -> BackendResult:
     return BackendResult(nan_w, nan_w.copy(), nan_g, status, 0, False)
 
 
-# -------------------------------------------------------------------------------------------- SQP
+# -------------------------------------------------------------------------------------- fast path
 
 
-class SqpBackend:
-    """The fast path: warm-started SQP, IPOPT for cold starts and as the fallback (see module doc)."""
+class IpmBackend:
+    """The fast path: the lean interior-point method of :mod:`mcverify.ipm`, IPOPT as fallback.
 
-    name = "sqp"
+    Warm starts try :data:`mcverify.ipm.WARM_ATTEMPTS` in turn and then a cold start
+    (:data:`mcverify.ipm.COLD` from :func:`~mcverify.ocp.initial_guess`); cold starts only the
+    latter. Whatever the IPM does not solve goes to the IPOPT reference path (see the module
+    docstring). The cold attempt after two failed warm ones: on the 26 of 652 noisy Table II warm
+    solves (v_f = 25 km/h, 24 of them Q2) where both warm attempts failed, it converged in all 26,
+    in 19 ms each; the IPOPT reference path took 144 ms each on the same solves.
+    ``ipm_outcomes`` counts the outcome of every IPM attempt of this backend's life (benchmarks
+    and diagnostics only; not part of any result).
+    """
 
-    def __init__(self, problem: Problem, params: ModelParams, options: SqpOptions | None = None,
-                 kernel_dir=None) -> None:
+    name = "ipm"
+
+    def __init__(self, problem: Problem, params: ModelParams, kernel_dir=None) -> None:
         self.problem = problem
         self.reference = IpoptBackend(problem, params)
-        opts = options or SqpOptions(tol_du=params.mpc.tol)
-        qp_lib = get_runtime_library("pasqp", kernel_dir).so_path
-        self.sqp = Sqp(problem.kernel.so_path, problem.lbx, problem.ubx, problem.lbg, problem.ubg, opts, qp_lib)
-        #: outcomes of the SQP attempts of this backend's life ("Converged", "QP_Failed: ...", ...),
-        #: for benchmarks and diagnostics; not part of any result.
-        self.sqp_outcomes: Counter[str] = Counter()
+        lib = get_runtime_library("ipm", kernel_dir).so_path
+        self.ipm = Ipm(problem.kernel.so_path, problem.lbx, problem.ubx, problem.lbg, problem.ubg, lib)
+        self.warm_attempts = tuple(dataclasses.replace(o, tol=params.mpc.tol) for o in WARM_ATTEMPTS)
+        self.cold = dataclasses.replace(COLD, tol=params.mpc.tol)
+        self.ipm_outcomes: Counter[str] = Counter()
 
     def solve(self, p: np.ndarray, warm: Start | None, guess: Callable[[], np.ndarray]) -> BackendResult:
-        if warm is None:
-            return self.reference.solve(p, None, guess)
-        r = self.sqp.solve(p, warm.x, warm.lam_x, warm.lam_g)
-        self.sqp_outcomes[r.status if r.success or r.status.startswith("QP_") else f"{r.status}"] += 1
-        res = self.problem.accept(
-            BackendResult(r.w, r.lam_x, r.lam_g, f"SQP_{r.status}", r.iterations, r.success), p
-        )
-        if res.success:
-            return res
+        iterations = 0
+        attempts = [] if warm is None else [(o, warm.x, warm.lam_x, warm.lam_g) for o in self.warm_attempts]
+        attempts.append((self.cold, None, None, None))
+        for k, (opts, x0, lx0, lg0) in enumerate(attempts):
+            r = self.ipm.solve(p, guess() if x0 is None else x0, lx0, lg0, opts)
+            iterations += r.iterations
+            tag = f"{'warm' if lx0 is not None else 'cold'}{k + 1}:{r.status}"
+            self.ipm_outcomes[tag] += 1
+            res = self.problem.accept(
+                BackendResult(r.w, r.lam_x, r.lam_g, f"IPM_{r.status}", iterations, r.success), p
+            )
+            if res.success:
+                return res
         ref = self.reference.solve(p, warm, guess)
         return dataclasses.replace(
-            ref, status=f"{FALLBACK_PREFIX}{ref.status}", iterations=r.iterations + ref.iterations, fallback=True
+            ref, status=f"{FALLBACK_PREFIX}{ref.status}", iterations=iterations + ref.iterations, fallback=True
         )
 
 
@@ -270,6 +279,6 @@ def create_backend(name: str, problem: Problem, params: ModelParams):
     """The backend called ``name`` (one of :data:`BACKENDS`)."""
     if name == "ipopt":
         return IpoptBackend(problem, params)
-    if name == "sqp":
-        return SqpBackend(problem, params)
+    if name == "ipm":
+        return IpmBackend(problem, params)
     raise ValueError(f"unknown solver backend {name!r}; valid: {', '.join(BACKENDS)}")

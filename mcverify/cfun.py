@@ -52,7 +52,8 @@ class CFunction:
                 raise RuntimeError(f"{so_path}: casadi_int has {size} bytes, expected {ctypes.sizeof(_INT)}")
         self._fun = getattr(lib, name)
         self._fun.restype = ctypes.c_int
-        self._fun.argtypes = [ctypes.POINTER(_DBL_P), ctypes.POINTER(_DBL_P), ctypes.POINTER(_INT), _DBL_P, ctypes.c_int]
+        self._fun.argtypes = [ctypes.POINTER(_DBL_P), ctypes.POINTER(_DBL_P), ctypes.POINTER(_INT), _DBL_P,
+                              ctypes.c_int]
         work = getattr(lib, f"{name}_work")
         work.restype = ctypes.c_int
         sizes = [_INT() for _ in range(4)]
