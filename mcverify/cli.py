@@ -58,6 +58,19 @@ def _parser() -> argparse.ArgumentParser:
     rpt.add_argument("run_dir", type=Path)
     rpt.set_defaults(func=_cmd_report)
 
+    ben = sub.add_parser("bench-solver", help="measure the solver backends against each other "
+                         "(figures written into results/BENCHMARKS.md)")
+    ben.add_argument("--campaign", type=Path, default=Path("campaigns/table2.toml"),
+                     help="campaign whose cells are run (default: campaigns/table2.toml)")
+    ben.add_argument("--episodes", type=_positive_int, default=2, help="paired episodes per cell and backend")
+    ben.add_argument("--record-episodes", type=_positive_int, default=1,
+                     help="reference episodes recorded for the per-solve timing (first cell)")
+    ben.add_argument("--workers", type=_positive_int, default=None, help="worker processes (default: cores)")
+    ben.add_argument("--chunk-size", type=_positive_int, default=4, help="episodes per chunk")
+    ben.add_argument("--out", type=Path, default=Path("results/BENCHMARKS.md"),
+                     help="Markdown file whose generated section is replaced (default: results/BENCHMARKS.md)")
+    ben.set_defaults(func=_cmd_bench_solver)
+
     ker = sub.add_parser("kernels", help="the compiled-solver cache")
     ksub = ker.add_subparsers(metavar="ACTION")
     kl = ksub.add_parser("list", help="list cached kernels")
@@ -109,6 +122,28 @@ def _cmd_report(args) -> int:
 
     path = report.write(args.run_dir)
     print(f"report: {path}")
+    return 0
+
+
+def _cmd_bench_solver(args) -> int:
+    from datetime import datetime
+
+    from mcverify import bench, executors
+    from mcverify.campaign import CampaignError
+
+    if not args.campaign.is_file():
+        raise CampaignError(f"campaign file not found: {args.campaign}")
+    workers = args.workers or executors.default_workers()
+    command = "mcverify " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["bench-solver"] else "mcverify bench-solver"
+    results = bench.run(args.campaign, args.episodes, args.record_episodes, workers, args.chunk_size)
+    section = bench.markdown(results, command)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    bench.write_section(args.out, section)
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    json_path = args.out.parent / f"bench-solver-{stamp}.json"
+    json_path.write_text(bench.to_json(results))
+    print(section)
+    print(f"written: {args.out} (section), {json_path}", file=sys.stderr)
     return 0
 
 

@@ -61,18 +61,19 @@ class IpmOptions:
 
 #: Warm starts: first the IPOPT reference's own warm-start settings (mu_init 1e-7, pushes 1e-6),
 #: which keep the previous primal-dual point nearly as is; if that fails, once more from a more
-#: central start (mu_init 1e-5, bound push 1e-4). Measured by replaying the 652 warm solves of a
-#: noisy Table II closed loop (v_f = 25 km/h), counting 30 ms for each IPOPT fallback: the first
-#: setting alone converges in 85% within 25 iterations (87% within 60): a large jump of the
-#: measured front vehicle (the paper's +-10% speed noise moves the goal by metres) leaves the warm
-#: point glued to bounds the step must cross, and at mu 1e-7 the fraction-to-the-boundary rule then
-#: allows steps of 1-5%. mu_init 1e-5 converges in 93%, but needs 13 iterations in the noise-free
-#: loop where 1e-7 needs 5. In turn, 60 iterations each: 99.4%, 3.5 ms per solve (25 then 60:
-#: 99.1%, 4.3 ms; choosing the central start when the start's scaled violation exceeds 1 or 2:
-#: 99.1%, 3.8-4.5 ms).
+#: central start (mu_init 1e-5, bound push 1e-4); then (in the backend) a cold start. Why two:
+#: a large jump of the measured front vehicle (the paper's +-10% speed noise moves the goal by
+#: metres) leaves the warm point glued to bounds the Newton step must cross, and at mu 1e-7 the
+#: fraction-to-the-boundary rule then allows steps of 1-5%; on 652 warm solves of a noisy Table II
+#: closed loop (v_f = 25 km/h) the first setting alone converged in 85% within 25 iterations.
+#: mu_init 1e-5 from the start converged in 93% but needs 13 iterations in the noise-free loop,
+#: where 1e-7 needs 5; choosing the start by the scaled violation of the warm point (above 1 or 2)
+#: was no better. Replaying the warm solves of that loop with the cold attempt and the IPOPT
+#: fallback behind, mean CPU per solve: 30/30 iterations 3.7 ms, 60/60 4.0 ms, only the first
+#: setting (20, 30, 40 iterations) then cold 4.1-4.7 ms; no solve reached the fallback.
 WARM_ATTEMPTS: tuple[IpmOptions, ...] = (
-    IpmOptions(mu_init=1e-7, bound_push=1e-6, mult_push=1e-6, max_iter=60),
-    IpmOptions(mu_init=1e-5, bound_push=1e-4, mult_push=1e-6, max_iter=60),
+    IpmOptions(mu_init=1e-7, bound_push=1e-6, mult_push=1e-6, max_iter=30),
+    IpmOptions(mu_init=1e-5, bound_push=1e-4, mult_push=1e-6, max_iter=30),
 )
 #: Cold starts (no multipliers): IPOPT's defaults (mu_init 0.1, bound_push 0.01). On 27 recorded
 #: states: 96% converged, 53 iterations, 14 ms (IPOPT: 100%, 47 iterations, 52 ms).
