@@ -161,14 +161,14 @@ def replay(params: ModelParams, backend: str, calls: Sequence[RecordedSolve], wa
         "fallback_rate": float(np.mean(fallback)), "statuses": dict(statuses.most_common()),
     }
     if reference is not None:
-        both = [(a, b) for a, b in zip(sols, reference) if a.success and b.success]
+        both = [(a, b) for a, b in zip(sols, reference, strict=True) if a.success and b.success]
         if both:
             dt = np.array([abs(a.total_time_s - b.total_time_s) for a, b in both])
             du = np.array([float(np.max(np.abs(a.u_plan[0] - b.u_plan[0]))) for a, b in both])
             out.update({
                 "compared": len(both), "dT_s_median": float(np.median(dt)), "dT_s_max": float(dt.max()),
                 "du0_median": float(np.median(du)), "du0_p99": float(np.percentile(du, 99)), "du0_max": float(du.max()),
-                "same_success": float(np.mean([a.success == b.success for a, b in zip(sols, reference)])),
+                "same_success": float(np.mean([a.success == b.success for a, b in zip(sols, reference, strict=True)])),
             })
     out["_solutions"] = sols
     return out

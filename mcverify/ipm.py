@@ -107,7 +107,7 @@ class _Stats(ctypes.Structure):
         ("iterations", ctypes.c_int), ("status", ctypes.c_int), ("factorisations", ctypes.c_int),
         ("regularised", ctypes.c_int), ("backtracks", ctypes.c_int), ("soc", ctypes.c_int), ("far", ctypes.c_int),
         ("inf_pr", ctypes.c_double), ("inf_du", ctypes.c_double), ("mu", ctypes.c_double),
-        ("theta_start", ctypes.c_double),
+        ("theta_start", ctypes.c_double), ("first_alpha", ctypes.c_double),
     ]
 
 
@@ -134,6 +134,7 @@ class IpmResult:
     dual_infeasibility: float
     far_start: bool = False  # the start was far from feasible (theta_start > theta_far): mu_far, push_far used
     theta_start: float = float("nan")  # largest scaled constraint violation at the (embedded) start
+    first_alpha: float = float("nan")  # primal step length of the first iteration (negative: corrected step)
 
 
 class Ipm:
@@ -216,6 +217,7 @@ class Ipm:
             iterations=int(st.iterations), factorisations=int(st.factorisations), regularised=int(st.regularised),
             backtracks=int(st.backtracks), soc=int(st.soc), max_violation=float(st.inf_pr),
             dual_infeasibility=float(st.inf_du), far_start=bool(st.far), theta_start=float(st.theta_start),
+            first_alpha=float(st.first_alpha),
         )
 
 

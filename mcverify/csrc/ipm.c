@@ -63,7 +63,7 @@ typedef struct {
 
 typedef struct {
   int iterations, status, factorisations, regularised, backtracks, soc, far;
-  double inf_pr, inf_du, mu, theta_start;
+  double inf_pr, inf_du, mu, theta_start, first_alpha; /* first_alpha: primal step of iteration 0 */
 } ipm_stats;
 /* status: 0 converged, 1 max iterations, 2 line search failed, 3 singular / no regularisation,
    4 nonfinite, 5 evaluation error */
@@ -275,7 +275,7 @@ int ipm_solve(const ipm_struct *st, const ipm_opts *o, const double *p, const do
   evalctx E = {st, p, arg, res, iw, fw};
 
   stats->iterations = 0; stats->status = 0; stats->factorisations = 0; stats->regularised = 0; stats->backtracks = 0;
-  stats->soc = 0; stats->far = 0; stats->theta_start = 0.0;
+  stats->soc = 0; stats->far = 0; stats->theta_start = 0.0; stats->first_alpha = 0.0;
   stats->inf_pr = INFINITY; stats->inf_du = INFINITY; stats->mu = o->mu_init;
   double fval = 0.0, one = 1.0;
 
@@ -284,11 +284,13 @@ int ipm_solve(const ipm_struct *st, const ipm_opts *o, const double *p, const do
     lx[j] = isfinite(lbx[j]) ? lbx[j] - o->bound_relax * fmax(1.0, fabs(lbx[j])) : -INFINITY;
     ux[j] = isfinite(ubx[j]) ? ubx[j] + o->bound_relax * fmax(1.0, fabs(ubx[j])) : INFINITY;
   }
-  /* ---- initial value embedding and primal start ---- */
+  /* ---- initial value embedding: each fixing row g_i = a x_j - c(p) is solved for x_j exactly, by
+     evaluating g with x_j = 0 (g_i = -c(p)) ---- */
+  for (int k = 0; k < st->n_fix; ++k) x[st->fix_var[k]] = 0.0;
   if (call(&E, 0, st->f_g, x, p, 0, 0, g, 0)) { stats->status = 5; return 5; }
   for (int k = 0; k < st->n_fix; ++k) {
     int i = st->fix_row[k], j = st->fix_var[k];
-    x[j] -= (g[i] - lbg[i]) / st->fix_coef[k];
+    x[j] = (lbg[i] - g[i]) / st->fix_coef[k];
   }
   /* ---- row scales from the Jacobian at the (embedded) start; how far is it from feasible? ---- */
   if (call(&E, 2, st->f_jac_g, x, p, 0, 0, g, jraw)) { stats->status = 5; return 5; }
@@ -490,6 +492,8 @@ int ipm_solve(const ipm_struct *st, const ipm_opts *o, const double *p, const do
       for (int k = 0; k < n; ++k) sol[st->perm[k]] = tmp[k];
       for (int j = 0; j < nw; ++j) dx[j] = sol[j];
       for (int i = 0; i < ng; ++i) dy[i] = sol[nw + i];
+      /* a fixing row has one variable and zero residual: its step is exactly 0 (not round-off) */
+      for (int k = 0; k < st->n_fix; ++k) dx[st->fix_var[k]] = 0.0;
       /* slack step */
       for (int i = 0; i < ng; ++i) {
         if (IS_EQ(i)) { ds[i] = 0.0; continue; }
@@ -585,6 +589,7 @@ int ipm_solve(const ipm_struct *st, const ipm_opts *o, const double *p, const do
           band_solve(ab, n, bw, ldab, ipiv, soc_buf);
           for (int q = 0; q < n; ++q) tmp[st->perm[q]] = soc_buf[q];
           for (int j = 0; j < nw; ++j) dx_soc[j] = tmp[j];
+          for (int q = 0; q < st->n_fix; ++q) dx_soc[st->fix_var[q]] = 0.0;
           for (int i = 0; i < ng; ++i) {
             if (IS_EQ(i)) { ds_soc[i] = 0.0; continue; }
             double qv = y[i];
@@ -649,6 +654,7 @@ int ipm_solve(const ipm_struct *st, const ipm_opts *o, const double *p, const do
       filt_phi[nfilter] = phi0 - 1e-8 * theta0;
       nfilter++;
     }
+    if (it == 0) stats->first_alpha = soc_used ? -alpha : alpha; /* negative: a corrected step */
     /* ---- update ---- */
     for (int j = 0; j < nw; ++j) {
       x[j] += alpha * dx[j];
