@@ -128,20 +128,20 @@ def _cmd_report(args) -> int:
 def _cmd_bench_solver(args) -> int:
     from datetime import datetime
 
-    from mcverify import bench, executors
+    from mcverify import executors, solverbench
     from mcverify.campaign import CampaignError
 
     if not args.campaign.is_file():
         raise CampaignError(f"campaign file not found: {args.campaign}")
     workers = args.workers or executors.default_workers()
     command = "mcverify " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["bench-solver"] else "mcverify bench-solver"
-    results = bench.run(args.campaign, args.episodes, args.record_episodes, workers, args.chunk_size)
-    section = bench.markdown(results, command)
+    results = solverbench.run(args.campaign, args.episodes, args.record_episodes, workers, args.chunk_size)
+    section = solverbench.markdown(results, command)
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    bench.write_section(args.out, section)
+    solverbench.write_section(args.out, section)
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
     json_path = args.out.parent / f"bench-solver-{stamp}.json"
-    json_path.write_text(bench.to_json(results))
+    json_path.write_text(solverbench.to_json(results))
     print(section)
     print(f"written: {args.out} (section), {json_path}", file=sys.stderr)
     return 0

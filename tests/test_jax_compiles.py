@@ -6,7 +6,7 @@ from __future__ import annotations
 import jax.monitoring as monitoring
 import pytest
 
-from mcverify.bench import StubSolver
+from mcverify.solverbench import StubSolver
 from mcverify.campaign import campaign_from_dict
 from mcverify.rollout import run_episodes
 
