@@ -140,10 +140,10 @@ class Problem:
 def ipopt_options(params: ModelParams, warm: bool) -> dict:
     """IPOPT options of the cold (``warm=False``) or warm-started solver.
 
-    * ``tol`` and ``max_iter`` from :class:`~mcverify.model.Mpc`; ``constr_viol_tol`` 1e-7 (default
-      1e-4) so that "Solve_Succeeded" implies our own 1e-5 feasibility check; the acceptable-level
-      exit (15 iterations at ``acceptable_tol``) keeps the default 1e-6 but its constraint tolerance
-      is tightened from 1e-2 to 1e-6 for the same reason.
+    * ``tol`` and ``max_iter`` (warm) / ``max_iter_cold`` from :class:`~mcverify.model.Mpc`;
+      ``constr_viol_tol`` 1e-7 (default 1e-4) so that "Solve_Succeeded" implies our own 1e-5
+      feasibility check; the acceptable-level exit (15 iterations at ``acceptable_tol``) keeps the
+      default 1e-6 but its constraint tolerance is tightened from 1e-2 to 1e-6 for the same reason.
     * Warm: ``warm_start_init_point`` with small bound pushes (1e-6), so the previous primal-dual
       point is kept nearly as is, and ``mu_init`` 1e-7 instead of 0.1, which would push the iterate
       back to the central path and throw the warm start away. Measured along Table II closed loops
@@ -157,7 +157,7 @@ def ipopt_options(params: ModelParams, warm: bool) -> dict:
     opts = {
         "print_level": 0,
         "sb": "yes",
-        "max_iter": params.mpc.max_iter,
+        "max_iter": params.mpc.max_iter if warm else params.mpc.max_iter_cold,
         "tol": params.mpc.tol,
         "constr_viol_tol": 1e-7,
         "acceptable_constr_viol_tol": 1e-6,

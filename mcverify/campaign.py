@@ -105,7 +105,8 @@ class Campaign:
         for c in self.cells:
             if c.name == name_or_index or c.index == name_or_index:
                 return c
-        raise CampaignError(f"campaign {self.name!r} has no cell {name_or_index!r}")
+        names = ", ".join(repr(c.name) for c in self.cells)
+        raise CampaignError(f"campaign {self.name!r} has no cell {name_or_index!r}; its cells: {names}")
 
 
 # --------------------------------------------------------------------------------------------- load
@@ -258,6 +259,7 @@ def validate_params(p: ModelParams, where: str) -> None:
         "scenario.ego_speed_mps": sc.ego_speed_mps,
         "scenario.front_speed_mps": sc.front_speed_mps,
         "scenario.front_accel_onset_s": sc.front_accel_onset_s,
+        "scenario.front_accel_duration_s": 0.0 if sc.front_accel_duration_s == math.inf else sc.front_accel_duration_s,
         "scenario.front_speed_max_mps": sc.front_speed_max_mps,
         "ego.speed_min_mps": e.speed_min_mps,
     }

@@ -58,6 +58,15 @@ def _parser() -> argparse.ArgumentParser:
     rpt.add_argument("run_dir", type=Path)
     rpt.set_defaults(func=_cmd_report)
 
+    bench = sub.add_parser("bench", help="the engine against the naive reference loop, in one run")
+    bench.add_argument("--campaign", default="campaigns/table4.toml", help="campaign file (default: Table IV)")
+    bench.add_argument("--cell", default="scenario=B,method=VL-CBF eps=0.3", help="cell name of that campaign")
+    bench.add_argument("--naive-episodes", type=_positive_int, default=1, help="paired episodes on the naive side")
+    bench.add_argument("--engine-episodes", type=_positive_int, default=4, help="episodes on the engine side")
+    bench.add_argument("--backend", help="the engine's solver backend (default: the cell's)")
+    bench.add_argument("--no-write", action="store_true", help="do not append to results/BENCHMARKS.md")
+    bench.set_defaults(func=_cmd_bench)
+
     ben = sub.add_parser("bench-solver", help="measure the solver backends against each other "
                          "(figures written into results/BENCHMARKS.md)")
     ben.add_argument("--campaign", type=Path, default=Path("campaigns/table2.toml"),
@@ -122,6 +131,23 @@ def _cmd_report(args) -> int:
 
     path = report.write(args.run_dir)
     print(f"report: {path}")
+    return 0
+
+
+def _cmd_bench(args) -> int:
+    from mcverify import bench
+    from mcverify.campaign import CampaignError
+
+    if args.engine_episodes < args.naive_episodes:
+        raise CampaignError("--engine-episodes must be at least --naive-episodes (the naive episodes are paired)")
+    result = bench.run(
+        campaign=args.campaign, cell_name=args.cell, naive_episodes=args.naive_episodes,
+        engine_episodes=args.engine_episodes, backend=args.backend, write=not args.no_write,
+        progress=lambda msg: print(msg, file=sys.stderr),
+    )
+    print(bench.render(result))
+    if not args.no_write:
+        print(f"appended to {bench.BENCHMARKS_MD}", file=sys.stderr)
     return 0
 
 

@@ -21,11 +21,11 @@ _SOLVERS: dict[ModelParams, object] = {}
 
 
 def solver_for(params: ModelParams):
-    """This process's solver for ``params`` (built or loaded from the kernel cache once)."""
-    from mcverify.solver import MpcSolver
+    """This process's planner for ``params`` (its solvers built or loaded from the kernel cache once)."""
+    from mcverify.planner import Planner
 
     if params not in _SOLVERS:
-        _SOLVERS[params] = MpcSolver(params)
+        _SOLVERS[params] = Planner(params)
     return _SOLVERS[params]
 
 

@@ -9,9 +9,11 @@ when the package sits in a source checkout (``pyproject.toml`` next to the ``mcv
 else ``~/.cache/mcverify/kernels``. Each kernel lives in ``<name>-<hash12>/`` with ``nlp.c``,
 ``nlp.so`` and ``manifest.json``.
 
-The hash covers only what changes the compiled code: :data:`mcverify.ocp.FORMULATION_VERSION`, the
-:class:`~mcverify.ocp.OcpStructure`, the CasADi version, the compiler command and flags, and the
-machine architecture. Numeric values (bounds, lambdas, ellipse axes, l_r, phi, eps_y, weights,
+The hash covers only what changes the compiled code: :data:`mcverify.ocp.FORMULATION_VERSION`, a
+digest of the NLP's maths (:func:`mcverify.ocp.formulation_digest`, so that no edit of the
+formulation can be served a stale kernel), the :class:`~mcverify.ocp.OcpStructure`, the CasADi
+version, the compiler command and flags, and the machine architecture. Numeric values (bounds,
+lambdas, ellipse axes, l_r, phi, eps_y, weights,
 measurements) are runtime parameters or bounds, not compiled in, so they do not enter the hash.
 
 Concurrency: a kernel is built in a temporary folder next to its final place and moved there with
@@ -39,7 +41,7 @@ from pathlib import Path
 
 import casadi as ca
 
-from mcverify.ocp import FORMULATION_VERSION, OcpStructure, build_nlp
+from mcverify.ocp import FORMULATION_VERSION, OcpStructure, build_nlp, formulation_digest
 
 COMPILER = "gcc"
 # -O1, measured on the N = 50, m = 2 kernel (1.4 MB of C; gcc 12, x86-64, 2 shared cores): compile
@@ -125,6 +127,7 @@ def kernel_hash(structure: OcpStructure) -> str:
     """SHA-256 (hex) over formulation version, structure, CasADi version, compiler command, arch."""
     key = {
         "formulation_version": FORMULATION_VERSION,
+        "formulation_digest": formulation_digest(structure),
         "structure": dataclasses.asdict(structure),
         "casadi_version": ca.__version__,
         "compiler_command": " ".join(compiler_command()),

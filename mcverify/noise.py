@@ -63,14 +63,47 @@ def measure_vehicle(
     Raises:
         ValueError: for a kind not in :data:`NOISE_KINDS`.
     """
+    if noise.kind not in NOISE_KINDS:
+        raise ValueError(f"unknown noise kind {noise.kind!r}; valid kinds: {', '.join(NOISE_KINDS)}")
+    if noise.kind == "none":
+        x, y, v = (jnp.asarray(a, dtype=float) for a in (true_x_m, true_y_m, true_speed_mps))
+        return x, y, v
+    return measure(key, true_x_m, true_y_m, true_speed_mps, gap_m, **noise_arrays(noise))
+
+
+def noise_arrays(noise: Noise) -> dict[str, float]:
+    """The noise model as runtime numbers for :func:`measure` ("none" is scale 0)."""
+    return {
+        "pos_far_m": noise.pos_far_m,
+        "pos_near_m": noise.pos_near_m,
+        "near_threshold_m": noise.near_threshold_m,
+        "speed_rel": noise.speed_rel,
+        "scale": noise.scale if noise.kind == "paper" else 0.0,
+    }
+
+
+def measure(
+    key: Array,
+    true_x_m: ArrayLike,
+    true_y_m: ArrayLike,
+    true_speed_mps: ArrayLike,
+    gap_m: ArrayLike,
+    *,
+    pos_far_m: ArrayLike,
+    pos_near_m: ArrayLike,
+    near_threshold_m: ArrayLike,
+    speed_rel: ArrayLike,
+    scale: ArrayLike,
+) -> tuple[Array, Array, Array]:
+    """The paper's noise model with every number a runtime argument (traced, not compiled in).
+
+    Same draws as :func:`measure_vehicle` with kind "paper"; ``scale`` 0 returns the true values
+    exactly (x + 0.0). One compiled plant then serves every noise level of a campaign.
+    """
     x = jnp.asarray(true_x_m, dtype=float)
     y = jnp.asarray(true_y_m, dtype=float)
     v = jnp.asarray(true_speed_mps, dtype=float)
-    if noise.kind == "none":
-        return x, y, v
-    if noise.kind != "paper":
-        raise ValueError(f"unknown noise kind {noise.kind!r}; valid kinds: {', '.join(NOISE_KINDS)}")
     unit = jax.random.uniform(key, (3,), dtype=float, minval=-1.0, maxval=1.0)
-    pos_half_m = noise.scale * jnp.where(gap_m > noise.near_threshold_m, noise.pos_far_m, noise.pos_near_m)
-    speed_half_mps = noise.scale * noise.speed_rel * jnp.abs(v)
+    pos_half_m = scale * jnp.where(gap_m > near_threshold_m, pos_far_m, pos_near_m)
+    speed_half_mps = scale * speed_rel * jnp.abs(v)
     return x + pos_half_m * unit[0], y + pos_half_m * unit[1], v + speed_half_mps * unit[2]

@@ -55,6 +55,8 @@ def replay(run_dir: Path, episode_id: int, out_dir: Path | None = None) -> Repla
     traj = result.trajectories[local]
     traj_path = out_dir / f"episode-{episode_id:06d}.parquet"
     pq.write_table(pa.table(traj), traj_path)
+    if result.plans.get(local):
+        pq.write_table(pa.table(result.plans[local]), out_dir / f"episode-{episode_id:06d}-plans.parquet")
     plot_path = out_dir / f"episode-{episode_id:06d}.png"
     from mcverify import plots
 

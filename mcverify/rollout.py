@@ -1,180 +1,46 @@
-"""Closed-loop rollout of a batch of disturbed episodes.
+"""Closed-loop rollout of a chunk of disturbed episodes: the plant in JAX, the controller on the host.
 
-Time is split at the planner's sampling instants. One control step is:
+One control step of the chunk:
 
-1. ``observe`` (JAX, vmapped): every episode's planner measures the front vehicle with perception
-   noise drawn from keys that depend only on (episode key, step), never on the batch;
-2. the host solves Q1 and Q2 for the whole batch (cached CasADi kernel, warm-started per episode)
-   and :func:`mcverify.decision.decide` picks the input (Algorithm 1);
+1. ``observe`` (:mod:`mcverify.plant`, JAX, vmapped): every episode's planner measures veh_f and
+   veh_o with perception noise drawn from keys that depend only on (episode key, step);
+2. the host runs each active episode's controller (:class:`mcverify.planner.Planner`: Q1/Q2 with
+   the cached CasADi kernels, Algorithm 1, Table I, MPC-DC);
 3. ``advance`` (JAX, vmapped, ``lax.scan`` over sub-steps): the plant runs under zero-order hold
-   with fine RK4 sub-steps and every safety check is evaluated at every sub-step.
+   and every safety check is evaluated at every sub-step.
 
-Episodes that finish are frozen (masked) while the rest of the batch goes on. All episode results
-are a pure function of (campaign cell, seed, episode id): the batch size and the other episodes in
-the batch do not enter them (tests check this against a loop of single episodes).
+Episodes that finish are frozen while the rest go on. Every result is a pure function of (campaign
+cell, seed, episode id): not of the chunk, its size or the other episodes in it (the plant runs in
+fixed-width lane groups, see :mod:`mcverify.plant`), which ``mcverify replay`` checks bit for bit.
 """
 
 from __future__ import annotations
 
-import functools
 import json
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mcverify import barriers, geometry, noise, vehicles
 from mcverify.campaign import Cell
-from mcverify.decision import Mode, Source, decide
-from mcverify.model import ModelParams
-from mcverify.solver import MpcSolution, MpcSolver
+from mcverify.decision import Source
+from mcverify.planner import EpisodeState, Planner, StepRecord
+from mcverify.plant import LaneGroups, SafetyTrace, Substep, initial_plant
 
 Array = jax.Array
 
-Q1, Q2 = +1, -1  # the OCP's direction parameter: goal ahead of / behind the front vehicle
+#: fold_in stream of the per-episode scenario draws, apart from the per-step noise streams.
+SCENARIO_STREAM = 1_000_000
+#: Planned trajectories of recorded episodes are kept every this many seconds (figures).
+PLAN_SNAPSHOT_PERIOD_S = 0.5
+#: Columns that depend on wall-clock time; everything else is reproducible bit for bit.
+TIMING_COLUMNS = ("solve_time_mean_s", "solve_time_max_s")
 
 
-# ------------------------------------------------------------------------------------- pytrees
-
-
-class Plant(NamedTuple):
-    """True state of one episode (batched along a leading axis by vmap).
-
-    ego: (4,) [x_m, y_m, psi_rad, speed_mps]; front: (2,) [x_m, speed_mps] (the front vehicle
-    keeps to the ego lane centre, y = 0); front_accel_mps2: () its acceleration once
-    ``t_s >= front_accel_onset_s``; t_s: () time since the episode started.
-    """
-
-    ego: Array
-    front: Array
-    front_accel_mps2: Array
-    t_s: Array
-
-
-class SafetyTrace(NamedTuple):
-    """Running per-episode safety metrics, updated at every sub-step (all scalars).
-
-    min_h_front: min of h_ef along the true trajectory (dimensionless);
-    min_dist_front_m: min signed Euclidean distance from the ego c.g. to the h_ef = 0 ellipse
-    (negative inside); min_gap_front_m: min distance between the two footprints (0 on contact);
-    collision_front: the footprints overlapped at some sub-step;
-    first_opp_lane_s / last_opp_lane_s: first and last sub-step time at which the ego footprint
-    reached into the opposing lane (NaN if never).
-    """
-
-    min_h_front: Array
-    min_dist_front_m: Array
-    min_gap_front_m: Array
-    collision_front: Array
-    first_opp_lane_s: Array
-    last_opp_lane_s: Array
-
-
-class Substep(NamedTuple):
-    """What ``advance`` reports at each sub-step when recording a trajectory (replay)."""
-
-    t_s: Array
-    ego: Array
-    front: Array
-    h_front: Array
-    dist_front_m: Array
-    gap_front_m: Array
-    collision_front: Array
-
-
-# ------------------------------------------------------------------------------- JAX kernels
-
-
-@dataclass(frozen=True)
-class PlantKernels:
-    """The jitted, vmapped JAX functions of one parameter set (built once per cell, cached)."""
-
-    observe: Callable[..., Array]
-    advance: Callable[..., tuple[Plant, SafetyTrace, Substep]]
-    initial_trace: Callable[[Plant], SafetyTrace]
-
-
-@functools.lru_cache(maxsize=32)
-def plant_kernels(params: ModelParams) -> PlantKernels:
-    """Build (and cache per parameter set) the batched JAX step functions."""
-    geo, bar, road, sim, scen = params.geometry, params.barrier, params.road, params.sim, params.scenario
-    l_r = params.ego.l_r_m
-    dt_sub = sim.control_period_s / sim.substeps
-    half_lane = road.lane_width_m / 2.0
-
-    def front_xy(front: Array) -> tuple[Array, Array]:
-        return front[0], jnp.zeros_like(front[0])
-
-    def checks(ego: Array, front: Array) -> tuple[Array, Array, Array, Array, Array]:
-        fx, fy = front_xy(front)
-        h = barriers.h_ellipse(ego[0], ego[1], fx, fy, bar.ellipse_a_m, bar.ellipse_b_m)
-        dist = geometry.ellipse_signed_distance_m(ego[0] - fx, ego[1] - fy, bar.ellipse_a_m, bar.ellipse_b_m)
-        ego_box = geometry.footprint_corners(ego[0], ego[1], ego[2], geo.length_m, geo.width_m)
-        front_box = geometry.footprint_corners(fx, fy, 0.0, geo.length_m, geo.width_m)
-        hit = geometry.rectangles_overlap(ego_box, front_box)
-        gap = geometry.rectangle_gap_m(ego_box, front_box)
-        in_opp = jnp.max(ego_box[:, 1]) > half_lane
-        return h, dist, gap, hit, in_opp
-
-    def initial_trace(plant: Plant) -> SafetyTrace:
-        h, dist, gap, hit, in_opp = checks(plant.ego, plant.front)
-        t0 = jnp.where(in_opp, plant.t_s, jnp.nan)
-        return SafetyTrace(h, dist, gap, hit, t0, t0)
-
-    def observe(plant: Plant, key: Array, step: Array) -> Array:
-        """Measured front vehicle [x, y, v] at this control step (perception noise, Sec. VI-A)."""
-        fx, fy = front_xy(plant.front)
-        _, _, gap, _, _ = checks(plant.ego, plant.front)
-        k = noise.step_key(key, step, 0)
-        mx, my, mv = noise.measure_vehicle(k, fx, fy, plant.front[1], gap, params.noise)
-        return jnp.stack([mx, my, mv])
-
-    def front_substep(front: Array, accel_on: Array, t: Array) -> Array:
-        # The front vehicle accelerates from the onset time on, up to its speed cap, never
-        # switching sign (the paper's assumption on veh_f). Exact double-integrator update.
-        a = jnp.where(t >= scen.front_accel_onset_s, accel_on, 0.0)
-        a = jnp.minimum(a, jnp.maximum(scen.front_speed_max_mps - front[1], 0.0) / dt_sub)
-        return jnp.stack([front[0] + front[1] * dt_sub + 0.5 * a * dt_sub**2, front[1] + a * dt_sub])
-
-    def advance(plant: Plant, trace: SafetyTrace, u: Array, active: Array):
-        """Run one control period under zero-order hold; checks at every sub-step."""
-
-        def body(carry, i):
-            ego, front, tr = carry
-            t = plant.t_s + i * dt_sub
-            ego_n = vehicles.rk4_step(lambda x, uu: vehicles.ego_derivative(x, uu, l_r), ego, u, dt_sub)
-            front_n = front_substep(front, plant.front_accel_mps2, t)
-            t_n = plant.t_s + (i + 1) * dt_sub
-            h, dist, gap, hit, in_opp = checks(ego_n, front_n)
-            tr = SafetyTrace(
-                jnp.minimum(tr.min_h_front, h),
-                jnp.minimum(tr.min_dist_front_m, dist),
-                jnp.minimum(tr.min_gap_front_m, gap),
-                tr.collision_front | hit,
-                jnp.where(in_opp & jnp.isnan(tr.first_opp_lane_s), t_n, tr.first_opp_lane_s),
-                jnp.where(in_opp, t_n, tr.last_opp_lane_s),
-            )
-            return (ego_n, front_n, tr), Substep(t_n, ego_n, front_n, h, dist, gap, hit)
-
-        (ego, front, tr), subs = jax.lax.scan(
-            body, (plant.ego, plant.front, trace), jnp.arange(sim.substeps)
-        )
-        new_plant = Plant(ego, front, plant.front_accel_mps2, plant.t_s + sim.control_period_s)
-        keep = lambda new, old: jnp.where(active, new, old)  # noqa: E731 - finished episodes stay frozen
-        return jax.tree.map(keep, new_plant, plant), jax.tree.map(keep, tr, trace), subs
-
-    return PlantKernels(
-        observe=jax.jit(jax.vmap(observe)),
-        advance=jax.jit(jax.vmap(advance)),
-        initial_trace=jax.jit(jax.vmap(initial_trace)),
-    )
-
-
-# --------------------------------------------------------------------------------- keys
+# --------------------------------------------------------------------------------------- keys
 
 
 def episode_key(seed: int, cell_index: int | None, episode_id: int) -> Array:
@@ -186,11 +52,7 @@ def episode_key(seed: int, cell_index: int | None, episode_id: int) -> Array:
     return jax.random.fold_in(key, episode_id)
 
 
-#: fold_in stream of the per-episode scenario draws, apart from the per-step noise streams.
-SCENARIO_STREAM = 1_000_000
-
-
-def sample_scenario(key: Array, params: ModelParams) -> dict[str, float]:
+def sample_scenario(key: Array, params) -> dict[str, float]:
     """Per-episode scenario values drawn from the episode key.
 
     alpha_f: ``scenario.front_accel_range_mps2`` = (lo, hi) draws it uniformly in (lo, hi] (the
@@ -210,247 +72,252 @@ def sample_scenario(key: Array, params: ModelParams) -> dict[str, float]:
 
 
 @dataclass
-class EpisodeLog:
-    """Host-side bookkeeping of one episode: decisions, solver statistics, outcome."""
-
-    episode_id: int
-    mode: Mode = Mode.OVERTAKE
-    done: bool = False
-    outcome: str = "running"
-    end_time_s: float = math.nan
-    overtake_time_s: float = math.nan
-    steps: int = 0
-    q1_fail_steps: int = 0
-    q2_fail_steps: int = 0
-    both_infeasible_steps: int = 0
-    fallback_steps: int = 0
-    q2_driven_steps: int = 0
-    switched_to_q2_at_s: float = math.nan
-    iterations: list[int] = field(default_factory=list)
-    solve_times_s: list[float] = field(default_factory=list)
-    statuses: dict[str, int] = field(default_factory=dict)
-    warm: dict[int, object] = field(default_factory=dict)
-
-    def record_solve(self, sol: MpcSolution) -> None:
-        self.iterations.append(sol.iterations)
-        self.solve_times_s.append(sol.solve_time_s)
-        self.statuses[sol.status] = self.statuses.get(sol.status, 0) + 1
-
-
-@dataclass
 class ChunkResult:
+    """Rows (one per episode) and, for recorded episodes, trajectory and plan tables (columns)."""
+
     rows: list[dict]
     trajectories: dict[int, dict[str, np.ndarray]] = field(default_factory=dict)
+    plans: dict[int, dict[str, np.ndarray]] = field(default_factory=dict)
 
 
 def run_episodes(
     cell: Cell,
     episode_ids: Sequence[int],
     seed: int,
-    solver: MpcSolver,
+    planner: Planner,
     *,
     common_random_numbers: bool = False,
-    record: bool = False,
+    record: bool | Sequence[int] = False,
     on_step: Callable[[int], None] | None = None,
 ) -> ChunkResult:
-    """Simulate ``episode_ids`` of ``cell`` as one vmapped batch; one metrics row per episode.
+    """Simulate ``episode_ids`` (ids within the cell) of ``cell`` as one batch; one row per episode.
 
-    With ``record=True`` the full-resolution trajectory of every episode is returned as well.
+    record: True for every episode, or the ids of the episodes whose full-resolution trajectory,
+    step decisions and plan snapshots are returned as well.
     """
     p = cell.params
-    kern = plant_kernels(p)
-    n = len(episode_ids)
+    ids = [int(e) for e in episode_ids]
     cell_key = None if common_random_numbers else cell.index
-    keys = jnp.stack([episode_key(seed, cell_key, int(e)) for e in episode_ids])
+    keys = jnp.stack([episode_key(seed, cell_key, e) for e in ids])
     samples = [sample_scenario(k, p) for k in keys]
-    plant = _initial_plant(p, samples)
-    trace = kern.initial_trace(plant)
-    h0 = np.asarray(trace.min_h_front).copy()
-    logs = [EpisodeLog(int(e)) for e in episode_ids]
-    rec = _Recorder(n) if record else None
+    world = LaneGroups(initial_plant(p, [s["front_accel_mps2"] for s in samples]), keys, p)
+    h0 = world.trace().min_h_front.copy()
+    states = [EpisodeState(e) for e in ids]
+    recorded = set(ids) if record is True else set(record or ())
+    rec = _Recorder([b for b, e in enumerate(ids) if e in recorded], cell) if recorded else None
     n_steps = int(math.ceil(p.sim.max_time_s / p.sim.control_period_s - 1e-9))
+    has_opp = p.opposing.kind != "none"
 
     for step in range(n_steps):
         t_s = step * p.sim.control_period_s
-        measured = np.asarray(kern.observe(plant, keys, jnp.full((n,), step)))
-        ego = np.asarray(plant.ego)
-        u = np.zeros((n, 2))
-        sources = np.zeros(n, dtype=np.int8)
-        for b, log in enumerate(logs):
-            if log.done:
+        front_meas, opp_meas = world.observe(step)
+        ego = world.ego()
+        u = np.zeros((len(ids), 2))
+        records: dict[int, StepRecord] = {}
+        for b, st in enumerate(states):
+            if st.done:
                 continue
-            if _converged(log, ego[b], measured[b], p):
-                log.done, log.end_time_s = True, t_s
-                log.outcome = "overtook" if log.mode is Mode.OVERTAKE else "went_back"
-                if log.mode is Mode.OVERTAKE:
-                    log.overtake_time_s = t_s
+            outcome = planner.converged(st, ego[b], front_meas[b])
+            if outcome is not None:
+                _finish(st, t_s, outcome)
                 continue
-            u[b], sources[b] = _control_step(log, ego[b], measured[b], cell, solver, t_s)
-        active = np.array([not log.done for log in logs])
+            u[b], records[b] = planner.step(st, t_s, ego[b], front_meas[b], opp_meas[b] if has_opp else None,
+                                            cell.lambda0)
+        active = np.array([not st.done for st in states])
         if not active.any():
             break
-        plant, trace, subs = kern.advance(plant, trace, jnp.asarray(u), jnp.asarray(active))
+        subs = world.advance(u, active)
+        _note_first_unsafe(states, world.trace(), records, t_s)
         if rec is not None:
-            rec.add(subs, u, sources, measured, active, np.array([lg.mode for lg in logs]))
+            rec.add(t_s, world.substeps_of(subs), u, records, front_meas, opp_meas, active)
         if on_step is not None:
             on_step(step)
-    for log in logs:
-        if not log.done:
-            log.done, log.outcome, log.end_time_s = True, "timeout", n_steps * p.sim.control_period_s
+    for st in states:
+        if not st.done:
+            st.done, st.outcome, st.end_time_s = True, "timeout", n_steps * p.sim.control_period_s
 
+    trace = world.trace()
     rows = [
-        _episode_row(cell, seed, log, samples[b], jax.tree.map(lambda a, b=b: a[b], trace), h0[b])
-        for b, log in enumerate(logs)
+        episode_row(cell, seed, st, samples[b], SafetyTrace(*(np.asarray(a)[b] for a in trace)), float(h0[b]))
+        for b, st in enumerate(states)
     ]
-    trajectories = rec.per_episode(episode_ids) if rec is not None else {}
-    return ChunkResult(rows, trajectories)
+    if rec is None:
+        return ChunkResult(rows)
+    return ChunkResult(rows, *rec.tables(ids))
 
 
-def _initial_plant(p: ModelParams, samples: list[dict[str, float]]) -> Plant:
-    n = len(samples)
-    s = p.scenario
-    ego = jnp.tile(jnp.array([s.ego_x_m, 0.0, 0.0, s.ego_speed_mps]), (n, 1))
-    front = jnp.tile(jnp.array([s.front_x_m, s.front_speed_mps]), (n, 1))
-    accel = jnp.array([smp["front_accel_mps2"] for smp in samples])
-    return Plant(ego, front, accel, jnp.zeros(n))
+#: What drove the ego in the control period where it first left the safe set (``first_unsafe_cause``):
+#: "planned" - a solved Q1/Q2 (or MPC-DC) plan, so the plan itself or the noise let it in (for MPC-DC:
+#: the ellipse held only at its nodes); "held" - a failed problem's old plan (no backup problem);
+#: "fallback" - no plan at all.
+UNSAFE_CAUSES = {Source.Q1: "planned", Source.Q2: "planned", Source.HELD: "held", Source.FALLBACK: "fallback"}
 
 
-def _converged(log: EpisodeLog, ego: np.ndarray, front_meas: np.ndarray, p: ModelParams) -> bool:
-    """The paper's convergence test on the *measured* state (what the controller knows).
-
-    Q1: x_e >= x_f + phi v_f and |y_e - y_g| <= eps_y; Q2: x_e <= x_f - phi v_f, same lateral test.
-    """
-    goal_y = p.road.ego_lane_y_m
-    if abs(ego[1] - goal_y) > p.mpc.eps_y_m:
-        return False
-    offset = p.mpc.phi_s * front_meas[2]
-    if log.mode is Mode.OVERTAKE:
-        return bool(ego[0] >= front_meas[0] + offset)
-    return bool(ego[0] <= front_meas[0] - offset)
+def _note_first_unsafe(states: list[EpisodeState], trace: SafetyTrace, records: dict[int, StepRecord], t_s: float):
+    unsafe = (np.asarray(trace.min_h_front) < 0) | np.asarray(trace.collision_front) | np.asarray(trace.collision_opp)
+    for b, st in enumerate(states):
+        if unsafe[b] and not st.first_unsafe_cause and b in records:
+            st.first_unsafe_s = t_s
+            st.first_unsafe_cause = UNSAFE_CAUSES[records[b].source]
 
 
-def _control_step(
-    log: EpisodeLog, ego: np.ndarray, front_meas: np.ndarray, cell: Cell, solver: MpcSolver, t_s: float
-) -> tuple[np.ndarray, Source]:
-    """Solve Q1 and Q2 for one episode, decide (Algorithm 1), return the input to apply."""
-    sols: dict[int, MpcSolution] = {}
-    for direction in (Q1, Q2):
-        if direction == Q1 and log.mode is Mode.GO_BACK:
-            continue  # the overtake was abandoned for good: Q1 is no longer solved
-        sol = solver.solve(ego, front_meas, direction, cell.lambda0, log.warm.get(direction))
-        log.record_solve(sol)
-        if sol.success:
-            log.warm[direction] = sol.warm
-        else:
-            log.warm.pop(direction, None)  # never restart from a stale point
-        sols[direction] = sol
-    q1_ok = Q1 in sols and sols[Q1].success
-    q2_ok = sols[Q2].success
-    log.steps += 1
-    log.q1_fail_steps += int(Q1 in sols and not q1_ok)
-    log.q2_fail_steps += int(not q2_ok)
-    log.both_infeasible_steps += int(not q1_ok and not q2_ok)
-    before = log.mode
-    log.mode, source = decide(log.mode, q1_ok, q2_ok)
-    if before is Mode.OVERTAKE and log.mode is Mode.GO_BACK:
-        log.switched_to_q2_at_s = t_s
-    if source is Source.FALLBACK:
-        log.fallback_steps += 1
-        return fallback_input(ego, cell.params), source
-    log.q2_driven_steps += int(source is Source.Q2)
-    return sols[Q1 if source is Source.Q1 else Q2].u_plan[0], source
+def _finish(st: EpisodeState, t_s: float, outcome: str) -> None:
+    st.done, st.end_time_s, st.outcome = True, t_s, outcome
+    if outcome == "overtook":
+        st.overtake_time_s = t_s
 
 
-def fallback_input(ego: np.ndarray, p: ModelParams) -> np.ndarray:
-    """Neither problem solved: brake (without reversing) and steer back towards the ego lane."""
-    e = p.ego
-    accel = max(e.accel_min_mps2, -ego[3] / p.sim.control_period_s)
-    beta = float(np.clip(-(0.3 * (ego[1] - p.road.ego_lane_y_m) + 1.0 * ego[2]), -e.slip_max_rad, e.slip_max_rad))
-    return np.array([accel, beta])
+def _finite_or_nan(x: float) -> float:
+    return float(x) if math.isfinite(x) else math.nan
 
 
-def _episode_row(
-    cell: Cell, seed: int, log: EpisodeLog, sample: dict[str, float], tr: SafetyTrace, h0: float
-) -> dict:
+def episode_row(cell: Cell, seed: int, st: EpisodeState, sample: dict[str, float], tr: SafetyTrace, h0: float) -> dict:
+    """The metrics of one finished episode (the columns of ``episodes.parquet``; README: Metrics)."""
+    p = cell.params
     eps = cell.epsilon
     min_h = float(tr.min_h_front)
     first, last = float(tr.first_opp_lane_s), float(tr.last_opp_lane_s)
-    collision = bool(tr.collision_front)
-    iters = np.array(log.iterations or [0])
-    times = np.array(log.solve_times_s or [0.0])
+    collision_front, collision_opp = bool(tr.collision_front), bool(tr.collision_opp)
+    iters = np.array(st.iterations or [0])
+    times = np.array(st.solve_times_s or [0.0])
+    has_opp = p.opposing.kind != "none"
+    min_h_opp = _finite_or_nan(float(tr.min_h_opp))
     return {
-        "episode_id": cell.episode_offset + log.episode_id,
-        "cell_episode": log.episode_id,
+        "episode_id": cell.episode_offset + st.episode_id,
+        "cell_episode": st.episode_id,
         "cell": cell.name,
         "cell_index": cell.index,
         "seed": seed,
+        "controller": p.mpc.controller,
+        "opposing_kind": p.opposing.kind,
         **{f"sample_{k}": v for k, v in sample.items()},
-        "outcome": log.outcome,
-        "overtook": log.outcome == "overtook",
-        "went_back": log.outcome == "went_back",
-        "timeout": log.outcome == "timeout",
-        "end_time_s": log.end_time_s,
-        "overtake_time_s": log.overtake_time_s,
+        "outcome": st.outcome,
+        "overtook": st.outcome == "overtook",
+        "went_back": st.outcome == "went_back",
+        "timeout": st.outcome == "timeout",
+        "end_time_s": st.end_time_s,
+        "overtake_time_s": st.overtake_time_s,
         "lane_borrow_time_s": (last - first) if math.isfinite(first) else math.nan,
-        "collision_front": collision,
+        "collision_front": collision_front,
+        "collision_opp": collision_opp,
         "min_h_front": min_h,
         "min_dist_front_m": float(tr.min_dist_front_m),
         "min_gap_front_m": float(tr.min_gap_front_m),
+        "min_gap_opp_m": _finite_or_nan(float(tr.min_gap_opp_m)) if has_opp else math.nan,
+        "min_gap_opp_any_m": _finite_or_nan(float(tr.min_gap_opp_any_m)) if has_opp else math.nan,
+        "min_h_opp": min_h_opp if has_opp else math.nan,
         "ellipse_violation": min_h < 0.0,
-        "safe": (not collision) and min_h >= 0.0,
-        "h0_front": float(h0),
+        "safe": (not collision_front) and (not collision_opp) and min_h >= 0.0,
+        "first_unsafe_s": st.first_unsafe_s,
+        "first_unsafe_cause": st.first_unsafe_cause,
+        "h0_front": h0,
         "epsilon": eps,
         "lambda0": cell.lambda0,
         "invariance_breach": bool(h0 >= eps and min_h < eps),
         "invariance_margin": min_h - eps,
-        "steps": log.steps,
-        "q1_fail_steps": log.q1_fail_steps,
-        "q2_fail_steps": log.q2_fail_steps,
-        "both_infeasible_steps": log.both_infeasible_steps,
-        "fallback_steps": log.fallback_steps,
-        "q2_driven_steps": log.q2_driven_steps,
-        "switched_to_q2_at_s": log.switched_to_q2_at_s,
-        "solves": len(log.iterations),
+        "opp_invariance_breach": bool(has_opp and math.isfinite(min_h_opp) and min_h_opp < p.barrier.opp_epsilon_m),
+        "steps": st.steps,
+        "opp_detected_steps": st.opp_detected_steps,
+        "q1_fail_steps": st.q1_fail_steps,
+        "q2_fail_steps": st.q2_fail_steps,
+        "both_infeasible_steps": st.both_infeasible_steps,
+        "fallback_steps": st.fallback_steps,
+        "held_steps": st.held_steps,
+        "q2_driven_steps": st.q2_driven_steps,
+        "q1_rescue_steps": st.q1_rescue_steps,
+        "switched_to_q2_at_s": st.switched_to_q2_at_s,
+        "went_back_reason": st.went_back_reason,
+        "table_one_rows": json.dumps({str(k): v for k, v in sorted(st.table_one_rows.items())}),
+        "solves": len(st.iterations),
+        "cold_retries": st.cold_retries,
         "iterations_mean": float(iters.mean()),
         "iterations_max": int(iters.max()),
         "solve_time_mean_s": float(times.mean()),
         "solve_time_max_s": float(times.max()),
-        "solver_statuses": json.dumps(dict(sorted(log.statuses.items()))),
+        "solver_statuses": json.dumps(dict(sorted(st.statuses.items()))),
     }
 
 
-#: Columns that depend on wall-clock time; everything else is reproducible bit for bit.
-TIMING_COLUMNS = ("solve_time_mean_s", "solve_time_max_s")
-
-
 class _Recorder:
-    """Collects full-resolution trajectories (replay) from the batched sub-step outputs."""
+    """Collects full-resolution trajectories, per-step decisions and plan snapshots of some episodes."""
 
-    def __init__(self, n: int) -> None:
-        self.n = n
-        self.parts: list[dict[str, np.ndarray]] = []
+    def __init__(self, lanes: list[int], cell: Cell) -> None:
+        self.lanes = lanes
+        self.cell = cell
+        self.parts: dict[int, list[dict[str, np.ndarray]]] = {b: [] for b in lanes}
+        self.plans: dict[int, list[dict[str, np.ndarray]]] = {b: [] for b in lanes}
+        self.next_snapshot_s = {b: 0.0 for b in lanes}
 
-    def add(self, subs: Substep, u, sources, measured, active, modes) -> None:
-        k = np.asarray(subs.t_s).shape[1]
-        rep = lambda a: np.repeat(np.asarray(a)[:, None], k, axis=1)  # noqa: E731 - per control step -> per sub-step
-        ego, front = np.asarray(subs.ego), np.asarray(subs.front)
-        self.parts.append({
-            "t_s": np.asarray(subs.t_s),
-            "ego_x_m": ego[..., 0], "ego_y_m": ego[..., 1], "ego_psi_rad": ego[..., 2], "ego_speed_mps": ego[..., 3],
-            "front_x_m": front[..., 0], "front_y_m": np.zeros_like(front[..., 0]), "front_speed_mps": front[..., 1],
-            "alpha_mps2": rep(u[:, 0]), "beta_rad": rep(u[:, 1]),
-            "h_front": np.asarray(subs.h_front), "dist_front_m": np.asarray(subs.dist_front_m),
-            "gap_front_m": np.asarray(subs.gap_front_m), "collision_front": np.asarray(subs.collision_front),
-            "active_problem": rep(sources), "mode": rep(modes),
-            "meas_front_x_m": rep(measured[:, 0]), "meas_front_y_m": rep(measured[:, 1]),
-            "meas_front_speed_mps": rep(measured[:, 2]),
-            "_active": rep(active),
-        })
+    def add(self, t_s: float, subs: Substep, u, records: dict[int, StepRecord], front_meas, opp_meas, active) -> None:
+        k = subs.t_s.shape[1]
+        for b in self.lanes:
+            if not active[b]:
+                continue
+            r = records.get(b)
+            rep = lambda v: np.full(k, v, dtype=float)  # noqa: E731 - per control step -> per sub-step
+            ego, front, opp = subs.ego[b], subs.front[b], subs.opp[b]
+            has_opp = self.cell.params.opposing.kind != "none"
+            self.parts[b].append({
+                "t_s": subs.t_s[b],
+                "ego_x_m": ego[:, 0], "ego_y_m": ego[:, 1], "ego_psi_rad": ego[:, 2], "ego_speed_mps": ego[:, 3],
+                "front_x_m": front[:, 0], "front_y_m": np.zeros(k), "front_speed_mps": front[:, 1],
+                "opp_x_m": opp[:, 0] if has_opp else rep(np.nan),
+                "opp_y_m": rep(self.cell.params.road.opp_lane_y_m if has_opp else np.nan),
+                "opp_speed_mps": -opp[:, 1] if has_opp else rep(np.nan),
+                "alpha_mps2": rep(u[b, 0]), "beta_rad": rep(u[b, 1]),
+                "h_front": subs.h_front[b], "dist_front_m": subs.dist_front_m[b], "gap_front_m": subs.gap_front_m[b],
+                "collision_front": subs.collision_front[b].astype(float),
+                "h_opp": subs.h_opp[b] if has_opp else rep(np.nan),
+                "gap_opp_m": subs.gap_opp_m[b] if has_opp else rep(np.nan),
+                "collision_opp": subs.collision_opp[b].astype(float),
+                "active_problem": rep(int(r.source) if r else 0),
+                "mode": rep(int(r.mode) if r else -1),
+                "opp_detected": rep(float(r.detected) if r else 0.0),
+                "q1_solved": rep(_solved(r.q1) if r else np.nan),
+                "q2_solved": rep(_solved(r.q2) if r else np.nan),
+                "q1_time_s": rep(_total(r.q1) if r else np.nan),
+                "q2_time_s": rep(_total(r.q2) if r else np.nan),
+                "table_one_row": rep(r.table_row if r else -1),
+                "meas_front_x_m": rep(front_meas[b, 0]), "meas_front_y_m": rep(front_meas[b, 1]),
+                "meas_front_speed_mps": rep(front_meas[b, 2]),
+                "meas_opp_x_m": rep(opp_meas[b, 0] if has_opp else np.nan),
+                "meas_opp_speed_mps": rep(-opp_meas[b, 1] if has_opp else np.nan),
+            })
+            if r is not None and t_s + 1e-9 >= self.next_snapshot_s[b]:
+                self.next_snapshot_s[b] += PLAN_SNAPSHOT_PERIOD_S
+                for name, sol in (("Q1", r.q1), ("Q2", r.q2)):
+                    if sol is not None and sol.success:
+                        self.plans[b].append(_plan_table(t_s, name, sol))
 
-    def per_episode(self, episode_ids: Sequence[int]) -> dict[int, dict[str, np.ndarray]]:
-        out = {}
-        for b, e in enumerate(episode_ids):
-            cols = {k: np.concatenate([p[k][b] for p in self.parts]) for k in self.parts[0]}
-            keep = cols.pop("_active").astype(bool)
-            out[int(e)] = {k: v[keep] for k, v in cols.items()}
-        return out
+    def tables(self, ids: Sequence[int]):
+        traj, plans = {}, {}
+        for b in self.lanes:
+            parts = self.parts[b]
+            traj[ids[b]] = {key: np.concatenate([pt[key] for pt in parts]) for key in parts[0]} if parts else {}
+            pl = self.plans[b]
+            plans[ids[b]] = {key: np.concatenate([x[key] for x in pl]) for key in pl[0]} if pl else {}
+        return traj, plans
+
+
+def _solved(sol) -> float:
+    return np.nan if sol is None else float(sol.success)
+
+
+def _total(sol) -> float:
+    return sol.total_time_s if sol is not None and sol.success else np.nan
+
+
+def _plan_table(t_s: float, name: str, sol) -> dict[str, np.ndarray]:
+    n = sol.x_plan.shape[0]
+    t_nodes = t_s + np.concatenate([[0.0], np.cumsum(sol.dt_plan)])
+    opp_x = sol.opp_plan[:, 0] if sol.opp_plan is not None else np.full(n, np.nan)
+    return {
+        "t_s": np.full(n, t_s), "problem": np.array([name] * n), "node": np.arange(n),
+        "t_node_s": t_nodes, "x_m": sol.x_plan[:, 0], "y_m": sol.x_plan[:, 1], "speed_mps": sol.x_plan[:, 3],
+        "opp_x_m": opp_x,
+    }
+
+
+def describe_sources() -> dict[int, str]:
+    """Names of the ``active_problem`` codes in trajectories."""
+    return {0: "none", **{int(s): s.name for s in Source}}

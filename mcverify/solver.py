@@ -6,7 +6,7 @@
 same ``warm``) give bit-identical outputs; nothing depends on wall time or on earlier solves.
 
 The numerical work is done by the backend named in ``params.mpc.backend`` (:mod:`mcverify.backends`:
-"ipopt", the reference, or "sqp", the fast path with IPOPT as its fallback).
+"ipopt", the reference, or "ipm", the fast path with IPOPT as its fallback).
 """
 
 from __future__ import annotations
@@ -54,7 +54,7 @@ class WarmStart:
 @dataclass(frozen=True)
 class MpcSolution:
     success: bool  # the backend solved it AND max constraint/bound violation <= MAX_VIOLATION
-    status: str  # backend status (IPOPT return_status, "SQP_Converged", "fallback:<IPOPT status>"),
+    status: str  # backend status (IPOPT return_status, "IPM_Converged", "fallback:<IPOPT status>"),
     # or "exception: <msg>" / "invalid_input: <msg>"
     iterations: int
     solve_time_s: float  # wall time of this solve (time.perf_counter)
@@ -65,6 +65,7 @@ class MpcSolution:
     warm: WarmStart | None  # what to pass to the next solve of the same problem; None on failure
     max_violation: float = float("nan")  # largest constraint or bound violation of the returned plan
     retried_cold: bool = False  # the warm start failed and this is the cold retry's result
+    opp_plan: np.ndarray | None = None  # (N+1, 2) predicted veh_o [x_o, v_o]; None without one
 
 
 class MpcSolver:
@@ -103,16 +104,23 @@ class MpcSolver:
         direction: int,
         lambda0: float,
         warm: WarmStart | None = None,
+        opp_xv: np.ndarray | None = None,
+        guess: np.ndarray | None = None,
     ) -> MpcSolution:
         """Solve Q1 (direction +1) or Q2 (-1) from the measured states.
 
         ego_state (4,) [x m, y m, psi rad, v m/s]; front_xyv (3,) [x_f m, y_f m, v_f m/s];
         lambda0: level parameter (<= 0); warm: the ``warm`` of the previous solution of the same
-        direction, or None for a cold start from :func:`~mcverify.ocp.initial_guess`.
+        direction, or None for a cold start from :func:`~mcverify.ocp.initial_guess`;
+        opp_xv (2,) [x_o m, v_o m/s signed]: the measured opposing vehicle, required (only) when the
+        structure has one; guess (n_w,): a primal starting point for a cold solve instead of
+        :func:`~mcverify.ocp.initial_guess` (e.g. the plain problem's plan, :func:`guess_from_plan`).
         """
         t0 = time.perf_counter()
         try:
-            p = pack_params(self.params, ego_state, front_xyv, direction, lambda0)
+            p = pack_params(
+                self.params, ego_state, front_xyv, direction, lambda0, opp_xv=opp_xv, structure=self.structure
+            )
         except ValueError as exc:  # wrong shapes or direction: a caller error, not numerics
             raise ValueError(f"MpcSolver.solve: {exc}") from exc
         if not np.all(np.isfinite(p)):
@@ -120,14 +128,28 @@ class MpcSolver:
         use_warm = warm is not None and warm.direction == direction and warm.x.size == self.layout.n_w
         start = Start(warm.x, warm.lam_x, warm.lam_g) if use_warm else None
 
-        def guess() -> np.ndarray:
-            return initial_guess(self.params, self.structure, ego_state, front_xyv, direction)
+        def cold_guess() -> np.ndarray:
+            if guess is not None:
+                return np.asarray(guess, dtype=float)
+            return initial_guess(self.params, self.structure, ego_state, front_xyv, direction, opp_xv)
 
         try:
-            res = self.backend.solve(p, start, guess)
+            res = self.backend.solve(p, start, cold_guess)
         except Exception as exc:  # noqa: BLE001 - solver errors become a failed solution
             return self._failure(f"exception: {exc}".splitlines()[0], t0)
         return self._solution(res, direction, t0)
+
+    def guess_from_plan(self, plan: MpcSolution, opp_xv: np.ndarray | None) -> np.ndarray | None:
+        """A primal guess for this solver's structure from a plan of another structure (the same
+        ego variables; veh_o, if this structure has one, extrapolated at its measured speed)."""
+        if not plan.success:
+            return None
+        xo = None
+        if self.structure.with_opposing:
+            t = np.concatenate([[0.0], np.cumsum(plan.dt_plan)])
+            x_o, v_o = np.asarray(opp_xv, dtype=float).reshape(2)
+            xo = np.column_stack([x_o + v_o * t, np.full(t.size, v_o)])
+        return self.layout.pack(plan.x_plan, plan.u_plan, plan.dt_plan, xo)
 
     # ------------------------------------------------------------------------------------------
     def max_violation(self, w: np.ndarray, p: np.ndarray) -> float:
@@ -149,6 +171,7 @@ class MpcSolver:
             warm=warm,
             max_violation=res.max_violation,
             retried_cold=res.retried_cold,
+            opp_plan=self.layout.unpack_opposing(res.w) if self.structure.with_opposing else None,
         )
 
     def _failure(self, status: str, t0: float) -> MpcSolution:

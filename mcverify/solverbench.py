@@ -95,25 +95,33 @@ def machine_info() -> dict[str, Any]:
 
 @dataclass(frozen=True)
 class RecordedSolve:
-    """The inputs of one solve of a reference closed loop (see :meth:`MpcSolver.solve`)."""
+    """The inputs of one solve of a reference closed loop (see :meth:`MpcSolver.solve`).
 
+    structure: the solver's :class:`~mcverify.ocp.OcpStructure` (with or without veh_o)."""
+
+    structure: object
     ego: np.ndarray
     front: np.ndarray
     direction: int
     lambda0: float
     warm: object  # WarmStart | None
+    opp_xv: np.ndarray | None
+    guess: np.ndarray | None
 
 
 class _Recorder:
-    """Wraps a solver and records the inputs of every solve."""
+    """Wraps a solver and records the inputs of every solve into a shared list."""
 
-    def __init__(self, solver) -> None:
+    def __init__(self, solver, calls: list) -> None:
         self.solver = solver
-        self.calls: list[RecordedSolve] = []
+        self.calls = calls
 
-    def solve(self, ego, front, direction, lambda0, warm=None):
-        self.calls.append(RecordedSolve(np.array(ego), np.array(front), int(direction), float(lambda0), warm))
-        return self.solver.solve(ego, front, direction, lambda0, warm)
+    def solve(self, ego, front, direction, lambda0, warm=None, opp_xv=None, guess=None):
+        self.calls.append(RecordedSolve(
+            self.solver.structure, np.array(ego), np.array(front), int(direction), float(lambda0), warm,
+            None if opp_xv is None else np.array(opp_xv), None if guess is None else np.array(guess),
+        ))
+        return self.solver.solve(ego, front, direction, lambda0, warm, opp_xv=opp_xv, guess=guess)
 
     def __getattr__(self, name):
         return getattr(self.solver, name)
@@ -121,13 +129,15 @@ class _Recorder:
 
 def record_solves(cell: Cell, seed: int, episode_ids: Sequence[int]) -> list[RecordedSolve]:
     """Run ``episode_ids`` of ``cell`` with the IPOPT reference and record every solve."""
+    from mcverify.planner import Planner
     from mcverify.rollout import run_episodes
     from mcverify.solver import MpcSolver
 
     params = with_backend(cell.params, "ipopt")
-    rec = _Recorder(MpcSolver(params))
-    run_episodes(dataclasses.replace(cell, params=params), list(episode_ids), seed, rec)
-    return rec.calls
+    calls: list[RecordedSolve] = []
+    planner = Planner(params, solver_factory=lambda p, st: _Recorder(MpcSolver(p, st), calls))
+    run_episodes(dataclasses.replace(cell, params=params), list(episode_ids), seed, planner)
+    return calls
 
 
 def replay(params: ModelParams, backend: str, calls: Sequence[RecordedSolve], warm: bool,
@@ -139,13 +149,16 @@ def replay(params: ModelParams, backend: str, calls: Sequence[RecordedSolve], wa
     """
     from mcverify.solver import MpcSolver
 
-    solver = MpcSolver(with_backend(params, backend))
+    solvers: dict = {}
     cpu, its, ok, fallback, sols = [], [], [], [], []
     statuses: Counter[str] = Counter()
     for c in calls:
+        solver = solvers.get(c.structure)
+        if solver is None:
+            solver = solvers[c.structure] = MpcSolver(with_backend(params, backend), c.structure)
         start = c.warm if warm else None
         t0 = time.thread_time()
-        sol = solver.solve(c.ego, c.front, c.direction, c.lambda0, start)
+        sol = solver.solve(c.ego, c.front, c.direction, c.lambda0, start, opp_xv=c.opp_xv, guess=c.guess)
         cpu.append(time.thread_time() - t0)
         its.append(sol.iterations)
         ok.append(sol.success)
@@ -179,13 +192,13 @@ def replay(params: ModelParams, backend: str, calls: Sequence[RecordedSolve], wa
 
 def _run_chunk(cell: Cell, seed: int, episode_ids: tuple[int, ...], backend: str) -> dict[str, Any]:
     """Worker: one chunk with one backend; rows, CPU seconds of the worker, peak RSS (kB)."""
+    from mcverify.planner import Planner
     from mcverify.rollout import run_episodes
-    from mcverify.solver import MpcSolver
 
     params = with_backend(cell.params, backend)
     solver = _SOLVERS.get(params)
     if solver is None:
-        solver = _SOLVERS[params] = MpcSolver(params)
+        solver = _SOLVERS[params] = Planner(params)
     c = dataclasses.replace(cell, params=params)
     t0 = time.process_time()
     res = run_episodes(c, list(episode_ids), seed, solver)
@@ -207,11 +220,11 @@ def paired_episodes(campaign: Campaign, backends: Sequence[str], workers: int, c
             for b in backends:
                 tasks.append((cell, campaign.seed, ids, b))
     # build every (params, backend) kernel and runtime library here, once, before the workers start
-    from mcverify.solver import MpcSolver
+    from mcverify.planner import Planner
 
     for cell in campaign.cells:
         for b in backends:
-            MpcSolver(with_backend(cell.params, b))
+            Planner(with_backend(cell.params, b))
     results: list[dict[str, Any]] = []
     t_wall = time.perf_counter()
     if workers <= 1:
@@ -278,19 +291,33 @@ def agreement(rows_ref: list[dict], rows_new: list[dict], level: float = 0.95) -
 
 class StubSolver:
     """Returns a constant input at once (zero acceleration, zero slip) and a successful Q1/Q2 plan,
-    so that ``run_episodes`` measures only its own (JAX and host) work."""
+    so that ``run_episodes`` measures only its own (JAX and host) work. Build a planner of stubs
+    with :func:`stub_planner`."""
 
-    def __init__(self, params: ModelParams) -> None:
+    kernel_hash = "stub"
+
+    def __init__(self, params: ModelParams, structure=None) -> None:
         from mcverify.solver import MpcSolution
 
         n = params.mpc.horizon
+        self.structure = structure
         self._sol = MpcSolution(
             success=True, status="stub", iterations=0, solve_time_s=0.0, total_time_s=1.0,
             x_plan=np.zeros((n + 1, 4)), u_plan=np.zeros((n, 2)), dt_plan=np.full(n, 1.0 / n), warm=None,
         )
 
-    def solve(self, ego, front, direction, lambda0, warm=None):
+    def solve(self, ego, front, direction, lambda0, warm=None, opp_xv=None, guess=None):
         return self._sol
+
+    def guess_from_plan(self, plan, opp_xv):
+        return None
+
+
+def stub_planner(params: ModelParams):
+    """A :class:`~mcverify.planner.Planner` whose solvers are :class:`StubSolver`."""
+    from mcverify.planner import Planner
+
+    return Planner(params, solver_factory=lambda p, st: StubSolver(p, st))
 
 
 def jax_step_overhead(cell: Cell, seed: int, batch_sizes: Sequence[int] = (1, 8), steps: int = 100) -> dict:
@@ -300,7 +327,7 @@ def jax_step_overhead(cell: Cell, seed: int, batch_sizes: Sequence[int] = (1, 8)
     sim = dataclasses.replace(cell.params.sim, max_time_s=steps * cell.params.sim.control_period_s)
     params = dataclasses.replace(cell.params, sim=sim)
     c = dataclasses.replace(cell, params=params)
-    stub = StubSolver(params)
+    stub = stub_planner(params)
     out = {}
     for b in batch_sizes:
         t0 = time.process_time()

@@ -14,6 +14,7 @@ from mcverify import stats
 RATE_COLUMNS = (
     "safe",
     "collision_front",
+    "collision_opp",
     "ellipse_violation",
     "invariance_breach",
     "overtook",
@@ -29,6 +30,9 @@ VALUE_COLUMNS = (
     "min_gap_front_m",
     "min_h_front",
     "invariance_margin",
+    "min_gap_opp_m",
+    "min_gap_opp_any_m",
+    "min_h_opp",
 )
 
 
@@ -45,9 +49,13 @@ def summarise(table: pa.Table, *, level: float = 0.95, method: str = "clopper-pe
 def _cell_summary(t: pa.Table, level: float, method: str) -> dict[str, Any]:
     n = t.num_rows
     col = lambda name: np.asarray(t.column(name).to_numpy(zero_copy_only=False))  # noqa: E731
-    rates = {name: stats.rate_summary(int(col(name).sum()), n, level=level, method=method) for name in RATE_COLUMNS}
+    present = set(t.column_names)
+    rates = {
+        name: stats.rate_summary(int(col(name).sum()), n, level=level, method=method)
+        for name in RATE_COLUMNS if name in present
+    }
     values = {}
-    for name in VALUE_COLUMNS:
+    for name in (c for c in VALUE_COLUMNS if c in present):
         v = col(name).astype(float)
         finite = v[np.isfinite(v)]
         ci = stats.bootstrap_mean_interval(finite, level=level, seed=0)

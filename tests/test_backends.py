@@ -149,7 +149,7 @@ def test_node0_cbf_row_is_affine_in_u0_and_touches_only_node0(ipm):
     """The premise of the safety argument: with X[:, 0] and t_0 fixed, the node-0 row of eq.tompc_cbf
     depends on u_0 alone among the variables, and affinely (the bicycle is control-affine)."""
     lay = NlpLayout.of(ipm.structure)
-    row = lay.g_slices["cbf"].start
+    row = lay.g_slices["front"].start
     ws = lay.w_slices
     jac = CFunction(ipm.kernel.so_path, "nlp_jac_g")
     rows, cols = jac.sparsity_out[1]
@@ -176,7 +176,7 @@ def test_node0_cbf_row_holds_after_one_newton_step(ipopt, ipm):
     CBF condition at the sample. Checked behind veh_f and alongside it (where the row is active).
     """
     lay = NlpLayout.of(ipm.structure)
-    row = lay.g_slices["cbf"].start
+    row = lay.g_slices["front"].start
     g_fun = CFunction(ipm.kernel.so_path, "nlp_g")
     checked = unconverged = 0
     scenarios = (

@@ -4,9 +4,8 @@ chunk of the same shape (issue 5, item 3). Compilations are counted with ``jax.m
 from __future__ import annotations
 
 import jax.monitoring as monitoring
-import pytest
 
-from mcverify.solverbench import StubSolver
+from mcverify.solverbench import stub_planner
 from mcverify.campaign import campaign_from_dict
 from mcverify.rollout import run_episodes
 
@@ -48,7 +47,7 @@ def test_counter_sees_compilations():
     """Control: a batch shape never run before compiles, and the log counts it."""
     cell = cells()[0]
     with CompileLog() as log:
-        run_episodes(cell, [0, 1, 2], SEED, StubSolver(cell.params))
+        run_episodes(cell, [0, 1, 2], SEED, stub_planner(cell.params))
     assert log.compiles > 0 and log.traces > 0
 
 
@@ -56,7 +55,7 @@ def test_no_compilation_between_control_steps():
     cell = cells()[0]
     per_step: list[tuple[int, int]] = []
     with CompileLog() as log:
-        run_episodes(cell, [0, 1, 2, 3, 4], SEED, StubSolver(cell.params),
+        run_episodes(cell, [0, 1, 2, 3, 4], SEED, stub_planner(cell.params),
                      on_step=lambda step: per_step.append((log.compiles, log.traces)))
     assert len(per_step) == 15
     assert per_step[-1] == per_step[0]  # whatever compiled did so during the first step
@@ -64,7 +63,7 @@ def test_no_compilation_between_control_steps():
 
 def test_no_compilation_for_a_second_chunk_of_equal_shape():
     cell = cells()[0]
-    stub = StubSolver(cell.params)
+    stub = stub_planner(cell.params)
     run_episodes(cell, [0, 1], SEED, stub)
     with CompileLog() as log:
         rows = run_episodes(cell, [2, 3], SEED, stub).rows
@@ -72,11 +71,10 @@ def test_no_compilation_for_a_second_chunk_of_equal_shape():
     assert (log.compiles, log.traces) == (0, 0)
 
 
-@pytest.mark.xfail(strict=False, reason="rollout.plant_kernels closes over the cell's parameters, so every cell "
-                   "compiles its own observe/advance; passes once plant parameters are traced arguments")
 def test_no_compilation_for_a_chunk_of_another_cell_of_equal_shape():
+    """Plant parameters are traced arguments: another cell (other front speed) reuses the compiled code."""
     a, b = cells()
-    run_episodes(a, [0, 1], SEED, StubSolver(a.params))
+    run_episodes(a, [0, 1], SEED, stub_planner(a.params))
     with CompileLog() as log:
-        run_episodes(b, [0, 1], SEED, StubSolver(b.params))
+        run_episodes(b, [0, 1], SEED, stub_planner(b.params))
     assert log.compiles == 0

@@ -98,18 +98,32 @@ def test_param_layout_and_pack_params():
         ocp.pack_params(P, TABLE_II_EGO, [64.0, 0.0, 7.0], 0, LAMBDA0)
 
 
-def test_nlp_dimensions_and_opposing_not_implemented():
-    st = ocp.OcpStructure.from_params(P)
+@pytest.mark.parametrize("with_opposing", [False, True])
+@pytest.mark.parametrize("constraint", ["cbf", "distance"])
+def test_nlp_dimensions(with_opposing, constraint):
+    st = dataclasses.replace(ocp.OcpStructure.from_params(P, with_opposing=with_opposing), constraint=constraint)
     nlp = ocp.build_nlp(st)
     lay = ocp.NlpLayout.of(st)
     assert nlp["x"].numel() == lay.n_w
     assert nlp["g"].numel() == lay.n_g
+    assert nlp["p"].numel() == ocp.ParamLayout.of(st).size
     lbx, ubx = ocp.decision_bounds(P, st)
     assert np.all(np.isinf(lbx[:4])) and np.all(np.isinf(ubx[:4]))  # X[:, 0] is not bounded
-    w0 = ocp.initial_guess(P, st, TABLE_II_EGO, [64.0, 0.0, 7.0], 1)
+    opp = np.array([300.0, -10.0]) if with_opposing else None
+    w0 = ocp.initial_guess(P, st, TABLE_II_EGO, [64.0, 0.0, 7.0], 1, opp)
     assert w0.shape == (lay.n_w,) and np.all(np.isfinite(w0))
-    with pytest.raises(NotImplementedError):
-        ocp.build_nlp(dataclasses.replace(st, with_opposing=True))
+    if with_opposing:
+        with pytest.raises(ValueError, match="opp_xv"):
+            ocp.pack_params(P, TABLE_II_EGO, [64.0, 0.0, 7.0], 1, LAMBDA0, structure=st)
+
+
+def test_formulation_digest_follows_the_maths():
+    plain = ocp.OcpStructure.from_params(P)
+    assert ocp.formulation_digest(plain) == ocp.formulation_digest(dataclasses.replace(plain))
+    others = [dataclasses.replace(plain, with_opposing=True), dataclasses.replace(plain, constraint="distance"),
+              dataclasses.replace(plain, order_m=3)]
+    digests = {ocp.formulation_digest(s) for s in [plain, *others]}
+    assert len(digests) == 4
 
 
 # --- solved plans ------------------------------------------------------------------------------------
@@ -214,3 +228,133 @@ def test_free_stage_intervals_variant_solves_table_ii_start(tmp_path):
     assert sol.success, sol.status
     check_plan(sol, P, TABLE_II_EGO, front, 1)
     assert np.ptp(sol.dt_plan) > 1e-3  # the intervals really are free
+
+
+# --- the opposing vehicle (eq.tompcAdd) and MPC-DC ----------------------------------------------------
+
+HUMAN = dataclasses.replace(P, opposing=dataclasses.replace(P.opposing, kind="human"))
+AUTO = dataclasses.replace(P, opposing=dataclasses.replace(P.opposing, kind="autonomous"))
+MPCDC = dataclasses.replace(HUMAN, mpc=dataclasses.replace(P.mpc, controller="mpcdc"))
+FRONT_25 = np.array([64.0, 0.0, 25.0 / 3.6])
+
+
+@pytest.fixture(scope="module")
+def opp_solvers() -> dict[str, MpcSolver]:
+    return {name: MpcSolver(p, ocp.OcpStructure.from_params(p, with_opposing=True))
+            for name, p in (("human", HUMAN), ("auto", AUTO), ("mpcdc", MPCDC))}
+
+
+def np_opp_accel_numbers(plan_xo, dt):
+    """veh_o's accelerations implied by two consecutive predicted nodes (exact double integrator)."""
+    x, v = plan_xo[:, 0], plan_xo[:, 1]
+    return (v[1:] - v[:-1]) / dt, x[1:] - x[:-1] - v[:-1] * dt - 0.5 * (v[1:] - v[:-1]) * dt
+
+
+def test_far_opposing_vehicle_changes_nothing(opp_solvers):
+    plain = MpcSolver(HUMAN).solve(TABLE_II_EGO, FRONT_25, 1, LAMBDA0)
+    far = opp_solvers["human"].solve(TABLE_II_EGO, FRONT_25, 1, LAMBDA0, opp_xv=np.array([5000.0, -10.0]))
+    assert plain.success and far.success, (plain.status, far.status)
+    assert far.total_time_s == pytest.approx(plain.total_time_s, rel=1e-4)
+
+
+def test_worst_case_prediction_is_conservative_closed_form(opp_solvers):
+    """Human driver (Sec. V-C): the predicted veh_o is at least as advanced towards the ego as the
+    exact worst case (accelerate at accel_max up to the speed limit), and at most WORST_CASE_FADE
+    faster."""
+    o = HUMAN.opposing
+    x0, s0 = 420.0, 12.0
+    sol = opp_solvers["human"].solve(TABLE_II_EGO, FRONT_25, 1, LAMBDA0, opp_xv=np.array([x0, -s0]))
+    assert sol.success, sol.status
+    t = np.concatenate([[0.0], np.cumsum(sol.dt_plan)])
+    t_star = (o.speed_limit_mps - s0) / o.accel_max_mps2
+    tau = np.minimum(t, t_star)
+    x_worst = x0 - (s0 * tau + 0.5 * o.accel_max_mps2 * tau**2 + o.speed_limit_mps * (t - tau))
+    x_pred = sol.opp_plan[:, 0]
+    assert np.all(x_pred <= x_worst + 1e-6)
+    assert np.all(x_pred >= x_worst - ocp.WORST_CASE_FADE_MPS * t - 1e-6)
+    accel, residual = np_opp_accel_numbers(sol.opp_plan, sol.dt_plan)
+    assert np.max(np.abs(residual)) <= TOL  # eq.tompcAdd_dynamic_o, exact double integrator
+    assert np.all(accel <= 1e-9) and np.all(accel >= -o.accel_max_mps2 - 1e-9)
+
+
+def test_close_fast_human_driver_blocks_the_overtake(opp_solvers):
+    """Table IV Scenario A start: veh_o 210 m ahead at 18 m/s. Without it Q1 solves; with its worst
+    case no overtake can keep the ego's VL-CBF on h_eo, and Q2 (stay behind) still solves."""
+    opp = np.array([220.0, -18.0])
+    assert MpcSolver(HUMAN).solve(TABLE_II_EGO, FRONT_25, 1, LAMBDA0).success
+    assert not opp_solvers["human"].solve(TABLE_II_EGO, FRONT_25, 1, LAMBDA0, opp_xv=opp).success
+    assert opp_solvers["human"].solve(TABLE_II_EGO, FRONT_25, -1, LAMBDA0, opp_xv=opp).success
+
+
+@pytest.mark.parametrize("kind", ["human", "auto"])
+def test_plan_keeps_the_ego_vlcbf_on_h_eo_in_the_opposing_lane(opp_solvers, kind):
+    """eq.tompcAdd_cbf_eo, re-evaluated in numpy on the plan: at every node where the ego footprint
+    reaches the lane line, hdot_eo + Lambda_eo H(h_eo) >= 0 with veh_o's predicted acceleration."""
+    params = HUMAN if kind == "human" else AUTO
+    b = params.barrier
+    sol = opp_solvers[kind].solve(TABLE_II_EGO, FRONT_25, 1, LAMBDA0, opp_xv=np.array([420.0, -12.0]))
+    assert sol.success, sol.status
+    lam0 = -b.opp_epsilon_m * b.opp_lambdas_m[0]
+    accel_o, _ = np_opp_accel_numbers(sol.opp_plan, sol.dt_plan)
+    checked = 0
+    for i in range(P.mpc.horizon):
+        x = sol.x_plan[i]
+        top = x[1] + 0.5 * P.geometry.length_m * abs(np.sin(x[2])) + 0.5 * P.geometry.width_m * np.cos(x[2])
+        if top < 1.75:
+            continue
+        checked += 1
+        xdot = np_rhs(x, sol.u_plan[i], P.ego.l_r_m)
+        eps = 1e-6  # xddot by a central difference along the flow, input held
+        xddot = (np_rhs(x + eps * xdot, sol.u_plan[i], P.ego.l_r_m)[0]
+                 - np_rhs(x - eps * xdot, sol.u_plan[i], P.ego.l_r_m)[0]) / (2 * eps)
+        x_o, v_o = sol.opp_plan[i]
+        h = x_o - x[0] - (xdot[0] - v_o) ** 2 / (2 * b.decel_max_mps2)
+        hdot = v_o - xdot[0] - (xdot[0] - v_o) * (xddot - accel_o[i]) / b.decel_max_mps2
+        assert hdot + lam0 + b.opp_lambdas_m[0] * h >= -1e-4, (i, h, hdot)
+    assert checked >= 5  # the plan does pass through the opposing lane
+
+
+def test_autonomous_prediction_is_its_law(opp_solvers):
+    """The planner predicts an autonomous veh_o with its own law (mcverify.agents.autonomous_accel),
+    up to the smoothing of max/clip: check node by node where the exact and smooth lane gates agree."""
+    from mcverify import agents
+    from mcverify.barriers import lambda0_from_epsilon_np
+
+    o = AUTO.opposing
+    sol = opp_solvers["auto"].solve(TABLE_II_EGO, FRONT_25, 1, LAMBDA0, opp_xv=np.array([420.0, -12.0]))
+    assert sol.success, sol.status
+    accel_o, _ = np_opp_accel_numbers(sol.opp_plan, sol.dt_plan)
+    law = dict(cruise_speed_mps=o.speed_mps, gain_per_s=o.cruise_gain_per_s,
+               lambdas=np.array([lambda0_from_epsilon_np(o.lambdas_m, o.epsilon_m), *o.lambdas_m]),
+               decel_max_mps2=AUTO.barrier.decel_max_mps2, accel_max_mps2=o.accel_max_mps2,
+               brake_max_mps2=o.brake_max_mps2, l_r_m=P.ego.l_r_m)
+    compared = 0
+    for i in range(P.mpc.horizon):
+        x = sol.x_plan[i]
+        top = float(agents.ego_top_edge_m(x, P.geometry.length_m, P.geometry.width_m))
+        if 1.0 < top < 2.0:  # near the line the OCP's smooth gate and the plant's exact one differ
+            continue
+        in_lane = top > 1.75
+        exact = float(agents.autonomous_accel(sol.opp_plan[i], x, sol.u_plan[i], ego_in_opposing_lane=in_lane, **law))
+        assert accel_o[i] == pytest.approx(exact, abs=ocp.SMOOTH_ACCEL_MPS2), i
+        compared += 1
+    assert compared >= 20
+
+
+def test_mpcdc_keeps_the_ellipses_at_the_nodes_only(opp_solvers):
+    """MPC-DC (Sec. VI-D): every node 1..N outside the front ellipse and the ellipse around the
+    predicted veh_o (extrapolated at its measured speed); no CBF condition is imposed."""
+    b = MPCDC.barrier
+    opp = np.array([420.0, -12.0])
+    sol = opp_solvers["mpcdc"].solve(TABLE_II_EGO, FRONT_25, 1, LAMBDA0, opp_xv=opp)
+    assert sol.success, sol.status
+    t = np.concatenate([[0.0], np.cumsum(sol.dt_plan)])
+    assert np.allclose(sol.opp_plan[:, 0], opp[0] + opp[1] * t, atol=1e-6)  # constant speed
+    for i in range(1, P.mpc.horizon + 1):
+        assert np_h(sol.x_plan[i], t[i], FRONT_25, b.ellipse_a_m, b.ellipse_b_m) >= -TOL
+        ho = ((sol.x_plan[i, 0] - sol.opp_plan[i, 0]) / b.ellipse_a_m) ** 2 + \
+             ((sol.x_plan[i, 1] - 3.5) / b.ellipse_b_m) ** 2 - 1
+        assert ho >= -TOL
+    # the plan rides the ellipse: its minimum over the nodes is (nearly) active
+    h_nodes = [np_h(sol.x_plan[i], t[i], FRONT_25, b.ellipse_a_m, b.ellipse_b_m) for i in range(1, 51)]
+    assert min(h_nodes) < 0.05

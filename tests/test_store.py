@@ -8,7 +8,9 @@ from mcverify import store
 
 
 def rows(cell_index, ids):
-    return [{"episode_id": 100 * cell_index + i, "cell_episode": i, "cell_index": cell_index, "x": float(i)} for i in ids]
+    return [
+        {"episode_id": 100 * cell_index + i, "cell_episode": i, "cell_index": cell_index, "x": float(i)} for i in ids
+    ]
 
 
 def test_plan_covers_every_episode_once():

@@ -1,0 +1,68 @@
+"""The host-side controller (mcverify.planner): fallback, held plans, convergence, commitment."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mcverify.decision import Mode
+from mcverify.model import ModelParams
+from mcverify.planner import EpisodeState, Planner, ego_in_own_lane, fallback_input, held_input
+
+P = ModelParams()
+FRONT = np.array([64.0, 0.0, 7.0])
+
+
+def test_fallback_brakes_behind_and_beside_but_not_ahead_of_the_front_vehicle():
+    behind = fallback_input(np.array([50.0, 3.5, 0.1, 15.0]), FRONT, P)
+    assert behind[0] == P.ego.accel_min_mps2 and behind[1] == pytest.approx(-0.1)  # straighten, no lane change
+    ahead = fallback_input(np.array([80.0, 0.0, -0.05, 15.0]), FRONT, P)
+    assert ahead[0] == 0.0 and ahead[1] == pytest.approx(0.05)
+    stopping = fallback_input(np.array([50.0, 0.0, 0.0, 0.05]), FRONT, P)
+    assert stopping[0] == pytest.approx(-0.05 / P.sim.control_period_s)  # stops, never reverses
+
+
+def test_held_plan_is_followed_stage_by_stage_then_used_up():
+    u = np.array([[1.0, 0.0], [2.0, 0.0], [3.0, 0.0]])
+    held = (u, np.array([0.1, 0.1, 0.1]), 5.0)
+    assert held_input(held, 5.02)[0] == 1.0
+    assert held_input(held, 5.15)[0] == 2.0
+    assert held_input(held, 5.29)[0] == 3.0
+    assert held_input(held, 5.31) is None
+    assert held_input(None, 5.0) is None
+
+
+def test_own_lane_test_uses_the_rotated_footprint():
+    assert ego_in_own_lane(np.array([0, 0.0, 0.0, 10]), P)
+    assert not ego_in_own_lane(np.array([0, 0.5, 0.3, 10]), P)  # its corner reaches the lane line
+    assert not ego_in_own_lane(np.array([0, 3.5, 0.0, 10]), P)
+
+
+@pytest.fixture(scope="module")
+def planner() -> Planner:
+    return Planner(P)
+
+
+def test_convergence_goals(planner):
+    st = EpisodeState(0)
+    phi_vf = P.mpc.phi_s * FRONT[2]
+    assert planner.converged(st, np.array([64 + phi_vf + 0.1, 0.1, 0, 15]), FRONT) == "overtook"
+    assert planner.converged(st, np.array([64 + phi_vf + 0.1, 0.4, 0, 15]), FRONT) is None  # not in lane yet
+    assert planner.converged(st, np.array([10.0, 0.0, 0, 10]), FRONT) is None  # behind at the start: not done
+    st.mode = Mode.GO_BACK
+    assert planner.converged(st, np.array([10.0, 0.0, 0, 10]), FRONT) == "went_back"
+
+
+def test_committed_once_back_in_lane_ahead_of_the_front_vehicle(planner):
+    a = P.barrier.ellipse_a_m
+    assert planner.committed(np.array([64 + a + 0.5, 0.2, 0.0, 15]), FRONT)
+    assert not planner.committed(np.array([64 + a - 0.5, 0.2, 0.0, 15]), FRONT)
+    assert not planner.committed(np.array([64 + a + 0.5, 2.0, 0.0, 15]), FRONT)
+
+
+def test_step_overtakes_from_the_table_ii_start(planner):
+    st = EpisodeState(0)
+    u, rec = planner.step(st, 0.0, np.array([10.0, 0.0, 0.0, 10.0]), FRONT, None, -0.3135)
+    assert rec.q1.success and rec.q2.success and st.mode is Mode.OVERTAKE
+    assert u[0] > 0  # accelerates to overtake
+    assert st.steps == 1 and len(st.iterations) == 2
