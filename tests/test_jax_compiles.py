@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import jax.monitoring as monitoring
 
-from mcverify.solverbench import stub_planner
 from mcverify.campaign import campaign_from_dict
 from mcverify.rollout import run_episodes
+from mcverify.solverbench import stub_planner
 
 COMPILE_EVENT = "/jax/core/compile/backend_compile_duration"
 TRACE_EVENT = "/jax/core/compile/jaxpr_trace_duration"
