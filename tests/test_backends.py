@@ -265,3 +265,48 @@ def test_kkt_structure_of_the_default_kernel(ipm):
     rows_in_band = kkt.ent_pos % ldab
     assert np.all((rows_in_band >= kkt.bandwidth) & (rows_in_band <= 3 * kkt.bandwidth))
     assert sorted(kkt.perm) == list(range(kkt.n))
+
+
+# ------------------------------------------------------------------- with the opposing vehicle
+
+
+HUMAN = dataclasses.replace(P_IPM, opposing=dataclasses.replace(P.opposing, kind="human"))
+MPCDC = dataclasses.replace(HUMAN, mpc=dataclasses.replace(HUMAN.mpc, controller="mpcdc"))
+
+
+@pytest.mark.parametrize("params", [HUMAN, MPCDC], ids=["vlcbf", "mpcdc"])
+def test_ipm_solves_the_opposing_structure_like_ipopt(params):
+    """The backend reads its structure from the kernel: the eq.tompcAdd rows and veh_o's variables
+    (and MPC-DC's distance rows) need nothing of it. veh_o 410 m ahead at 12 m/s: feasible.
+
+    A cold start of the VL-CBF problem with veh_o is beyond the IPM (its infeasibility grows and the
+    line search fails after about 20 iterations; IPOPT needs 210 iterations and its restoration
+    phase), so that solve may come from the fallback; the warm solves of the next control periods,
+    which are what a closed loop is made of, must not.
+    """
+    st = OcpStructure.from_params(params, with_opposing=True)
+    fast = MpcSolver(params, st)
+    ref = MpcSolver(dataclasses.replace(params, mpc=dataclasses.replace(params.mpc, backend="ipopt")), st)
+    front, opp = np.array([64.0, 0.0, 25.0 / 3.6]), np.array([420.0, -12.0])
+    a, b = fast.solve(EGO, front, 1, LAMBDA0, opp_xv=opp), ref.solve(EGO, front, 1, LAMBDA0, opp_xv=opp)
+    assert a.success and b.success, (a.status, b.status)
+    assert a.total_time_s == pytest.approx(b.total_time_s, rel=1e-4)
+    assert np.allclose(a.opp_plan, b.opp_plan, atol=1e-3)
+    sol, ego = a, EGO
+    for _ in range(3):
+        ego = bicycle_step(ego, sol.u_plan[0], PERIOD, P.ego.l_r_m)
+        front, opp = front + np.array([front[2] * PERIOD, 0, 0]), opp + np.array([opp[1] * PERIOD, 0])
+        sol_ref = ref.solve(ego, front, 1, LAMBDA0, sol.warm, opp_xv=opp)
+        sol = fast.solve(ego, front, 1, LAMBDA0, sol.warm, opp_xv=opp)
+        assert sol.success and sol.status == "IPM_Converged", sol.status
+        assert sol.total_time_s == pytest.approx(sol_ref.total_time_s, rel=1e-4)
+
+
+def test_blocked_overtake_fails_through_ipopt_and_q2_solves():
+    """Table IV Scenario A start (veh_o 210 m ahead at 18 m/s): no overtake keeps the ego's VL-CBF on
+    h_eo against the worst case, so Q1 fails - after IPOPT failed too - and Q2 (stay behind) solves."""
+    fast = MpcSolver(HUMAN, OcpStructure.from_params(HUMAN, with_opposing=True))
+    front, opp = np.array([64.0, 0.0, 25.0 / 3.6]), np.array([220.0, -18.0])
+    q1 = fast.solve(EGO, front, 1, LAMBDA0, opp_xv=opp)
+    assert not q1.success and q1.status.startswith(backends.FALLBACK_PREFIX)
+    assert fast.solve(EGO, front, -1, LAMBDA0, opp_xv=opp).success
