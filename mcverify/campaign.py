@@ -45,7 +45,7 @@ from mcverify import barriers
 from mcverify.model import ModelParams
 
 CONTROLLERS = ("vlcbf", "mpcdc")
-BACKENDS = ("ipopt",)
+BACKENDS = ("ipopt", "ipm")
 OPPOSING_KINDS = ("none", "autonomous", "human")
 
 #: Grid/model keys in other units, converted on load: alias -> (field, factor).

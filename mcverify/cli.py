@@ -118,6 +118,19 @@ def _parser() -> argparse.ArgumentParser:
     cmp.add_argument("--out", type=Path, help="also write compare.md, compare.json and compare.tex here")
     cmp.set_defaults(func=_cmd_compare)
 
+    ben = sub.add_parser("bench-solver", help="measure the solver backends against each other "
+                         "(figures written into results/BENCHMARKS.md)")
+    ben.add_argument("--campaign", type=Path, default=Path("campaigns/table2.toml"),
+                     help="campaign whose cells are run (default: campaigns/table2.toml)")
+    ben.add_argument("--episodes", type=_positive_int, default=2, help="paired episodes per cell and backend")
+    ben.add_argument("--record-episodes", type=_positive_int, default=1,
+                     help="reference episodes recorded for the per-solve timing (first cell)")
+    ben.add_argument("--workers", type=_positive_int, default=None, help="worker processes (default: cores)")
+    ben.add_argument("--chunk-size", type=_positive_int, default=4, help="episodes per chunk")
+    ben.add_argument("--out", type=Path, default=Path("results/BENCHMARKS.md"),
+                     help="Markdown file whose generated section is replaced (default: results/BENCHMARKS.md)")
+    ben.set_defaults(func=_cmd_bench_solver)
+
     ker = sub.add_parser("kernels", help="the compiled-solver cache")
     ksub = ker.add_subparsers(metavar="ACTION")
     kl = ksub.add_parser("list", help="list cached kernels")
@@ -228,6 +241,28 @@ def _cmd_bench(args) -> int:
     print(bench.render(result))
     if not args.no_write:
         print(f"appended to {bench.BENCHMARKS_MD}", file=sys.stderr)
+    return 0
+
+
+def _cmd_bench_solver(args) -> int:
+    from datetime import datetime
+
+    from mcverify import executors, solverbench
+    from mcverify.campaign import CampaignError
+
+    if not args.campaign.is_file():
+        raise CampaignError(f"campaign file not found: {args.campaign}")
+    workers = args.workers or executors.default_workers()
+    command = "mcverify " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["bench-solver"] else "mcverify bench-solver"
+    results = solverbench.run(args.campaign, args.episodes, args.record_episodes, workers, args.chunk_size)
+    section = solverbench.markdown(results, command)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    solverbench.write_section(args.out, section)
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    json_path = args.out.parent / f"bench-solver-{stamp}.json"
+    json_path.write_text(solverbench.to_json(results))
+    print(section)
+    print(f"written: {args.out} (section), {json_path}", file=sys.stderr)
     return 0
 
 

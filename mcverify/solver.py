@@ -1,20 +1,30 @@
-"""Host-side TO-CBF-MPC solve: IPOPT on the compiled kernel of :mod:`mcverify.kernels`.
+"""Host-side TO-CBF-MPC solve on the compiled kernel of :mod:`mcverify.kernels`.
 
 ``MpcSolver(params).solve(ego_state, front_xyv, direction, lambda0, warm)`` returns an
-:class:`MpcSolution`; it never raises for numerical trouble (IPOPT failures, exceptions, NaNs become
+:class:`MpcSolution`; it never raises for numerical trouble (solver failures, exceptions, NaNs become
 ``success=False`` with a status string). Solves are deterministic: the same inputs (including the
 same ``warm``) give bit-identical outputs; nothing depends on wall time or on earlier solves.
+
+The numerical work is done by the backend named in ``params.mpc.backend`` (:mod:`mcverify.backends`:
+"ipopt", the reference, or "ipm", the fast path with IPOPT as its fallback).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from dataclasses import dataclass
 
-import casadi as ca
 import numpy as np
 
+from mcverify.backends import (  # noqa: F401 - SOLVED_STATUSES, ipopt_options re-exported
+    MAX_VIOLATION,
+    SOLVED_STATUSES,
+    BackendResult,
+    Problem,
+    Start,
+    create_backend,
+    ipopt_options,
+)
 from mcverify.kernels import get_kernel
 from mcverify.model import ModelParams
 from mcverify.ocp import (
@@ -25,49 +35,6 @@ from mcverify.ocp import (
     initial_guess,
     pack_params,
 )
-
-#: IPOPT's return_status values that count as solved (before our own feasibility check).
-SOLVED_STATUSES = frozenset({"Solve_Succeeded", "Solved_To_Acceptable_Level"})
-#: Largest constraint or bound violation (unscaled, any unit) of a plan reported as a success.
-MAX_VIOLATION = 1e-5
-
-
-def ipopt_options(params: ModelParams, warm: bool) -> dict:
-    """IPOPT options of the cold (``warm=False``) or warm-started solver.
-
-    * ``tol`` and ``max_iter`` (warm) / ``max_iter_cold`` from :class:`~mcverify.model.Mpc`;
-      ``constr_viol_tol`` 1e-7 (default 1e-4) so that "Solve_Succeeded" implies our own 1e-5
-      feasibility check; the acceptable-level exit (15 iterations at ``acceptable_tol``) keeps the
-      default 1e-6 but its constraint tolerance is tightened from 1e-2 to 1e-6 for the same reason.
-    * Warm: ``warm_start_init_point`` with small bound pushes (1e-6), so the previous primal-dual
-      point is kept nearly as is, and ``mu_init`` 1e-7 instead of 0.1, which would push the iterate
-      back to the central path and throw the warm start away. Measured along Table II closed loops
-      (25 and 36 km/h Q1, Q2 from alongside veh_f; about 1000 solves): mean iterations 3.4 / 3.3 /
-      5.1 at mu_init 1e-7, 6.4 / 6.4 / 7.4 at 1e-6; on shorter stretches of the same loops 12-19
-      at 1e-4 and 35-94 without ``warm_start_init_point``; 1e-8 and 1e-9 were no better than 1e-7.
-    * The previous plan is used as it is (not shifted): shifting one stage cost more iterations
-      (4.1 / 4.2 / 11.1), and re-timing it by the ego's progress helped Q1 (2.5 / 2.0) but hurt Q2
-      (7.1), so the simplest choice stays.
-    """
-    opts = {
-        "print_level": 0,
-        "sb": "yes",
-        "max_iter": params.mpc.max_iter if warm else params.mpc.max_iter_cold,
-        "tol": params.mpc.tol,
-        "constr_viol_tol": 1e-7,
-        "acceptable_constr_viol_tol": 1e-6,
-    }
-    if warm:
-        opts.update({
-            "warm_start_init_point": "yes",
-            "warm_start_bound_push": 1e-6,
-            "warm_start_bound_frac": 1e-6,
-            "warm_start_slack_bound_push": 1e-6,
-            "warm_start_slack_bound_frac": 1e-6,
-            "warm_start_mult_bound_push": 1e-6,
-            "mu_init": 1e-7,
-        })
-    return {"print_time": False, "error_on_fail": False, "ipopt": opts}
 
 
 @dataclass(frozen=True)
@@ -86,8 +53,9 @@ class WarmStart:
 
 @dataclass(frozen=True)
 class MpcSolution:
-    success: bool  # IPOPT solved (or acceptable) AND max constraint/bound violation <= MAX_VIOLATION
-    status: str  # IPOPT return_status, or "exception: <msg>" / "invalid_input: <msg>"
+    success: bool  # the backend solved it AND max constraint/bound violation <= MAX_VIOLATION
+    status: str  # backend status (IPOPT return_status, "IPM_Converged", "fallback:<IPOPT status>"),
+    # or "exception: <msg>" / "invalid_input: <msg>"
     iterations: int
     solve_time_s: float  # wall time of this solve (time.perf_counter)
     total_time_s: float  # T = sum DT (the planned time to goal, seconds)
@@ -101,7 +69,7 @@ class MpcSolution:
 
 
 class MpcSolver:
-    """TO-CBF-MPC (box eq.tompc) solved by IPOPT on a compiled, cached kernel.
+    """TO-CBF-MPC (box eq.tompc) on a compiled, cached kernel, solved by ``params.mpc.backend``.
 
     params: the model; structure: defaults to ``OcpStructure.from_params(params)``; kernel_dir: the
     kernel cache (see :func:`mcverify.kernels.resolve_kernel_dir`). The kernel is loaded, or
@@ -123,12 +91,10 @@ class MpcSolver:
         self.layout = NlpLayout.of(structure)
         self.kernel = get_kernel(structure, kernel_dir)
         self.kernel_hash: str = self.kernel.hash
-        so = str(self.kernel.so_path)
-        self._cold = ca.nlpsol("tocbf_cold", "ipopt", so, ipopt_options(params, warm=False))
-        self._warm = ca.nlpsol("tocbf_warm", "ipopt", so, ipopt_options(params, warm=True))
-        self._g = ca.external("nlp_g", so)
-        self._lbx, self._ubx = decision_bounds(params, structure)
-        self._lbg, self._ubg = constraint_bounds(structure)
+        lbx, ubx = decision_bounds(params, structure)
+        lbg, ubg = constraint_bounds(structure)
+        self.problem = Problem(self.kernel, lbx, ubx, lbg, ubg)
+        self.backend = create_backend(params.mpc.backend, self.problem, params)
 
     # ------------------------------------------------------------------------------------------
     def solve(
@@ -160,20 +126,18 @@ class MpcSolver:
         if not np.all(np.isfinite(p)):
             return self._failure("invalid_input: non-finite ego_state, front_xyv or lambda0", t0)
         use_warm = warm is not None and warm.direction == direction and warm.x.size == self.layout.n_w
-        if use_warm:
-            sol = self._run(p, direction, t0, warm=warm)
-            if sol.success:
-                return sol
-            # A warm start that fails is not evidence of infeasibility: the interior point was
-            # started next to the previous active set (mu_init 1e-7) and, when that set changes
-            # (e.g. Q2's goal switches from braking behind veh_f to a lane change), IPOPT stalls
-            # or wrongly reports local infeasibility. Along Table II closed loops every such Q2
-            # failure solved from the cold guess (40-60 iterations). The retry is counted.
-            cold = self._run(p, direction, t0, warm=None, ego_state=ego_state, front_xyv=front_xyv, opp_xv=opp_xv,
-                             guess=guess)
-            return dataclasses.replace(cold, iterations=sol.iterations + cold.iterations, retried_cold=True)
-        return self._run(p, direction, t0, warm=None, ego_state=ego_state, front_xyv=front_xyv, opp_xv=opp_xv,
-                         guess=guess)
+        start = Start(warm.x, warm.lam_x, warm.lam_g) if use_warm else None
+
+        def cold_guess() -> np.ndarray:
+            if guess is not None:
+                return np.asarray(guess, dtype=float)
+            return initial_guess(self.params, self.structure, ego_state, front_xyv, direction, opp_xv)
+
+        try:
+            res = self.backend.solve(p, start, cold_guess)
+        except Exception as exc:  # noqa: BLE001 - solver errors become a failed solution
+            return self._failure(f"exception: {exc}".splitlines()[0], t0)
+        return self._solution(res, direction, t0)
 
     def guess_from_plan(self, plan: MpcSolution, opp_xv: np.ndarray | None) -> np.ndarray | None:
         """A primal guess for this solver's structure from a plan of another structure (the same
@@ -187,57 +151,27 @@ class MpcSolver:
             xo = np.column_stack([x_o + v_o * t, np.full(t.size, v_o)])
         return self.layout.pack(plan.x_plan, plan.u_plan, plan.dt_plan, xo)
 
-    def _run(self, p, direction, t0, *, warm, ego_state=None, front_xyv=None, opp_xv=None, guess=None) -> MpcSolution:
-        """One IPOPT call: warm from ``warm`` or cold from :func:`~mcverify.ocp.initial_guess`."""
-        try:
-            if warm is not None:
-                res = self._warm(
-                    x0=warm.x, lam_x0=warm.lam_x, lam_g0=warm.lam_g, p=p,
-                    lbx=self._lbx, ubx=self._ubx, lbg=self._lbg, ubg=self._ubg,
-                )
-                stats = self._warm.stats()
-            else:
-                w0 = guess if guess is not None else initial_guess(
-                    self.params, self.structure, ego_state, front_xyv, direction, opp_xv
-                )
-                res = self._cold(x0=w0, p=p, lbx=self._lbx, ubx=self._ubx, lbg=self._lbg, ubg=self._ubg)
-                stats = self._cold.stats()
-        except Exception as exc:  # noqa: BLE001 - IPOPT/CasADi errors become a failed solution
-            return self._failure(f"exception: {exc}".splitlines()[0], t0)
-        return self._solution(res, stats, p, direction, t0)
-
     # ------------------------------------------------------------------------------------------
     def max_violation(self, w: np.ndarray, p: np.ndarray) -> float:
         """Largest violation of g's bounds and of w's bounds at (w, p); inf if anything is NaN."""
-        g = np.asarray(self._g(w, p), dtype=float).ravel()
-        if not (np.all(np.isfinite(g)) and np.all(np.isfinite(w))):
-            return float("inf")
-        parts = [self._lbg - g, g - self._ubg, self._lbx - w, w - self._ubx]
-        return max(0.0, *(float(np.max(v)) for v in parts))
+        return self.problem.max_violation(w, p)
 
-    def _solution(self, res: dict, stats: dict, p: np.ndarray, direction: int, t0: float) -> MpcSolution:
-        w = np.asarray(res["x"], dtype=float).ravel()
-        lam_x = np.asarray(res["lam_x"], dtype=float).ravel()
-        lam_g = np.asarray(res["lam_g"], dtype=float).ravel()
-        status = str(stats.get("return_status", "unknown"))
-        iterations = int(stats.get("iter_count", -1))
-        violation = self.max_violation(w, p)
-        finite = all(np.all(np.isfinite(a)) for a in (w, lam_x, lam_g))
-        success = status in SOLVED_STATUSES and finite and violation <= MAX_VIOLATION
-        x_plan, u_plan, dt_plan = self.layout.unpack(w)
-        warm = WarmStart(w, lam_x, lam_g, int(direction)) if success else None
+    def _solution(self, res: BackendResult, direction: int, t0: float) -> MpcSolution:
+        x_plan, u_plan, dt_plan = self.layout.unpack(res.w)
+        warm = WarmStart(res.w, res.lam_x, res.lam_g, int(direction)) if res.success else None
         return MpcSolution(
-            success=bool(success),
-            status=status,
-            iterations=iterations,
+            success=bool(res.success),
+            status=res.status,
+            iterations=res.iterations,
             solve_time_s=time.perf_counter() - t0,
             total_time_s=float(np.sum(dt_plan)),
             x_plan=x_plan,
             u_plan=u_plan,
             dt_plan=dt_plan,
             warm=warm,
-            max_violation=violation,
-            opp_plan=self.layout.unpack_opposing(w) if self.structure.with_opposing else None,
+            max_violation=res.max_violation,
+            retried_cold=res.retried_cold,
+            opp_plan=self.layout.unpack_opposing(res.w) if self.structure.with_opposing else None,
         )
 
     def _failure(self, status: str, t0: float) -> MpcSolution:

@@ -108,11 +108,11 @@ def run_python(code: str, env: dict, timeout: float = 120) -> subprocess.Complet
 
 
 def test_second_process_reuses_cached_kernel_without_compiler(tmp_path):
-    """The default cache holds the N = 50 kernel; a process whose gcc always fails still solves."""
-    kernels.get_kernel(OcpStructure.from_params(ModelParams()))  # make sure it is cached (default dir)
+    """The cache holds the N = 50 kernel; a process whose gcc always fails still solves."""
+    kernels.get_kernel(OcpStructure.from_params(ModelParams()))  # make sure it is cached (same dir as below)
     marker = tmp_path / "compiler-was-called"
     fake = fake_compiler_dir(tmp_path, f'touch "{marker}"; exit 1')
-    env = {k: v for k, v in os.environ.items() if k != kernels.ENV_KERNEL_DIR}
+    env = dict(os.environ)  # same cache directory ($MCVERIFY_KERNEL_DIR or the default) as this process
     env["PATH"] = f"{fake}{os.pathsep}{env['PATH']}"
     proc = run_python(
         """
@@ -152,3 +152,39 @@ def test_concurrent_builds_compile_once(tmp_path):
     listed = kernels.list_kernels(tmp_path / "k")
     assert len(listed) == 1
     assert not any(p.name.startswith(".tmp-") for p in (tmp_path / "k").iterdir())
+
+
+# ------------------------------------------------------------------------ runtime libraries
+
+
+def test_runtime_library_built_once_listed_and_cleared(tmp_path, monkeypatch):
+    lib = kernels.get_runtime_library("ipm", tmp_path)
+    assert lib.so_path.is_file() and lib.so_path.name == "ipm.so"
+    assert lib.name == f"rt-ipm-{kernels.runtime_hash('ipm')[:12]}"
+    assert lib.manifest["compiler_command"] == " ".join([kernels.COMPILER, *kernels.RUNTIME_CFLAGS])
+    # cached: a failing compiler is never called again
+    fake = fake_compiler_dir(tmp_path, "exit 1")
+    monkeypatch.setenv("PATH", f"{fake}{os.pathsep}{os.environ['PATH']}")
+    assert kernels.get_runtime_library("ipm", tmp_path).manifest == lib.manifest
+    assert [k["name"] for k in kernels.list_kernels(tmp_path)] == [lib.name]
+    assert kernels.clear_kernels(tmp_path) == 1
+    assert kernels.list_kernels(tmp_path) == []
+
+
+def test_runtime_library_compiler_failure_is_one_line(tmp_path, monkeypatch):
+    fake = fake_compiler_dir(tmp_path, 'echo "fatal: no space left" >&2; exit 1')
+    monkeypatch.setenv("PATH", f"{fake}{os.pathsep}{os.environ['PATH']}")
+    with pytest.raises(kernels.KernelBuildError, match="ipm runtime library.*no space left") as info:
+        kernels.get_runtime_library("ipm", tmp_path / "k")
+    assert "\n" not in str(info.value)
+    assert not any(p.name.startswith(".tmp-") for p in (tmp_path / "k").iterdir())
+
+
+def test_runtime_hash_follows_the_source(monkeypatch, tmp_path):
+    src = tmp_path / "csrc"
+    src.mkdir()
+    (src / "ipm.c").write_text((kernels.CSRC_DIR / "ipm.c").read_text())
+    monkeypatch.setattr(kernels, "CSRC_DIR", src)
+    h = kernels.runtime_hash("ipm")
+    (src / "ipm.c").write_text((kernels.CSRC_DIR / "ipm.c").read_text() + "\n/* changed */\n")
+    assert kernels.runtime_hash("ipm") != h

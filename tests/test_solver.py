@@ -115,7 +115,7 @@ def test_solver_exception_is_a_failed_solution(solver, monkeypatch):
     def boom(**_kwargs):
         raise RuntimeError("simulated IPOPT crash\nwith a second line")
 
-    monkeypatch.setattr(solver, "_cold", boom)
+    monkeypatch.setattr(solver.backend, "_cold", boom)
     sol = solver.solve(EGO, FRONT, 1, LAMBDA0)
     assert not sol.success
     assert sol.status == "exception: simulated IPOPT crash"
