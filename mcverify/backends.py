@@ -61,6 +61,10 @@ SOLVED_STATUSES = frozenset({"Solve_Succeeded", "Solved_To_Acceptable_Level"})
 MAX_VIOLATION = 1e-5
 #: Status prefix of a solve the SQP handed to the IPOPT reference path.
 FALLBACK_PREFIX = "fallback:"
+#: Status prefix of a fast-only failure of a problem IPOPT certified infeasible a step before.
+PRESUMED_PREFIX = "presumed_infeasible:"
+#: IPOPT's certificate of (local) infeasibility.
+INFEASIBLE_STATUS = "Infeasible_Problem_Detected"
 
 
 @dataclass(frozen=True)
@@ -186,8 +190,11 @@ class IpoptBackend:
         self._cold = ca.nlpsol("tocbf_cold", "ipopt", so, ipopt_options(params, warm=False))
         self._warm = ca.nlpsol("tocbf_warm", "ipopt", so, ipopt_options(params, warm=True))
 
-    def solve(self, p: np.ndarray, warm: Start | None, guess: Callable[[], np.ndarray]) -> BackendResult:
+    def solve(
+        self, p: np.ndarray, warm: Start | None, guess: Callable[[], np.ndarray], fast_only: bool = False
+    ) -> BackendResult:
         """Warm from ``warm`` if given, else cold from ``guess()``; a failed warm start is retried cold.
+        (``fast_only`` is ignored: the reference has no cheaper path.)
 
         A warm start that fails is not evidence of infeasibility: the interior point was started
         next to the previous active set (mu_init 1e-7) and, when that set changes (e.g. Q2's goal
@@ -255,7 +262,12 @@ class IpmBackend:
         self.cold = dataclasses.replace(COLD, tol=params.mpc.tol)
         self.ipm_outcomes: Counter[str] = Counter()
 
-    def solve(self, p: np.ndarray, warm: Start | None, guess: Callable[[], np.ndarray]) -> BackendResult:
+    def solve(
+        self, p: np.ndarray, warm: Start | None, guess: Callable[[], np.ndarray], fast_only: bool = False
+    ) -> BackendResult:
+        """The IPM attempts, then the IPOPT reference; ``fast_only``: no reference, a failure of the
+        IPM is returned with the status prefix :data:`PRESUMED_PREFIX` (see
+        :attr:`mcverify.model.Mpc.infeasible_recheck_steps`)."""
         iterations = 0
         attempts = [] if warm is None else [(o, warm.x, warm.lam_x, warm.lam_g) for o in self.warm_attempts]
         attempts.append((self.cold, None, None, None))
@@ -269,6 +281,8 @@ class IpmBackend:
             )
             if res.success:
                 return res
+        if fast_only:
+            return dataclasses.replace(res, status=f"{PRESUMED_PREFIX}{res.status}")
         ref = self.reference.solve(p, warm, guess)
         return dataclasses.replace(
             ref, status=f"{FALLBACK_PREFIX}{ref.status}", iterations=iterations + ref.iterations, fallback=True

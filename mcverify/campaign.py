@@ -308,6 +308,11 @@ def validate_params(p: ModelParams, where: str) -> None:
         raise bad("mpc.horizon", f"must be >= 2 and <= {MAX_HORIZON} (the paper's N is 50), got {m.horizon}")
     if m.max_iter < 1:
         raise bad("mpc.max_iter", f"must be >= 1, got {m.max_iter}")
+    if m.max_iter_cold < 1:
+        raise bad("mpc.max_iter_cold", f"must be >= 1, got {m.max_iter_cold}")
+    if m.infeasible_recheck_steps < 1:
+        raise bad("mpc.infeasible_recheck_steps", f"must be >= 1 (1: IPOPT on every failure), "
+                  f"got {m.infeasible_recheck_steps}")
     if not 1 <= s.substeps <= MAX_SUBSTEPS:
         raise bad("sim.substeps", f"must be >= 1 and <= {MAX_SUBSTEPS}, got {s.substeps}")
     if s.max_time_s < s.control_period_s:

@@ -54,7 +54,10 @@ class NaiveOptiSolver:
                                                           "max_iter": params.mpc.max_iter_cold})
         self.kernel_hash = "naive-opti"
 
-    def solve(self, ego_state, front_xyv, direction, lambda0, warm=None, opp_xv=None, guess=None) -> MpcSolution:
+    def solve(
+        self, ego_state, front_xyv, direction, lambda0, warm=None, opp_xv=None, guess=None, fast_only=False
+    ) -> MpcSolution:
+        """One Opti solve (``fast_only`` is ignored: the paper's loop runs IPOPT in full every time)."""
         t0 = time.perf_counter()
         p = ocp.pack_params(self.params, ego_state, front_xyv, direction, lambda0, opp_xv=opp_xv,
                             structure=self.structure)

@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from mcverify.backends import INFEASIBLE_STATUS, PRESUMED_PREFIX
 from mcverify.decision import Mode, Source, TableOneInput, decide, table_one
 from mcverify.model import ModelParams
 from mcverify.ocp import OcpStructure
@@ -57,6 +58,7 @@ class EpisodeState:
     q2_driven_steps: int = 0
     q1_rescue_steps: int = 0
     cold_retries: int = 0
+    presumed_infeasible_solves: int = 0
     switched_to_q2_at_s: float = math.nan
     went_back_reason: str = ""
     first_unsafe_s: float = math.nan  # start of the control period in which the ego first left the safe set
@@ -66,6 +68,8 @@ class EpisodeState:
     solve_times_s: list[float] = field(default_factory=list)
     statuses: dict[str, int] = field(default_factory=dict)
     warm: dict[tuple[int, bool], WarmStart] = field(default_factory=dict)
+    # problems IPOPT certified infeasible: key -> fast-only solves since (Mpc.infeasible_recheck_steps)
+    infeasible: dict[tuple[int, bool], int] = field(default_factory=dict)
     held: tuple[np.ndarray, np.ndarray, float] | None = None  # last applied plan: (u_plan, dt_plan, t_solved)
 
     def record_solve(self, sol: MpcSolution) -> None:
@@ -73,6 +77,7 @@ class EpisodeState:
         self.solve_times_s.append(sol.solve_time_s)
         self.statuses[sol.status] = self.statuses.get(sol.status, 0) + 1
         self.cold_retries += int(sol.retried_cold)
+        self.presumed_infeasible_solves += int(sol.status.startswith(PRESUMED_PREFIX))
 
 
 @dataclass(frozen=True)
@@ -243,12 +248,19 @@ class Planner:
             if plain.success:
                 state.warm[(direction, False)] = plain.warm
             guess = solver.guess_from_plan(plain, opp)
-        sol = solver.solve(ego, front_meas, direction, lambda0, state.warm.get(key), opp_xv=opp, guess=guess)
+        since = state.infeasible.get(key)
+        fast_only = since is not None and since + 1 < self.params.mpc.infeasible_recheck_steps
+        extra = {"fast_only": True} if fast_only else {}
+        sol = solver.solve(ego, front_meas, direction, lambda0, state.warm.get(key), opp_xv=opp, guess=guess, **extra)
         state.record_solve(sol)
         if sol.success:
             state.warm[key] = sol.warm
         else:
             state.warm.pop(key, None)  # never restart from a stale point
+        if sol.success or not (fast_only or sol.status.endswith(INFEASIBLE_STATUS)):
+            state.infeasible.pop(key, None)
+        else:  # certified now (count restarts) or presumed again (count goes on)
+            state.infeasible[key] = since + 1 if fast_only else 0
         return sol
 
     def _table_one_input(self, ego, front_meas, q1: MpcSolution, q2: MpcSolution) -> TableOneInput:

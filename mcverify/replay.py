@@ -40,14 +40,22 @@ def replay(run_dir: Path, episode_id: int, out_dir: Path | None = None) -> Repla
     campaign = campaign_from_manifest(manifest)
     cell = campaign.cells[stored["cell_index"]]
     local = stored["cell_episode"]
-    result = run_episodes(
-        cell,
-        [local],
-        campaign.seed,
-        executors.solver_for(cell.params),
-        common_random_numbers=campaign.common_random_numbers,
-        record=True,
-    )
+    try:
+        result = run_episodes(
+            cell,
+            [local],
+            campaign.seed,
+            executors.solver_for(cell.params),
+            common_random_numbers=campaign.common_random_numbers,
+            record=True,
+        )
+    except Exception as exc:  # noqa: BLE001 - the stored error row says what to expect
+        if stored.get("outcome") != "error":
+            raise
+        raise store.RunError(
+            f"{run_dir}: episode {episode_id} ended in an error in the run "
+            f"({stored.get(store.ERROR_COLUMN)}); the replay fails again: {type(exc).__name__}: {exc}"
+        ) from exc
     row = result.rows[0]
     diffs = compare_rows(stored, row)
     out_dir = Path(out_dir) if out_dir else run_dir / "replay"

@@ -230,6 +230,7 @@ def episode_row(cell: Cell, seed: int, st: EpisodeState, sample: dict[str, float
         "table_one_rows": json.dumps({str(k): v for k, v in sorted(st.table_one_rows.items())}),
         "solves": len(st.iterations),
         "cold_retries": st.cold_retries,
+        "presumed_infeasible_solves": st.presumed_infeasible_solves,
         "iterations_mean": float(iters.mean()),
         "iterations_max": int(iters.max()),
         "solve_time_mean_s": float(times.mean()),

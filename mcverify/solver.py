@@ -106,6 +106,7 @@ class MpcSolver:
         warm: WarmStart | None = None,
         opp_xv: np.ndarray | None = None,
         guess: np.ndarray | None = None,
+        fast_only: bool = False,
     ) -> MpcSolution:
         """Solve Q1 (direction +1) or Q2 (-1) from the measured states.
 
@@ -115,6 +116,8 @@ class MpcSolver:
         opp_xv (2,) [x_o m, v_o m/s signed]: the measured opposing vehicle, required (only) when the
         structure has one; guess (n_w,): a primal starting point for a cold solve instead of
         :func:`~mcverify.ocp.initial_guess` (e.g. the plain problem's plan, :func:`guess_from_plan`).
+        fast_only: the backend's fast path only, no IPOPT fallback (for a problem IPOPT has just
+        certified infeasible; the ``ipopt`` backend ignores it).
         """
         t0 = time.perf_counter()
         try:
@@ -134,7 +137,7 @@ class MpcSolver:
             return initial_guess(self.params, self.structure, ego_state, front_xyv, direction, opp_xv)
 
         try:
-            res = self.backend.solve(p, start, cold_guess)
+            res = self.backend.solve(p, start, cold_guess, fast_only=fast_only)
         except Exception as exc:  # noqa: BLE001 - solver errors become a failed solution
             return self._failure(f"exception: {exc}".splitlines()[0], t0)
         return self._solution(res, direction, t0)

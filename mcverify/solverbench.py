@@ -116,12 +116,12 @@ class _Recorder:
         self.solver = solver
         self.calls = calls
 
-    def solve(self, ego, front, direction, lambda0, warm=None, opp_xv=None, guess=None):
+    def solve(self, ego, front, direction, lambda0, warm=None, opp_xv=None, guess=None, **kw):
         self.calls.append(RecordedSolve(
             self.solver.structure, np.array(ego), np.array(front), int(direction), float(lambda0), warm,
             None if opp_xv is None else np.array(opp_xv), None if guess is None else np.array(guess),
         ))
-        return self.solver.solve(ego, front, direction, lambda0, warm, opp_xv=opp_xv, guess=guess)
+        return self.solver.solve(ego, front, direction, lambda0, warm, opp_xv=opp_xv, guess=guess, **kw)
 
     def __getattr__(self, name):
         return getattr(self.solver, name)
@@ -306,7 +306,7 @@ class StubSolver:
             x_plan=np.zeros((n + 1, 4)), u_plan=np.zeros((n, 2)), dt_plan=np.full(n, 1.0 / n), warm=None,
         )
 
-    def solve(self, ego, front, direction, lambda0, warm=None, opp_xv=None, guess=None):
+    def solve(self, ego, front, direction, lambda0, warm=None, opp_xv=None, guess=None, **kw):
         return self._sol
 
     def guess_from_plan(self, plan, opp_xv):

@@ -66,3 +66,43 @@ def test_step_overtakes_from_the_table_ii_start(planner):
     assert rec.q1.success and rec.q2.success and st.mode is Mode.OVERTAKE
     assert u[0] > 0  # accelerates to overtake
     assert st.steps == 1 and len(st.iterations) == 2
+
+
+class _CertifiedInfeasibleSolver:
+    """Q2 certified infeasible by the reference, never solved by the fast path; Q1 always solved."""
+
+    def __init__(self, params, structure):
+        from mcverify.solverbench import StubSolver
+
+        self.structure = structure
+        self.ok = StubSolver(params, structure)._sol
+        self.full_q2_calls: list[int] = []
+        self.calls = 0
+
+    def solve(self, ego, front, direction, lambda0, warm=None, opp_xv=None, guess=None, fast_only=False):
+        import dataclasses
+
+        if direction == +1:
+            return self.ok
+        self.calls += 1
+        if not fast_only:
+            self.full_q2_calls.append(self.calls)
+        status = "presumed_infeasible:IPM_MaxIter" if fast_only else "fallback:Infeasible_Problem_Detected"
+        return dataclasses.replace(self.ok, success=False, status=status)
+
+    def guess_from_plan(self, plan, opp_xv):
+        return None
+
+
+def test_certified_infeasible_problem_gets_the_reference_again_every_recheck_period():
+    import dataclasses
+
+    params = dataclasses.replace(P, mpc=dataclasses.replace(P.mpc, infeasible_recheck_steps=4))
+    made = []
+    planner = Planner(params, solver_factory=lambda p, st: made.append(_CertifiedInfeasibleSolver(p, st)) or made[-1])
+    st = EpisodeState(0)
+    for k in range(10):
+        planner.step(st, 0.02 * k, np.array([10.0, 0.0, 0.0, 10.0]), FRONT, None, 0.0)
+    plain = planner.plain
+    assert plain.full_q2_calls == [1, 5, 9]  # certified at 1, presumed at 2-4, IPOPT again at 5, ...
+    assert st.presumed_infeasible_solves == 7 and st.q2_fail_steps == 10 and st.q1_fail_steps == 0

@@ -235,15 +235,14 @@ def test_error_rows_are_stored_and_the_campaign_finishes(tmp_path: Path, monkeyp
     assert json.loads((run_dir / store.MANIFEST).read_text())["finished_utc"]
 
 
-@pytest.mark.xfail(
-    strict=True, raises=TypeError,
-    reason="summary.py (stats) must count outcome == 'error' rows apart; their safety columns are null",
-)
 def test_report_of_a_run_with_error_rows(tmp_path: Path):
     fn = functools.partial(synth.faulty, raise_on=(5,))
     runner.run(synthetic_campaign(), tmp_path / "run", executor=executors.SerialExecutor(), chunk_size=2,
                progress=False, episode_fn=fn)
-    assert (tmp_path / "run" / "report.md").exists()
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert sum(c["rates"]["error"]["k"] for c in summary["cells"]) == 1
+    assert sum(c["episodes"] - c["valid"] for c in summary["cells"]) == 1  # rates are over valid rows
+    assert "error" in (tmp_path / "run" / "report.md").read_text()
 
 
 def test_resume_of_a_bundle_campaign_keeps_each_cells_episode_count(tmp_path: Path):
