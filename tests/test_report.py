@@ -142,7 +142,7 @@ def test_errors_are_counted_apart_in_the_report(tmp_path):
     "argv, message",
     [
         (["report", "{missing}"], "run folder not found"),
-        (["report", "{empty}"], "missing file"),
+        (["report", "{empty}"], "not an mcverify run folder"),
         (["report", "{run}", "--level", "95"], None),  # argparse: usage + one error line
         (["report", "{run}", "--method", "wald"], None),
     ],
