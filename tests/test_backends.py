@@ -20,7 +20,7 @@ from mcverify.model import ModelParams
 from mcverify.ocp import NlpLayout, OcpStructure, constraint_bounds, pack_params
 from mcverify.solver import MpcSolver
 
-P = ModelParams()
+P = dataclasses.replace(ModelParams(), mpc=dataclasses.replace(ModelParams().mpc, backend="ipopt"))
 P_IPM = dataclasses.replace(P, mpc=dataclasses.replace(P.mpc, backend="ipm"))
 LAMBDA0 = -(0.3 + 0.5 * 0.3**3)  # -kappa~(0.3) with lambdas (1, 0.5)
 EGO = np.array([10.0, 0.0, 0.0, 10.0])
@@ -63,6 +63,7 @@ def closed_loop_states(solver: MpcSolver, front: np.ndarray, direction: int, ste
 def test_backend_names_and_selection(ipm):
     assert campaign.BACKENDS == backends.BACKENDS == ("ipopt", "ipm")
     assert isinstance(ipm.backend, backends.IpmBackend)
+    assert isinstance(MpcSolver(ModelParams()).backend, backends.IpmBackend)  # the default
     assert isinstance(MpcSolver(P).backend, backends.IpoptBackend)
     with pytest.raises(ValueError, match="unknown solver backend"):
         backends.create_backend("fastest", ipm.problem, P)
@@ -219,6 +220,16 @@ def test_ipm_failure_hands_the_solve_to_ipopt(ipopt, monkeypatch):
     assert np.array_equal(sol.u_plan, ref.u_plan) and sol.total_time_s == ref.total_time_s
     assert sol.iterations == 30 + ref.iterations  # the cold attempt's iterations counted too
     assert solver.backend.ipm_outcomes["cold1:Max_Iterations"] == 1
+
+
+def test_fast_only_failure_is_presumed_infeasible_without_ipopt(monkeypatch):
+    solver = MpcSolver(P_IPM)
+    failed = IpmResult(np.zeros(solver.layout.n_w), np.zeros(solver.layout.n_w), np.zeros(solver.layout.n_g),
+                       False, "Max_Iterations", 30, 30, 0, 0, 0, 1.0, 1.0)
+    monkeypatch.setattr(solver.backend.ipm, "solve", lambda *a, **k: failed)
+    monkeypatch.setattr(solver.backend.reference, "solve", lambda *a, **k: pytest.fail("IPOPT was called"))
+    sol = solver.solve(EGO, np.array([64.0, 0.0, 25.0 / 3.6]), 1, LAMBDA0, fast_only=True)
+    assert not sol.success and sol.status == "presumed_infeasible:IPM_Max_Iterations" and sol.iterations == 30
 
 
 def test_non_finite_input_is_a_failed_solution(ipm):

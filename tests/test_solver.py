@@ -1,6 +1,9 @@
-"""Host-side solve (mcverify.solver): determinism, warm starts, failures as values."""
+"""Host-side solve (mcverify.solver) on the IPOPT reference backend: determinism, warm starts,
+failures as values (the fast path is tested against it in test_backends.py)."""
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 import pytest
@@ -9,7 +12,7 @@ from mcverify.model import ModelParams
 from mcverify.ocp import OcpStructure
 from mcverify.solver import MpcSolution, MpcSolver
 
-P = ModelParams()
+P = dataclasses.replace(ModelParams(), mpc=dataclasses.replace(ModelParams().mpc, backend="ipopt"))
 LAMBDA0 = -(0.3 + 0.5 * 0.3**3)  # -kappa~(epsilon = 0.3) with lambdas (1, 0.5)
 EGO = np.array([10.0, 0.0, 0.0, 10.0])
 FRONT = np.array([64.0, 0.0, 28.0 / 3.6])
