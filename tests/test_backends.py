@@ -11,6 +11,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from test_solver import bicycle_step
 
 from mcverify import backends, campaign
 from mcverify.cfun import CFunction
@@ -37,12 +38,6 @@ def ipm() -> MpcSolver:
     return MpcSolver(P_IPM)
 
 
-def bicycle_step(x: np.ndarray, u: np.ndarray, h: float, l_r: float) -> np.ndarray:
-    """One forward-Euler step of eq.kinematic_bicycle (enough to perturb the state like a plant)."""
-    _, _, psi, v = x
-    alpha, beta = u
-    return x + h * np.array([v * np.cos(psi) - v * np.sin(psi) * beta, v * np.sin(psi) + v * np.cos(psi) * beta,
-                             v / l_r * beta, alpha])
 
 
 def closed_loop_states(solver: MpcSolver, front: np.ndarray, direction: int, steps: int, ego=EGO):
