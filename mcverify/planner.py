@@ -68,8 +68,9 @@ class EpisodeState:
     solve_times_s: list[float] = field(default_factory=list)
     statuses: dict[str, int] = field(default_factory=dict)
     warm: dict[tuple[int, bool], WarmStart] = field(default_factory=dict)
-    # problems IPOPT certified infeasible: key -> fast-only solves since (Mpc.infeasible_recheck_steps)
-    infeasible: dict[tuple[int, bool], int] = field(default_factory=dict)
+    # problems IPOPT certified infeasible: key -> (fast-only solves since the last full attempt, steps
+    # to wait before the next one) (Mpc.infeasible_recheck_steps, infeasible_recheck_max_steps)
+    infeasible: dict[tuple[int, bool], tuple[int, int]] = field(default_factory=dict)
     held: tuple[np.ndarray, np.ndarray, float] | None = None  # last applied plan: (u_plan, dt_plan, t_solved)
 
     def record_solve(self, sol: MpcSolution) -> None:
@@ -248,8 +249,8 @@ class Planner:
             if plain.success:
                 state.warm[(direction, False)] = plain.warm
             guess = solver.guess_from_plan(plain, opp)
-        since = state.infeasible.get(key)
-        fast_only = since is not None and since + 1 < self.params.mpc.infeasible_recheck_steps
+        memo = state.infeasible.get(key)
+        fast_only = memo is not None and memo[0] + 1 < memo[1]
         extra = {"fast_only": True} if fast_only else {}
         sol = solver.solve(ego, front_meas, direction, lambda0, state.warm.get(key), opp_xv=opp, guess=guess, **extra)
         state.record_solve(sol)
@@ -257,11 +258,25 @@ class Planner:
             state.warm[key] = sol.warm
         else:
             state.warm.pop(key, None)  # never restart from a stale point
-        if sol.success or not (fast_only or sol.status.endswith(INFEASIBLE_STATUS)):
+        memo = self._next_memo(memo, sol, fast_only)
+        if memo is None:
             state.infeasible.pop(key, None)
-        else:  # certified now (count restarts) or presumed again (count goes on)
-            state.infeasible[key] = since + 1 if fast_only else 0
+        else:
+            state.infeasible[key] = memo
         return sol
+
+    def _next_memo(self, memo: tuple[int, int] | None, sol: MpcSolution, fast_only: bool) -> tuple[int, int] | None:
+        """The infeasibility memo of a problem after ``sol`` (see :attr:`Mpc.infeasible_recheck_steps`)."""
+        m = self.params.mpc
+        if sol.success:
+            return None
+        if fast_only:  # presumed again: the count goes on
+            return (memo[0] + 1, memo[1])
+        if memo is not None:  # the full attempt after a wait failed too: wait twice as long
+            return (0, min(2 * memo[1], m.infeasible_recheck_max_steps))
+        if sol.status.endswith(INFEASIBLE_STATUS):  # newly certified
+            return (0, m.infeasible_recheck_steps)
+        return None
 
     def _table_one_input(self, ego, front_meas, q1: MpcSolution, q2: MpcSolution) -> TableOneInput:
         p = self.params

@@ -75,6 +75,8 @@ def test_grid_over_lambda0():
         (spec(model={"scenario": {"front_x_m": 12.0}}), "infeasible scenario"),
         (spec(model={"noise": {"kind": "gaussian"}}), "unknown noise model"),
         (spec(model={"mpc": {"dt_min_s": 0.5}}), "mpc.dt_min_s: must be below"),
+        (spec(model={"mpc": {"infeasible_recheck_steps": 60}}), "mpc.infeasible_recheck_max_steps: must be >="),
+        (spec(model={"mpc": {"infeasible_recheck_steps": 0}}), "mpc.infeasible_recheck_steps: must be >= 1"),
         (spec(model={"barrier": {"lambdas_m": [1.0, -1.0]}}), "all > 0"),
         (spec(model={"mpc": {"controller": "lqr"}}), "unknown controller"),
         ({"campaign": {"seed": 1, "episodes": 1}}, "missing required field 'name'"),

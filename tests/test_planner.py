@@ -94,15 +94,27 @@ class _CertifiedInfeasibleSolver:
         return None
 
 
-def test_certified_infeasible_problem_gets_the_reference_again_every_recheck_period():
+def _certified_infeasible_loop(steps: int, recheck: int, recheck_max: int):
     import dataclasses
 
-    params = dataclasses.replace(P, mpc=dataclasses.replace(P.mpc, infeasible_recheck_steps=4))
+    mpc = dataclasses.replace(P.mpc, infeasible_recheck_steps=recheck, infeasible_recheck_max_steps=recheck_max)
+    params = dataclasses.replace(P, mpc=mpc)
     made = []
     planner = Planner(params, solver_factory=lambda p, st: made.append(_CertifiedInfeasibleSolver(p, st)) or made[-1])
     st = EpisodeState(0)
-    for k in range(10):
+    for k in range(steps):
         planner.step(st, 0.02 * k, np.array([10.0, 0.0, 0.0, 10.0]), FRONT, None, 0.0)
-    plain = planner.plain
+    return planner.plain, st
+
+
+def test_certified_infeasible_problem_gets_the_reference_again_every_recheck_period():
+    plain, st = _certified_infeasible_loop(10, recheck=4, recheck_max=4)
     assert plain.full_q2_calls == [1, 5, 9]  # certified at 1, presumed at 2-4, IPOPT again at 5, ...
     assert st.presumed_infeasible_solves == 7 and st.q2_fail_steps == 10 and st.q1_fail_steps == 0
+
+
+def test_failed_rechecks_double_the_wait_up_to_the_cap():
+    plain, st = _certified_infeasible_loop(60, recheck=4, recheck_max=16)
+    # waits 4, 8, 16, 16, ...: full attempts at 1, 5, 13, 29, 45
+    assert plain.full_q2_calls == [1, 5, 13, 29, 45]
+    assert st.presumed_infeasible_solves == 60 - 5 and st.q2_fail_steps == 60
