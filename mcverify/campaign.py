@@ -315,7 +315,8 @@ def validate_params(p: ModelParams, where: str) -> None:
                   f"got {m.infeasible_recheck_steps}")
     if m.infeasible_recheck_max_steps < m.infeasible_recheck_steps:
         raise bad("mpc.infeasible_recheck_max_steps", f"must be >= mpc.infeasible_recheck_steps "
-                  f"({m.infeasible_recheck_steps}), got {m.infeasible_recheck_max_steps} (set both; equal: a fixed period)")
+                  f"({m.infeasible_recheck_steps}), got {m.infeasible_recheck_max_steps} "
+                  "(set both; equal: a fixed period)")
     if not 1 <= s.substeps <= MAX_SUBSTEPS:
         raise bad("sim.substeps", f"must be >= 1 and <= {MAX_SUBSTEPS}, got {s.substeps}")
     if s.max_time_s < s.control_period_s:
