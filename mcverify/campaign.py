@@ -34,7 +34,7 @@ import dataclasses
 import difflib
 import itertools
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -128,9 +128,13 @@ class Campaign:
 
 
 def load_campaign(
-    path: str | Path, *, episodes: int | None = None, seed: int | None = None
+    path: str | Path, *, episodes: int | None = None, seed: int | None = None, settings: Sequence[str] = ()
 ) -> Campaign:
-    """Read, validate and expand a campaign file; ``episodes``/``seed`` override the file's values."""
+    """Read, validate and expand a campaign file; ``episodes``/``seed`` override the file's values.
+
+    settings: ``"SECTION.FIELD=VALUE"`` strings (``mcverify run --set``), each written into the
+    file's ``[model.SECTION]`` table before validation (see :func:`apply_settings`).
+    """
     path = Path(path)
     if path.is_dir():
         raise CampaignError(f"{path} is a folder, not a campaign file (give a .toml file)")
@@ -144,7 +148,36 @@ def load_campaign(
         raise CampaignError(f"{path}: not a text file (UTF-8 TOML expected)") from None
     except OSError as err:
         raise CampaignError(f"cannot read campaign file {path}: {err.strerror or err}") from None
-    return campaign_from_dict(raw, source=str(path), episodes=episodes, seed=seed)
+    return campaign_from_dict(apply_settings(raw, settings), source=str(path), episodes=episodes, seed=seed)
+
+
+def apply_settings(raw: Mapping[str, Any], settings: Sequence[str]) -> dict[str, Any]:
+    """``raw`` (a campaign file's content) with ``"SECTION.FIELD=VALUE"`` settings written into its
+    ``[model.SECTION]`` table; VALUE is read as a TOML value (``3``, ``0.5``, ``true``, ``[1, 2]``), else
+    as a string (``ipopt``). The result is what a run records, so ``--resume`` rebuilds the same cells;
+    a setting overrides the file's common model but not a grid or axis value of the same field.
+    Unknown sections and fields are rejected by the validation that follows, like the file's own.
+    """
+    model = raw.get("model", {})
+    if not settings:
+        return dict(raw)
+    if not isinstance(model, Mapping):
+        raise CampaignError(f"--set: the campaign file's [model] is not a table (got {type(model).__name__})")
+    out = {**raw, "model": {k: dict(v) if isinstance(v, Mapping) else v for k, v in model.items()}}
+    for item in settings:
+        key, sep, text = item.partition("=")
+        section, dot, name = key.strip().partition(".")
+        if not sep or not dot or not section or not name or "." in name:
+            raise CampaignError(f"--set {item!r}: expected SECTION.FIELD=VALUE, e.g. --set mpc.backend=ipopt")
+        try:
+            value = tomllib.loads(f"v = {text.strip()}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = text.strip()
+        table = out["model"].setdefault(section, {})
+        if not isinstance(table, dict):
+            raise CampaignError(f"--set {item!r}: model.{section} is not a table in the campaign file")
+        table[name] = value
+    return out
 
 
 def campaign_from_dict(

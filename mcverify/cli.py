@@ -60,6 +60,10 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("campaign", nargs="?", type=Path, help="campaign TOML file")
     run.add_argument("--episodes", type=_positive_int, help="episodes per cell (overrides the file)")
     run.add_argument("--seed", type=_nonneg_int, help="campaign seed (overrides the file)")
+    run.add_argument(
+        "--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", dest="settings",
+        help="override a model parameter of the file, e.g. --set mpc.backend=ipopt (repeatable)",
+    )
     run.add_argument("--out", type=Path, help="run folder (default: results/<name>-<timestamp>)")
     run.add_argument(
         "--executor", choices=("local", "ray"), default="local",
@@ -149,8 +153,9 @@ def _cmd_run(args) -> int:
         raise RunError("--address is for the Ray executor: add --executor ray")
     progress = not args.no_progress
     if args.resume:
-        if args.episodes is not None or args.seed is not None:
-            raise RunError("--resume keeps the run's episodes and seed: leave out --episodes and --seed")
+        if args.episodes is not None or args.seed is not None or args.settings:
+            raise RunError("--resume keeps the run's episodes, seed and settings: leave out --episodes, --seed "
+                           "and --set")
         if args.out is not None:
             raise RunError("--resume writes into RUN_DIR: leave out --out")
         # A campaign file given with --resume is a check: it must be the one the run started with.
@@ -168,7 +173,7 @@ def _cmd_run(args) -> int:
     else:
         if args.campaign is None:
             raise RunError("missing campaign file, e.g. `mcverify run campaigns/smoke.toml`")
-        campaign = load_campaign(args.campaign, episodes=args.episodes, seed=args.seed)
+        campaign = load_campaign(args.campaign, episodes=args.episodes, seed=args.seed, settings=args.settings)
         out = args.run_dir = args.out or runner.default_run_dir(campaign)
         executor = executors.make_executor(args.executor, workers=args.workers, address=args.address)
 

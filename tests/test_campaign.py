@@ -160,3 +160,23 @@ def test_front_accel_range_grid_and_validation():
 def test_axes_and_opposing_errors_name_the_problem(raw, fragment):
     with pytest.raises(CampaignError, match=fragment):
         campaign_from_dict(raw)
+
+
+def test_settings_override_the_files_model_and_are_recorded_in_the_raw_content(tmp_path):
+    from mcverify.campaign import apply_settings, load_campaign
+
+    path = tmp_path / "c.toml"
+    path.write_text('[campaign]\nname = "t"\nepisodes = 1\n[model.mpc]\nbackend = "ipm"\n'
+                    '[axes.eps.a]\n"barrier.epsilon" = 0.3\n[axes.eps.b]\n"barrier.epsilon" = 0.5\n')
+    camp = load_campaign(path, settings=["mpc.backend=ipopt", "mpc.max_iter = 40", "noise.scale=0.5"])
+    for cell in camp.cells:
+        assert cell.params.mpc.backend == "ipopt" and cell.params.mpc.max_iter == 40
+        assert cell.params.noise.scale == 0.5
+    assert [c.params.barrier.epsilon for c in camp.cells] == [0.3, 0.5]  # axes still apply
+    assert camp.raw["model"]["mpc"] == {"backend": "ipopt", "max_iter": 40}  # what a run records (--resume)
+    raw = {"campaign": {"name": "t"}, "model": {"mpc": {"backend": "ipm"}}}
+    assert apply_settings(raw, ["mpc.backend=ipopt"])["model"]["mpc"]["backend"] == "ipopt"
+    assert raw["model"]["mpc"]["backend"] == "ipm", "the caller's content is not changed"
+    for bad in ("backend=ipopt", "mpc.=1", ".x=1", "mpc.a.b=1"):
+        with pytest.raises(CampaignError, match="expected SECTION.FIELD=VALUE"):
+            apply_settings(raw, [bad])

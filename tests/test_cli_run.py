@@ -79,6 +79,10 @@ def test_bad_campaign_files(tmp_path, capsys, text, fragment):
     (["run", str(FIXTURE), "--frobnicate"], "unrecognized arguments: --frobnicate"),
     (["launch"], "invalid choice: 'launch'"),
     (["run", "--resume", "no/such/run"], "run folder not found: no/such/run"),
+    (["run", str(FIXTURE), "--set", "mpc.backend"], "expected SECTION.FIELD=VALUE"),
+    (["run", str(FIXTURE), "--set", "mpc.backnd=ipopt"], "did you mean 'mpc.backend'"),
+    (["run", str(FIXTURE), "--set", "mpc.backend=cplex"], "unknown solver backend 'cplex'"),
+    (["run", str(FIXTURE), "--set", "mpc.horizon=fifty"], "mpc.horizon"),
 ])
 def test_bad_arguments(capsys, args, fragment):
     code, err = run_cli(capsys, *args)
@@ -94,7 +98,8 @@ def test_resume_errors(tmp_path, capsys, finished_run):
     ledger = (finished_run / store.LEDGER).read_bytes()
     code, err = run_cli(capsys, "run", "--resume", str(finished_run))
     assert code == 2 and "is already finished (2 episodes); nothing to resume" in one_line(err)
-    for extra, fragment in [(["--episodes", "3"], "leave out --episodes"), (["--out", "x"], "leave out --out")]:
+    for extra, fragment in [(["--episodes", "3"], "leave out --episodes"), (["--out", "x"], "leave out --out"),
+                            (["--set", "mpc.backend=ipopt"], "and --set")]:
         code, err = run_cli(capsys, "run", "--resume", str(finished_run), *extra)
         assert code == 2 and fragment in one_line(err)
     assert (finished_run / store.LEDGER).read_bytes() == ledger, "finished work is untouched"
