@@ -118,9 +118,11 @@ class Mpc:
     infeasible when that fails) and give IPOPT the full attempt again after this many steps (1:
     every step, the exhaustive behaviour). Every full attempt that fails again (certified or out of
     iterations) doubles the wait, up to ``infeasible_recheck_max_steps`` (equal to
-    ``infeasible_recheck_steps``: a fixed period). Why: in Table IV Scenario B, 70 of the 82 failed
-    Q2 solves of an episode were such certified infeasibilities in a row, 0.5-1.5 s of IPOPT each,
-    80% of the episode's CPU. The fast path still tries every step, so a problem it can solve is
+    ``infeasible_recheck_steps``: a fixed period). A fast-path success within the wait does not
+    end it: under perception noise a problem at the edge of feasibility flickers between solved and
+    certified infeasible from one step to the next (Table IV Scenario A, MPC-DC). Why: in Table IV
+    Scenario B, 70 of the 82 failed Q2 solves of an episode were such certified infeasibilities in a
+    row, 0.5-1.5 s of IPOPT each, 80% of the episode's CPU. The fast path still tries every step, so a problem it can solve is
     back at once; the wait only delays what IPOPT alone could solve (up to 1 s at 50 Hz). Only the
     ``ipm`` backend has a fast path; ``ipopt`` always runs in full.
     """

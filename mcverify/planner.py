@@ -268,8 +268,8 @@ class Planner:
     def _next_memo(self, memo: tuple[int, int] | None, sol: MpcSolution, fast_only: bool) -> tuple[int, int] | None:
         """The infeasibility memo of a problem after ``sol`` (see :attr:`Mpc.infeasible_recheck_steps`)."""
         m = self.params.mpc
-        if sol.success:
-            return None
+        if sol.success:  # solved now; a failure within the wait is still presumed (noise flickers near the edge)
+            return (memo[0] + 1, memo[1]) if memo is not None and memo[0] + 1 < memo[1] else None
         if fast_only:  # presumed again: the count goes on
             return (memo[0] + 1, memo[1])
         if memo is not None:  # the full attempt after a wait failed too: wait twice as long

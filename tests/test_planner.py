@@ -71,6 +71,8 @@ def test_step_overtakes_from_the_table_ii_start(planner):
 class _CertifiedInfeasibleSolver:
     """Q2 certified infeasible by the reference, never solved by the fast path; Q1 always solved."""
 
+    solved_calls: frozenset[int] = frozenset()  # Q2 calls the fast path solves (a flickering edge)
+
     def __init__(self, params, structure):
         from mcverify.solverbench import StubSolver
 
@@ -85,6 +87,8 @@ class _CertifiedInfeasibleSolver:
         if direction == +1:
             return self.ok
         self.calls += 1
+        if self.calls in self.solved_calls:
+            return self.ok
         if not fast_only:
             self.full_q2_calls.append(self.calls)
         status = "presumed_infeasible:IPM_MaxIter" if fast_only else "fallback:Infeasible_Problem_Detected"
@@ -94,8 +98,10 @@ class _CertifiedInfeasibleSolver:
         return None
 
 
-def _certified_infeasible_loop(steps: int, recheck: int, recheck_max: int):
+def _certified_infeasible_loop(steps: int, recheck: int, recheck_max: int, solved=frozenset()):
     import dataclasses
+
+    _CertifiedInfeasibleSolver.solved_calls = frozenset(solved)
 
     mpc = dataclasses.replace(P.mpc, infeasible_recheck_steps=recheck, infeasible_recheck_max_steps=recheck_max)
     params = dataclasses.replace(P, mpc=mpc)
@@ -118,3 +124,12 @@ def test_failed_rechecks_double_the_wait_up_to_the_cap():
     # waits 4, 8, 16, 16, ...: full attempts at 1, 5, 13, 29, 45
     assert plain.full_q2_calls == [1, 5, 13, 29, 45]
     assert st.presumed_infeasible_solves == 60 - 5 and st.q2_fail_steps == 60
+
+
+def test_a_fast_path_success_within_the_wait_keeps_the_presumption():
+    # certified at 1 (wait 4); solved at 3, inside the wait, so 4 is still presumed; IPOPT at 5 fails
+    # (wait 8): solved at 7, 8-12 presumed, IPOPT at 13 fails (wait 8, the cap); 14-19 presumed,
+    # solved at 20 (inside) and 21 (the wait is over: the memo ends), so 22 gets IPOPT at once
+    plain, st = _certified_infeasible_loop(22, recheck=4, recheck_max=8, solved={3, 7, 20, 21})
+    assert plain.full_q2_calls == [1, 5, 13, 22]
+    assert st.q2_fail_steps == 22 - 4
