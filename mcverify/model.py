@@ -122,9 +122,9 @@ class Mpc:
     end it: under perception noise a problem at the edge of feasibility flickers between solved and
     certified infeasible from one step to the next (Table IV Scenario A, MPC-DC). Why: in Table IV
     Scenario B, 70 of the 82 failed Q2 solves of an episode were such certified infeasibilities in a
-    row, 0.5-1.5 s of IPOPT each, 80% of the episode's CPU. The fast path still tries every step, so a problem it can solve is
-    back at once; the wait only delays what IPOPT alone could solve (up to 1 s at 50 Hz). Only the
-    ``ipm`` backend has a fast path; ``ipopt`` always runs in full.
+    row, 0.5-1.5 s of IPOPT each, 80% of the episode's CPU. The fast path still tries every step, so
+    a problem it can solve is back at once; the wait only delays what IPOPT alone could solve (up to
+    1 s at 50 Hz). Only the ``ipm`` backend has a fast path; ``ipopt`` always runs in full.
     """
 
     controller: str = "vlcbf"
