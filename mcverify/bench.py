@@ -11,6 +11,11 @@ Reported: episodes per CPU-minute of each side (``time.process_time`` of this pr
 counts flatter neither side) and their ratio, peak resident memory, and the agreement of the paired
 episodes (safety verdict, outcome, minimum distances, overtaking time). The row is appended to
 ``results/BENCHMARKS.md`` with the command and the machine.
+
+The engine's CPU is split by phase (:class:`mcverify.rollout.PhaseClock`): the solver (summed from
+the episodes' solve times), the rest of the host controller, and the JAX plant; the plant's
+host-device transfers are timed apart by :func:`plant_transfer_ms` on the same batch. There are no
+host callbacks: the solver runs on the host between two jitted calls, not inside XLA.
 """
 
 from __future__ import annotations
@@ -26,10 +31,14 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
+import jax
+import numpy as np
+
 from mcverify import executors
 from mcverify.campaign import Cell, load_campaign
 from mcverify.naive import run_naive
-from mcverify.rollout import run_episodes
+from mcverify.plant import LaneGroups, initial_plant
+from mcverify.rollout import PhaseClock, episode_key, run_episodes
 
 DEFAULT_CAMPAIGN = "campaigns/table4.toml"
 DEFAULT_CELL = "scenario=B,method=VL-CBF eps=0.3"
@@ -44,6 +53,7 @@ class SideResult:
     rows: list[dict]
     cpu_s: float
     wall_s: float
+    phases: dict[str, float] = dataclasses.field(default_factory=dict)
 
     @property
     def episodes_per_cpu_min(self) -> float:
@@ -62,6 +72,48 @@ def _timed(name: str, fn) -> SideResult:
     cpu0, wall0 = time.process_time(), time.perf_counter()
     rows = fn()
     return SideResult(name, rows, time.process_time() - cpu0, time.perf_counter() - wall0)
+
+
+def engine_phases(rows: list[dict], clock: PhaseClock, total_cpu_s: float) -> dict[str, float]:
+    """CPU seconds per phase of the engine's loop; they add up to ``total_cpu_s``.
+
+    solver: the solves' own clock (``solves * solve_time_mean_s``, wall time of single-threaded
+    solves); controller: the rest of the planner phase (warm starts, Algorithm 1, Table I);
+    plant: JAX observe/advance with their transfers; other: scenario draws, bookkeeping, rows.
+    """
+    solver = sum(r["solves"] * r["solve_time_mean_s"] for r in rows if r["solves"])
+    planner = clock.cpu_s.get("planner", 0.0)
+    plant = clock.cpu_s.get("plant", 0.0)
+    return {
+        "solver": solver,
+        "controller": max(planner - solver, 0.0),
+        "plant": plant,
+        "other": max(total_cpu_s - planner - plant, 0.0),
+        "control_steps": float(clock.calls.get("planner", 0)),
+    }
+
+
+def plant_transfer_ms(cell: Cell, batch: int, seed: int, reps: int = 200) -> dict[str, float]:
+    """CPU ms per control step of a ``batch``-episode chunk: the jitted plant (observe + advance,
+    waited for; the controls' copy to the device included) against the device-to-host copies the
+    loop makes of its results (measurements, ego states, safety trace). Steps with zero control
+    from the campaign's start; the cost does not depend on the state."""
+    p = cell.params
+    keys = jax.numpy.stack([episode_key(seed, cell.index, e) for e in range(batch)])
+    world = LaneGroups(initial_plant(p, [0.0] * batch), keys, p)
+    u, active = np.zeros((batch, 2)), np.ones(batch, dtype=bool)
+    world.advance(u, active), world.observe(0)  # compiled outside the clock
+    compute = transfer = 0.0
+    for step in range(reps):
+        t0 = time.process_time()
+        obs = world.observe_on_device(step)
+        subs = world.advance(u, active)
+        jax.block_until_ready((obs, subs, world.plants, world.traces))
+        t1 = time.process_time()
+        [np.asarray(a) for group in obs for a in group], world.ego(), world.trace()
+        transfer += time.process_time() - t1
+        compute += t1 - t0
+    return {"compute_ms": 1e3 * compute / reps, "transfer_ms": 1e3 * transfer / reps, "batch": float(batch)}
 
 
 def pick_cell(campaign_path: str, cell_name: str, backend: str | None) -> tuple[Cell, int, bool]:
@@ -130,8 +182,12 @@ def run(
     run_episodes(warm_cell, [0], seed, executors.solver_for(warm_cell.params), common_random_numbers=crn)
     setup_cpu_s = time.process_time() - cpu0
     progress(f"  one-off set-up (kernel load, XLA compile of the plant): {setup_cpu_s:.1f} CPU-s, not counted")
-    engine = _timed("engine", lambda: run_episodes(cell, ids, seed, planner, common_random_numbers=crn).rows)
+    clock = PhaseClock()
+    engine = _timed("engine", lambda: run_episodes(cell, ids, seed, planner, common_random_numbers=crn,
+                                                   clock=clock).rows)
+    engine.phases = engine_phases(engine.rows, clock, engine.cpu_s)
     progress(f"  engine: {engine.cpu_s:.1f} CPU-s, {engine.episodes_per_cpu_min:.3g} episodes per CPU-minute")
+    transfer = plant_transfer_ms(cell, engine_episodes, seed)
     naive = _timed("naive", lambda: run_naive(cell, ids[:naive_episodes], seed, common_random_numbers=crn))
     progress(f"  naive:  {naive.cpu_s:.1f} CPU-s, {naive.episodes_per_cpu_min:.3g} episodes per CPU-minute")
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
@@ -144,6 +200,7 @@ def run(
         "ratio": engine.episodes_per_cpu_min / naive.episodes_per_cpu_min,
         "peak_rss_mb": peak_mb,
         "setup_cpu_s": setup_cpu_s,
+        "plant_transfer": transfer,
         "agreement": agreement(naive.rows, engine.rows),
         "machine": machine(),
         "command": "mcverify " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["bench"]
@@ -167,6 +224,7 @@ def render(result: dict[str, Any]) -> str:
         f"  engine / naive: {result['ratio']:.1f}x episodes per CPU-minute",
         f"  peak memory: {result['peak_rss_mb']:.0f} MB; one-off set-up {result['setup_cpu_s']:.1f} CPU-s "
         "(kernel load, XLA compile; counted on neither side)",
+        *phase_lines(e, result.get("plant_transfer")),
         f"  agreement on {ag['pairs']} paired episodes: safety verdict {ag['same_safety']}/{ag['pairs']}, outcome "
         f"{ag['same_outcome']}/{ag['pairs']}; largest differences: "
         + ", ".join(f"{c} {ag[f'max_abs_diff_{c}']:.3g}" for c in PAIRED_VALUES),
@@ -174,6 +232,24 @@ def render(result: dict[str, Any]) -> str:
     if ag["disagreements"]:
         lines.append(f"  safety verdicts differ for episodes {ag['disagreements']}")
     return "\n".join(lines)
+
+
+def phase_lines(engine: SideResult, transfer: dict[str, float] | None) -> list[str]:
+    """Where the engine's CPU went, per episode and per control step of the batch."""
+    ph = engine.phases
+    if not ph or not engine.rows:
+        return []
+    n, steps = len(engine.rows), max(ph["control_steps"], 1.0)
+    parts = ", ".join(f"{k} {ph[k] / n:.2f} s ({100 * ph[k] / engine.cpu_s:.0f}%)"
+                      for k in ("solver", "controller", "plant", "other"))
+    lines = [f"  engine CPU per episode: {parts}",
+             f"  JAX plant: {1e3 * ph['plant'] / steps:.2f} CPU-ms per control step of the {n}-episode batch "
+             "(observe + advance, transfers included); no host callbacks (the solver runs between jitted calls)"]
+    if transfer:
+        lines.append(f"  of which device-to-host copies: {transfer['transfer_ms']:.3f} ms against "
+                     f"{transfer['compute_ms']:.3f} ms of dispatch and XLA compute per control step "
+                     f"(isolated, {int(transfer['batch'])} episodes, 200 steps)")
+    return lines
 
 
 def append_markdown(result: dict[str, Any], path: Path = BENCHMARKS_MD) -> None:

@@ -340,8 +340,12 @@ class LaneGroups:
 
     def observe(self, step: int) -> tuple[np.ndarray, np.ndarray]:
         """Measured (front (n, 3), opp (n, 2)) at control step ``step``."""
-        outs = [self._obs(pl, k, jnp.asarray(step), self.pp) for pl, k in zip(self.plants, self.keys, strict=True)]
+        outs = self.observe_on_device(step)
         return self._gather([o[0] for o in outs]), self._gather([o[1] for o in outs])
+
+    def observe_on_device(self, step: int) -> list[tuple[Array, Array]]:
+        """Per lane group, the (front, opp) measurements as JAX arrays, not yet copied to the host."""
+        return [self._obs(pl, k, jnp.asarray(step), self.pp) for pl, k in zip(self.plants, self.keys, strict=True)]
 
     def advance(self, u: np.ndarray, active: np.ndarray) -> list[Substep]:
         """One control period for every episode; returns the per-group sub-step outputs."""

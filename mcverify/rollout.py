@@ -18,7 +18,9 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable, Sequence
+import time
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import jax
@@ -38,6 +40,36 @@ SCENARIO_STREAM = 1_000_000
 PLAN_SNAPSHOT_PERIOD_S = 0.5
 #: Columns that depend on wall-clock time; everything else is reproducible bit for bit.
 TIMING_COLUMNS = ("solve_time_mean_s", "solve_time_max_s")
+
+
+# --------------------------------------------------------------------------------------- phases
+
+
+class PhaseClock:
+    """CPU seconds (``time.process_time``: every thread of the process) spent per phase of the loop.
+
+    The phases of :func:`run_episodes` are sequential (the host waits for the JAX results it reads),
+    so process time split at their boundaries attributes XLA's worker threads to the JAX phases.
+    ``cpu_s``: phase name -> seconds; ``calls``: phase name -> number of times it ran.
+    """
+
+    def __init__(self) -> None:
+        self.cpu_s: dict[str, float] = {}
+        self.calls: dict[str, int] = {}
+
+    @contextmanager
+    def phase(self, name: str) -> Iterator[None]:
+        t0 = time.process_time()
+        try:
+            yield
+        finally:
+            self.cpu_s[name] = self.cpu_s.get(name, 0.0) + time.process_time() - t0
+            self.calls[name] = self.calls.get(name, 0) + 1
+
+
+@contextmanager
+def _untimed(name: str) -> Iterator[None]:
+    yield
 
 
 # --------------------------------------------------------------------------------------- keys
@@ -89,12 +121,16 @@ def run_episodes(
     common_random_numbers: bool = False,
     record: bool | Sequence[int] = False,
     on_step: Callable[[int], None] | None = None,
+    clock: PhaseClock | None = None,
 ) -> ChunkResult:
     """Simulate ``episode_ids`` (ids within the cell) of ``cell`` as one batch; one row per episode.
 
     record: True for every episode, or the ids of the episodes whose full-resolution trajectory,
     step decisions and plan snapshots are returned as well.
+    clock: where to add the CPU time of the loop's phases ("plant": JAX observe and advance with
+    their host-device transfers; "planner": the host controllers, solver included), for ``bench``.
     """
+    phase = clock.phase if clock is not None else _untimed
     p = cell.params
     ids = [int(e) for e in episode_ids]
     cell_key = None if common_random_numbers else cell.index
@@ -110,24 +146,28 @@ def run_episodes(
 
     for step in range(n_steps):
         t_s = step * p.sim.control_period_s
-        front_meas, opp_meas = world.observe(step)
-        ego = world.ego()
+        with phase("plant"):
+            front_meas, opp_meas = world.observe(step)
+            ego = world.ego()
         u = np.zeros((len(ids), 2))
         records: dict[int, StepRecord] = {}
-        for b, st in enumerate(states):
-            if st.done:
-                continue
-            outcome = planner.converged(st, ego[b], front_meas[b])
-            if outcome is not None:
-                _finish(st, t_s, outcome)
-                continue
-            u[b], records[b] = planner.step(st, t_s, ego[b], front_meas[b], opp_meas[b] if has_opp else None,
-                                            cell.lambda0)
+        with phase("planner"):
+            for b, st in enumerate(states):
+                if st.done:
+                    continue
+                outcome = planner.converged(st, ego[b], front_meas[b])
+                if outcome is not None:
+                    _finish(st, t_s, outcome)
+                    continue
+                u[b], records[b] = planner.step(st, t_s, ego[b], front_meas[b], opp_meas[b] if has_opp else None,
+                                                cell.lambda0)
         active = np.array([not st.done for st in states])
         if not active.any():
             break
-        subs = world.advance(u, active)
-        _note_first_unsafe(states, world.trace(), records, t_s)
+        with phase("plant"):
+            subs = world.advance(u, active)
+            trace = world.trace()
+        _note_first_unsafe(states, trace, records, t_s)
         if rec is not None:
             rec.add(t_s, world.substeps_of(subs), u, records, front_meas, opp_meas, active)
         if on_step is not None:

@@ -36,3 +36,36 @@ def test_markdown_rows_go_into_the_bench_table(tmp_path):
     assert "## Other section" in text and "40.0x" in text
     assert result["engine"].episodes_per_cpu_min == 4.0 and result["naive"].episodes_per_cpu_min == 0.1
     assert result["engine"].cpu_ms_per_solve == 150.0
+
+
+def _short_cell():
+    from mcverify.campaign import campaign_from_dict
+
+    raw = {"campaign": {"name": "phases", "seed": 3, "episodes": 2},
+           "model": {"sim": {"max_time_s": 0.2}, "noise": {"kind": "paper"}}}
+    return campaign_from_dict(raw).cells[0]
+
+
+def test_engine_phases_add_up_to_the_measured_cpu():
+    from mcverify.rollout import PhaseClock, run_episodes
+    from mcverify.solverbench import stub_planner
+
+    cell = _short_cell()
+    clock = PhaseClock()
+    side = bench._timed("engine", lambda: run_episodes(cell, [0, 1, 2], 3, stub_planner(cell.params),
+                                                       clock=clock).rows)
+    phases = bench.engine_phases(side.rows, clock, side.cpu_s)
+    assert phases["control_steps"] == 10  # 0.2 s at 50 Hz; the planner phase runs once per step
+    assert clock.calls["plant"] == 20  # observe, then advance, in every step
+    assert phases["plant"] > 0 and phases["solver"] == 0.0  # the stub solves nothing
+    total = phases["solver"] + phases["controller"] + phases["plant"] + phases["other"]
+    assert math.isclose(total, side.cpu_s, rel_tol=1e-9, abs_tol=1e-6)
+    side.phases = phases
+    lines = bench.phase_lines(side, {"compute_ms": 1.0, "transfer_ms": 0.01, "batch": 3.0})
+    assert "plant" in lines[0] and "per control step of the 3-episode batch" in lines[1]
+    assert "device-to-host copies: 0.010 ms" in lines[2]
+
+
+def test_plant_transfer_split_is_measured_per_step():
+    split = bench.plant_transfer_ms(_short_cell(), batch=3, seed=3, reps=5)
+    assert split["batch"] == 3.0 and split["compute_ms"] > 0 and split["transfer_ms"] >= 0

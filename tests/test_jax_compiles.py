@@ -3,8 +3,10 @@ chunk of the same shape (issue 5, item 3). Compilations are counted with ``jax.m
 
 from __future__ import annotations
 
+import jax
 import jax.monitoring as monitoring
 
+from mcverify import plant
 from mcverify.campaign import campaign_from_dict
 from mcverify.rollout import run_episodes
 from mcverify.solverbench import stub_planner
@@ -44,8 +46,11 @@ def cells(front_speeds_kmh=(25, 36)):
 
 
 def test_counter_sees_compilations():
-    """Control: a batch shape never run before compiles, and the log counts it."""
+    """Control: with the caches emptied (other tests may have run the plant), the first chunk
+    compiles, and the log counts it."""
     cell = cells()[0]
+    jax.clear_caches()
+    plant.compiled.cache_clear()
     with CompileLog() as log:
         run_episodes(cell, [0, 1, 2], SEED, stub_planner(cell.params))
     assert log.compiles > 0 and log.traces > 0
