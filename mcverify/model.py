@@ -120,7 +120,10 @@ class Mpc:
     iterations) doubles the wait, up to ``infeasible_recheck_max_steps`` (equal to
     ``infeasible_recheck_steps``: a fixed period). A fast-path success within the wait does not
     end it: under perception noise a problem at the edge of feasibility flickers between solved and
-    certified infeasible from one step to the next (Table IV Scenario A, MPC-DC). Why: in Table IV
+    certified infeasible from one step to the next. Only the dual planner's Q1 and Q2 are presumed:
+    MPC-DC has no second problem, so a presumed failure there decides the control by itself (the
+    held plan); on 34 paired Table IV Scenario A episodes presuming it raised MPC-DC's collisions
+    from 3 (IPOPT) to 24, so MPC-DC always gets the full attempt. Why: in Table IV
     Scenario B, 70 of the 82 failed Q2 solves of an episode were such certified infeasibilities in a
     row, 0.5-1.5 s of IPOPT each, 80% of the episode's CPU. The fast path still tries every step, so
     a problem it can solve is back at once; the wait only delays what IPOPT alone could solve (up to

@@ -229,7 +229,9 @@ class Planner:
     # ---------------------------------------------------------------------------------------------
     def _step_mpcdc(self, state, t_s, ego, front_meas, opp, lambda0, detected):
         solver = self.with_opp if opp is not None else self.plain
-        q1 = self._solve(state, solver, ego, front_meas, Q1, lambda0, opp)
+        # No presumed infeasibility here: MPC-DC has no second problem, so a presumed failure would
+        # itself decide the control (the held plan) - see Mpc.infeasible_recheck_steps.
+        q1 = self._solve(state, solver, ego, front_meas, Q1, lambda0, opp, presume=False)
         if q1.success:
             state.held = (q1.u_plan, q1.dt_plan, t_s)
             return q1.u_plan[0], StepRecord(Source.Q1, state.mode, detected, q1, None, -1)
@@ -237,7 +239,9 @@ class Planner:
         record = StepRecord(Source.FALLBACK, state.mode, detected, q1, None, -1)
         return self._no_plan(state, t_s, ego, front_meas, record)
 
-    def _solve(self, state, solver, ego, front_meas, direction, lambda0, opp) -> MpcSolution:
+    def _solve(self, state, solver, ego, front_meas, direction, lambda0, opp, presume: bool = True) -> MpcSolution:
+        """One problem, warm-started from its last solution; ``presume``: may a problem IPOPT certified
+        infeasible get only the fast path for a while (the infeasibility memo)?"""
         key = (direction, opp is not None)
         guess = None
         if opp is not None and key not in state.warm:
@@ -249,7 +253,7 @@ class Planner:
             if plain.success:
                 state.warm[(direction, False)] = plain.warm
             guess = solver.guess_from_plan(plain, opp)
-        memo = state.infeasible.get(key)
+        memo = state.infeasible.get(key) if presume else None
         fast_only = memo is not None and memo[0] + 1 < memo[1]
         extra = {"fast_only": True} if fast_only else {}
         sol = solver.solve(ego, front_meas, direction, lambda0, state.warm.get(key), opp_xv=opp, guess=guess, **extra)
@@ -258,7 +262,7 @@ class Planner:
             state.warm[key] = sol.warm
         else:
             state.warm.pop(key, None)  # never restart from a stale point
-        memo = self._next_memo(memo, sol, fast_only)
+        memo = self._next_memo(memo, sol, fast_only) if presume else None
         if memo is None:
             state.infeasible.pop(key, None)
         else:

@@ -72,25 +72,26 @@ class _CertifiedInfeasibleSolver:
     """Q2 certified infeasible by the reference, never solved by the fast path; Q1 always solved."""
 
     solved_calls: frozenset[int] = frozenset()  # Q2 calls the fast path solves (a flickering edge)
+    failing_direction = -1  # the certified infeasible problem: Q2 (-1) or Q1 (+1)
 
     def __init__(self, params, structure):
         from mcverify.solverbench import StubSolver
 
         self.structure = structure
         self.ok = StubSolver(params, structure)._sol
-        self.full_q2_calls: list[int] = []
+        self.full_calls: list[int] = []  # calls of the failing problem given the full attempt
         self.calls = 0
 
     def solve(self, ego, front, direction, lambda0, warm=None, opp_xv=None, guess=None, fast_only=False):
         import dataclasses
 
-        if direction == +1:
+        if direction != self.failing_direction:
             return self.ok
         self.calls += 1
         if self.calls in self.solved_calls:
             return self.ok
         if not fast_only:
-            self.full_q2_calls.append(self.calls)
+            self.full_calls.append(self.calls)
         status = "presumed_infeasible:IPM_MaxIter" if fast_only else "fallback:Infeasible_Problem_Detected"
         return dataclasses.replace(self.ok, success=False, status=status)
 
@@ -98,12 +99,14 @@ class _CertifiedInfeasibleSolver:
         return None
 
 
-def _certified_infeasible_loop(steps: int, recheck: int, recheck_max: int, solved=frozenset()):
+def _certified_infeasible_loop(steps: int, recheck: int, recheck_max: int, solved=frozenset(), controller="vlcbf"):
     import dataclasses
 
     _CertifiedInfeasibleSolver.solved_calls = frozenset(solved)
+    _CertifiedInfeasibleSolver.failing_direction = -1 if controller == "vlcbf" else +1
 
-    mpc = dataclasses.replace(P.mpc, infeasible_recheck_steps=recheck, infeasible_recheck_max_steps=recheck_max)
+    mpc = dataclasses.replace(P.mpc, infeasible_recheck_steps=recheck, infeasible_recheck_max_steps=recheck_max,
+                              controller=controller)
     params = dataclasses.replace(P, mpc=mpc)
     made = []
     planner = Planner(params, solver_factory=lambda p, st: made.append(_CertifiedInfeasibleSolver(p, st)) or made[-1])
@@ -115,14 +118,21 @@ def _certified_infeasible_loop(steps: int, recheck: int, recheck_max: int, solve
 
 def test_certified_infeasible_problem_gets_the_reference_again_every_recheck_period():
     plain, st = _certified_infeasible_loop(10, recheck=4, recheck_max=4)
-    assert plain.full_q2_calls == [1, 5, 9]  # certified at 1, presumed at 2-4, IPOPT again at 5, ...
+    assert plain.full_calls == [1, 5, 9]  # certified at 1, presumed at 2-4, IPOPT again at 5, ...
     assert st.presumed_infeasible_solves == 7 and st.q2_fail_steps == 10 and st.q1_fail_steps == 0
+
+
+def test_mpcdc_problem_is_never_presumed_infeasible():
+    # MPC-DC has no backup problem: every step gets the full attempt, whatever IPOPT certified before
+    plain, st = _certified_infeasible_loop(10, recheck=4, recheck_max=16, controller="mpcdc")
+    assert plain.full_calls == list(range(1, 11))
+    assert st.presumed_infeasible_solves == 0 and st.q1_fail_steps == 10 and not st.infeasible
 
 
 def test_failed_rechecks_double_the_wait_up_to_the_cap():
     plain, st = _certified_infeasible_loop(60, recheck=4, recheck_max=16)
     # waits 4, 8, 16, 16, ...: full attempts at 1, 5, 13, 29, 45
-    assert plain.full_q2_calls == [1, 5, 13, 29, 45]
+    assert plain.full_calls == [1, 5, 13, 29, 45]
     assert st.presumed_infeasible_solves == 60 - 5 and st.q2_fail_steps == 60
 
 
@@ -131,5 +141,5 @@ def test_a_fast_path_success_within_the_wait_keeps_the_presumption():
     # (wait 8): solved at 7, 8-12 presumed, IPOPT at 13 fails (wait 8, the cap); 14-19 presumed,
     # solved at 20 (inside) and 21 (the wait is over: the memo ends), so 22 gets IPOPT at once
     plain, st = _certified_infeasible_loop(22, recheck=4, recheck_max=8, solved={3, 7, 20, 21})
-    assert plain.full_q2_calls == [1, 5, 13, 22]
+    assert plain.full_calls == [1, 5, 13, 22]
     assert st.q2_fail_steps == 22 - 4
