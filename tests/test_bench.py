@@ -57,12 +57,12 @@ def test_engine_phases_add_up_to_the_measured_cpu():
     phases = bench.engine_phases(side.rows, clock, side.cpu_s)
     assert phases["control_steps"] == 10  # 0.2 s at 50 Hz; the planner phase runs once per step
     assert clock.calls["plant"] == 20  # observe, then advance, in every step
-    assert phases["plant"] > 0 and phases["solver"] == 0.0  # the stub solves nothing
-    total = phases["solver"] + phases["controller"] + phases["plant"] + phases["other"]
+    assert phases["plant"] > 0 and phases["solver_wall"] == 0.0  # the stub solves nothing
+    total = phases["planner"] + phases["plant"] + phases["other"]
     assert math.isclose(total, side.cpu_s, rel_tol=1e-9, abs_tol=1e-6)
     side.phases = phases
     lines = bench.phase_lines(side, {"compute_ms": 1.0, "transfer_ms": 0.01, "batch": 3.0})
-    assert "plant" in lines[0] and "per control step of the 3-episode batch" in lines[1]
+    assert "planner" in lines[0] and "plant" in lines[0] and "per control step of the 3-episode batch" in lines[1]
     assert "device-to-host copies: 0.010 ms" in lines[2]
 
 
