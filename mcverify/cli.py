@@ -24,8 +24,8 @@ def main(argv: list[str] | None = None) -> int:
     if not hasattr(args, "func"):
         parser.print_help()
         return EXIT_USAGE
-    from mcverify.campaign import CampaignError
-    from mcverify.kernels import KernelBuildError
+    from mcverify.run.campaign import CampaignError
+    from mcverify.solver.kernels import KernelBuildError
     from mcverify.store import RunError
 
     try:
@@ -145,8 +145,9 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _cmd_run(args) -> int:
-    from mcverify import executors, runner
-    from mcverify.campaign import load_campaign
+    from mcverify.run import executors
+    from mcverify.run import runner
+    from mcverify.run.campaign import load_campaign
     from mcverify.store import RunError
 
     if args.address is not None and args.executor != "ray":
@@ -192,7 +193,7 @@ def _cmd_run(args) -> int:
 
 
 def _cmd_replay(args) -> int:
-    from mcverify.replay import ReplayMismatch, replay
+    from mcverify.run.replay import ReplayMismatch, replay
 
     try:
         res = replay(args.run_dir, args.episode_id, args.out)
@@ -206,9 +207,9 @@ def _cmd_replay(args) -> int:
 
 
 def _cmd_report(args) -> int:
-    from mcverify import report
+    from mcverify.report import run_report
 
-    path = report.write(
+    path = run_report.write(
         args.run_dir, level=args.level, method=args.method, bootstrap_resamples=args.bootstrap_resamples
     )
     print(f"report: {path} (also report.html, summary.json, cells.parquet, tables/, figures/)")
@@ -216,7 +217,7 @@ def _cmd_report(args) -> int:
 
 
 def _cmd_compare(args) -> int:
-    from mcverify import compare
+    from mcverify.report import compare
 
     result = compare.compare_runs(
         compare.load_run(args.run_a),
@@ -233,46 +234,48 @@ def _cmd_compare(args) -> int:
 
 
 def _cmd_bench(args) -> int:
-    from mcverify import bench
-    from mcverify.campaign import CampaignError
+    from mcverify.bench import engine
+    from mcverify.run.campaign import CampaignError
 
     if args.engine_episodes < args.naive_episodes:
         raise CampaignError("--engine-episodes must be at least --naive-episodes (the naive episodes are paired)")
-    result = bench.run(
+    result = engine.run(
         campaign=args.campaign, cell_name=args.cell, naive_episodes=args.naive_episodes,
         engine_episodes=args.engine_episodes, backend=args.backend, write=not args.no_write,
         progress=lambda msg: print(msg, file=sys.stderr),
     )
-    print(bench.render(result))
+    print(engine.render(result))
     if not args.no_write:
-        print(f"appended to {bench.BENCHMARKS_MD}", file=sys.stderr)
+        print(f"appended to {engine.BENCHMARKS_MD}", file=sys.stderr)
     return 0
 
 
 def _cmd_bench_solver(args) -> int:
     from datetime import datetime
 
-    from mcverify import executors, solverbench
-    from mcverify.campaign import CampaignError
+    from mcverify.run import executors
+
+    from mcverify.bench import solver_bench
+    from mcverify.run.campaign import CampaignError
 
     if not args.campaign.is_file():
         raise CampaignError(f"campaign file not found: {args.campaign}")
     workers = args.workers or executors.default_workers()
     command = "mcverify " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["bench-solver"] else "mcverify bench-solver"
-    results = solverbench.run(args.campaign, args.episodes, args.record_episodes, workers, args.chunk_size)
-    section = solverbench.markdown(results, command)
+    results = solver_bench.run(args.campaign, args.episodes, args.record_episodes, workers, args.chunk_size)
+    section = solver_bench.markdown(results, command)
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    solverbench.write_section(args.out, section)
+    solver_bench.write_section(args.out, section)
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
     json_path = args.out.parent / f"bench-solver-{stamp}.json"
-    json_path.write_text(solverbench.to_json(results))
+    json_path.write_text(solver_bench.to_json(results))
     print(section)
     print(f"written: {args.out} (section), {json_path}", file=sys.stderr)
     return 0
 
 
 def _cmd_kernels_list(args) -> int:
-    from mcverify import kernels
+    from mcverify.solver import kernels
 
     rows = kernels.list_kernels()
     if not rows:
@@ -283,7 +286,7 @@ def _cmd_kernels_list(args) -> int:
 
 
 def _cmd_kernels_clear(args) -> int:
-    from mcverify import kernels
+    from mcverify.solver import kernels
 
     print(f"removed {kernels.clear_kernels()} kernel(s)")
     return 0

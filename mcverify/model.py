@@ -109,7 +109,7 @@ class Mpc:
     ``controller``: "vlcbf" (the paper's dual TO-CBF-MPC, Q1 and Q2 with VL-CBF constraints) or
     "mpcdc" (the Sec. VI-D baseline: the same time-optimal MPC and horizon with the ellipses as
     distance constraints at the nodes, no Q2 backup). ``backend``: the NLP solver ("ipopt", the
-    reference; "ipm", the fast path of :mod:`mcverify.backends`, the default). ``max_iter`` bounds
+    reference; "ipm", the fast path of :mod:`mcverify.solver.backends`, the default). ``max_iter`` bounds
     warm-started solves, ``max_iter_cold`` cold ones: with the opposing vehicle, cold solves of
     feasible problems took 80-400 IPOPT iterations (warm ones 3-10).
 

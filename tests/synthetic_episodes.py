@@ -26,7 +26,7 @@ class Result:
 
 
 def row(cell, seed: int, episode: int, common_random_numbers: bool = False) -> dict:
-    """One synthetic episode row with the shape of :func:`mcverify.rollout._episode_row`'s."""
+    """One synthetic episode row with the shape of :func:`mcverify.episode.rollout._episode_row`'s."""
     rng = np.random.default_rng([seed, 0 if common_random_numbers else cell.index + 1, episode])
     u = rng.random(12)
     outcome = ("overtook", "went_back", "timeout")[int(u[0] * 3)]

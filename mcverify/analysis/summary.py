@@ -1,0 +1,510 @@
+"""Per-cell statistics of a run: rates with exact intervals, distances, times, theorem checks.
+
+:func:`summarise` turns ``episodes.parquet`` (one row per episode) and the run's manifest into one
+dict per cell; :func:`cells_table` flattens those dicts into ``cells.parquet`` (one row per cell).
+Everything is a pure function of the stored data and the options (confidence level, interval
+method, bootstrap resamples and seed), so regenerating gives identical numbers.
+
+Episodes whose ``outcome`` is ``"error"`` (the episode could not be simulated) are counted apart:
+every safety and outcome rate is over the ``valid`` episodes, and ``error`` is a rate over all
+episodes of the cell. Columns that a run does not have (``collision_opp``, ``min_gap_opp_m`` on
+runs without opposing traffic, ...) are left out of the summary rather than invented.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import zlib
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+
+from mcverify.analysis import stats
+
+#: Version of the summary.json / cells.parquet layout.
+FORMAT = 2
+
+
+@dataclass(frozen=True)
+class Metric:
+    """An episode column as the reports show it: ``name`` (column), ``label`` (short, for table
+    headers) and ``definition`` (one sentence for the report's definitions)."""
+
+    name: str
+    label: str
+    definition: str
+    unit: str = ""
+
+
+#: Boolean metrics summarised as rates with confidence intervals, in report order. ``collision`` is
+#: derived: a collision with either vehicle (the columns present are OR-ed).
+RATE_METRICS: tuple[Metric, ...] = (
+    Metric("safe", "safe", "no collision with either vehicle and h_ef ≥ 0 (outside the safety ellipse) at every "
+           "integration sub-step"),
+    Metric("collision", "collision", "the ego footprint overlapped the front or the opposing vehicle's at some "
+           "sub-step"),
+    Metric("collision_front", "collision veh_f", "the oriented footprints of ego and front vehicle overlapped"),
+    Metric("collision_opp", "collision veh_o", "the oriented footprints of ego and opposing vehicle overlapped"),
+    Metric("ellipse_violation", "ellipse violated", "h_ef < 0 at some sub-step: the ego c.g. entered the safety "
+           "ellipse around the front vehicle"),
+    Metric("invariance_breach", "invariance breach", "h_ef started at or above the level ε and fell below it "
+           "(Theorem 2 says it cannot)"),
+    Metric("opp_invariance_breach", "h_eo breach", "h_eo fell below its level while the ego borrowed the opposing "
+           "lane"),
+    Metric("overtook", "overtook", "the episode ended with the paper's convergence test met ahead of the front vehicle "
+           "(a successful overtake)"),
+    Metric("went_back", "went back", "the episode ended behind the front vehicle in the ego lane (Q2's goal: the "
+           "overtake was abandoned)"),
+    Metric("timeout", "timeout", "neither goal was reached within the episode time limit"),
+)
+
+#: Continuous metrics summarised by count, min, max, quantiles and mean with a bootstrap interval.
+VALUE_METRICS: tuple[Metric, ...] = (
+    Metric("min_dist_front_m", "min dist. veh_f", "the paper's \"min dist. with veh_f\": smallest signed Euclidean "
+           "distance from the ego c.g. to the safety ellipse h_ef = 0, negative inside", "m"),
+    Metric("min_gap_front_m", "min gap veh_f", "smallest gap between the ego and front vehicle footprints", "m"),
+    Metric("min_gap_opp_m", "min dist. veh_o", "the paper's \"min dist. with veh_o\": smallest bumper gap to the "
+           "opposing vehicle while the ego footprint reaches into the opposing lane (no value if it never did)", "m"),
+    Metric("min_h_front", "min h_ef", "minimum of the barrier h_ef along the true trajectory"),
+    Metric("min_gap_opp_any_m", "min gap veh_o (any time)", "smallest footprint gap to the opposing vehicle at any "
+           "time", "m"),
+    Metric("min_h_opp", "min h_eo", "minimum of h_eo while borrowing the opposing lane", "m"),
+    Metric("invariance_margin", "min h_ef − ε", "min h_ef minus the level ε; negative means the level set was left"),
+    Metric("overtake_time_s", "overtake time", "time from the episode start to the paper's convergence test "
+           "(x_e ≥ x_f + φ v_f and |y_e| ≤ ε_y on measured values); overtaking episodes only", "s"),
+    Metric("lane_borrow_time_s", "lane-borrow time", "from the first to the last sub-step at which the ego footprint "
+           "reaches into the opposing lane", "s"),
+    Metric("end_time_s", "episode length", "simulated time until the episode ended", "s"),
+    Metric("first_unsafe_s", "first unsafe time", "when the ego first left the safe set (unsafe episodes only)", "s"),
+    Metric("sample_front_accel_mps2", "α_f drawn", "the front vehicle's acceleration drawn for the episode", "m/s²"),
+)
+
+RATE_NAMES = tuple(m.name for m in RATE_METRICS)
+VALUE_NAMES = tuple(m.name for m in VALUE_METRICS)
+METRICS: dict[str, Metric] = {m.name: m for m in RATE_METRICS + VALUE_METRICS}
+
+#: Quantiles stored for every continuous metric.
+QUANTILES = (0.0, 0.05, 0.25, 0.5, 0.75, 0.95, 1.0)
+
+#: Outcomes in report order; "error" episodes are kept apart from the safety statistics.
+OUTCOMES = ("overtook", "went_back", "timeout", "error")
+
+#: Categorical episode columns counted per cell (empty strings are not counted): what drove the ego
+#: when it first left the safe set ("planned", "held", "fallback") and why it went back.
+CATEGORY_COLUMNS = ("first_unsafe_cause", "went_back_reason")
+#: JSON-count episode columns summed per cell: Table I rows met, IPOPT return statuses.
+JSON_COUNT_COLUMNS = ("table_one_rows",)
+
+#: ``theorem_checks`` of a cell: key -> (episode column, "sum" over episodes or "episodes" with a
+#: positive value). Theorem 2: invariance breaches; Theorem 5: steps with Q1 and Q2 both unsolved.
+THEOREM_CHECKS: dict[str, tuple[str, str]] = {
+    "invariance_breaches": ("invariance_breach", "sum"),
+    "opp_invariance_breaches": ("opp_invariance_breach", "sum"),
+    "episodes_with_both_infeasible": ("both_infeasible_steps", "episodes"),
+    "both_infeasible_steps": ("both_infeasible_steps", "sum"),
+    "episodes_with_fallback": ("fallback_steps", "episodes"),
+    "fallback_steps": ("fallback_steps", "sum"),
+    "episodes_with_held": ("held_steps", "episodes"),
+    "held_steps": ("held_steps", "sum"),
+    "q1_fail_steps": ("q1_fail_steps", "sum"),
+    "q2_fail_steps": ("q2_fail_steps", "sum"),
+    "q2_driven_steps": ("q2_driven_steps", "sum"),
+    "q1_rescue_steps": ("q1_rescue_steps", "sum"),
+}
+
+_COLLISION_COLUMNS = ("collision_front", "collision_opp")
+
+#: Metrics about the opposing vehicle: left out of a cell that has none (the rollout writes them
+#: as False / NaN there), so runs without opposing traffic show no empty veh_o columns.
+OPPOSING_METRICS = ("collision_opp", "opp_invariance_breach", "min_gap_opp_m", "min_gap_opp_any_m", "min_h_opp")
+
+
+def summarise(
+    table: pa.Table,
+    manifest: Mapping[str, Any] | None = None,
+    *,
+    level: float = 0.95,
+    method: str = "clopper-pearson",
+    bootstrap_resamples: int = 2000,
+    bootstrap_seed: int = 0,
+) -> dict[str, Any]:
+    """Statistics per cell, in the order of the cells' indices.
+
+    ``table``: the run's episodes (``episodes.parquet``). ``manifest``: the run's manifest; it
+    supplies each cell's labels, controller, overrides and planned episode count, and lists cells
+    that have no episode row yet. ``level`` / ``method``: the two-sided interval for every rate
+    (``stats.PROPORTION_METHODS``). The bootstrap interval of each mean uses
+    ``bootstrap_resamples`` resamples seeded from (``bootstrap_seed``, cell name, metric), so
+    regenerating the summary gives the same numbers.
+
+    Returns ``{"format", "confidence_level", "interval_method", "bootstrap", "episodes", "axes",
+    "cells"}``; ``axes`` maps every axis whose label differs between cells to its labels in cell
+    order, and each cell is the dict of :func:`cell_summary`.
+    """
+    level = float(level)
+    stats.rate_summary(0, 1, level, method)  # validate level and method once, with stats' messages
+    info = _manifest_cells(manifest)
+    cols = Columns.from_table(table)
+    idx = cols["cell_index"].astype(np.int64) if cols.num_rows else np.zeros(0, dtype=np.int64)
+    order = np.argsort(idx, kind="stable")  # rows grouped by cell, episode order kept within a cell
+    grouped = idx[order]
+    cells = []
+    for cell_index in sorted(set(idx.tolist()) | set(info)):
+        start, stop = np.searchsorted(grouped, cell_index, "left"), np.searchsorted(grouped, cell_index, "right")
+        sub = cols.take(order[start:stop])
+        cells.append(
+            cell_summary(
+                sub,
+                info.get(cell_index, {}),
+                cell_index=int(cell_index),
+                level=level,
+                method=method,
+                bootstrap_resamples=bootstrap_resamples,
+                bootstrap_seed=bootstrap_seed,
+            )
+        )
+    return {
+        "format": FORMAT,
+        "confidence_level": level,
+        "interval_method": method,
+        "bootstrap": {"method": "percentile", "resamples": bootstrap_resamples, "seed": bootstrap_seed},
+        "episodes": int(table.num_rows),
+        "axes": varying_axes(cells),
+        "cells": cells,
+    }
+
+
+def cell_summary(
+    t: pa.Table | Columns,
+    info: Mapping[str, Any],
+    *,
+    cell_index: int,
+    level: float = 0.95,
+    method: str = "clopper-pearson",
+    bootstrap_resamples: int = 2000,
+    bootstrap_seed: int = 0,
+) -> dict[str, Any]:
+    """One cell's statistics from its episode rows ``t`` and its manifest entry ``info``.
+
+    Keys: ``cell``, ``cell_index``, ``labels`` (axis -> label), ``controller``, ``opposing_kind``,
+    ``noise`` (kind and scale), ``epsilon``, ``lambda0``, ``overrides``, ``episodes_planned``,
+    ``episodes`` (rows), ``valid`` (rows without error), ``outcomes`` (counts of
+    :data:`OUTCOMES`), ``rates`` (name -> :func:`stats.rate_summary`, over valid episodes;
+    ``error`` over all), ``values`` (name -> :func:`value_summary`), ``counts`` (per
+    :data:`CATEGORY_COLUMNS` and :data:`JSON_COUNT_COLUMNS` the run has: value -> episodes, or
+    summed counts), ``theorem_checks``, ``solver`` (iterations, solve times, cold retries, IPOPT
+    return statuses summed over episodes).
+    """
+    t = t if isinstance(t, Columns) else Columns.from_table(t)
+    params = info.get("params") or {}
+    opposing_kind = params.get("opposing", {}).get("kind") or _first(t, "opposing_kind")  # None: not recorded
+    if opposing_kind == "none":
+        t = t.drop(OPPOSING_METRICS)
+    n_all = t.num_rows
+    outcome = _strings(t, "outcome")
+    error = outcome == "error"
+    v = t.take(np.flatnonzero(~error)) if error.any() else t
+    n = v.num_rows
+
+    rates: dict[str, Any] = {}
+    for m in RATE_METRICS:
+        flags = _flags(v, m.name)
+        if flags is not None:
+            rates[m.name] = stats.rate_summary(int(flags.sum()), n, level=level, method=method)
+    rates["error"] = stats.rate_summary(int(error.sum()), n_all, level=level, method=method)
+
+    name = info.get("name") or (str(t["cell"][0]) if n_all and "cell" in t.column_names else f"cell {cell_index}")
+    values = {}
+    for m in VALUE_METRICS:
+        if m.name in v.column_names:
+            seed = zlib.crc32(f"{bootstrap_seed}/{name}/{m.name}".encode())
+            values[m.name] = value_summary(
+                _floats(v, m.name), level=level, n_resamples=bootstrap_resamples, seed=seed
+            )
+
+    return {
+        "cell": name,
+        "cell_index": cell_index,
+        "labels": dict(info.get("labels") or {}),
+        "controller": info.get("controller") or _first(t, "controller") or params.get("mpc", {}).get("controller"),
+        "opposing_kind": opposing_kind,
+        "noise": {"kind": params.get("noise", {}).get("kind"), "scale": params.get("noise", {}).get("scale")},
+        "epsilon": _num(info.get("epsilon", _first(t, "epsilon"))),
+        "lambda0": _num(info.get("lambda0", _first(t, "lambda0"))),
+        "overrides": dict(info.get("overrides") or {}),
+        "episodes_planned": int(info["episodes"]) if "episodes" in info else n_all,
+        "episodes": n_all,
+        "valid": n,
+        "outcomes": {o: int((outcome == o).sum()) for o in OUTCOMES},
+        "rates": rates,
+        "values": values,
+        "counts": _counts(v),
+        "theorem_checks": _theorem_checks(v),
+        "solver": _solver(v),
+    }
+
+
+def value_summary(
+    values: np.ndarray, *, level: float = 0.95, n_resamples: int = 2000, seed: int = 0
+) -> dict[str, Any]:
+    """Count, min, max, mean with a percentile-bootstrap interval, std and :data:`QUANTILES` of the
+    finite entries of ``values`` (NaN marks "no value", e.g. no overtake time when the ego went
+    back). Everything but ``count`` is NaN when no entry is finite."""
+    x = np.asarray(values, dtype=np.float64)
+    finite = x[np.isfinite(x)]
+    ci = stats.bootstrap_mean_interval(finite, level=level, n_resamples=n_resamples, seed=seed)
+    has = finite.size > 0
+    return {
+        "count": int(finite.size),
+        "min": float(finite.min()) if has else math.nan,
+        "max": float(finite.max()) if has else math.nan,
+        "mean": float(finite.mean()) if has else math.nan,
+        "mean_low": ci.low,
+        "mean_high": ci.high,
+        "std": float(finite.std(ddof=1)) if finite.size > 1 else math.nan,
+        "quantiles": stats.quantiles(finite, QUANTILES),
+    }
+
+
+def varying_axes(cells: Sequence[Mapping[str, Any]]) -> dict[str, list[str]]:
+    """Axes whose label differs between cells: axis -> its distinct labels in cell order."""
+    axes: dict[str, list[str]] = {}
+    for c in cells:
+        for axis, label in c.get("labels", {}).items():
+            seen = axes.setdefault(axis, [])
+            if label not in seen:
+                seen.append(label)
+    return {a: labels for a, labels in axes.items() if len(labels) > 1}
+
+
+def axis_value(cell: Mapping[str, Any], axis: str) -> float | None:
+    """The numeric value behind a grid axis label (e.g. 0.3 for ``epsilon``), or None when the
+    axis is a bundle axis or its value is not a number (e.g. an acceleration range)."""
+    for key, value in cell.get("overrides", {}).items():
+        if key.split(".", 1)[-1] == axis and isinstance(value, int | float) and not isinstance(value, bool):
+            return float(value)
+    if axis in ("epsilon", "lambda0") and cell.get(axis) is not None:
+        return float(cell[axis])
+    return None
+
+
+# ---------------------------------------------------------------------------------- cells.parquet
+
+
+def cells_table(summ: Mapping[str, Any]) -> pa.Table:
+    """``cells.parquet``: one row per cell, every statistic of :func:`summarise` as a flat column.
+
+    Columns: ``cell_index``, ``cell``, ``label_<axis>`` for every axis, ``controller``,
+    ``opposing_kind``, ``epsilon``, ``lambda0``, ``episodes_planned``, ``episodes``, ``valid``,
+    ``outcome_<o>``; per rate ``<rate>_{k,n,rate,low,high,lower_one_sided,upper_one_sided}``; per
+    value ``<value>_{count,min,max,mean,mean_low,mean_high,std,q5,q25,q50,q75,q95}``; then
+    ``thm_<check>``, ``count_<column>`` (JSON object strings) and ``solver_<field>``. Missing
+    statistics are nulls; the column order is fixed.
+    """
+    cells = summ["cells"]
+    axes = []
+    for c in cells:
+        for a in c["labels"]:
+            if a not in axes:
+                axes.append(a)
+    rate_names = [r for r in (*RATE_NAMES, "error") if any(r in c["rates"] for c in cells)]
+    value_names = [m for m in VALUE_NAMES if any(m in c["values"] for c in cells)]
+    qkeys = [stats.quantile_key(q) for q in QUANTILES if 0.0 < q < 1.0]
+    thm_keys = [k for k in THEOREM_CHECKS if any(k in c["theorem_checks"] for c in cells)]
+    solver_keys = ["solves", "cold_retries", "iterations_mean", "iterations_max", "solve_time_mean_s",
+                   "solve_time_max_s"]
+    columns: dict[str, tuple[pa.DataType, list[Any]]] = {}
+
+    def put(col: str, typ: pa.DataType, value: Any) -> None:
+        columns.setdefault(col, (typ, []))[1].append(_null(value))
+
+    for c in cells:
+        put("cell_index", pa.int64(), c["cell_index"])
+        put("cell", pa.string(), c["cell"])
+        for a in axes:
+            put(f"label_{a}", pa.string(), c["labels"].get(a))
+        put("controller", pa.string(), c["controller"])
+        put("opposing_kind", pa.string(), c["opposing_kind"])
+        put("epsilon", pa.float64(), c["epsilon"])
+        put("lambda0", pa.float64(), c["lambda0"])
+        for key in ("episodes_planned", "episodes", "valid"):
+            put(key, pa.int64(), c[key])
+        for o in OUTCOMES:
+            put(f"outcome_{o}", pa.int64(), c["outcomes"][o])
+        for r in rate_names:
+            rs = c["rates"].get(r, {})
+            for key, typ in (("k", pa.int64()), ("n", pa.int64())):
+                put(f"{r}_{key}", typ, rs.get(key))
+            for key in ("rate", "low", "high", "lower_one_sided", "upper_one_sided"):
+                put(f"{r}_{key}", pa.float64(), rs.get(key))
+        for m in value_names:
+            vs = c["values"].get(m, {})
+            put(f"{m}_count", pa.int64(), vs.get("count"))
+            for key in ("min", "max", "mean", "mean_low", "mean_high", "std"):
+                put(f"{m}_{key}", pa.float64(), vs.get(key))
+            for q in qkeys:
+                put(f"{m}_{q}", pa.float64(), vs.get("quantiles", {}).get(q))
+        for key in thm_keys:
+            put(f"thm_{key}", pa.int64(), c["theorem_checks"].get(key))
+        for key in (*CATEGORY_COLUMNS, *JSON_COUNT_COLUMNS):
+            if any(key in x.get("counts", {}) for x in cells):
+                counts = c.get("counts", {}).get(key)
+                put(f"count_{key}", pa.string(), None if counts is None else json.dumps(counts, sort_keys=True))
+        for key in solver_keys:
+            typ = pa.int64() if key in ("solves", "cold_retries", "iterations_max") else pa.float64()
+            put(f"solver_{key}", typ, c["solver"].get(key))
+    return pa.table({name: pa.array(vals, type=typ) for name, (typ, vals) in columns.items()})
+
+
+def json_ready(obj: Any) -> Any:
+    """``obj`` with every non-finite float replaced by None (strict JSON has no NaN)."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, Mapping):
+        return {k: json_ready(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [json_ready(v) for v in obj]
+    return obj
+
+
+# ---------------------------------------------------------------------------------------- helpers
+
+
+def _manifest_cells(manifest: Mapping[str, Any] | None) -> dict[int, dict[str, Any]]:
+    if not manifest:
+        return {}
+    return {int(c["index"]): dict(c) for c in manifest.get("cells", []) if "index" in c}
+
+
+def _theorem_checks(v: Columns) -> dict[str, int]:
+    out = {}
+    for key, (col, how) in THEOREM_CHECKS.items():
+        if col in v.column_names:
+            x = _floats(v, col)
+            out[key] = int((x > 0).sum()) if how == "episodes" else int(np.nansum(x))
+    return out
+
+
+def _solver(v: Columns) -> dict[str, Any]:
+    if v.num_rows == 0 or "solves" not in v.column_names:
+        return {}
+    solves = _floats(v, "solves")
+    weights = np.maximum(solves, 1.0)
+    out: dict[str, Any] = {"solves": int(solves.sum())}
+    if "iterations_mean" in v.column_names:
+        out["iterations_mean"] = float(np.average(_floats(v, "iterations_mean"), weights=weights))
+        out["iterations_max"] = int(np.nanmax(_floats(v, "iterations_max")))
+    if "cold_retries" in v.column_names:
+        out["cold_retries"] = int(np.nansum(_floats(v, "cold_retries")))
+    if "solve_time_mean_s" in v.column_names:
+        out["solve_time_mean_s"] = float(np.average(_floats(v, "solve_time_mean_s"), weights=weights))
+        out["solve_time_max_s"] = float(np.nanmax(_floats(v, "solve_time_max_s")))
+    if "solver_statuses" in v.column_names:
+        out["statuses"] = _json_counts(v["solver_statuses"])
+    return out
+
+
+def _json_counts(texts: np.ndarray) -> dict[str, int]:
+    totals: dict[str, int] = {}
+    for text in texts:
+        for key, count in (json.loads(text) if text else {}).items():
+            totals[key] = totals.get(key, 0) + int(count)
+    return dict(sorted(totals.items()))
+
+
+def _counts(v: Columns) -> dict[str, dict[str, int]]:
+    out: dict[str, dict[str, int]] = {}
+    for name in CATEGORY_COLUMNS:
+        if name in v.column_names:
+            values = [str(x) for x in v[name] if x is not None and str(x) != ""]
+            out[name] = {k: values.count(k) for k in sorted(set(values))}
+    for name in JSON_COUNT_COLUMNS:
+        if name in v.column_names:
+            out[name] = _json_counts(v[name])
+    return out
+
+
+def _flags(t: Columns, name: str) -> np.ndarray | None:
+    if name == "collision":
+        present = [c for c in _COLLISION_COLUMNS if c in t.column_names]
+        if not present:
+            return None
+        return np.logical_or.reduce([_bools(t, c) for c in present])
+    if name in t.column_names:
+        return _bools(t, name)
+    if name in OUTCOMES and "outcome" in t.column_names:  # the flag columns are derived from outcome
+        return _strings(t, "outcome") == name
+    return None
+
+
+class Columns:
+    """An episode table as numpy columns, converted once: booleans (null = False), numbers as
+    float64 (null = NaN), anything else as an object array. ``take`` selects rows."""
+
+    def __init__(self, data: Mapping[str, np.ndarray], num_rows: int) -> None:
+        self._data = dict(data)
+        self.num_rows = num_rows
+        self.column_names = tuple(self._data)
+
+    @classmethod
+    def from_table(cls, t: pa.Table) -> Columns:
+        data = {}
+        for name in t.column_names:
+            col = t.column(name)
+            if pa.types.is_boolean(col.type):
+                data[name] = np.asarray(pc.fill_null(col, False).to_numpy(zero_copy_only=False), dtype=bool)
+            elif pa.types.is_integer(col.type) or pa.types.is_floating(col.type):
+                data[name] = np.asarray(pc.cast(col, pa.float64()).to_numpy(zero_copy_only=False), dtype=np.float64)
+            else:
+                data[name] = np.asarray(col.to_pylist(), dtype=object)
+        return cls(data, t.num_rows)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self._data[name]
+
+    def drop(self, names: Sequence[str]) -> Columns:
+        return Columns({k: v for k, v in self._data.items() if k not in names}, self.num_rows)
+
+    def take(self, rows: np.ndarray) -> Columns:
+        rows = np.asarray(rows, dtype=np.int64)
+        return Columns({k: v[rows] for k, v in self._data.items()}, int(rows.size))
+
+
+def _bools(t: Columns, name: str) -> np.ndarray:
+    x = t[name]
+    return x if x.dtype == bool else np.array([bool(v) if v is not None else False for v in x], dtype=bool)
+
+
+def _floats(t: Columns, name: str) -> np.ndarray:
+    x = t[name]
+    if x.dtype == np.float64:
+        return x
+    return np.array([math.nan if v is None else float(v) for v in x], dtype=np.float64)
+
+
+def _strings(t: Columns, name: str) -> np.ndarray:
+    if name not in t.column_names:
+        return np.full(t.num_rows, "", dtype=object)
+    return t[name].astype(object)
+
+
+def _first(t: Columns, name: str) -> Any:
+    if name not in t.column_names or not t.num_rows:
+        return None
+    x = t[name][0]
+    return x.item() if hasattr(x, "item") else x
+
+
+def _num(x: Any) -> float:
+    return math.nan if x is None else float(x)
+
+
+def _null(x: Any) -> Any:
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    return x

@@ -1,0 +1,364 @@
+"""Closed-loop rollout of a chunk of disturbed episodes: the plant in JAX, the controller on the host.
+
+One control step of the chunk:
+
+1. ``observe`` (:mod:`mcverify.sim.plant`, JAX, vmapped): every episode's planner measures veh_f and
+   veh_o with perception noise drawn from keys that depend only on (episode key, step);
+2. the host runs each active episode's controller (:class:`mcverify.control.planner.Planner`: Q1/Q2 with
+   the cached CasADi kernels, Algorithm 1, Table I, MPC-DC);
+3. ``advance`` (JAX, vmapped, ``lax.scan`` over sub-steps): the plant runs under zero-order hold
+   and every safety check is evaluated at every sub-step.
+
+Episodes that finish are frozen while the rest go on. Every result is a pure function of (campaign
+cell, seed, episode id): not of the chunk, its size or the other episodes in it (the plant runs in
+fixed-width lane groups, see :mod:`mcverify.sim.plant`), which ``mcverify replay`` checks bit for bit.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mcverify.run.campaign import Cell
+from mcverify.control.decision import Source
+from mcverify.control.planner import EpisodeState, Planner, StepRecord
+from mcverify.sim.plant import LaneGroups, SafetyTrace, Substep, initial_plant
+
+Array = jax.Array
+
+#: fold_in stream of the per-episode scenario draws, apart from the per-step noise streams.
+SCENARIO_STREAM = 1_000_000
+#: Planned trajectories of recorded episodes are kept every this many seconds (figures).
+PLAN_SNAPSHOT_PERIOD_S = 0.5
+#: Columns that depend on wall-clock time; everything else is reproducible bit for bit.
+TIMING_COLUMNS = ("solve_time_mean_s", "solve_time_max_s")
+
+
+# --------------------------------------------------------------------------------------- phases
+
+
+class PhaseClock:
+    """CPU seconds (``time.process_time``: every thread of the process) spent per phase of the loop.
+
+    The phases of :func:`run_episodes` are sequential (the host waits for the JAX results it reads),
+    so process time split at their boundaries attributes XLA's worker threads to the JAX phases.
+    ``cpu_s``: phase name -> seconds; ``calls``: phase name -> number of times it ran.
+    """
+
+    def __init__(self) -> None:
+        self.cpu_s: dict[str, float] = {}
+        self.calls: dict[str, int] = {}
+
+    @contextmanager
+    def phase(self, name: str) -> Iterator[None]:
+        t0 = time.process_time()
+        try:
+            yield
+        finally:
+            self.cpu_s[name] = self.cpu_s.get(name, 0.0) + time.process_time() - t0
+            self.calls[name] = self.calls.get(name, 0) + 1
+
+
+@contextmanager
+def _untimed(name: str) -> Iterator[None]:
+    yield
+
+
+# --------------------------------------------------------------------------------------- keys
+
+
+def episode_key(seed: int, cell_index: int | None, episode_id: int) -> Array:
+    """The root key of one episode: (seed, cell, episode id), or (seed, episode id) for common
+    random numbers across cells (paired comparisons)."""
+    key = jax.random.PRNGKey(seed)
+    if cell_index is not None:
+        key = jax.random.fold_in(key, cell_index)
+    return jax.random.fold_in(key, episode_id)
+
+
+def sample_scenario(key: Array, params) -> dict[str, float]:
+    """Per-episode scenario values drawn from the episode key.
+
+    alpha_f: ``scenario.front_accel_range_mps2`` = (lo, hi) draws it uniformly in (lo, hi] (the
+    paper's Table III ranges are left-open); otherwise the fixed ``front_accel_mps2``.
+    """
+    sc = params.scenario
+    if sc.front_accel_range_mps2:
+        lo, hi = sc.front_accel_range_mps2
+        unit = jax.random.uniform(jax.random.fold_in(key, SCENARIO_STREAM), (), dtype=float)  # [0, 1)
+        accel = hi - (hi - lo) * float(unit)  # (lo, hi]
+    else:
+        accel = sc.front_accel_mps2
+    return {"front_accel_mps2": float(accel)}
+
+
+# ------------------------------------------------------------------------------ host loop
+
+
+@dataclass
+class ChunkResult:
+    """Rows (one per episode) and, for recorded episodes, trajectory and plan tables (columns)."""
+
+    rows: list[dict]
+    trajectories: dict[int, dict[str, np.ndarray]] = field(default_factory=dict)
+    plans: dict[int, dict[str, np.ndarray]] = field(default_factory=dict)
+
+
+def run_episodes(
+    cell: Cell,
+    episode_ids: Sequence[int],
+    seed: int,
+    planner: Planner,
+    *,
+    common_random_numbers: bool = False,
+    record: bool | Sequence[int] = False,
+    on_step: Callable[[int], None] | None = None,
+    clock: PhaseClock | None = None,
+) -> ChunkResult:
+    """Simulate ``episode_ids`` (ids within the cell) of ``cell`` as one batch; one row per episode.
+
+    record: True for every episode, or the ids of the episodes whose full-resolution trajectory,
+    step decisions and plan snapshots are returned as well.
+    clock: where to add the CPU time of the loop's phases ("plant": JAX observe and advance with
+    their host-device transfers; "planner": the host controllers, solver included), for ``bench``.
+    """
+    phase = clock.phase if clock is not None else _untimed
+    p = cell.params
+    ids = [int(e) for e in episode_ids]
+    cell_key = None if common_random_numbers else cell.index
+    keys = jnp.stack([episode_key(seed, cell_key, e) for e in ids])
+    samples = [sample_scenario(k, p) for k in keys]
+    world = LaneGroups(initial_plant(p, [s["front_accel_mps2"] for s in samples]), keys, p)
+    h0 = world.trace().min_h_front.copy()
+    states = [EpisodeState(e) for e in ids]
+    recorded = set(ids) if record is True else set(record or ())
+    rec = _Recorder([b for b, e in enumerate(ids) if e in recorded], cell) if recorded else None
+    n_steps = int(math.ceil(p.sim.max_time_s / p.sim.control_period_s - 1e-9))
+    has_opp = p.opposing.kind != "none"
+
+    for step in range(n_steps):
+        t_s = step * p.sim.control_period_s
+        with phase("plant"):
+            front_meas, opp_meas = world.observe(step)
+            ego = world.ego()
+        u = np.zeros((len(ids), 2))
+        records: dict[int, StepRecord] = {}
+        with phase("planner"):
+            for b, st in enumerate(states):
+                if st.done:
+                    continue
+                outcome = planner.converged(st, ego[b], front_meas[b])
+                if outcome is not None:
+                    _finish(st, t_s, outcome)
+                    continue
+                u[b], records[b] = planner.step(st, t_s, ego[b], front_meas[b], opp_meas[b] if has_opp else None,
+                                                cell.lambda0)
+        active = np.array([not st.done for st in states])
+        if not active.any():
+            break
+        with phase("plant"):
+            subs = world.advance(u, active)
+            trace = world.trace()
+        _note_first_unsafe(states, trace, records, t_s)
+        if rec is not None:
+            rec.add(t_s, world.substeps_of(subs), u, records, front_meas, opp_meas, active)
+        if on_step is not None:
+            on_step(step)
+    for st in states:
+        if not st.done:
+            st.done, st.outcome, st.end_time_s = True, "timeout", n_steps * p.sim.control_period_s
+
+    trace = world.trace()
+    rows = [
+        episode_row(cell, seed, st, samples[b], SafetyTrace(*(np.asarray(a)[b] for a in trace)), float(h0[b]))
+        for b, st in enumerate(states)
+    ]
+    if rec is None:
+        return ChunkResult(rows)
+    return ChunkResult(rows, *rec.tables(ids))
+
+
+#: What drove the ego in the control period where it first left the safe set (``first_unsafe_cause``):
+#: "planned" - a solved Q1/Q2 (or MPC-DC) plan, so the plan itself or the noise let it in (for MPC-DC:
+#: the ellipse held only at its nodes); "held" - a failed problem's old plan (no backup problem);
+#: "fallback" - no plan at all.
+UNSAFE_CAUSES = {Source.Q1: "planned", Source.Q2: "planned", Source.HELD: "held", Source.FALLBACK: "fallback"}
+
+
+def _note_first_unsafe(states: list[EpisodeState], trace: SafetyTrace, records: dict[int, StepRecord], t_s: float):
+    unsafe = (np.asarray(trace.min_h_front) < 0) | np.asarray(trace.collision_front) | np.asarray(trace.collision_opp)
+    for b, st in enumerate(states):
+        if unsafe[b] and not st.first_unsafe_cause and b in records:
+            st.first_unsafe_s = t_s
+            st.first_unsafe_cause = UNSAFE_CAUSES[records[b].source]
+
+
+def _finish(st: EpisodeState, t_s: float, outcome: str) -> None:
+    st.done, st.end_time_s, st.outcome = True, t_s, outcome
+    if outcome == "overtook":
+        st.overtake_time_s = t_s
+
+
+def _finite_or_nan(x: float) -> float:
+    return float(x) if math.isfinite(x) else math.nan
+
+
+def episode_row(cell: Cell, seed: int, st: EpisodeState, sample: dict[str, float], tr: SafetyTrace, h0: float) -> dict:
+    """The metrics of one finished episode (the columns of ``episodes.parquet``; README: Metrics)."""
+    p = cell.params
+    eps = cell.epsilon
+    min_h = float(tr.min_h_front)
+    first, last = float(tr.first_opp_lane_s), float(tr.last_opp_lane_s)
+    collision_front, collision_opp = bool(tr.collision_front), bool(tr.collision_opp)
+    iters = np.array(st.iterations or [0])
+    times = np.array(st.solve_times_s or [0.0])
+    has_opp = p.opposing.kind != "none"
+    min_h_opp = _finite_or_nan(float(tr.min_h_opp))
+    return {
+        "episode_id": cell.episode_offset + st.episode_id,
+        "cell_episode": st.episode_id,
+        "cell": cell.name,
+        "cell_index": cell.index,
+        "seed": seed,
+        "controller": p.mpc.controller,
+        "opposing_kind": p.opposing.kind,
+        **{f"sample_{k}": v for k, v in sample.items()},
+        "outcome": st.outcome,
+        "overtook": st.outcome == "overtook",
+        "went_back": st.outcome == "went_back",
+        "timeout": st.outcome == "timeout",
+        "end_time_s": st.end_time_s,
+        "overtake_time_s": st.overtake_time_s,
+        "lane_borrow_time_s": (last - first) if math.isfinite(first) else math.nan,
+        "collision_front": collision_front,
+        "collision_opp": collision_opp,
+        "min_h_front": min_h,
+        "min_dist_front_m": float(tr.min_dist_front_m),
+        "min_gap_front_m": float(tr.min_gap_front_m),
+        "min_gap_opp_m": _finite_or_nan(float(tr.min_gap_opp_m)) if has_opp else math.nan,
+        "min_gap_opp_any_m": _finite_or_nan(float(tr.min_gap_opp_any_m)) if has_opp else math.nan,
+        "min_h_opp": min_h_opp if has_opp else math.nan,
+        "ellipse_violation": min_h < 0.0,
+        "safe": (not collision_front) and (not collision_opp) and min_h >= 0.0,
+        "first_unsafe_s": st.first_unsafe_s,
+        "first_unsafe_cause": st.first_unsafe_cause,
+        "h0_front": h0,
+        "epsilon": eps,
+        "lambda0": cell.lambda0,
+        "invariance_breach": bool(h0 >= eps and min_h < eps),
+        "invariance_margin": min_h - eps,
+        "opp_invariance_breach": bool(has_opp and math.isfinite(min_h_opp) and min_h_opp < p.barrier.opp_epsilon_m),
+        "steps": st.steps,
+        "opp_detected_steps": st.opp_detected_steps,
+        "q1_fail_steps": st.q1_fail_steps,
+        "q2_fail_steps": st.q2_fail_steps,
+        "both_infeasible_steps": st.both_infeasible_steps,
+        "fallback_steps": st.fallback_steps,
+        "held_steps": st.held_steps,
+        "q2_driven_steps": st.q2_driven_steps,
+        "q1_rescue_steps": st.q1_rescue_steps,
+        "switched_to_q2_at_s": st.switched_to_q2_at_s,
+        "went_back_reason": st.went_back_reason,
+        "table_one_rows": json.dumps({str(k): v for k, v in sorted(st.table_one_rows.items())}),
+        "solves": len(st.iterations),
+        "cold_retries": st.cold_retries,
+        "presumed_infeasible_solves": st.presumed_infeasible_solves,
+        "iterations_mean": float(iters.mean()),
+        "iterations_max": int(iters.max()),
+        "solve_time_mean_s": float(times.mean()),
+        "solve_time_max_s": float(times.max()),
+        "solver_statuses": json.dumps(dict(sorted(st.statuses.items()))),
+    }
+
+
+class _Recorder:
+    """Collects full-resolution trajectories, per-step decisions and plan snapshots of some episodes."""
+
+    def __init__(self, lanes: list[int], cell: Cell) -> None:
+        self.lanes = lanes
+        self.cell = cell
+        self.parts: dict[int, list[dict[str, np.ndarray]]] = {b: [] for b in lanes}
+        self.plans: dict[int, list[dict[str, np.ndarray]]] = {b: [] for b in lanes}
+        self.next_snapshot_s = {b: 0.0 for b in lanes}
+
+    def add(self, t_s: float, subs: Substep, u, records: dict[int, StepRecord], front_meas, opp_meas, active) -> None:
+        k = subs.t_s.shape[1]
+        for b in self.lanes:
+            if not active[b]:
+                continue
+            r = records.get(b)
+            rep = lambda v: np.full(k, v, dtype=float)  # noqa: E731 - per control step -> per sub-step
+            ego, front, opp = subs.ego[b], subs.front[b], subs.opp[b]
+            has_opp = self.cell.params.opposing.kind != "none"
+            self.parts[b].append({
+                "t_s": subs.t_s[b],
+                "ego_x_m": ego[:, 0], "ego_y_m": ego[:, 1], "ego_psi_rad": ego[:, 2], "ego_speed_mps": ego[:, 3],
+                "front_x_m": front[:, 0], "front_y_m": np.zeros(k), "front_speed_mps": front[:, 1],
+                "opp_x_m": opp[:, 0] if has_opp else rep(np.nan),
+                "opp_y_m": rep(self.cell.params.road.opp_lane_y_m if has_opp else np.nan),
+                "opp_speed_mps": -opp[:, 1] if has_opp else rep(np.nan),
+                "alpha_mps2": rep(u[b, 0]), "beta_rad": rep(u[b, 1]),
+                "h_front": subs.h_front[b], "dist_front_m": subs.dist_front_m[b], "gap_front_m": subs.gap_front_m[b],
+                "collision_front": subs.collision_front[b].astype(float),
+                "h_opp": subs.h_opp[b] if has_opp else rep(np.nan),
+                "gap_opp_m": subs.gap_opp_m[b] if has_opp else rep(np.nan),
+                "collision_opp": subs.collision_opp[b].astype(float),
+                "active_problem": rep(int(r.source) if r else 0),
+                "mode": rep(int(r.mode) if r else -1),
+                "opp_detected": rep(float(r.detected) if r else 0.0),
+                "q1_solved": rep(_solved(r.q1) if r else np.nan),
+                "q2_solved": rep(_solved(r.q2) if r else np.nan),
+                "q1_time_s": rep(_total(r.q1) if r else np.nan),
+                "q2_time_s": rep(_total(r.q2) if r else np.nan),
+                "table_one_row": rep(r.table_row if r else -1),
+                "meas_front_x_m": rep(front_meas[b, 0]), "meas_front_y_m": rep(front_meas[b, 1]),
+                "meas_front_speed_mps": rep(front_meas[b, 2]),
+                "meas_opp_x_m": rep(opp_meas[b, 0] if has_opp else np.nan),
+                "meas_opp_speed_mps": rep(-opp_meas[b, 1] if has_opp else np.nan),
+            })
+            if r is not None and t_s + 1e-9 >= self.next_snapshot_s[b]:
+                self.next_snapshot_s[b] += PLAN_SNAPSHOT_PERIOD_S
+                for name, sol in (("Q1", r.q1), ("Q2", r.q2)):
+                    if sol is not None and sol.success:
+                        self.plans[b].append(_plan_table(t_s, name, sol))
+
+    def tables(self, ids: Sequence[int]):
+        traj, plans = {}, {}
+        for b in self.lanes:
+            parts = self.parts[b]
+            traj[ids[b]] = {key: np.concatenate([pt[key] for pt in parts]) for key in parts[0]} if parts else {}
+            pl = self.plans[b]
+            plans[ids[b]] = {key: np.concatenate([x[key] for x in pl]) for key in pl[0]} if pl else {}
+        return traj, plans
+
+
+def _solved(sol) -> float:
+    return np.nan if sol is None else float(sol.success)
+
+
+def _total(sol) -> float:
+    return sol.total_time_s if sol is not None and sol.success else np.nan
+
+
+def _plan_table(t_s: float, name: str, sol) -> dict[str, np.ndarray]:
+    n = sol.x_plan.shape[0]
+    t_nodes = t_s + np.concatenate([[0.0], np.cumsum(sol.dt_plan)])
+    opp_x = sol.opp_plan[:, 0] if sol.opp_plan is not None else np.full(n, np.nan)
+    return {
+        "t_s": np.full(n, t_s), "problem": np.array([name] * n), "node": np.arange(n),
+        "t_node_s": t_nodes, "x_m": sol.x_plan[:, 0], "y_m": sol.x_plan[:, 1], "speed_mps": sol.x_plan[:, 3],
+        "opp_x_m": opp_x,
+    }
+
+
+def describe_sources() -> dict[int, str]:
+    """Names of the ``active_problem`` codes in trajectories."""
+    return {0: "none", **{int(s): s.name for s in Source}}

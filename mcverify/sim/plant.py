@@ -1,0 +1,378 @@
+"""The simulated world in JAX: true states, perception, physics and every safety check.
+
+Waymax/Brax style: immutable pytrees with named fields (:class:`Plant`, :class:`SafetyTrace`),
+pure functions ``observe(plant, key, step, params)`` and
+``advance(plant, trace, u, active, params) -> (plant, trace, substeps)``, batched by ``vmap``,
+time within a control period by ``lax.scan`` over RK4 sub-steps (zero-order hold). Every number
+of the model enters as a runtime argument (:class:`PlantParams`), never as a compiled-in constant.
+
+Bit-for-bit reproducibility: XLA rewrites algebra differently for different batch shapes (for
+example ``(x / a)**2`` became ``x*x * (1/a**2)`` in one shape and not in another), so the same
+episode would differ in its last bits between a chunk of 8 and a replay of 1, and the closed loop
+amplifies last bits. Hence every call runs exactly one compiled executable of fixed width
+:data:`LANES` (:class:`LaneGroups` pads and splits), with the CPU ISA capped below FMA (see
+``mcverify/__init__.py``): an episode's numbers do not depend on the chunk size, its position in
+the chunk or the other episodes.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mcverify.sim import agents
+
+from mcverify.sim import barriers
+
+from mcverify.sim import geometry
+
+from mcverify.sim import noise
+
+from mcverify.sim import vehicles
+from mcverify.model import ModelParams
+
+Array = jax.Array
+
+#: Width of every vmapped plant call (episodes per lane group). 8 float64 lanes are two AVX vectors.
+LANES = 8
+OPP_NONE, OPP_AUTONOMOUS, OPP_HUMAN = 0, 1, 2
+_OPP_KINDS = {"none": OPP_NONE, "autonomous": OPP_AUTONOMOUS, "human": OPP_HUMAN}
+#: Where a missing opposing vehicle is parked (far ahead, at rest): its checks are masked anyway.
+_NO_OPP_X_M = 1.0e6
+#: Noise streams of :func:`mcverify.sim.noise.step_key` within a control step.
+STREAM_FRONT, STREAM_OPP = 0, 1
+
+
+class PlantParams(NamedTuple):
+    """Every number the plant and the checks use, as runtime scalars (one cell; see
+    :func:`plant_params`). Units in the names; ``opp_lambdas`` is veh_o's Lambda_o, (m_o + 1,)."""
+
+    control_period_s: Array
+    dt_sub_s: Array
+    l_r_m: Array
+    length_m: Array
+    width_m: Array
+    lane_line_y_m: Array
+    opp_lane_y_m: Array
+    ellipse_a_m: Array
+    ellipse_b_m: Array
+    front_onset_s: Array
+    front_duration_s: Array
+    front_speed_max_mps: Array
+    opp_kind: Array
+    opp_accel_mps2: Array
+    opp_speed_limit_mps: Array
+    opp_cruise_mps: Array
+    opp_gain_per_s: Array
+    opp_lambdas: Array
+    decel_max_mps2: Array
+    opp_accel_max_mps2: Array
+    opp_brake_max_mps2: Array
+    pos_far_m: Array
+    pos_near_m: Array
+    near_threshold_m: Array
+    speed_rel: Array
+    noise_scale: Array
+
+
+def plant_params(p: ModelParams) -> PlantParams:
+    """The runtime numbers of a cell's plant."""
+    o, road = p.opposing, p.road
+    nz = noise.noise_arrays(p.noise)
+    f = lambda v: jnp.asarray(v, dtype=float)  # noqa: E731
+    return PlantParams(
+        control_period_s=f(p.sim.control_period_s),
+        dt_sub_s=f(p.sim.control_period_s / p.sim.substeps),
+        l_r_m=f(p.ego.l_r_m),
+        length_m=f(p.geometry.length_m),
+        width_m=f(p.geometry.width_m),
+        lane_line_y_m=f(0.5 * (road.ego_lane_y_m + road.opp_lane_y_m)),
+        opp_lane_y_m=f(road.opp_lane_y_m),
+        ellipse_a_m=f(p.barrier.ellipse_a_m),
+        ellipse_b_m=f(p.barrier.ellipse_b_m),
+        front_onset_s=f(p.scenario.front_accel_onset_s),
+        front_duration_s=f(p.scenario.front_accel_duration_s),
+        front_speed_max_mps=f(p.scenario.front_speed_max_mps),
+        opp_kind=jnp.asarray(_OPP_KINDS[o.kind], dtype=jnp.int32),
+        opp_accel_mps2=f(o.accel_mps2),
+        opp_speed_limit_mps=f(o.speed_limit_mps),
+        opp_cruise_mps=f(o.speed_mps),
+        opp_gain_per_s=f(o.cruise_gain_per_s),
+        opp_lambdas=f([barriers.lambda0_from_epsilon_np(o.lambdas_m, o.epsilon_m), *o.lambdas_m]),
+        decel_max_mps2=f(p.barrier.decel_max_mps2),
+        opp_accel_max_mps2=f(o.accel_max_mps2),
+        opp_brake_max_mps2=f(o.brake_max_mps2),
+        pos_far_m=f(nz["pos_far_m"]),
+        pos_near_m=f(nz["pos_near_m"]),
+        near_threshold_m=f(nz["near_threshold_m"]),
+        speed_rel=f(nz["speed_rel"]),
+        noise_scale=f(nz["scale"]),
+    )
+
+
+class Plant(NamedTuple):
+    """True state of one episode (batched along a leading axis by vmap).
+
+    ego: (4,) [x_m, y_m, psi_rad, speed_mps]; front: (2,) [x_m, speed_mps] on the ego lane centre;
+    opp: (2,) [x_m, v_mps] on the opposing lane centre, v <= 0 (road frame);
+    front_accel_mps2: () this episode's alpha_f; t_s: () time since the episode started.
+    """
+
+    ego: Array
+    front: Array
+    opp: Array
+    front_accel_mps2: Array
+    t_s: Array
+
+
+class SafetyTrace(NamedTuple):
+    """Running per-episode safety metrics, updated at every sub-step (all scalars).
+
+    Front: min_h_front (h_ef, dimensionless), min_dist_front_m (signed Euclidean distance from the
+    ego c.g. to the ellipse h_ef = 0, negative inside), min_gap_front_m (footprint gap, 0 on
+    contact), collision_front (footprints overlapped). Lane use: first/last_opp_lane_s, the first
+    and last sub-step with the ego footprint across the lane line (NaN if never). Opposing:
+    collision_opp; min_gap_opp_m, the footprint gap while the ego borrows the opposing lane and veh_o
+    is ahead of it (the paper's "min dist. with veh_o"; inf if never); min_gap_opp_any_m, the gap at
+    any time; min_h_opp, h_eo (m) while borrowing with veh_o ahead (inf if never).
+    """
+
+    min_h_front: Array
+    min_dist_front_m: Array
+    min_gap_front_m: Array
+    collision_front: Array
+    first_opp_lane_s: Array
+    last_opp_lane_s: Array
+    collision_opp: Array
+    min_gap_opp_m: Array
+    min_gap_opp_any_m: Array
+    min_h_opp: Array
+
+
+class Substep(NamedTuple):
+    """What ``advance`` reports at each sub-step (recorded episodes: trajectories)."""
+
+    t_s: Array
+    ego: Array
+    front: Array
+    opp: Array
+    h_front: Array
+    dist_front_m: Array
+    gap_front_m: Array
+    collision_front: Array
+    h_opp: Array
+    gap_opp_m: Array
+    collision_opp: Array
+
+
+class _Checks(NamedTuple):
+    h_front: Array
+    dist_front_m: Array
+    gap_front_m: Array
+    hit_front: Array
+    borrowing: Array
+    hit_opp: Array
+    gap_opp_m: Array
+    h_opp: Array
+    opp_relevant: Array
+
+
+# ------------------------------------------------------------------------------ single episode
+
+
+def checks(ego: Array, front: Array, opp: Array, u: Array, pp: PlantParams) -> _Checks:
+    """Every safety quantity at one instant (the ego's input u enters h_eo through v_e^x)."""
+    fx = front[0]
+    h = barriers.h_ellipse(ego[0], ego[1], fx, 0.0, pp.ellipse_a_m, pp.ellipse_b_m)
+    dist = geometry.ellipse_signed_distance_m(ego[0] - fx, ego[1], pp.ellipse_a_m, pp.ellipse_b_m)
+    ego_box = geometry.footprint_corners(ego[0], ego[1], ego[2], pp.length_m, pp.width_m)
+    front_box = geometry.footprint_corners(fx, 0.0, 0.0, pp.length_m, pp.width_m)
+    opp_box = geometry.footprint_corners(opp[0], pp.opp_lane_y_m, 0.0, pp.length_m, pp.width_m)
+    present = pp.opp_kind != OPP_NONE
+    borrowing = agents.ego_top_edge_m(ego, pp.length_m, pp.width_m) > pp.lane_line_y_m
+    vx_e = vehicles.ego_derivative(ego, u, pp.l_r_m)[0]
+    return _Checks(
+        h_front=h,
+        dist_front_m=dist,
+        gap_front_m=geometry.rectangle_gap_m(ego_box, front_box),
+        hit_front=geometry.rectangles_overlap(ego_box, front_box),
+        borrowing=borrowing,
+        hit_opp=present & geometry.rectangles_overlap(ego_box, opp_box),
+        gap_opp_m=jnp.where(present, geometry.rectangle_gap_m(ego_box, opp_box), jnp.inf),
+        h_opp=barriers.h_longitudinal(ego[0], vx_e, opp[0], opp[1], pp.decel_max_mps2),
+        opp_relevant=present & borrowing & (ego[0] < opp[0]),
+    )
+
+
+def initial_trace(plant: Plant, pp: PlantParams) -> SafetyTrace:
+    c = checks(plant.ego, plant.front, plant.opp, jnp.zeros(2), pp)
+    t0 = jnp.where(c.borrowing, plant.t_s, jnp.nan)
+    return SafetyTrace(
+        c.h_front, c.dist_front_m, c.gap_front_m, c.hit_front, t0, t0, c.hit_opp,
+        jnp.where(c.opp_relevant, c.gap_opp_m, jnp.inf), c.gap_opp_m, jnp.where(c.opp_relevant, c.h_opp, jnp.inf),
+    )
+
+
+def observe(plant: Plant, key: Array, step: Array, pp: PlantParams) -> tuple[Array, Array]:
+    """What the planner measures at this control step (Sec. VI-A noise on the other vehicles).
+
+    Returns (front (3,) [x, y, v], opp (2,) [x, v]); the ego's own state is known exactly.
+    """
+    c = checks(plant.ego, plant.front, plant.opp, jnp.zeros(2), pp)
+    nz = {"pos_far_m": pp.pos_far_m, "pos_near_m": pp.pos_near_m, "near_threshold_m": pp.near_threshold_m,
+          "speed_rel": pp.speed_rel, "scale": pp.noise_scale}
+    fx, fy, fv = noise.measure(noise.step_key(key, step, STREAM_FRONT), plant.front[0], 0.0, plant.front[1],
+                               c.gap_front_m, **nz)
+    ox, _, ov = noise.measure(noise.step_key(key, step, STREAM_OPP), plant.opp[0], pp.opp_lane_y_m, plant.opp[1],
+                              c.gap_opp_m, **nz)
+    return jnp.stack([fx, fy, fv]), jnp.stack([ox, ov])
+
+
+def opposing_accel(plant: Plant, u: Array, pp: PlantParams) -> Array:
+    """veh_o's acceleration for this control period (its controller samples at the ego's rate)."""
+    auto = agents.autonomous_accel(
+        plant.opp, plant.ego, u,
+        cruise_speed_mps=pp.opp_cruise_mps, gain_per_s=pp.opp_gain_per_s, lambdas=pp.opp_lambdas,
+        decel_max_mps2=pp.decel_max_mps2, accel_max_mps2=pp.opp_accel_max_mps2,
+        brake_max_mps2=pp.opp_brake_max_mps2, l_r_m=pp.l_r_m,
+        ego_in_opposing_lane=agents.ego_top_edge_m(plant.ego, pp.length_m, pp.width_m) > pp.lane_line_y_m,
+    )
+    human = agents.human_accel(plant.opp[1], pp.opp_accel_mps2, pp.opp_speed_limit_mps, pp.control_period_s)
+    alpha = jnp.where(pp.opp_kind == OPP_AUTONOMOUS, auto, jnp.where(pp.opp_kind == OPP_HUMAN, human, 0.0))
+    return agents.stop_at_rest(plant.opp[1], alpha, pp.control_period_s)
+
+
+def _double_integrator(xv: Array, accel: Array, dt: Array) -> Array:
+    return jnp.stack([xv[0] + xv[1] * dt + 0.5 * accel * dt**2, xv[1] + accel * dt])
+
+
+def advance(plant: Plant, trace: SafetyTrace, u: Array, active: Array, pp: PlantParams, substeps: int):
+    """Run one control period under zero-order hold; every check at every sub-step.
+
+    Finished episodes (``active`` False) stay frozen. Returns (plant, trace, Substep (substeps, ...)).
+    """
+    alpha_o = opposing_accel(plant, u, pp)
+    dt = pp.dt_sub_s
+
+    def body(carry, i):
+        ego, front, opp, tr = carry
+        t = plant.t_s + i * dt
+        ego_n = vehicles.rk4_step(lambda x, uu: vehicles.ego_derivative(x, uu, pp.l_r_m), ego, u, dt)
+        a_f = agents.front_accel(t, plant.front_accel_mps2, pp.front_onset_s, pp.front_duration_s, front[1],
+                                 pp.front_speed_max_mps, dt)
+        front_n = _double_integrator(front, a_f, dt)
+        opp_n = _double_integrator(opp, alpha_o, dt)
+        t_n = plant.t_s + (i + 1) * dt
+        c = checks(ego_n, front_n, opp_n, u, pp)
+        tr = SafetyTrace(
+            jnp.minimum(tr.min_h_front, c.h_front),
+            jnp.minimum(tr.min_dist_front_m, c.dist_front_m),
+            jnp.minimum(tr.min_gap_front_m, c.gap_front_m),
+            tr.collision_front | c.hit_front,
+            jnp.where(c.borrowing & jnp.isnan(tr.first_opp_lane_s), t_n, tr.first_opp_lane_s),
+            jnp.where(c.borrowing, t_n, tr.last_opp_lane_s),
+            tr.collision_opp | c.hit_opp,
+            jnp.where(c.opp_relevant, jnp.minimum(tr.min_gap_opp_m, c.gap_opp_m), tr.min_gap_opp_m),
+            jnp.minimum(tr.min_gap_opp_any_m, c.gap_opp_m),
+            jnp.where(c.opp_relevant, jnp.minimum(tr.min_h_opp, c.h_opp), tr.min_h_opp),
+        )
+        sub = Substep(t_n, ego_n, front_n, opp_n, c.h_front, c.dist_front_m, c.gap_front_m, c.hit_front,
+                      c.h_opp, c.gap_opp_m, c.hit_opp)
+        return (ego_n, front_n, opp_n, tr), sub
+
+    (ego, front, opp, tr), subs = jax.lax.scan(body, (plant.ego, plant.front, plant.opp, trace), jnp.arange(substeps))
+    new_plant = Plant(ego, front, opp, plant.front_accel_mps2, plant.t_s + pp.control_period_s)
+    keep = lambda new, old: jnp.where(active, new, old)  # noqa: E731 - finished episodes stay frozen
+    return jax.tree.map(keep, new_plant, plant), jax.tree.map(keep, tr, trace), subs
+
+
+# ------------------------------------------------------------------------- compiled, batched
+
+
+@functools.lru_cache(maxsize=8)
+def compiled(substeps: int):
+    """(observe, advance, initial_trace), each jitted and vmapped over :data:`LANES` episodes.
+
+    Cached per sub-step count (the scan length is the only compile-time number): every cell of every
+    campaign with the same ``sim.substeps`` runs the same executables.
+    """
+    obs = jax.jit(jax.vmap(observe, in_axes=(0, 0, None, None)))
+    adv = jax.jit(jax.vmap(functools.partial(advance, substeps=substeps), in_axes=(0, 0, 0, 0, None)))
+    ini = jax.jit(jax.vmap(initial_trace, in_axes=(0, None)))
+    return obs, adv, ini
+
+
+def initial_plant(p: ModelParams, front_accels_mps2: Sequence[float]) -> Plant:
+    """The campaign's start (paper Sec. VI-B) for episodes with these alpha_f, batched."""
+    n = len(front_accels_mps2)
+    s, o = p.scenario, p.opposing
+    ego = jnp.tile(jnp.array([s.ego_x_m, p.road.ego_lane_y_m, 0.0, s.ego_speed_mps]), (n, 1))
+    front = jnp.tile(jnp.array([s.front_x_m, s.front_speed_mps]), (n, 1))
+    opp_xv = [_NO_OPP_X_M, 0.0] if o.kind == "none" else [o.x_m, -o.speed_mps]
+    opp = jnp.tile(jnp.array(opp_xv, dtype=float), (n, 1))
+    return Plant(ego, front, opp, jnp.asarray(front_accels_mps2, dtype=float), jnp.zeros(n))
+
+
+class LaneGroups:
+    """A batch of n episodes run as ceil(n / LANES) fixed-width groups (see the module docstring).
+
+    Padding lanes repeat the last episode, are never active and are dropped from every output.
+    """
+
+    def __init__(self, plant: Plant, keys: Array, params: ModelParams) -> None:
+        self.n = int(plant.t_s.shape[0])
+        self.pp = plant_params(params)
+        self.substeps = params.sim.substeps
+        self._obs, self._adv, self._ini = compiled(self.substeps)
+        pad = (-self.n) % LANES
+        self.groups = math.ceil(self.n / LANES) if self.n else 0
+        padded = jax.tree.map(lambda a: jnp.concatenate([a, jnp.repeat(a[-1:], pad, axis=0)]), plant)
+        keys = jnp.concatenate([keys, jnp.repeat(keys[-1:], pad, axis=0)])
+        split = lambda a: [a[g * LANES:(g + 1) * LANES] for g in range(self.groups)]  # noqa: E731
+        self.plants = [jax.tree.map(lambda a, g=g: a[g * LANES:(g + 1) * LANES], padded) for g in range(self.groups)]
+        self.keys = split(keys)
+        self.traces = [self._ini(pl, self.pp) for pl in self.plants]
+
+    def _gather(self, parts: list) -> np.ndarray:
+        return np.concatenate([np.asarray(a) for a in parts])[: self.n]
+
+    def ego(self) -> np.ndarray:
+        """(n, 4) true ego states."""
+        return self._gather([pl.ego for pl in self.plants])
+
+    def observe(self, step: int) -> tuple[np.ndarray, np.ndarray]:
+        """Measured (front (n, 3), opp (n, 2)) at control step ``step``."""
+        outs = self.observe_on_device(step)
+        return self._gather([o[0] for o in outs]), self._gather([o[1] for o in outs])
+
+    def observe_on_device(self, step: int) -> list[tuple[Array, Array]]:
+        """Per lane group, the (front, opp) measurements as JAX arrays, not yet copied to the host."""
+        return [self._obs(pl, k, jnp.asarray(step), self.pp) for pl, k in zip(self.plants, self.keys, strict=True)]
+
+    def advance(self, u: np.ndarray, active: np.ndarray) -> list[Substep]:
+        """One control period for every episode; returns the per-group sub-step outputs."""
+        pad = self.groups * LANES - self.n
+        u = np.concatenate([u, np.zeros((pad, 2))])
+        active = np.concatenate([active, np.zeros(pad, dtype=bool)])
+        subs = []
+        for g in range(self.groups):
+            sl = slice(g * LANES, (g + 1) * LANES)
+            self.plants[g], self.traces[g], sub = self._adv(
+                self.plants[g], self.traces[g], jnp.asarray(u[sl]), jnp.asarray(active[sl]), self.pp
+            )
+            subs.append(sub)
+        return subs
+
+    def substeps_of(self, subs: list[Substep]) -> Substep:
+        """Concatenate per-group sub-step outputs to (n, substeps, ...) numpy arrays."""
+        return Substep(*(self._gather([getattr(s, f) for s in subs]) for f in Substep._fields))
+
+    def trace(self) -> SafetyTrace:
+        """(n,) final safety metrics as numpy arrays."""
+        return SafetyTrace(*(self._gather([getattr(t, f) for t in self.traces]) for f in SafetyTrace._fields))

@@ -1,0 +1,98 @@
+"""The closed loop (mcverify.episode.rollout): chunk independence, Theorem 2 on noise-free episodes, opposing
+traffic end to end, scenario draws."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import numpy as np
+import pytest
+
+from mcverify.run import executors
+from mcverify.run.campaign import campaign_from_dict, load_campaign
+from mcverify.episode.rollout import TIMING_COLUMNS, episode_key, run_episodes, sample_scenario
+
+FAST_SIM = {"control_period_s": 0.1, "substeps": 20}
+
+
+def cell_of(model: dict, *, episodes: int = 3, seed: int = 11):
+    camp = campaign_from_dict({"campaign": {"name": "t", "seed": seed, "episodes": episodes}, "model": model})
+    return camp, camp.cells[0]
+
+
+def strip(row: dict) -> dict:
+    return {k: v for k, v in row.items() if k not in TIMING_COLUMNS}
+
+
+def same(a: dict, b: dict) -> bool:
+    return all(
+        (isinstance(a[k], float) and math.isnan(a[k]) and math.isnan(b[k])) or a[k] == b[k] for k in a
+    ) and a.keys() == b.keys()
+
+
+def test_an_episode_does_not_depend_on_its_chunk():
+    """The same episode alone, first, last or with others gives bit-identical rows (every column but
+    the wall-clock solve times): the plant runs in fixed lane groups, the solver per episode."""
+    camp, cell = cell_of({"sim": {**FAST_SIM, "max_time_s": 3.0}})
+    planner = executors.solver_for(cell.params)
+    together = {r["cell_episode"]: strip(r) for r in run_episodes(cell, [0, 1, 2], camp.seed, planner).rows}
+    for ids in ([1], [2, 0]):
+        for r in run_episodes(cell, ids, camp.seed, planner).rows:
+            assert same(strip(r), together[r["cell_episode"]]), r["cell_episode"]
+    assert len({r["min_h_front"] for r in together.values()}) == 3  # different noise, different episodes
+
+
+@pytest.mark.parametrize("front_kmh", [25, 36])
+def test_noise_free_episode_keeps_the_vlcbf_level_set(front_kmh):
+    """Theorem 2 (thm.VL-CBF_levelset) on the paper's Table II set-up at 50 Hz without noise: h_ef
+    starts above eps = 0.3 and stays >= eps at every integration sub-step; the overtake completes."""
+    camp = load_campaign("campaigns/table2.toml", episodes=1)
+    cell = next(c for c in camp.cells if c.name == f"front_speed_kmh={front_kmh}")
+    p = cell.params
+    cell = dataclasses.replace(cell, params=dataclasses.replace(p, noise=dataclasses.replace(p.noise, kind="none")))
+    row = run_episodes(cell, [0], camp.seed, executors.solver_for(cell.params)).rows[0]
+    assert row["h0_front"] > cell.epsilon
+    assert not row["invariance_breach"] and row["min_h_front"] >= cell.epsilon
+    assert row["outcome"] == "overtook" and row["safe"]
+    assert row["both_infeasible_steps"] == 0 and row["fallback_steps"] == 0
+
+
+def test_scenario_draws_are_in_the_left_open_range_and_keyed():
+    camp, cell = cell_of({"scenario": {"front_accel_range_mps2": [3.0, 5.0]}})
+    draws = [sample_scenario(episode_key(7, 0, e), cell.params)["front_accel_mps2"] for e in range(400)]
+    assert all(3.0 < d <= 5.0 for d in draws) and np.std(draws) > 0.4
+    assert draws[17] == sample_scenario(episode_key(7, 0, 17), cell.params)["front_accel_mps2"]
+    # common random numbers: the key (and so the draw) does not depend on the cell
+    k_crn = episode_key(7, None, 17)
+    assert jax.numpy.array_equal(k_crn, episode_key(7, None, 17))
+    assert not jax.numpy.array_equal(episode_key(7, 0, 17), episode_key(7, 1, 17))
+
+
+TABLE4_B = {"opposing": {"kind": "human", "x_m": 330.0, "speed_mps": 10.0},
+            "scenario": {"front_speed_mps": 25 / 3.6}, "sim": FAST_SIM}
+TABLE4_A = {"opposing": {"kind": "human", "x_m": 220.0, "speed_mps": 18.0},
+            "scenario": {"front_speed_mps": 25 / 3.6}, "sim": FAST_SIM}
+
+
+def test_vlcbf_with_a_human_opposing_driver_overtakes_safely():
+    camp, cell = cell_of(TABLE4_B, episodes=1)
+    row = run_episodes(cell, [0], camp.seed, executors.solver_for(cell.params)).rows[0]
+    assert row["outcome"] == "overtook" and row["safe"], row
+    assert row["opp_detected_steps"] > 0 and row["min_gap_opp_m"] > 0  # veh_o was seen while borrowing
+    assert not row["collision_opp"] and row["min_h_front"] >= 0
+
+
+def test_mpcdc_squeezes_in_where_vlcbf_declines():
+    """Table IV Scenario A: veh_o too close and fast. The dual TO-CBF-MPC goes back at once (Table I);
+    MPC-DC, with no Q2 and the ellipses only at its nodes, overtakes and leaves the safe set."""
+    camp, cell = cell_of(TABLE4_A, episodes=1)
+    vl = run_episodes(cell, [0], camp.seed, executors.solver_for(cell.params)).rows[0]
+    assert vl["outcome"] == "went_back" and vl["safe"] and math.isnan(vl["min_gap_opp_m"])
+    assert vl["first_unsafe_cause"] == "" and math.isnan(vl["first_unsafe_s"])
+    camp, cell = cell_of({**TABLE4_A, "mpc": {"controller": "mpcdc"}}, episodes=1)
+    dc = run_episodes(cell, [0], camp.seed, executors.solver_for(cell.params)).rows[0]
+    assert dc["controller"] == "mpcdc" and not dc["safe"], dc
+    assert dc["min_gap_opp_m"] < 5.0
+    assert dc["first_unsafe_cause"] in ("planned", "held", "fallback") and dc["first_unsafe_s"] > 0
