@@ -24,13 +24,11 @@ def main(argv: list[str] | None = None) -> int:
     if not hasattr(args, "func"):
         parser.print_help()
         return EXIT_USAGE
-    from mcverify.run.campaign import CampaignError
-    from mcverify.solver.kernels import KernelBuildError
-    from mcverify.store import RunError
+    from mcverify.errors import UserError
 
     try:
         return args.func(args) or 0
-    except (CampaignError, RunError, KernelBuildError) as err:
+    except UserError as err:
         print(f"mcverify: error: {err}", file=sys.stderr)
         return EXIT_USAGE
     except OSError as err:  # a folder that cannot be written, a full disk: the environment, not a bug
@@ -145,8 +143,7 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _cmd_run(args) -> int:
-    from mcverify.run import executors
-    from mcverify.run import runner
+    from mcverify.run import executors, runner
     from mcverify.run.campaign import load_campaign
     from mcverify.store import RunError
 
@@ -253,9 +250,8 @@ def _cmd_bench(args) -> int:
 def _cmd_bench_solver(args) -> int:
     from datetime import datetime
 
-    from mcverify.run import executors
-
     from mcverify.bench import solver_bench
+    from mcverify.run import executors
     from mcverify.run.campaign import CampaignError
 
     if not args.campaign.is_file():

@@ -110,8 +110,8 @@ class Mpc:
     "mpcdc" (the Sec. VI-D baseline: the same time-optimal MPC and horizon with the ellipses as
     distance constraints at the nodes, no Q2 backup). ``backend``: the NLP solver ("ipopt", the
     reference; "ipm", the fast path of :mod:`mcverify.solver.backends`, the default). ``max_iter`` bounds
-    warm-started solves, ``max_iter_cold`` cold ones: with the opposing vehicle, cold solves of
-    feasible problems took 80-400 IPOPT iterations (warm ones 3-10).
+    warm-started solves, ``max_iter_cold`` cold ones (a cold start with the opposing vehicle needs
+    many more iterations than a warm one).
 
     ``infeasible_recheck_steps``: once IPOPT has certified a problem infeasible
     ("Infeasible_Problem_Detected"), the following steps try only the fast path on it (presumed
@@ -121,13 +121,11 @@ class Mpc:
     ``infeasible_recheck_steps``: a fixed period). A fast-path success within the wait does not
     end it: under perception noise a problem at the edge of feasibility flickers between solved and
     certified infeasible from one step to the next. Only the dual planner's Q1 and Q2 are presumed:
-    MPC-DC has no second problem, so a presumed failure there decides the control by itself (the
-    held plan); on 34 paired Table IV Scenario A episodes presuming it raised MPC-DC's collisions
-    from 3 (IPOPT) to 24, so MPC-DC always gets the full attempt. Why: in Table IV
-    Scenario B, 70 of the 82 failed Q2 solves of an episode were such certified infeasibilities in a
-    row, 0.5-1.5 s of IPOPT each, 80% of the episode's CPU. The fast path still tries every step, so
+    MPC-DC has no second problem, so a presumed failure there would decide the control by itself
+    (the held plan); MPC-DC always gets the full attempt. The fast path still tries every step, so
     a problem it can solve is back at once; the wait only delays what IPOPT alone could solve (up to
-    1 s at 50 Hz). Only the ``ipm`` backend has a fast path; ``ipopt`` always runs in full.
+    1 s at 50 Hz). Only the ``ipm`` backend has a fast path; ``ipopt`` always runs in full. Why
+    the memo exists, with its measurements: ``docs/decisions.md``.
     """
 
     controller: str = "vlcbf"

@@ -31,19 +31,19 @@ import fcntl
 import hashlib
 import json
 import os
-import platform
-import subprocess
-import sys
 import tempfile
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass
-from datetime import datetime, timezone
-from importlib import metadata
 from pathlib import Path
 from typing import Any
 
 import pyarrow as pa
 import pyarrow.parquet as pq
+
+from mcverify.errors import RunError
+
+# The run manifest's provenance, re-exported for the run layer's callers.
+from mcverify.provenance import code_differences, code_version, environment_info, now_utc  # noqa: F401
 
 MANIFEST = "manifest.json"
 EPISODES = "episodes.parquet"
@@ -57,11 +57,6 @@ FORMAT = 2
 #: The column that carries an episode's error message (null for every simulated episode).
 ERROR_COLUMN = "error_message"
 
-#: Modules whose source does not change any episode row (presentation and the command line);
-#: every other file of the package enters :func:`code_version`, so a resume refuses a change there.
-PRESENTATION_MODULES = frozenset({"cli.py", "report.py", "summary.py", "stats.py", "plots.py", "replay.py"})
-#: Packages whose version can change simulated numbers.
-NUMERIC_PACKAGES = ("jax", "jaxlib", "numpy", "scipy", "casadi")
 
 
 def _file_mode() -> int:
@@ -72,10 +67,6 @@ def _file_mode() -> int:
 
 
 _FILE_MODE = _file_mode()
-
-
-class RunError(ValueError):
-    """A run folder is missing or unusable; the message is one line for the user."""
 
 
 # ------------------------------------------------------------------------------------ chunks
@@ -350,7 +341,7 @@ def write_trajectory(run_dir: Path, episode_id: int, columns: Mapping[str, Any],
 
 
 def write_json_atomic(path: Path, data: Any) -> None:
-    _atomic_write(Path(path), (json.dumps(data, indent=2, sort_keys=False, default=json_default) + "\n").encode())
+    atomic_write_bytes(Path(path), (json.dumps(data, indent=2, sort_keys=False, default=json_default) + "\n").encode())
 
 
 def read_json(path: Path) -> Any:
@@ -408,84 +399,7 @@ def run_lock(run_dir: Path) -> Iterator[None]:
         fh.close()
 
 
-# ------------------------------------------------------------------------------ code version
-
-_CODE_VERSION: dict[str, Any] | None = None
-
-
-def code_version() -> dict[str, Any]:
-    """What the simulated numbers depend on besides the campaign: the package's simulation source
-    (SHA-256 over every ``mcverify/*.py`` except :data:`PRESENTATION_MODULES`) and the versions of
-    :data:`NUMERIC_PACKAGES`. Cached per process."""
-    global _CODE_VERSION
-    if _CODE_VERSION is None:
-        pkg = Path(__file__).resolve().parent
-        h = hashlib.sha256()
-        for path in sorted(pkg.glob("*.py")):
-            if path.name in PRESENTATION_MODULES:
-                continue
-            h.update(path.name.encode() + b"\0" + path.read_bytes() + b"\0")
-        _CODE_VERSION = {"source_sha256": h.hexdigest(), **{p: _version(p) for p in NUMERIC_PACKAGES}}
-    return dict(_CODE_VERSION)
-
-
-def code_differences(recorded: Mapping[str, Any], current: Mapping[str, Any]) -> list[str]:
-    """Human-readable differences between two :func:`code_version` records (empty if the same)."""
-    out = []
-    for key in sorted(set(recorded) | set(current)):
-        a, b = recorded.get(key), current.get(key)
-        if a != b:
-            if key == "source_sha256":
-                out.append(f"mcverify simulation source {str(a)[:12]} -> {str(b)[:12]}")
-            else:
-                out.append(f"{key} {a} -> {b}")
-    return out
-
-
-def environment_info() -> dict[str, Any]:
-    versions = {}
-    for pkg in ("mcverify", *NUMERIC_PACKAGES, "pyarrow", "matplotlib", "ray"):
-        versions[pkg] = _version(pkg)
-    return {
-        "created_utc": now_utc(),
-        "python": sys.version.split()[0],
-        "platform": platform.platform(),
-        "machine": platform.machine(),
-        "cpu_count": os.cpu_count(),
-        "packages": versions,
-        "git_commit": git_commit(),
-    }
-
-
-def git_commit() -> str | None:
-    root = Path(__file__).resolve().parent.parent
-    try:
-        out = subprocess.run(
-            ["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5
-        )
-        dirty = subprocess.run(
-            ["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
-            capture_output=True, text=True, timeout=5,
-        )
-    except (OSError, subprocess.TimeoutExpired):
-        return None
-    if out.returncode != 0:
-        return None
-    return out.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
-
-
 # ----------------------------------------------------------------------------------- helpers
-
-
-def _version(pkg: str) -> str | None:
-    try:
-        return metadata.version(pkg)
-    except metadata.PackageNotFoundError:
-        return None
-
-
-def now_utc() -> str:
-    return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
 def _sha256_file(path: Path) -> str:
@@ -503,31 +417,35 @@ def _ends_with_newline(path: Path) -> bool:
 
 
 def _atomic_parquet(table: pa.Table, path: Path) -> str:
-    """Write ``table`` to ``path`` via a temporary file and a rename; returns the file's SHA-256."""
+    """Write ``table`` to ``path`` atomically (:func:`atomic_write`); returns the file's SHA-256."""
+    digest: list[str] = []
+
+    def write(tmp: str) -> None:
+        pq.write_table(table, tmp)
+        digest.append(_sha256_file(Path(tmp)))
+
+    atomic_write(path, write)
+    return digest[0]
+
+
+def atomic_write(path: Path, write: Callable[[str], None]) -> None:
+    """Write ``path`` through ``write(temporary_name)`` in the same folder, then rename: a reader
+    never sees half a file, and a killed writer leaves no file under the final name."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     os.close(fd)
     try:
         os.chmod(tmp, _FILE_MODE)
-        pq.write_table(table, tmp)
-        digest = _sha256_file(Path(tmp))
+        write(tmp)
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
-    return digest
 
 
-def _atomic_write(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        os.chmod(tmp, _FILE_MODE)
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    atomic_write(path, lambda tmp: Path(tmp).write_bytes(data))
 
 
 def json_default(obj: Any) -> Any:

@@ -14,9 +14,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from mcverify.run import runner
-
 from mcverify import store
+from mcverify.run import runner
 from mcverify.run.campaign import Cell, campaign_from_dict
 
 #: Probabilities of a synthetic cell: P(unsafe), P(overtook | not error), P(went back), P(error).

@@ -142,16 +142,6 @@ def test_run_lock_refuses_a_second_holder(tmp_path: Path):
         pass
 
 
-def test_code_version_covers_simulation_source_not_presentation():
-    version = store.code_version()
-    assert len(version["source_sha256"]) == 64 and version["jax"] and version["casadi"]
-    assert "report.py" in store.PRESENTATION_MODULES and "rollout.py" not in store.PRESENTATION_MODULES
-    other = {**version, "source_sha256": "0" * 64, "jax": "0.0.1"}
-    diffs = store.code_differences(version, other)
-    assert len(diffs) == 2 and any("jax" in d for d in diffs) and any("source" in d for d in diffs)
-    assert store.code_differences(version, dict(version)) == []
-
-
 def test_trajectory_and_json_are_written_atomically(tmp_path: Path):
     path = store.write_trajectory(tmp_path, 12, {"t_s": [0.0, 0.1], "x_m": [1.0, 2.0]})
     assert path.name == "episode-000012.parquet"

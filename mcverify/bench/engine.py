@@ -34,11 +34,11 @@ from typing import Any
 import jax
 import numpy as np
 
+from mcverify.bench.naive import run_naive
+from mcverify.episode.rollout import PhaseClock, episode_key, run_episodes
 from mcverify.run import executors
 from mcverify.run.campaign import Cell, load_campaign
-from mcverify.bench.naive import run_naive
 from mcverify.sim.plant import LaneGroups, initial_plant
-from mcverify.episode.rollout import PhaseClock, episode_key, run_episodes
 
 DEFAULT_CAMPAIGN = "campaigns/table4.toml"
 DEFAULT_CELL = "scenario=B,method=VL-CBF eps=0.3"

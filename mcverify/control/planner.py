@@ -29,10 +29,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mcverify.solver.backends import INFEASIBLE_STATUS, PRESUMED_PREFIX
 from mcverify.control.decision import Mode, Source, TableOneInput, decide, table_one
 from mcverify.model import ModelParams
 from mcverify.ocp.problem import OcpStructure
+from mcverify.solver.backends import INFEASIBLE_STATUS, PRESUMED_PREFIX
 from mcverify.solver.mpc import MpcSolution, MpcSolver, WarmStart
 
 Q1, Q2 = +1, -1  # the OCP's direction parameter: goal ahead of / behind the front vehicle

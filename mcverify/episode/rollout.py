@@ -27,9 +27,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mcverify.run.campaign import Cell
 from mcverify.control.decision import Source
 from mcverify.control.planner import EpisodeState, Planner, StepRecord
+from mcverify.run.campaign import Cell
 from mcverify.sim.plant import LaneGroups, SafetyTrace, Substep, initial_plant
 
 Array = jax.Array

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from mcverify.report import figures
-from mcverify.run.campaign import Cell
+from mcverify.cell import Cell
 
 
 def episode_figure(

@@ -19,9 +19,8 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from mcverify.report import figures
-
 from mcverify.analysis import summary
+from mcverify.report import figures
 from mcverify.report.paper_tables import pretty_label
 from mcverify.report.tables import method_name
 

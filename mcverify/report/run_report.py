@@ -19,8 +19,6 @@ the same bytes (``tests/test_report.py``).
 
 from __future__ import annotations
 
-import os
-import tempfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,17 +27,9 @@ from typing import Any
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from mcverify.report import html
-
-from mcverify.report import paper_tables
-
-from mcverify.report import run_figures
-
-from mcverify.analysis import stats
-
 from mcverify import store
-
-from mcverify.analysis import summary
+from mcverify.analysis import stats, summary
+from mcverify.report import html, paper_tables, run_figures
 from mcverify.report.run_figures import FigureResult
 from mcverify.report.tables import (
     DASH,
@@ -404,21 +394,8 @@ def render_markdown(
 
 
 def _write_text(path: Path, text: str) -> None:
-    _atomic(path, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
+    store.atomic_write(path, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
 
 
 def _write_parquet(path: Path, table: pa.Table) -> None:
-    _atomic(path, lambda tmp: pq.write_table(table, tmp))
-
-
-def _atomic(path: Path, write) -> None:
-    """Write through a temporary file in the same folder, then rename: a reader never sees half."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    store.atomic_write(path, lambda tmp: pq.write_table(table, tmp))

@@ -41,7 +41,9 @@ from typing import Any
 
 import tomllib
 
-from mcverify.sim import barriers
+from mcverify import levels
+from mcverify.cell import Cell
+from mcverify.errors import CampaignError
 from mcverify.model import ModelParams
 
 CONTROLLERS = ("vlcbf", "mpcdc")
@@ -68,33 +70,6 @@ MAX_CONTROL_STEPS = 1_000_000
 
 _CAMPAIGN_KEYS = {"name", "description", "seed", "episodes", "common_random_numbers"}
 _TOP_KEYS = {"campaign", "model", "grid", "axes", "reference"}
-
-
-class CampaignError(ValueError):
-    """A campaign file or parameter is invalid; the message is one line meant for the user."""
-
-    def __init__(self, message: str) -> None:
-        # One line whatever the file held (a label or key may contain a line break).
-        super().__init__(str(message).replace("\r", "\\r").replace("\n", "\\n"))
-
-
-@dataclass(frozen=True)
-class Cell:
-    """One combination of grid values: its own parameters, episode count and deterministic keys."""
-
-    index: int
-    name: str
-    overrides: dict[str, Any]  # every model override of this cell (axes' bundles and grid values)
-    params: ModelParams
-    episodes: int
-    lambda0: float
-    epsilon: float
-    episode_offset: int = 0  # global id of this cell's episode 0 (episode ids are unique in a run)
-    labels: dict[str, str] = field(default_factory=dict)  # axis -> value label, e.g. {"method": "MPC-DC"}
-
-    @property
-    def controller(self) -> str:
-        return self.params.mpc.controller
 
 
 @dataclass(frozen=True)
@@ -441,14 +416,14 @@ def level_epsilon(p: ModelParams) -> float:
     b = p.barrier
     if b.epsilon is not None:
         return float(b.epsilon)
-    return barriers.epsilon_from_lambda0_np(b.lambdas_m, float(b.lambda0))
+    return levels.epsilon_from_lambda0(b.lambdas_m, float(b.lambda0))
 
 
 def level_lambda0(p: ModelParams) -> float:
     b = p.barrier
     if b.lambda0 is not None:
         return float(b.lambda0)
-    return barriers.lambda0_from_epsilon_np(b.lambdas_m, float(b.epsilon))
+    return levels.lambda0_from_epsilon(b.lambdas_m, float(b.epsilon))
 
 
 # ------------------------------------------------------------------------------------- helpers

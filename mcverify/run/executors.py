@@ -40,8 +40,8 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from mcverify import store
-from mcverify.run.campaign import Campaign, Cell
 from mcverify.model import ModelParams
+from mcverify.run.campaign import Campaign, Cell
 from mcverify.store import Chunk
 
 #: Runs of one task (a chunk, or one episode of a split chunk) before it counts as failed.

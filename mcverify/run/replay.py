@@ -10,10 +10,9 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from mcverify.run import executors
-
 from mcverify import store
 from mcverify.episode.rollout import TIMING_COLUMNS, run_episodes
+from mcverify.run import executors
 from mcverify.run.runner import campaign_from_manifest
 
 

@@ -19,11 +19,9 @@ from typing import Any
 
 from tqdm.auto import tqdm
 
-from mcverify.run import executors
-
-from mcverify.report import run_report
-
 from mcverify import store
+from mcverify.report import run_report
+from mcverify.run import executors
 from mcverify.run.campaign import Campaign, CampaignError, campaign_from_dict
 from mcverify.run.executors import ChunkOutput, EpisodeFn, Executor
 from mcverify.store import RunError

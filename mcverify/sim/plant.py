@@ -26,16 +26,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mcverify.sim import agents
-
-from mcverify.sim import barriers
-
-from mcverify.sim import geometry
-
-from mcverify.sim import noise
-
-from mcverify.sim import vehicles
+from mcverify import levels
 from mcverify.model import ModelParams
+from mcverify.sim import agents, barriers, geometry, noise, vehicles
 
 Array = jax.Array
 
@@ -104,7 +97,7 @@ def plant_params(p: ModelParams) -> PlantParams:
         opp_speed_limit_mps=f(o.speed_limit_mps),
         opp_cruise_mps=f(o.speed_mps),
         opp_gain_per_s=f(o.cruise_gain_per_s),
-        opp_lambdas=f([barriers.lambda0_from_epsilon_np(o.lambdas_m, o.epsilon_m), *o.lambdas_m]),
+        opp_lambdas=f([levels.lambda0_from_epsilon(o.lambdas_m, o.epsilon_m), *o.lambdas_m]),
         decel_max_mps2=f(p.barrier.decel_max_mps2),
         opp_accel_max_mps2=f(o.accel_max_mps2),
         opp_brake_max_mps2=f(o.brake_max_mps2),

@@ -47,10 +47,10 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from mcverify.model import ModelParams
 from mcverify.solver.cfun import CFunction
 from mcverify.solver.ipm import COLD, WARM_ATTEMPTS, Ipm
 from mcverify.solver.kernels import Kernel, get_runtime_library
-from mcverify.model import ModelParams
 
 #: Backend names accepted in ``params.mpc.backend``.
 BACKENDS = ("ipopt", "ipm")

@@ -16,6 +16,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mcverify.model import ModelParams
+from mcverify.ocp.problem import (
+    NlpLayout,
+    OcpStructure,
+    constraint_bounds,
+    decision_bounds,
+    initial_guess,
+    pack_params,
+)
 from mcverify.solver.backends import (  # noqa: F401 - SOLVED_STATUSES, ipopt_options re-exported
     MAX_VIOLATION,
     SOLVED_STATUSES,
@@ -26,15 +35,6 @@ from mcverify.solver.backends import (  # noqa: F401 - SOLVED_STATUSES, ipopt_op
     ipopt_options,
 )
 from mcverify.solver.kernels import get_kernel
-from mcverify.model import ModelParams
-from mcverify.ocp.problem import (
-    NlpLayout,
-    OcpStructure,
-    constraint_bounds,
-    decision_bounds,
-    initial_guess,
-    pack_params,
-)
 
 
 @dataclass(frozen=True)

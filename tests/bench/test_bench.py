@@ -47,8 +47,8 @@ def _short_cell():
 
 
 def test_engine_phases_add_up_to_the_measured_cpu():
-    from mcverify.episode.rollout import PhaseClock, run_episodes
     from mcverify.bench.solver_bench import stub_planner
+    from mcverify.episode.rollout import PhaseClock, run_episodes
 
     cell = _short_cell()
     clock = PhaseClock()

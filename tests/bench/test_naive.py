@@ -7,9 +7,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from mcverify.ocp import problem
-from mcverify.model import ModelParams
 from mcverify.bench.naive import NaiveOptiSolver, run_naive
+from mcverify.model import ModelParams
+from mcverify.ocp import problem
 from mcverify.solver.mpc import MpcSolver
 
 P = ModelParams()

@@ -11,11 +11,9 @@ import pyarrow as pa
 import pytest
 import synthetic
 
-from mcverify.report import figures
-
-from mcverify.run import runner
-
 from mcverify.analysis import summary
+from mcverify.report import figures
+from mcverify.run import runner
 from mcverify.run.campaign import campaign_from_dict
 
 

@@ -18,14 +18,13 @@ import numpy as np
 import pytest
 import synthetic_episodes as synth
 
-from mcverify.run import executors
-
 from mcverify import store
+from mcverify.run import executors
 from mcverify.run.campaign import campaign_from_dict, load_campaign
 from mcverify.run.executors import ChunkOutput, SerialExecutor
 from mcverify.solver.mpc import MpcSolution
 
-FIXTURE = Path(__file__).resolve().parent / "fixtures" / "tiny.toml"
+FIXTURE = Path(__file__).resolve().parents[1] / "fixtures" / "tiny.toml"
 
 
 def campaign(episodes=3, cells=2, seed=5):

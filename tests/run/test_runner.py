@@ -29,15 +29,12 @@ import pyarrow.parquet as pq
 import pytest
 import synthetic_episodes as synth
 
-from mcverify.run import executors
-
-from mcverify.run import runner
-
 from mcverify import store
-from mcverify.run.campaign import campaign_from_dict, load_campaign
 from mcverify.episode.rollout import TIMING_COLUMNS
+from mcverify.run import executors, runner
+from mcverify.run.campaign import campaign_from_dict, load_campaign
 
-TESTS = Path(__file__).resolve().parent
+TESTS = Path(__file__).resolve().parents[1]
 REPO = TESTS.parent
 FIXTURE = TESTS / "fixtures" / "tiny.toml"
 

@@ -7,11 +7,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import mcverify  # noqa: F401 - x64
 from mcverify.sim import agents
-from mcverify.sim.barriers import lambda0_from_epsilon_np
+from mcverify.levels import lambda0_from_epsilon
 
-LAMBDAS_O = np.array([lambda0_from_epsilon_np((1.0,), 1.0), 1.0])  # level 1 m, kappa~ linear
+LAMBDAS_O = np.array([lambda0_from_epsilon((1.0,), 1.0), 1.0])  # level 1 m, kappa~ linear
 A_L = 6.0
 L_R = 1.4
 LAW = dict(cruise_speed_mps=15.0, gain_per_s=1.0, lambdas=LAMBDAS_O, decel_max_mps2=A_L,

@@ -5,9 +5,8 @@ from __future__ import annotations
 
 import functools
 import math
-import os
-import re
 
+import cbf_reference
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -15,9 +14,9 @@ import pytest
 from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
-import mcverify  # noqa: F401 - enables float64
-from mcverify.sim import barriers
+from mcverify import levels
 from mcverify.model import Barrier
+from mcverify.sim import barriers
 from mcverify.sim.vehicles import ego_derivative
 
 L_R = 1.4
@@ -25,16 +24,8 @@ A, B = Barrier().ellipse_a_m, Barrier().ellipse_b_m
 LAMBDA_SETS = [(1.0,), (1.0, 0.5), (0.3, 2.0, 0.05)]
 
 
-def fma_disabled() -> bool:
-    match = re.search(r"--xla_cpu_max_isa=(\w+)", os.environ.get("XLA_FLAGS", ""))
-    return bool(match) and match.group(1).upper() in {"SSE4_2", "AVX"}
 
 
-def assert_batch_equals_loop(batched: np.ndarray, looped: np.ndarray) -> None:
-    if fma_disabled():
-        np.testing.assert_array_equal(batched, looped)
-    else:  # last-bit differences from FMA contraction only (see test_vehicles.fma_disabled)
-        np.testing.assert_allclose(batched, looped, rtol=1e-12, atol=1e-12)
 
 
 def kappa_np(lambdas_m, h: float) -> float:
@@ -70,7 +61,7 @@ def test_h_ellipse_dot_vs_autodiff() -> None:
         h = lambda zz: barriers.h_ellipse(zz[0], zz[1], zz[4], f[1], A, B)  # noqa: E731
         return jax.jvp(h, (z,), (rate,))[1]
 
-    got = jax.vmap(functools.partial(barriers.h_ellipse_dot, a_m=A, b_m=B, l_r_m=L_R))(ego, u, front, front_accel)
+    got = jax.vmap(functools.partial(cbf_reference.h_ellipse_dot, a_m=A, b_m=B, l_r_m=L_R))(ego, u, front, front_accel)
     want = jax.vmap(by_jvp)(ego, u, front, front_accel)
     np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
 
@@ -86,7 +77,7 @@ def test_h_longitudinal_and_its_derivative_vs_autodiff() -> None:
         h = lambda s: barriers.h_longitudinal(s[0], s[1], s[2], s[3], a_l)  # noqa: E731
         return jax.jvp(h, (zz,), (jnp.stack([zz[1], aa[0], zz[3], aa[1]]),))[1]
 
-    got = jax.vmap(lambda zz, aa: barriers.h_longitudinal_dot(zz[1], zz[3], aa[0], aa[1], a_l))(z, acc)
+    got = jax.vmap(lambda zz, aa: cbf_reference.h_longitudinal_dot(zz[1], zz[3], aa[0], aa[1], a_l))(z, acc)
     np.testing.assert_allclose(got, jax.vmap(by_jvp)(z, acc), rtol=1e-12, atol=1e-12)
 
 
@@ -113,7 +104,7 @@ def test_kappa_rejects_bad_shape() -> None:
 @pytest.mark.parametrize("lambdas_m", LAMBDA_SETS)
 def test_kappa_inverse_round_trips_and_matches_brentq(lambdas_m) -> None:
     lams = jnp.array(lambdas_m)
-    inverse = jax.jit(jax.vmap(barriers.kappa_tilde_inverse, in_axes=(None, 0)))
+    inverse = jax.jit(jax.vmap(cbf_reference.kappa_tilde_inverse, in_axes=(None, 0)))
     kappa = jax.jit(jax.vmap(barriers.kappa_tilde, in_axes=(None, 0)))
 
     values = np.concatenate([-np.logspace(-10, 10, 41), [0.0], np.logspace(-10, 10, 41)])
@@ -129,41 +120,41 @@ def test_kappa_inverse_round_trips_and_matches_brentq(lambdas_m) -> None:
 
 
 def test_kappa_inverse_with_zero_lambdas() -> None:
-    assert float(barriers.kappa_tilde_inverse(jnp.array([0.0, 1.0]), 8.0)) == pytest.approx(2.0, rel=1e-14)
-    assert float(barriers.kappa_tilde_inverse(jnp.array([2.0, 0.0]), -3.0)) == pytest.approx(-1.5, rel=1e-14)
-    assert barriers.kappa_tilde_inverse_np([0.0, 1.0], -27.0) == pytest.approx(-3.0, rel=1e-14)
-    assert not np.isfinite(float(barriers.kappa_tilde_inverse(jnp.array([0.0, 0.0]), 1.0)))
+    assert float(cbf_reference.kappa_tilde_inverse(jnp.array([0.0, 1.0]), 8.0)) == pytest.approx(2.0, rel=1e-14)
+    assert float(cbf_reference.kappa_tilde_inverse(jnp.array([2.0, 0.0]), -3.0)) == pytest.approx(-1.5, rel=1e-14)
+    assert levels.kappa_tilde_inverse([0.0, 1.0], -27.0) == pytest.approx(-3.0, rel=1e-14)
+    assert not np.isfinite(float(cbf_reference.kappa_tilde_inverse(jnp.array([0.0, 0.0]), 1.0)))
 
 
 @pytest.mark.parametrize("lambdas_m", LAMBDA_SETS)
 def test_lambda0_epsilon_round_trip_jax_and_python(lambdas_m) -> None:
     for eps in (0.0, 1e-6, 0.3, 1.0, 7.5):
-        lam0 = barriers.lambda0_from_epsilon(lambdas_m, eps)  # tuples and Python floats accepted
+        lam0 = cbf_reference.lambda0_from_epsilon(lambdas_m, eps)  # tuples and Python floats accepted
         assert float(lam0) <= 0.0
-        assert float(barriers.epsilon_from_lambda0(lambdas_m, lam0)) == pytest.approx(eps, rel=1e-12, abs=1e-300)
-        lam0_np = barriers.lambda0_from_epsilon_np(lambdas_m, eps)
+        assert float(cbf_reference.epsilon_from_lambda0(lambdas_m, lam0)) == pytest.approx(eps, rel=1e-12, abs=1e-300)
+        lam0_np = levels.lambda0_from_epsilon(lambdas_m, eps)
         assert isinstance(lam0_np, float) and lam0_np == pytest.approx(float(lam0), rel=1e-15, abs=0)
-        eps_np = barriers.epsilon_from_lambda0_np(lambdas_m, lam0_np)
+        eps_np = levels.epsilon_from_lambda0(lambdas_m, lam0_np)
         assert isinstance(eps_np, float) and eps_np == pytest.approx(eps, rel=1e-12, abs=1e-300)
 
 
 def test_default_barrier_level() -> None:
     bar = Barrier()
-    assert barriers.lambda0_from_epsilon_np(bar.lambdas_m, bar.epsilon) == pytest.approx(-(0.3 + 0.5 * 0.3**3))
+    assert levels.lambda0_from_epsilon(bar.lambdas_m, bar.epsilon) == pytest.approx(-(0.3 + 0.5 * 0.3**3))
 
 
 @pytest.mark.parametrize("bad", [(), (-1.0, 1.0), (0.0, 0.0), (math.nan,)])
 def test_python_versions_validate_lambdas(bad) -> None:
     with pytest.raises(ValueError, match="lambdas_m"):
-        barriers.epsilon_from_lambda0_np(bad, -0.3)
+        levels.epsilon_from_lambda0(bad, -0.3)
     with pytest.raises(ValueError, match="lambdas_m"):
-        barriers.lambda0_from_epsilon_np(bad, 0.3)
+        levels.lambda0_from_epsilon(bad, 0.3)
 
 
 def test_cbf_residual() -> None:
     lambdas = jnp.array([-0.3135, 1.0, 0.5])
-    assert float(barriers.cbf_residual(-0.2, lambdas, 0.3)) == pytest.approx(-0.2, abs=1e-15)
-    assert float(barriers.cbf_residual(0.0, lambdas, 1.0)) == pytest.approx(1.5 - 0.3135)
+    assert float(cbf_reference.cbf_residual(-0.2, lambdas, 0.3)) == pytest.approx(-0.2, abs=1e-15)
+    assert float(cbf_reference.cbf_residual(0.0, lambdas, 1.0)) == pytest.approx(1.5 - 0.3135)
 
 
 # ------------------------------------------------------------------------------- invariance
@@ -182,13 +173,13 @@ def test_cbf_residual() -> None:
     ],
 )
 def test_invariance_breach(series, tol, breach) -> None:
-    assert bool(jax.jit(barriers.invariance_breach)(jnp.array(series), 0.3, tol)) is breach
+    assert bool(jax.jit(cbf_reference.invariance_breach)(jnp.array(series), 0.3, tol)) is breach
 
 
 def closed_loop_h(lambdas_m, eps: float, h0: float, u_nominal: float, t_end: float = 25.0):
     """hdot = u, u = max(u_nominal, -Lambda H(h)): the least input the VL-CBF condition allows,
     or a nominal one when it already satisfies it (a Lipschitz safety filter)."""
-    lam0 = float(barriers.lambda0_from_epsilon(lambdas_m, eps))
+    lam0 = float(cbf_reference.lambda0_from_epsilon(lambdas_m, eps))
 
     def rhs(t, h):
         return [max(u_nominal, -(lam0 + kappa_np(lambdas_m, h[0])))]
@@ -205,8 +196,8 @@ def test_theorem_levelset_forward_invariance(lambdas_m, u_nominal: float) -> Non
         h, hdot, lam0 = closed_loop_h(lambdas_m, eps, h0, u_nominal)
         assert h.min() >= eps - 1e-9  # never below the level
         assert h[-1] == pytest.approx(eps, abs=1e-6)  # and converges to it from above
-        assert not bool(barriers.invariance_breach(jnp.asarray(h), eps, 1e-9))
-        residual = np.asarray(barriers.cbf_residual(hdot, jnp.array([lam0, *lambdas_m]), h))  # element-wise
+        assert not bool(cbf_reference.invariance_breach(jnp.asarray(h), eps, 1e-9))
+        residual = np.asarray(cbf_reference.cbf_residual(hdot, jnp.array([lam0, *lambdas_m]), h))  # element-wise
         assert residual.min() >= -1e-12
     # From below the level h only has to rise; it approaches eps without crossing it.
     h, _, _ = closed_loop_h(lambdas_m, eps, -0.5, u_nominal)
@@ -215,17 +206,17 @@ def test_theorem_levelset_forward_invariance(lambdas_m, u_nominal: float) -> Non
 
 def test_violating_input_is_a_breach() -> None:
     lambdas_m, eps = (1.0, 0.5), 0.3
-    lam0 = float(barriers.lambda0_from_epsilon(lambdas_m, eps))
+    lam0 = float(cbf_reference.lambda0_from_epsilon(lambdas_m, eps))
     sol = solve_ivp(lambda t, h: [-(lam0 + kappa_np(lambdas_m, h[0])) - 0.1], (0.0, 20.0), [1.0], rtol=1e-10)
-    assert bool(barriers.invariance_breach(jnp.asarray(sol.y[0]), eps, 1e-6))
+    assert bool(cbf_reference.invariance_breach(jnp.asarray(sol.y[0]), eps, 1e-6))
 
 
 # ----------------------------------------------------------------------------- vmap vs loop
 
 
-def test_vmap_matches_loop() -> None:
+def test_vmap_matches_loop(assert_batch_equals_loop) -> None:
     ego, u, front, front_accel = random_scene(np.random.default_rng(22), 24)
-    hdot = jax.jit(functools.partial(barriers.h_ellipse_dot, a_m=A, b_m=B, l_r_m=L_R))
+    hdot = jax.jit(functools.partial(cbf_reference.h_ellipse_dot, a_m=A, b_m=B, l_r_m=L_R))
     batched = np.asarray(jax.jit(jax.vmap(hdot))(ego, u, front, front_accel))
     assert_batch_equals_loop(batched, np.array([hdot(*row) for row in zip(ego, u, front, front_accel, strict=True)]))
 
@@ -233,11 +224,11 @@ def test_vmap_matches_loop() -> None:
     hs = ego[:, 1] - 1.0
     for fn in (
         jax.jit(lambda h: barriers.lambda_H(lams, h)),
-        jax.jit(lambda h: barriers.kappa_tilde_inverse(lams[1:], h)),
+        jax.jit(lambda h: cbf_reference.kappa_tilde_inverse(lams[1:], h)),
         jax.jit(lambda h: barriers.h_ellipse(h, 0.3, 1.0, -0.2, A, B)),
     ):
         assert_batch_equals_loop(np.asarray(jax.jit(jax.vmap(fn))(hs)), np.array([fn(h) for h in hs]))
 
     series = np.random.default_rng(23).uniform(0.0, 1.0, (24, 30))
-    breach = jax.jit(lambda s: barriers.invariance_breach(s, 0.3, 0.01))
+    breach = jax.jit(lambda s: cbf_reference.invariance_breach(s, 0.3, 0.01))
     np.testing.assert_array_equal(jax.vmap(breach)(series), [breach(s) for s in series])

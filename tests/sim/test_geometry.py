@@ -4,8 +4,6 @@ sampling, and a refined boundary search for the ellipse."""
 from __future__ import annotations
 
 import math
-import os
-import re
 
 import jax
 import jax.numpy as jnp
@@ -16,9 +14,7 @@ from hypothesis import strategies as st
 from scipy.optimize import minimize_scalar
 from scipy.spatial import cKDTree
 
-import mcverify  # noqa: F401 - enables float64
-from mcverify.sim import barriers
-from mcverify.sim import geometry
+from mcverify.sim import barriers, geometry
 
 LENGTH, WIDTH = 4.885, 1.840
 
@@ -36,16 +32,8 @@ pair_jit = jax.jit(
 )
 
 
-def fma_disabled() -> bool:
-    match = re.search(r"--xla_cpu_max_isa=(\w+)", os.environ.get("XLA_FLAGS", ""))
-    return bool(match) and match.group(1).upper() in {"SSE4_2", "AVX"}
 
 
-def assert_batch_equals_loop(batched: np.ndarray, looped: np.ndarray) -> None:
-    if fma_disabled():
-        np.testing.assert_array_equal(batched, looped)
-    else:  # last-bit differences from FMA contraction only (see test_vehicles.fma_disabled)
-        np.testing.assert_allclose(batched, looped, rtol=1e-12, atol=1e-12)
 
 
 # ------------------------------------------------------------------------ numpy references
@@ -282,7 +270,7 @@ def test_ellipse_random_vs_refined_sampling() -> None:
 # ----------------------------------------------------------------------------- vmap vs loop
 
 
-def test_vmap_matches_loop() -> None:
+def test_vmap_matches_loop(assert_batch_equals_loop) -> None:
     pa, pb = random_pairs(np.random.default_rng(13), 40)
     ca = np.asarray(jax.vmap(corners_jit)(*pa.T))
     cb = np.asarray(jax.vmap(corners_jit)(*pb.T))

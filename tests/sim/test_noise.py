@@ -3,8 +3,6 @@ do not depend on the batch."""
 
 from __future__ import annotations
 
-import os
-import re
 from dataclasses import replace
 
 import jax
@@ -13,25 +11,16 @@ import numpy as np
 import pytest
 from scipy import stats
 
-import mcverify  # noqa: F401 - enables float64
-from mcverify.sim import noise
 from mcverify.model import Noise
+from mcverify.sim import noise
 
 PAPER = Noise()
 ROOT = jax.random.PRNGKey(2024)
 N_DRAWS = 4000
 
 
-def fma_disabled() -> bool:
-    match = re.search(r"--xla_cpu_max_isa=(\w+)", os.environ.get("XLA_FLAGS", ""))
-    return bool(match) and match.group(1).upper() in {"SSE4_2", "AVX"}
 
 
-def assert_batch_equals_loop(batched: np.ndarray, looped: np.ndarray) -> None:
-    if fma_disabled():
-        np.testing.assert_array_equal(batched, looped)
-    else:  # last-bit differences from FMA contraction only (see test_vehicles.fma_disabled)
-        np.testing.assert_allclose(batched, looped, rtol=1e-15, atol=1e-15)
 
 
 def draw(model: Noise, x: float, y: float, v: float, gap: float, n: int = N_DRAWS) -> np.ndarray:
@@ -100,7 +89,7 @@ def test_deterministic() -> None:
     np.testing.assert_array_equal(a, b)
 
 
-def test_vmap_batch_does_not_change_episode_draws() -> None:
+def test_vmap_batch_does_not_change_episode_draws(assert_batch_equals_loop) -> None:
     """Episode i's measurements are the same computed alone or inside a vmapped batch of 7."""
     episode_keys = jax.vmap(lambda i: jax.random.fold_in(ROOT, i))(jnp.arange(7))
     rng = np.random.default_rng(5)

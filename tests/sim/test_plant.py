@@ -8,9 +8,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mcverify.sim import plant
-from mcverify.model import ModelParams
 from mcverify.episode.rollout import episode_key
+from mcverify.model import ModelParams
+from mcverify.sim import plant
 
 HUMAN = dataclasses.replace(
     ModelParams(),

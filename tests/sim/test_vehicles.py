@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import functools
 import os
-import re
 import subprocess
 import sys
 import textwrap
@@ -16,25 +15,14 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-import mcverify  # noqa: F401 - enables float64
 from mcverify.sim import vehicles
 
 L_R = 1.4
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
-def fma_disabled() -> bool:
-    """XLA CPU contracts a*b+c into FMAs differently for a batch and for one episode unless the
-    ISA is capped below FMA3 (XLA_FLAGS=--xla_cpu_max_isa=AVX); only then are bits comparable."""
-    match = re.search(r"--xla_cpu_max_isa=(\w+)", os.environ.get("XLA_FLAGS", ""))
-    return bool(match) and match.group(1).upper() in {"SSE4_2", "AVX"}
 
 
-def assert_batch_equals_loop(batched: np.ndarray, looped: np.ndarray) -> None:
-    if fma_disabled():
-        np.testing.assert_array_equal(batched, looped)
-    else:  # last-bit differences from FMA contraction only
-        np.testing.assert_allclose(batched, looped, rtol=1e-12, atol=1e-12)
 
 
 def ego_rhs_np(state: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -157,7 +145,7 @@ def test_double_integrator_zoh_vs_closed_form_and_solve_ivp() -> None:
     np.testing.assert_allclose(got, np.array(stepped), rtol=0, atol=1e-8)
 
 
-def test_vmap_matches_loop() -> None:
+def test_vmap_matches_loop(assert_batch_equals_loop) -> None:
     states, inputs = random_ego(np.random.default_rng(4), 64)
     singles = {
         "ego_derivative": jax.jit(ego_deriv),
@@ -181,12 +169,9 @@ BIT_IDENTITY_SCRIPT = textwrap.dedent(
     """
     import functools, sys
     import jax, jax.numpy as jnp, numpy as np
-    import mcverify
-    from mcverify.sim import barriers
-    from mcverify.sim import geometry
-    from mcverify.sim import noise
-    from mcverify.sim import vehicles
+    import cbf_reference
     from mcverify.model import Noise
+    from mcverify.sim import barriers, geometry, noise, vehicles
 
     rng = np.random.default_rng(7)
     n = 28
@@ -210,8 +195,8 @@ BIT_IDENTITY_SCRIPT = textwrap.dedent(
                 barriers.h_ellipse(s[0], s[1], f[0], 0.0, a, b),
                 geometry.ellipse_signed_distance_m(s[0] - f[0], s[1], a, b),
                 gap, geometry.rectangles_overlap(ego_box, front_box).astype(float),
-                barriers.h_ellipse_dot(s, uu, jnp.stack([f[0], 0.0, f[1]]), 0.0, a, b, 1.4),
-                barriers.kappa_tilde_inverse(jnp.array([1.0, 0.5]), s[1]),
+                cbf_reference.h_ellipse_dot(s, uu, jnp.stack([f[0], 0.0, f[1]]), 0.0, a, b, 1.4),
+                cbf_reference.kappa_tilde_inverse(jnp.array([1.0, 0.5]), s[1]),
                 *noise.measure_vehicle(noise.step_key(key, step, 0), f[0], 0.0, f[1], gap, Noise()),
             ])
         return jnp.concatenate([final, jax.vmap(checks)(subs).ravel()])
@@ -233,7 +218,7 @@ BIT_IDENTITY_SCRIPT = textwrap.dedent(
 
 def test_vmap_bit_identical_to_single_episode_without_fma() -> None:
     env = dict(os.environ, XLA_FLAGS=(os.environ.get("XLA_FLAGS", "") + " --xla_cpu_max_isa=AVX").strip())
-    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO), env.get("PYTHONPATH", "")]))
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO), str(REPO / "tests"), env.get("PYTHONPATH", "")]))
     proc = subprocess.run(
         [sys.executable, "-c", BIT_IDENTITY_SCRIPT], cwd=REPO, env=env, capture_output=True, text=True, timeout=300
     )

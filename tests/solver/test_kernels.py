@@ -13,11 +13,11 @@ from pathlib import Path
 
 import pytest
 
-from mcverify.solver import kernels
 from mcverify.model import ModelParams
 from mcverify.ocp.problem import OcpStructure
+from mcverify.solver import kernels
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 TINY = OcpStructure(horizon=3, order_m=1)  # compiles in about a second
 
 

@@ -1,0 +1,31 @@
+"""A cell: one combination of a campaign's grid values, the unit every episode belongs to.
+
+Declared below the run layer because the rollout, the executors, the reports and the benchmarks
+all take one; a campaign file expands into cells (:mod:`mcverify.run.campaign`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from mcverify.model import ModelParams
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One combination of grid values: its own parameters, episode count and deterministic keys."""
+
+    index: int
+    name: str
+    overrides: dict[str, Any]  # every model override of this cell (axes' bundles and grid values)
+    params: ModelParams
+    episodes: int
+    lambda0: float
+    epsilon: float
+    episode_offset: int = 0  # global id of this cell's episode 0 (episode ids are unique in a run)
+    labels: dict[str, str] = field(default_factory=dict)  # axis -> value label, e.g. {"method": "MPC-DC"}
+
+    @property
+    def controller(self) -> str:
+        return self.params.mpc.controller

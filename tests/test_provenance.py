@@ -1,0 +1,90 @@
+"""code_version: which edits refuse a resume (the simulation layers, C included) and which do not."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from mcverify import provenance
+
+PACKAGE = provenance.PACKAGE_DIR
+
+
+@pytest.fixture
+def package_copy(tmp_path: Path) -> Path:
+    """A copy of the package's source tree (no caches) to edit."""
+    dst = tmp_path / "mcverify"
+    shutil.copytree(PACKAGE, dst, ignore=shutil.ignore_patterns("__pycache__", "*.so", "*.o"))
+    return dst
+
+
+def _append(path: Path, text: str) -> None:
+    path.write_text(path.read_text() + text)
+
+
+def test_every_part_of_the_package_is_classified() -> None:
+    parts = {p.name for p in PACKAGE.iterdir() if (p.is_dir() and (p / "__init__.py").exists()) or p.suffix == ".py"}
+    classified = set(provenance.SIMULATION_PARTS) | set(provenance.PRESENTATION_PARTS)
+    assert parts - classified == set(), "classify new modules in provenance.SIMULATION_PARTS or PRESENTATION_PARTS"
+    assert not set(provenance.SIMULATION_PARTS) & set(provenance.PRESENTATION_PARTS)
+
+
+def test_the_c_solver_enters_the_hash() -> None:
+    names = {p.relative_to(PACKAGE).as_posix() for p in provenance.simulation_files()}
+    assert "solver/csrc/ipm.c" in names and "sim/plant.py" in names and "model.py" in names
+    assert not any(n.startswith(("report/", "analysis/", "bench/")) for n in names)
+
+
+@pytest.mark.parametrize("edited", ["solver/csrc/ipm.c", "sim/plant.py", "ocp/__init__.py", "model.py"])
+def test_editing_a_simulation_file_changes_the_version(package_copy: Path, edited: str) -> None:
+    before = provenance.source_digest(package_copy)
+    _append(package_copy / edited, "\n/* edited */\n" if edited.endswith(".c") else "\n# edited\n")
+    assert provenance.source_digest(package_copy) != before
+
+
+def test_adding_a_module_to_a_simulation_layer_changes_the_version(package_copy: Path) -> None:
+    before = provenance.source_digest(package_copy)
+    (package_copy / "sim" / "new_agent.py").write_text("X = 1\n")
+    assert provenance.source_digest(package_copy) != before
+
+
+@pytest.mark.parametrize("edited", ["report/figures.py", "analysis/summary.py", "cli.py", "bench/engine.py"])
+def test_editing_presentation_does_not_change_the_version(package_copy: Path, edited: str) -> None:
+    before = provenance.source_digest(package_copy)
+    _append(package_copy / edited, "\n# edited\n")
+    assert provenance.source_digest(package_copy) == before
+
+
+def test_code_version_and_its_differences() -> None:
+    version = provenance.code_version()
+    assert version["source_sha256"] == provenance.source_digest()
+    assert len(version["source_sha256"]) == 64 and version["jax"] and version["casadi"]
+    other = {**version, "source_sha256": "0" * 64, "jax": "0.0.1"}
+    diffs = provenance.code_differences(version, other)
+    assert len(diffs) == 2 and any("jax" in d for d in diffs) and any("source" in d for d in diffs)
+    assert provenance.code_differences(version, dict(version)) == []
+
+
+def test_import_mcverify_has_no_side_effects_on_jax() -> None:
+    """Reading runs and statistics from a notebook must not switch JAX to 64 bits or cap XLA."""
+    code = (
+        "import os, mcverify, mcverify.analysis.stats, mcverify.store, jax\n"
+        "print(jax.config.jax_enable_x64, 'xla_cpu_max_isa' in os.environ.get('XLA_FLAGS', ''))\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["False", "False"]
+
+
+def test_the_simulation_layer_sets_x64_and_the_isa_cap() -> None:
+    code = "import os, mcverify.sim, jax\nprint(jax.config.jax_enable_x64, os.environ['XLA_FLAGS'])\n"
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["True", "--xla_cpu_max_isa=AVX"]
