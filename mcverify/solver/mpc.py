@@ -27,7 +27,7 @@ from mcverify.solver.backends import (  # noqa: F401 - SOLVED_STATUSES, ipopt_op
 )
 from mcverify.solver.kernels import get_kernel
 from mcverify.model import ModelParams
-from mcverify.ocp.problem import (
+from mcverify.ocp import (
     NlpLayout,
     OcpStructure,
     constraint_bounds,

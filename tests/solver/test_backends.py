@@ -20,7 +20,7 @@ from mcverify.solver.cfun import CFunction
 from mcverify.solver.ipm import WARM_ATTEMPTS, IpmResult, with_options
 from mcverify.solver.kkt import KktStructure
 from mcverify.model import ModelParams
-from mcverify.ocp.problem import NlpLayout, OcpStructure, constraint_bounds, pack_params
+from mcverify.ocp import NlpLayout, OcpStructure, constraint_bounds, pack_params
 from mcverify.solver.mpc import MpcSolver
 
 P = dataclasses.replace(ModelParams(), mpc=dataclasses.replace(ModelParams().mpc, backend="ipopt"))
