@@ -28,11 +28,8 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from mcverify.analysis import stats
-
 from mcverify import store
-
-from mcverify.analysis import summary
+from mcverify.analysis import stats, summary
 from mcverify.report.tables import DASH, Section, Table, fmt_num, fmt_p, is_missing, to_latex, to_markdown
 
 #: Rates compared (those both runs have).

@@ -34,9 +34,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from mcverify.analysis import stats
-
-from mcverify.analysis import summary
+from mcverify.analysis import stats, summary
 from mcverify.report.tables import (
     DASH,
     Section,

@@ -29,17 +29,9 @@ from typing import Any
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from mcverify.report import html
-
-from mcverify.report import paper_tables
-
-from mcverify.report import run_figures
-
-from mcverify.analysis import stats
-
 from mcverify import store
-
-from mcverify.analysis import summary
+from mcverify.analysis import stats, summary
+from mcverify.report import html, paper_tables, run_figures
 from mcverify.report.run_figures import FigureResult
 from mcverify.report.tables import (
     DASH,

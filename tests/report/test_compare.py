@@ -8,13 +8,9 @@ import numpy as np
 import pytest
 import synthetic
 
-from mcverify import cli
-
-from mcverify.report import compare
-
+from mcverify import cli, store
 from mcverify.analysis import stats
-
-from mcverify import store
+from mcverify.report import compare
 
 BASE = {
     "campaign": {"name": "c", "seed": 11, "episodes": 40},

@@ -8,15 +8,11 @@ import pyarrow as pa
 import pytest
 import synthetic
 
+from mcverify.analysis import stats, summary
 from mcverify.report import paper_tables
-
-from mcverify.run import runner
-
-from mcverify.analysis import stats
-
-from mcverify.analysis import summary
-from mcverify.run.campaign import campaign_from_dict
 from mcverify.report.tables import Section, to_latex, to_markdown
+from mcverify.run import runner
+from mcverify.run.campaign import campaign_from_dict
 
 
 def _summary(raw, *, opposing=False, probs=synthetic.default_probs):

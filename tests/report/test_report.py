@@ -14,7 +14,6 @@ import pytest
 import synthetic
 
 from mcverify import cli
-
 from mcverify.report import run_report
 
 OUTPUTS = ("report.md", "report.html", "summary.json", "cells.parquet")

@@ -10,11 +10,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import synthetic
 
-from mcverify.report import run_report
-
-from mcverify.report import run_figures
-
 from mcverify import store
+from mcverify.report import run_figures, run_report
 
 
 def _small(raw: dict, episodes: int) -> dict:
