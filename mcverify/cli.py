@@ -255,7 +255,7 @@ def _cmd_bench_solver(args) -> int:
 
     from mcverify.run import executors
 
-    from mcverify.bench import solver_bench
+    from mcverify.bench import solver_bench, solver_bench_report
     from mcverify.run.campaign import CampaignError
 
     if not args.campaign.is_file():
@@ -263,12 +263,12 @@ def _cmd_bench_solver(args) -> int:
     workers = args.workers or executors.default_workers()
     command = "mcverify " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["bench-solver"] else "mcverify bench-solver"
     results = solver_bench.run(args.campaign, args.episodes, args.record_episodes, workers, args.chunk_size)
-    section = solver_bench.markdown(results, command)
+    section = solver_bench_report.markdown(results, command)
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    solver_bench.write_section(args.out, section)
+    solver_bench_report.write_section(args.out, section)
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
     json_path = args.out.parent / f"bench-solver-{stamp}.json"
-    json_path.write_text(solver_bench.to_json(results))
+    json_path.write_text(solver_bench_report.to_json(results))
     print(section)
     print(f"written: {args.out} (section), {json_path}", file=sys.stderr)
     return 0

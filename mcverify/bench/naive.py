@@ -19,10 +19,10 @@ import casadi as ca
 import numpy as np
 
 from mcverify import ocp
-from mcverify.run.campaign import Cell
-from mcverify.model import ModelParams
 from mcverify.control.planner import Planner
 from mcverify.episode.rollout import run_episodes
+from mcverify.model import ModelParams
+from mcverify.run.campaign import Cell
 from mcverify.solver.mpc import SOLVED_STATUSES, MpcSolution, WarmStart
 
 

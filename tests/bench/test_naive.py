@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from mcverify import ocp
-from mcverify.model import ModelParams
 from mcverify.bench.naive import NaiveOptiSolver, run_naive
+from mcverify.model import ModelParams
 from mcverify.solver.mpc import MpcSolver
 
 P = ModelParams()
