@@ -30,8 +30,6 @@ PROPORTION_METHODS: tuple[str, ...] = ("clopper-pearson", "wilson")
 
 
 @dataclass(frozen=True)
-
-
 class Interval:
     """A confidence interval [low, high] at confidence ``level`` computed by ``method``.
 

@@ -45,8 +45,6 @@ OPP_MODES = ("law", "worst", "constant")
 
 
 @dataclass(frozen=True)
-
-
 class OcpStructure:
     """Choices that change the compiled code (everything else is a parameter or a bound).
 
@@ -58,8 +56,7 @@ class OcpStructure:
     uniform_dt: require DT_0 = DT_1 = ... = DT_{N-1} (N-1 extra equality rows). The paper leaves
     every DT_i free; then the optimum is nearly degenerate (stages that are not needed shrink to
     dt_min, and where they sit barely changes T), and IPOPT crawls through it, while uniform DT
-    converges in a fraction of the iterations with T within a fraction of a percent of the free-DT T
-    (see results/BENCHMARKS.md).
+    converges in a fraction of the iterations with T within a fraction of a percent of the free-DT T.
     """
 
     horizon: int
@@ -101,8 +98,6 @@ def _slices(sizes: dict[str, int]) -> dict[str, slice]:
 
 
 @dataclass(frozen=True)
-
-
 class ParamLayout:
     """The one place that defines the parameter vector p (all slices into p).
 

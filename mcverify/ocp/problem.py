@@ -254,8 +254,6 @@ def build_nlp(structure: OcpStructure) -> dict[str, ca.SX]:
 
 
 @functools.lru_cache(maxsize=16)
-
-
 def formulation_digest(structure: OcpStructure) -> str:
     """SHA-256 of the serialized NLP functions (objective and constraints) of ``structure``.
 
