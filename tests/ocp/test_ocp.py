@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from mcverify import ocp
-from mcverify.ocp import problem
 from mcverify.model import ModelParams
+from mcverify.ocp import problem
 from mcverify.solver.mpc import MpcSolver
 
 P = ModelParams()
