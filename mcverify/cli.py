@@ -24,11 +24,13 @@ def main(argv: list[str] | None = None) -> int:
     if not hasattr(args, "func"):
         parser.print_help()
         return EXIT_USAGE
-    from mcverify.errors import UserError
+    from mcverify.run.campaign import CampaignError
+    from mcverify.solver.kernels import KernelBuildError
+    from mcverify.store import RunError
 
     try:
         return args.func(args) or 0
-    except UserError as err:
+    except (CampaignError, RunError, KernelBuildError) as err:
         print(f"mcverify: error: {err}", file=sys.stderr)
         return EXIT_USAGE
     except OSError as err:  # a folder that cannot be written, a full disk: the environment, not a bug
@@ -250,7 +252,7 @@ def _cmd_bench(args) -> int:
 def _cmd_bench_solver(args) -> int:
     from datetime import datetime
 
-    from mcverify.bench import solver_bench
+    from mcverify.bench import solver_bench, solver_bench_report
     from mcverify.run import executors
     from mcverify.run.campaign import CampaignError
 
@@ -259,12 +261,12 @@ def _cmd_bench_solver(args) -> int:
     workers = args.workers or executors.default_workers()
     command = "mcverify " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["bench-solver"] else "mcverify bench-solver"
     results = solver_bench.run(args.campaign, args.episodes, args.record_episodes, workers, args.chunk_size)
-    section = solver_bench.markdown(results, command)
+    section = solver_bench_report.markdown(results, command)
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    solver_bench.write_section(args.out, section)
+    solver_bench_report.write_section(args.out, section)
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
     json_path = args.out.parent / f"bench-solver-{stamp}.json"
-    json_path.write_text(solver_bench.to_json(results))
+    json_path.write_text(solver_bench_report.to_json(results))
     print(section)
     print(f"written: {args.out} (section), {json_path}", file=sys.stderr)
     return 0

@@ -9,7 +9,8 @@ with the same control period, horizon and integration:
 
 Reported: episodes per CPU-minute of each side (``time.process_time`` of this process, so worker
 counts flatter neither side) and their ratio, peak resident memory, and the agreement of the paired
-episodes (safety verdict, outcome, minimum distances, overtaking time). The row is appended to
+episodes (safety verdict, outcome, minimum distances, overtaking time;
+:func:`mcverify.bench.agreement.agreement`). The row is appended to
 ``results/BENCHMARKS.md`` with the command and the machine.
 
 The engine's CPU is split by phase (:class:`mcverify.episode.rollout.PhaseClock`): the solver (summed from
@@ -34,6 +35,7 @@ from typing import Any
 import jax
 import numpy as np
 
+from mcverify.bench.agreement import agreement
 from mcverify.bench.naive import run_naive
 from mcverify.episode.rollout import PhaseClock, episode_key, run_episodes
 from mcverify.run import executors
@@ -126,22 +128,6 @@ def pick_cell(campaign_path: str, cell_name: str, backend: str | None) -> tuple[
     return cell, camp.seed, camp.common_random_numbers
 
 
-def agreement(a: list[dict], b: list[dict]) -> dict[str, Any]:
-    """Paired comparison by episode id: verdicts equal, and the largest differences of the values."""
-    by_id = {r["cell_episode"]: r for r in b}
-    pairs = [(r, by_id[r["cell_episode"]]) for r in a if r["cell_episode"] in by_id]
-    out: dict[str, Any] = {
-        "pairs": len(pairs),
-        "same_safety": sum(x["safe"] == y["safe"] for x, y in pairs),
-        "same_outcome": sum(x["outcome"] == y["outcome"] for x, y in pairs),
-        "disagreements": [x["cell_episode"] for x, y in pairs if x["safe"] != y["safe"]],
-    }
-    for col in PAIRED_VALUES:
-        diffs = [abs(x[col] - y[col]) for x, y in pairs if math.isfinite(x[col]) and math.isfinite(y[col])]
-        out[f"max_abs_diff_{col}"] = max(diffs) if diffs else math.nan
-    return out
-
-
 def machine() -> str:
     model = platform.processor() or platform.machine()
     try:
@@ -201,7 +187,7 @@ def run(
         "peak_rss_mb": peak_mb,
         "setup_cpu_s": setup_cpu_s,
         "plant_transfer": transfer,
-        "agreement": agreement(naive.rows, engine.rows),
+        "agreement": agreement(naive.rows, engine.rows, key="cell_episode", values=PAIRED_VALUES),
         "machine": machine(),
         "command": "mcverify " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["bench"]
         else "mcverify bench",
@@ -225,12 +211,13 @@ def render(result: dict[str, Any]) -> str:
         f"  peak memory: {result['peak_rss_mb']:.0f} MB; one-off set-up {result['setup_cpu_s']:.1f} CPU-s "
         "(kernel load, XLA compile; counted on neither side)",
         *phase_lines(e, result.get("plant_transfer")),
-        f"  agreement on {ag['pairs']} paired episodes: safety verdict {ag['same_safety']}/{ag['pairs']}, outcome "
-        f"{ag['same_outcome']}/{ag['pairs']}; largest differences: "
-        + ", ".join(f"{c} {ag[f'max_abs_diff_{c}']:.3g}" for c in PAIRED_VALUES),
+        f"  agreement on {ag['paired']} paired episodes: safety verdict {ag['safe_agree']}/{ag['paired']}, outcome "
+        f"{ag['outcome_agree']}/{ag['paired']}; largest differences: "
+        + ", ".join(f"{c} {ag[f'{c}_absdiff_max']:.3g}" for c in PAIRED_VALUES),
     ]
-    if ag["disagreements"]:
-        lines.append(f"  safety verdicts differ for episodes {ag['disagreements']}")
+    unsafe = [d["cell_episode"] for d in ag["disagreements"] if d["safe_ref"] != d["safe_new"]]
+    if unsafe:
+        lines.append(f"  safety verdicts differ for episodes {unsafe}")
     return "\n".join(lines)
 
 
@@ -264,7 +251,7 @@ def append_markdown(result: dict[str, Any], path: Path = BENCHMARKS_MD) -> None:
         f"| {result['date']} | `{result['command']}` | {result['machine']} | {result['cell']} | {result['backend']} | "
         f"{n.episodes_per_cpu_min:.3g} | {e.episodes_per_cpu_min:.3g} | {result['ratio']:.1f}x | "
         f"{n.cpu_ms_per_solve:.1f} | {e.cpu_ms_per_solve:.1f} | {result['peak_rss_mb']:.0f} | "
-        f"{ag['same_safety']}/{ag['pairs']} |\n"
+        f"{ag['safe_agree']}/{ag['paired']} |\n"
     )
     path.parent.mkdir(parents=True, exist_ok=True)
     text = path.read_text() if path.exists() else "# Benchmarks\n"

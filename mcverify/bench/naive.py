@@ -4,7 +4,7 @@ A Python loop over episodes and control steps; each step solves each problem wit
 and IPOPT at its default settings (problem built once, re-solved with ``set_value``, warm-started with
 ``set_initial`` from the previous primal solution, as a CasADi user writes it). No generated code, no
 batching, no tuned warm starts. Everything else is the engine's: the same NLP maths
-(:func:`mcverify.ocp.problem.build_nlp`, wrapped into the Opti problem), the same decisions
+(:func:`mcverify.ocp.ocp.build_nlp`, wrapped into the Opti problem), the same decisions
 (:class:`mcverify.control.planner.Planner` with this solver), the same plant and noise draws (the JAX plant run
 one episode at a time) - so the safety verdicts of naive and engine episodes can be paired.
 """
@@ -18,10 +18,10 @@ from collections.abc import Sequence
 import casadi as ca
 import numpy as np
 
+from mcverify import ocp
 from mcverify.control.planner import Planner
 from mcverify.episode.rollout import run_episodes
 from mcverify.model import ModelParams
-from mcverify.ocp import problem
 from mcverify.run.campaign import Cell
 from mcverify.solver.mpc import SOLVED_STATUSES, MpcSolution, WarmStart
 
@@ -29,17 +29,17 @@ from mcverify.solver.mpc import SOLVED_STATUSES, MpcSolution, WarmStart
 class NaiveOptiSolver:
     """One TO-CBF-MPC structure as an ``Opti`` problem (MX graph calling the SX maths, interpreted)."""
 
-    def __init__(self, params: ModelParams, structure: problem.OcpStructure) -> None:
+    def __init__(self, params: ModelParams, structure: ocp.OcpStructure) -> None:
         self.params, self.structure = params, structure
-        self.layout = problem.NlpLayout.of(structure)
-        nlp = problem.build_nlp(structure)
+        self.layout = ocp.NlpLayout.of(structure)
+        nlp = ocp.build_nlp(structure)
         fn = ca.Function("nlp", [nlp["x"], nlp["p"]], [nlp["f"], nlp["g"]])
         self.opti = ca.Opti()
         self.w = self.opti.variable(self.layout.n_w)
-        self.p = self.opti.parameter(problem.ParamLayout.of(structure).size)
+        self.p = self.opti.parameter(ocp.ParamLayout.of(structure).size)
         f, g = fn(self.w, self.p)
-        lbx, ubx = problem.decision_bounds(params, structure)
-        lbg, ubg = problem.constraint_bounds(structure)
+        lbx, ubx = ocp.decision_bounds(params, structure)
+        lbg, ubg = ocp.constraint_bounds(structure)
         self.opti.minimize(f)
         n_eq = self.layout.n_eq
         self.opti.subject_to(g[:n_eq] == 0)
@@ -59,7 +59,7 @@ class NaiveOptiSolver:
     ) -> MpcSolution:
         """One Opti solve (``fast_only`` is ignored: the paper's loop runs IPOPT in full every time)."""
         t0 = time.perf_counter()
-        p = problem.pack_params(self.params, ego_state, front_xyv, direction, lambda0, opp_xv=opp_xv,
+        p = ocp.pack_params(self.params, ego_state, front_xyv, direction, lambda0, opp_xv=opp_xv,
                             structure=self.structure)
         self.opti.set_value(self.p, p)
         if warm is not None and warm.direction == direction and warm.x.size == self.layout.n_w:
@@ -67,7 +67,7 @@ class NaiveOptiSolver:
         elif guess is not None:
             start = guess
         else:
-            start = problem.initial_guess(self.params, self.structure, ego_state, front_xyv, direction, opp_xv)
+            start = ocp.initial_guess(self.params, self.structure, ego_state, front_xyv, direction, opp_xv)
         self.opti.set_initial(self.w, start)
         try:
             sol = self.opti.solve()

@@ -20,7 +20,7 @@ import numpy as np
 import pyarrow as pa
 
 from mcverify.analysis import summary
-from mcverify.report import figures
+from mcverify.report import cell_figures, episode_figures, figure_common
 from mcverify.report.paper_tables import pretty_label
 from mcverify.report.tables import method_name
 
@@ -35,7 +35,7 @@ _EPISODE_FILE = re.compile(r"^episode-(\d+)\.parquet$")
 @dataclass(frozen=True)
 class FigureResult:
     """A figure of the report: ``file`` relative to the run folder (None when ``skipped`` says why
-    it was not drawn), its ``title`` and ``caption``, and what was drawn (:func:`figures.artist_counts`)."""
+    it was not drawn), its ``title`` and ``caption``, and what was drawn (:func:`figure_common.artist_counts`)."""
 
     key: str
     title: str
@@ -120,15 +120,15 @@ def write_figures(
 
     if not cells:
         return [FigureResult("rates", "Rates per cell", "", None, "not drawn: the run has no cell")]
-    if len(cells) > figures.MAX_PANELS:
+    if len(cells) > figure_common.MAX_PANELS:
         results.append(FigureResult("rates", "Rates per cell", "", None,
-                                    f"not drawn: {len(cells)} cells, more than {figures.MAX_PANELS}"))
+                                    f"not drawn: {len(cells)} cells, more than {figure_common.MAX_PANELS}"))
     else:
         draw("rates", "Rates per cell",
              f"Left: safe, collision and ellipse-violation rates per cell (points) with their two-sided {level:.0%} "
              f"{method_name(summ['interval_method'])} intervals (bars). Right: share of the cell's episodes by "
              "outcome, with counts.",
-             figures.rates_per_cell, cells)
+             cell_figures.rates_per_cell, cells)
 
     x_axis = sweep_axis(cells, axes)
     if x_axis:
@@ -140,7 +140,7 @@ def write_figures(
         draw(f"rate-vs-{x_axis}", f"Rates against {x_label}",
              f"Rate per cell against {x_label}, one line per {', '.join(others) or 'campaign'}; the band is the "
              f"two-sided {level:.0%} interval and ▼ marks the exact one-sided upper bound of a cell with no event.",
-             figures.rate_vs_axis, cells, x_axis, numeric_axes(cells, axes)[x_axis], groups, metrics,
+             cell_figures.rate_vs_axis, cells, x_axis, numeric_axes(cells, axes)[x_axis], groups, metrics,
              level=level, x_label=x_label)
 
     if len(axes) == 2:
@@ -151,7 +151,7 @@ def write_figures(
             draw(f"heatmap-{metric}", f"{label.capitalize()} rate per {row_axis} × {col_axis}",
                  f"Colour: {label} rate; each square: k/n and the two-sided {level:.0%} interval (≥ l or ≤ u: the "
                  "exact one-sided bound when every or no episode counts).",
-                 figures.rate_heatmap, cells, row_axis, axes[row_axis], col_axis, axes[col_axis], metric,
+                 cell_figures.rate_heatmap, cells, row_axis, axes[row_axis], col_axis, axes[col_axis], metric,
                  title=f"{label} rate", higher_is_better=better,
                  tick_labels=([pretty_label(row_axis, x) for x in axes[row_axis]],
                               [pretty_label(col_axis, x) for x in axes[col_axis]]))
@@ -162,7 +162,7 @@ def write_figures(
 
 
 def _histograms(cells: Sequence[Mapping[str, Any]], table: pa.Table, draw) -> None:
-    if len(cells) > figures.MAX_PANELS:
+    if len(cells) > figure_common.MAX_PANELS:
         return
     idx = np.asarray(table.column("cell_index").to_numpy()) if table.num_rows else np.zeros(0)
     valid = np.array([o != "error" for o in table.column("outcome").to_pylist()]) if "outcome" in table.column_names \
@@ -182,7 +182,7 @@ def _histograms(cells: Sequence[Mapping[str, Any]], table: pa.Table, draw) -> No
             continue  # e.g. no opposing vehicle in any cell
         x = np.array([np.nan if v is None else float(v) for v in table.column(col).to_pylist()], dtype=float)
         samples = [x[(idx == c["cell_index"]) & valid] for c in cells]
-        draw(key, title, caption, figures.distance_histograms, [c["cell"] for c in cells], samples,
+        draw(key, title, caption, cell_figures.distance_histograms, [c["cell"] for c in cells], samples,
              x_label=xlabel, boundary=boundary, boundary_label=blabel)
 
 
@@ -205,9 +205,9 @@ def _trajectory_figures(
     series_h, series_opp, series_v = [], [], []
     for c in chosen:
         ep = stored[c["cell_index"]]
-        traj = figures.load_table(run_dir / ep.trajectory)
-        plans = figures.load_table(run_dir / ep.plans) if ep.plans else None
-        p = figures.params_dict(params.get(c["cell_index"]))
+        traj = figure_common.load_table(run_dir / ep.trajectory)
+        plans = figure_common.load_table(run_dir / ep.plans) if ep.plans else None
+        p = figure_common.params_dict(params.get(c["cell_index"]))
         row = table.slice(rows[ep.episode_id], 1).to_pylist()[0]
         key = f"snapshots-cell-{c['cell_index']:03d}"
         head = f"{c['cell']} · episode {ep.episode_id} · {row.get('outcome')} · safe = {row.get('safe')}"
@@ -219,7 +219,7 @@ def _trajectory_figures(
         plan_note = (f"planned Q1 (green dots) and Q2 (orange dots) trajectories from {ep.plans}"
                      if plans is not None else "planned trajectories not stored for this episode (no plans file)")
         try:
-            drawn = figures.snapshots(traj, plans, p, out / f"{key}.png", title=head)
+            drawn = episode_figures.snapshots(traj, plans, p, out / f"{key}.png", title=head)
             results.append(FigureResult(
                 key, f"Snapshots: {c['cell']}",
                 f"Episode {ep.episode_id} ({ep.trajectory}) at up to five times: ego (green), front vehicle (red) with "
@@ -229,9 +229,9 @@ def _trajectory_figures(
         except (KeyError, ValueError) as err:
             results.append(FigureResult(key, f"Snapshots: {c['cell']}", "", None, f"not drawn: {err}"))
         title = f"{c['cell']} · episode {ep.episode_id}"
-        if figures.column(traj, "h_front") is not None:
+        if figure_common.column(traj, "h_front") is not None:
             series_h.append((title, traj, float(c["epsilon"])))
-        if figures.column(traj, "h_opp") is not None:
+        if figure_common.column(traj, "h_opp") is not None:
             series_opp.append((title, traj, float(p["barrier"]["opp_epsilon_m"])))
         series_v.append((title, traj, float(p["ego"]["speed_max_mps"])))
     notes = []
@@ -246,13 +246,13 @@ def _trajectory_figures(
          "h_ef along the true trajectory of each cell's stored episode, against the level ε (dashed) and the "
          "ellipse h = 0 (dotted); the view is clipped above; background: what drove the ego (Q1 green, Q2 "
          "orange, fallback red, a held MPC-DC plan purple; MPC-DC's own plans count as Q1)." + note,
-         figures.barrier_series, {}),
+         episode_figures.barrier_series, {}),
         ("barrier-h-eo", "h_eo(t) against its level", series_opp,
          "h_eo (m) while the ego borrows the opposing lane, against its level (dashed)." + note,
-         figures.barrier_series, {"opp": True}),
+         episode_figures.barrier_series, {"opp": True}),
         ("speeds", "Speed profiles", series_v,
          "Speeds of the ego (green), front (red; measured, faint) and opposing (blue) vehicles in each cell's stored "
-         "episode, with the ego's speed limit (dotted)." + note, figures.speed_profiles, {}),
+         "episode, with the ego's speed limit (dotted)." + note, episode_figures.speed_profiles, {}),
     ):
         if not series:
             if key != "barrier-h-eo":

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mcverify.model import ModelParams
-from mcverify.ocp.problem import (
+from mcverify.ocp import (
     NlpLayout,
     OcpStructure,
     constraint_bounds,

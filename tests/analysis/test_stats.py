@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats as sps
 
-from mcverify.analysis import stats
+from mcverify.analysis import bootstrap, comparisons, stats
 from mcverify.analysis.stats import (
     Interval,
     bootstrap_mean_difference,
@@ -86,7 +86,7 @@ def test_newcombe_unpaired_coverage():
     rng = np.random.default_rng(11)
     for p1, p2, n1, n2 in [(0.5, 0.4, 100, 100), (0.9, 0.8, 200, 150), (0.05, 0.02, 300, 300)]:
         k1, k2 = rng.binomial(n1, p1, REPS), rng.binomial(n2, p2, REPS)
-        low, high = stats._newcombe_unpaired_arrays(k1, n1, k2, n2, 0.95)
+        low, high = comparisons._newcombe_unpaired_arrays(k1, n1, k2, n2, 0.95)
         assert np.mean((low <= p1 - p2) & (p1 - p2 <= high)) >= 0.92
 
 
@@ -94,7 +94,7 @@ def test_newcombe_paired_coverage():
     rng = np.random.default_rng(12)
     for cells, n in [((0.5, 0.1, 0.05, 0.35), 100), ((0.85, 0.05, 0.02, 0.08), 200), ((0.9, 0.03, 0.01, 0.06), 500)]:
         c = rng.multinomial(n, cells, size=REPS)
-        low, high = stats._newcombe_paired_arrays(c[:, 0], c[:, 1], c[:, 2], c[:, 3], 0.95)
+        low, high = comparisons._newcombe_paired_arrays(c[:, 0], c[:, 1], c[:, 2], c[:, 3], 0.95)
         d = cells[1] - cells[2]
         assert np.mean((low <= d) & (d <= high)) >= 0.92
 
@@ -216,7 +216,7 @@ def test_bootstrap_deterministic_and_contains_mean():
 def test_bootstrap_chunking_is_invisible(monkeypatch):
     x = np.random.default_rng(4).exponential(size=50)
     whole = bootstrap_mean_interval(x, n_resamples=500, seed=1)
-    monkeypatch.setattr(stats, "_BOOTSTRAP_CHUNK_VALUES", 50 * 7)  # 7 resamples a chunk
+    monkeypatch.setattr(bootstrap, "_BOOTSTRAP_CHUNK_VALUES", 50 * 7)  # 7 resamples a chunk
     assert bootstrap_mean_interval(x, n_resamples=500, seed=1) == whole
 
 

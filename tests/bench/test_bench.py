@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 from mcverify.bench import engine as bench
+from mcverify.bench.agreement import agreement
 
 
 def row(e, safe=True, outcome="overtook", d=0.8, g=40.0, t=6.5, solves=100):
@@ -15,19 +16,39 @@ def row(e, safe=True, outcome="overtook", d=0.8, g=40.0, t=6.5, solves=100):
 def test_agreement_pairs_by_episode_and_lists_disagreements():
     naive = [row(0), row(1, safe=False, outcome="timeout"), row(2, t=math.nan)]
     engine = [row(2, t=7.0), row(1), row(0, d=0.75), row(3)]
-    ag = bench.agreement(naive, engine)
-    assert ag["pairs"] == 3 and ag["same_safety"] == 2 and ag["disagreements"] == [1]
-    assert ag["same_outcome"] == 2
-    assert ag["max_abs_diff_min_dist_front_m"] == 0.050000000000000044
-    assert ag["max_abs_diff_overtake_time_s"] == 0.0  # the NaN pair is skipped
+    ag = agreement(naive, engine, key="cell_episode", values=bench.PAIRED_VALUES)
+    assert ag["paired"] == 3 and ag["safe_agree"] == 2 and [d["cell_episode"] for d in ag["disagreements"]] == [1]
+    assert ag["outcome_agree"] == 2
+    assert ag["min_dist_front_m_absdiff_max"] == 0.050000000000000044
+    assert ag["overtake_time_s_absdiff_max"] == 0.0  # the NaN pair is skipped
+    assert "new_statuses" not in ag
+
+
+def test_agreement_of_solver_runs_counts_statuses_and_intervals():
+    def solver_row(e, safe=True, statuses='{"Solve_Succeeded": 3}'):
+        return {"episode_id": e, "cell": "c", "safe": safe, "outcome": "overtook", "min_dist_front_m": 0.8,
+                "overtake_time_s": 6.5, "solver_statuses": statuses}
+
+    ref = [solver_row(0), solver_row(1)]
+    new = [solver_row(1, safe=False, statuses='{"ipm": 2, "fallback": 1}'), solver_row(0, statuses='{"ipm": 3}')]
+    ag = agreement(ref, new, status_column="solver_statuses")
+    assert ag["paired"] == 2 and ag["safe_agree"] == 1 and ag["outcome_agree"] == 2
+    assert ag["safe_agree_ci"][0] < 0.5 < ag["safe_agree_ci"][1] and ag["outcome_agree_ci"][1] == 1.0
+    assert ag["new_statuses"] == {"ipm": 5, "fallback": 1}
+    assert ag["disagreements"] == [{"episode_id": 1, "cell": "c", "safe_ref": True, "outcome_ref": "overtook",
+                                    "min_dist_front_m_ref": 0.8, "overtake_time_s_ref": 6.5, "safe_new": False,
+                                    "outcome_new": "overtook", "min_dist_front_m_new": 0.8,
+                                    "overtake_time_s_new": 6.5}]
+    assert agreement([], new)["safe_agree_ci"] is None
 
 
 def test_markdown_rows_go_into_the_bench_table(tmp_path):
     path = tmp_path / "BENCHMARKS.md"
     path.write_text("# Benchmarks\n\n## Other section\n\ntext\n")
     side = lambda n, cpu: bench.SideResult("x", [row(i) for i in range(n)], cpu, cpu)  # noqa: E731
-    result = {"engine": side(4, 60.0), "naive": side(1, 600.0), "agreement": bench.agreement([row(0)], [row(0)]),
-              "ratio": 40.0, "peak_rss_mb": 500.0, "machine": "m", "cell": "c", "backend": "ipopt",
+    result = {"engine": side(4, 60.0), "naive": side(1, 600.0),
+              "agreement": agreement([row(0)], [row(0)], key="cell_episode"), "ratio": 40.0, "peak_rss_mb": 500.0,
+              "machine": "m", "cell": "c", "backend": "ipopt",
               "command": "mcverify bench", "date": "2026-11-23", "campaign": "x"}
     bench.append_markdown(result, path)
     bench.append_markdown(result, path)

@@ -7,9 +7,9 @@ import dataclasses
 import numpy as np
 import pytest
 
+from mcverify import ocp
 from mcverify.bench.naive import NaiveOptiSolver, run_naive
 from mcverify.model import ModelParams
-from mcverify.ocp import problem
 from mcverify.solver.mpc import MpcSolver
 
 P = ModelParams()
@@ -20,7 +20,7 @@ FRONT = np.array([64.0, 0.0, 25 / 3.6])
 
 @pytest.mark.parametrize("direction", [1, -1])
 def test_opti_and_the_compiled_kernel_solve_the_same_problem(direction):
-    structure = problem.OcpStructure.from_params(P)
+    structure = ocp.OcpStructure.from_params(P)
     naive = NaiveOptiSolver(P, structure).solve(EGO, FRONT, direction, LAMBDA0)
     engine = MpcSolver(P, structure).solve(EGO, FRONT, direction, LAMBDA0)
     assert naive.success and engine.success, (naive.status, engine.status)

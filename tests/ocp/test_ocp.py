@@ -1,4 +1,4 @@
-"""The TO-CBF-MPC problem (mcverify.ocp.problem): maths against independent numpy, solved plans against every constraint."""
+"""The TO-CBF-MPC problem (mcverify.ocp): maths against independent numpy, solved plans against every constraint."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
+from mcverify import ocp
 from mcverify.model import ModelParams
 from mcverify.ocp import problem
 from mcverify.solver.mpc import MpcSolver
@@ -86,8 +87,8 @@ def test_lambda_h_is_constant_plus_odd_powers():
 
 
 def test_param_layout_and_pack_params():
-    layout = problem.ParamLayout(P.barrier.order_m)
-    p = problem.pack_params(P, TABLE_II_EGO, [64.0, 0.0, 7.0], -1, LAMBDA0)
+    layout = ocp.ParamLayout(P.barrier.order_m)
+    p = ocp.pack_params(P, TABLE_II_EGO, [64.0, 0.0, 7.0], -1, LAMBDA0)
     assert p.shape == (layout.size,)
     sl = layout.slices
     assert np.array_equal(p[sl["x0"]], TABLE_II_EGO)
@@ -95,34 +96,34 @@ def test_param_layout_and_pack_params():
     assert np.allclose(p[sl["lambdas"]], [LAMBDA0, *P.barrier.lambdas_m])
     assert p[sl["y_goal"]][0] == P.road.ego_lane_y_m
     with pytest.raises(ValueError):
-        problem.pack_params(P, TABLE_II_EGO, [64.0, 0.0, 7.0], 0, LAMBDA0)
+        ocp.pack_params(P, TABLE_II_EGO, [64.0, 0.0, 7.0], 0, LAMBDA0)
 
 
 @pytest.mark.parametrize("with_opposing", [False, True])
 @pytest.mark.parametrize("constraint", ["cbf", "distance"])
 def test_nlp_dimensions(with_opposing, constraint):
-    st = dataclasses.replace(problem.OcpStructure.from_params(P, with_opposing=with_opposing), constraint=constraint)
-    nlp = problem.build_nlp(st)
-    lay = problem.NlpLayout.of(st)
+    st = dataclasses.replace(ocp.OcpStructure.from_params(P, with_opposing=with_opposing), constraint=constraint)
+    nlp = ocp.build_nlp(st)
+    lay = ocp.NlpLayout.of(st)
     assert nlp["x"].numel() == lay.n_w
     assert nlp["g"].numel() == lay.n_g
-    assert nlp["p"].numel() == problem.ParamLayout.of(st).size
-    lbx, ubx = problem.decision_bounds(P, st)
+    assert nlp["p"].numel() == ocp.ParamLayout.of(st).size
+    lbx, ubx = ocp.decision_bounds(P, st)
     assert np.all(np.isinf(lbx[:4])) and np.all(np.isinf(ubx[:4]))  # X[:, 0] is not bounded
     opp = np.array([300.0, -10.0]) if with_opposing else None
-    w0 = problem.initial_guess(P, st, TABLE_II_EGO, [64.0, 0.0, 7.0], 1, opp)
+    w0 = ocp.initial_guess(P, st, TABLE_II_EGO, [64.0, 0.0, 7.0], 1, opp)
     assert w0.shape == (lay.n_w,) and np.all(np.isfinite(w0))
     if with_opposing:
         with pytest.raises(ValueError, match="opp_xv"):
-            problem.pack_params(P, TABLE_II_EGO, [64.0, 0.0, 7.0], 1, LAMBDA0, structure=st)
+            ocp.pack_params(P, TABLE_II_EGO, [64.0, 0.0, 7.0], 1, LAMBDA0, structure=st)
 
 
 def test_formulation_digest_follows_the_maths():
-    plain = problem.OcpStructure.from_params(P)
-    assert problem.formulation_digest(plain) == problem.formulation_digest(dataclasses.replace(plain))
+    plain = ocp.OcpStructure.from_params(P)
+    assert ocp.formulation_digest(plain) == ocp.formulation_digest(dataclasses.replace(plain))
     others = [dataclasses.replace(plain, with_opposing=True), dataclasses.replace(plain, constraint="distance"),
               dataclasses.replace(plain, order_m=3)]
-    digests = {problem.formulation_digest(s) for s in [plain, *others]}
+    digests = {ocp.formulation_digest(s) for s in [plain, *others]}
     assert len(digests) == 4
 
 
@@ -222,7 +223,7 @@ def test_smoothing_weight_keeps_plan_time_optimal():
 @pytest.mark.slow
 def test_free_stage_intervals_variant_solves_table_ii_start(tmp_path):
     """The paper-literal structure (every DT_i free) compiles (about 20 s) and solves the Table II start."""
-    structure = problem.OcpStructure.from_params(P, uniform_dt=False)
+    structure = ocp.OcpStructure.from_params(P, uniform_dt=False)
     front = np.array([64.0, 0.0, 25.0 / 3.6])
     sol = MpcSolver(P, structure=structure, kernel_dir=tmp_path).solve(TABLE_II_EGO, front, 1, LAMBDA0)
     assert sol.success, sol.status
@@ -240,7 +241,7 @@ FRONT_25 = np.array([64.0, 0.0, 25.0 / 3.6])
 
 @pytest.fixture(scope="module")
 def opp_solvers() -> dict[str, MpcSolver]:
-    return {name: MpcSolver(p, problem.OcpStructure.from_params(p, with_opposing=True))
+    return {name: MpcSolver(p, ocp.OcpStructure.from_params(p, with_opposing=True))
             for name, p in (("human", HUMAN), ("auto", AUTO), ("mpcdc", MPCDC))}
 
 
@@ -317,15 +318,15 @@ def test_plan_keeps_the_ego_vlcbf_on_h_eo_in_the_opposing_lane(opp_solvers, kind
 def test_autonomous_prediction_is_its_law(opp_solvers):
     """The planner predicts an autonomous veh_o with its own law (mcverify.sim.agents.autonomous_accel),
     up to the smoothing of max/clip: check node by node where the exact and smooth lane gates agree."""
+    from mcverify.levels import lambda0_from_epsilon
     from mcverify.sim import agents
-    from mcverify.sim.barriers import lambda0_from_epsilon_np
 
     o = AUTO.opposing
     sol = opp_solvers["auto"].solve(TABLE_II_EGO, FRONT_25, 1, LAMBDA0, opp_xv=np.array([420.0, -12.0]))
     assert sol.success, sol.status
     accel_o, _ = np_opp_accel_numbers(sol.opp_plan, sol.dt_plan)
     law = dict(cruise_speed_mps=o.speed_mps, gain_per_s=o.cruise_gain_per_s,
-               lambdas=np.array([lambda0_from_epsilon_np(o.lambdas_m, o.epsilon_m), *o.lambdas_m]),
+               lambdas=np.array([lambda0_from_epsilon(o.lambdas_m, o.epsilon_m), *o.lambdas_m]),
                decel_max_mps2=AUTO.barrier.decel_max_mps2, accel_max_mps2=o.accel_max_mps2,
                brake_max_mps2=o.brake_max_mps2, l_r_m=P.ego.l_r_m)
     compared = 0

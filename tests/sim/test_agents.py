@@ -7,8 +7,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mcverify.sim import agents
 from mcverify.levels import lambda0_from_epsilon
+from mcverify.sim import agents
 
 LAMBDAS_O = np.array([lambda0_from_epsilon((1.0,), 1.0), 1.0])  # level 1 m, kappa~ linear
 A_L = 6.0

@@ -14,7 +14,7 @@ import pytest
 from test_solver import bicycle_step
 
 from mcverify.model import ModelParams
-from mcverify.ocp.problem import NlpLayout, OcpStructure, constraint_bounds, pack_params
+from mcverify.ocp import NlpLayout, OcpStructure, constraint_bounds, pack_params
 from mcverify.run import campaign
 from mcverify.solver import backends
 from mcverify.solver.cfun import CFunction
