@@ -42,10 +42,10 @@ from typing import Any
 import tomllib
 
 from mcverify.sim import barriers
-from mcverify.model import ModelParams
+from mcverify.model import BACKEND_NAMES, ModelParams
 
 CONTROLLERS = ("vlcbf", "mpcdc")
-BACKENDS = ("ipopt", "ipm")
+BACKENDS = BACKEND_NAMES  # declared by the model; validated here without importing the solvers
 OPPOSING_KINDS = ("none", "autonomous", "human")
 
 #: Grid/model keys in other units, converted on load: alias -> (field, factor).

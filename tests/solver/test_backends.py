@@ -13,14 +13,13 @@ import numpy as np
 import pytest
 from test_solver import bicycle_step
 
-from mcverify.solver import backends
-
+from mcverify.model import BACKEND_NAMES, ModelParams
+from mcverify.ocp.problem import NlpLayout, OcpStructure, constraint_bounds, pack_params
 from mcverify.run import campaign
+from mcverify.solver import backends
 from mcverify.solver.cfun import CFunction
 from mcverify.solver.ipm import WARM_ATTEMPTS, IpmResult, with_options
 from mcverify.solver.kkt import KktStructure
-from mcverify.model import ModelParams
-from mcverify.ocp.problem import NlpLayout, OcpStructure, constraint_bounds, pack_params
 from mcverify.solver.mpc import MpcSolver
 
 P = dataclasses.replace(ModelParams(), mpc=dataclasses.replace(ModelParams().mpc, backend="ipopt"))
@@ -57,8 +56,12 @@ def closed_loop_states(solver: MpcSolver, front: np.ndarray, direction: int, ste
 # ------------------------------------------------------------------------------------- selection
 
 
-def test_backend_names_and_selection(ipm):
-    assert campaign.BACKENDS == backends.BACKENDS == ("ipopt", "ipm")
+def test_registry_implements_every_backend_name():
+    assert set(backends.REGISTRY) == set(BACKEND_NAMES)
+    assert all(cls.name == name for name, cls in backends.REGISTRY.items())
+
+
+def test_backend_selection(ipm):
     assert isinstance(ipm.backend, backends.IpmBackend)
     assert isinstance(MpcSolver(ModelParams()).backend, backends.IpmBackend)  # the default
     assert isinstance(MpcSolver(P).backend, backends.IpoptBackend)
