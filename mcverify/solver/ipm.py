@@ -8,6 +8,10 @@ where an IPOPT iteration through CasADi costs 1.3-1.8 ms on the same kernel (mea
 results/BENCHMARKS.md). The C library is compiled once per machine into the kernel cache
 (:func:`mcverify.solver.kernels.get_runtime_library`).
 
+The ABI (the three structs below, the status codes, the exported functions) is declared in
+``csrc/ipm.h``; :func:`load_library` compares the library's own description of it with this module's
+ctypes structs and :data:`STATUS` and refuses a library that disagrees (:class:`IpmAbiError`).
+
 Options follow IPOPT's names; :data:`WARM_ATTEMPTS` and :data:`COLD` are the settings the
 backend uses (chosen by measurement on recorded Table II closed loops, see their docstrings).
 """
@@ -85,6 +89,7 @@ WARM_ATTEMPTS: tuple[IpmOptions, ...] = (
 COLD = IpmOptions(mu_init=0.1, bound_push=1e-2, mult_push=1e-2, max_iter=150)
 
 
+# Mirrors of ipm_struct, ipm_opts, ipm_stats (csrc/ipm.h), field by field.
 class _Struct(ctypes.Structure):
     _fields_ = [
         ("n_w", ctypes.c_int), ("n_g", ctypes.c_int), ("n", ctypes.c_int), ("bw", ctypes.c_int),
