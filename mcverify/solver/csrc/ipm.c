@@ -136,7 +136,9 @@ typedef struct {
   double *jac, *jraw, *hess; /* scaled and raw Jacobian nonzeros, Hessian upper triangle */
 } ipm_ws;
 
-static int is_eq(const ipm_ws *S, int i) { return S->lbg[i] == S->ubg[i]; }
+/* An equality row (lbg == ubg). A macro on the locals lbg, ubg (not S->lbg) so that the loops keep
+   the bounds' pointers in registers across the calls of log and pow. */
+#define IS_EQ(i) (lbg[i] == ubg[i])
 
 /* Largest work size of the four generated functions, for each of the four kinds (arg, res, iw, w). */
 static int64_t max_work_size(const ipm_struct *st, int kind) {
@@ -266,12 +268,13 @@ static void relax_row_bounds(ipm_ws *S) {
 
 /* Primal start: x pushed inside its relaxed bounds, slacks at the scaled g pushed inside theirs. */
 static int primal_start(ipm_ws *S, double push) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
   for (int j = 0; j < S->nw; ++j) S->x[j] = push_inside(S->x[j], S->lx[j], S->ux[j], push);
   if (call(&S->E, S->st->f_g, S->x, S->p, 0, 0, S->g, 0)) return IPM_EVALUATION_ERROR;
   relax_row_bounds(S);
   for (int i = 0; i < S->ng; ++i) {
     double gi = S->g[i] * S->dc[i];
-    if (is_eq(S, i)) { S->s[i] = S->lg[i]; continue; }
+    if (IS_EQ(i)) { S->s[i] = S->lg[i]; continue; }
     S->s[i] = push_inside(gi, S->lg[i], S->ug[i], push);
   }
   return IPM_CONVERGED;
@@ -280,13 +283,14 @@ static int primal_start(ipm_ws *S, double push) {
 /* Dual start: the caller's multipliers (warm; scaled, split by sign into the bound multipliers),
    else 0 for y and 1 for the bound multipliers; each bound multiplier at least mult_push. */
 static void dual_start(ipm_ws *S, const double *lam_x, const double *lam_g) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
   const int warm = S->o->warm;
   const double mult_push = S->o->mult_push;
   for (int i = 0; i < S->ng; ++i) {
     double *y = S->y, *vl = S->vl, *vu = S->vu;
     y[i] = warm ? lam_g[i] / S->dc[i] : 0.0;
     vl[i] = vu[i] = 0.0;
-    if (is_eq(S, i)) continue;
+    if (IS_EQ(i)) continue;
     /* on slack rows y = vU - vL */
     if (isfinite(S->lg[i])) vl[i] = fmax(warm ? fmax(-y[i], 0.0) : 1.0, mult_push);
     if (isfinite(S->ug[i])) vu[i] = fmax(warm ? fmax(y[i], 0.0) : 1.0, mult_push);
@@ -319,17 +323,19 @@ typedef struct {
 
 /* J^T y, the residual c (cres), and the errors at mu = 0. */
 static kkt_errors residuals(ipm_ws *S) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
   const ipm_struct *st = S->st;
   const int nw = S->nw, ng = S->ng;
   const double *x = S->x, *lx = S->lx, *ux = S->ux, *zl = S->zl, *zu = S->zu, *lbx = S->lbx, *ubx = S->ubx;
   const double *g = S->g, *s = S->s, *y = S->y, *vl = S->vl, *vu = S->vu, *lg = S->lg, *ug = S->ug;
+  const double *grad = S->grad, *jac = S->jac, *dc = S->dc;
   double *jty = S->jty, *cres = S->cres;
   for (int j = 0; j < nw; ++j) jty[j] = 0.0;
-  for (int e = 0; e < st->n_j; ++e) jty[st->j_cols[e]] += S->jac[e] * y[st->j_rows[e]];
+  for (int e = 0; e < st->n_j; ++e) jty[st->j_cols[e]] += jac[e] * y[st->j_rows[e]];
   double inf_du = 0.0, inf_pr = 0.0, inf_co = 0.0, viol_unscaled = 0.0;
   double ysum = 0.0, zsum = 0.0, cnt_y = ng, cnt_z = 0;
   for (int j = 0; j < nw; ++j) {
-    double r = S->grad[j] + jty[j] - zl[j] + zu[j];
+    double r = grad[j] + jty[j] - zl[j] + zu[j];
     inf_du = fmax(inf_du, fabs(r));
     zsum += zl[j] + zu[j]; cnt_z += 2;
     if (isfinite(lx[j])) inf_co = fmax(inf_co, fabs((x[j] - lx[j]) * zl[j] - 0.0));
@@ -339,7 +345,7 @@ static kkt_errors residuals(ipm_ws *S) {
   }
   for (int i = 0; i < ng; ++i) {
     ysum += fabs(y[i]);
-    if (is_eq(S, i)) { cres[i] = g[i] - lg[i]; }
+    if (IS_EQ(i)) { cres[i] = g[i] - lg[i]; }
     else {
       cres[i] = g[i] - s[i];
       double r = -y[i] - vl[i] + vu[i];
@@ -349,8 +355,8 @@ static kkt_errors residuals(ipm_ws *S) {
       if (isfinite(ug[i])) inf_co = fmax(inf_co, fabs((ug[i] - s[i]) * vu[i]));
     }
     inf_pr = fmax(inf_pr, fabs(cres[i]));
-    double graw = g[i] / S->dc[i];
-    viol_unscaled = fmax(viol_unscaled, fmax(S->lbg[i] - graw, graw - S->ubg[i]));
+    double graw = g[i] / dc[i];
+    viol_unscaled = fmax(viol_unscaled, fmax(lbg[i] - graw, graw - ubg[i]));
   }
   kkt_errors err = {inf_du, inf_pr, inf_co, viol_unscaled, 0.0, 0.0};
   err.sd = fmax(IPM_S_MAX, (ysum + zsum) / (cnt_y + cnt_z)) / IPM_S_MAX;
@@ -360,16 +366,19 @@ static kkt_errors residuals(ipm_ws *S) {
 
 /* Largest complementarity error |slack * multiplier - mu| (the barrier problem's). */
 static double complementarity_error(const ipm_ws *S, double mu) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
+  const int nw = S->nw, ng = S->ng;
   const double *x = S->x, *lx = S->lx, *ux = S->ux, *s = S->s, *lg = S->lg, *ug = S->ug;
+  const double *zl = S->zl, *zu = S->zu, *vl = S->vl, *vu = S->vu;
   double co_mu = 0.0;
-  for (int j = 0; j < S->nw; ++j) {
-    if (isfinite(lx[j])) co_mu = fmax(co_mu, fabs((x[j] - lx[j]) * S->zl[j] - mu));
-    if (isfinite(ux[j])) co_mu = fmax(co_mu, fabs((ux[j] - x[j]) * S->zu[j] - mu));
+  for (int j = 0; j < nw; ++j) {
+    if (isfinite(lx[j])) co_mu = fmax(co_mu, fabs((x[j] - lx[j]) * zl[j] - mu));
+    if (isfinite(ux[j])) co_mu = fmax(co_mu, fabs((ux[j] - x[j]) * zu[j] - mu));
   }
-  for (int i = 0; i < S->ng; ++i) {
-    if (is_eq(S, i)) continue;
-    if (isfinite(lg[i])) co_mu = fmax(co_mu, fabs((s[i] - lg[i]) * S->vl[i] - mu));
-    if (isfinite(ug[i])) co_mu = fmax(co_mu, fabs((ug[i] - s[i]) * S->vu[i] - mu));
+  for (int i = 0; i < ng; ++i) {
+    if (IS_EQ(i)) continue;
+    if (isfinite(lg[i])) co_mu = fmax(co_mu, fabs((s[i] - lg[i]) * vl[i] - mu));
+    if (isfinite(ug[i])) co_mu = fmax(co_mu, fabs((ug[i] - s[i]) * vu[i] - mu));
   }
   return co_mu;
 }
@@ -391,6 +400,7 @@ static double update_barrier(const ipm_ws *S, double mu, const kkt_errors *err) 
 
 /* Sigma_x and Sigma_s: the barrier terms' diagonals, multiplier / slack. */
 static void barrier_diagonals(ipm_ws *S) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
   const double *x = S->x, *lx = S->lx, *ux = S->ux, *s = S->s, *lg = S->lg, *ug = S->ug;
   for (int j = 0; j < S->nw; ++j) {
     double sg = 0.0;
@@ -400,7 +410,7 @@ static void barrier_diagonals(ipm_ws *S) {
   }
   for (int i = 0; i < S->ng; ++i) {
     double sg = 0.0;
-    if (!is_eq(S, i)) {
+    if (!IS_EQ(i)) {
       if (isfinite(lg[i])) sg += S->vl[i] / (s[i] - lg[i]);
       if (isfinite(ug[i])) sg += S->vu[i] / (ug[i] - s[i]);
     }
@@ -410,6 +420,7 @@ static void barrier_diagonals(ipm_ws *S) {
 
 /* The augmented matrix in band storage, regularised by dw (primal) and dcr (constraints). */
 static void assemble_kkt(ipm_ws *S, double dw, double dcr) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
   const ipm_struct *st = S->st;
   memset(S->ab, 0, sizeof(double) * (size_t)st->ldab * (size_t)S->n);
   for (int e = 0; e < st->n_ent; ++e) {
@@ -421,7 +432,7 @@ static void assemble_kkt(ipm_ws *S, double dw, double dcr) {
       case 2: case 3: v = S->jac[st->ent_src[e]]; break;
       default: {
         int i = r - S->nw;
-        v = is_eq(S, i) ? -dcr : -1.0 / (S->sigs[i] + dw) - dcr;
+        v = IS_EQ(i) ? -dcr : -1.0 / (S->sigs[i] + dw) - dcr;
       }
     }
     S->ab[st->ent_pos[e]] += v;
@@ -438,6 +449,7 @@ static double slack_q(const ipm_ws *S, int i, double mu) {
 
 /* Right-hand side of the augmented system (slacks eliminated). */
 static void newton_rhs(ipm_ws *S, double mu, double dw) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
   const double *x = S->x, *lx = S->lx, *ux = S->ux;
   const int nw = S->nw;
   for (int j = 0; j < nw; ++j) {
@@ -447,7 +459,7 @@ static void newton_rhs(ipm_ws *S, double mu, double dw) {
     S->rhs[j] = r;
   }
   for (int i = 0; i < S->ng; ++i) {
-    if (is_eq(S, i)) S->rhs[nw + i] = -S->cres[i];
+    if (IS_EQ(i)) S->rhs[nw + i] = -S->cres[i];
     else S->rhs[nw + i] = -S->cres[i] + slack_q(S, i, mu) / (S->sigs[i] + dw);
   }
 }
@@ -462,19 +474,21 @@ static void solve_permuted(ipm_ws *S, const double *b, double *band_buf, double 
 
 /* Primal step dx from a solution of the augmented system, and the slack step ds it implies. */
 static void unpack_step(ipm_ws *S, const double *solution, double mu, double dw, double *dxv, double *dsv) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
   const ipm_struct *st = S->st;
   const int nw = S->nw;
   for (int j = 0; j < nw; ++j) dxv[j] = solution[j];
   /* a fixing row has one variable and zero residual: its step is exactly 0 (not round-off) */
   for (int k = 0; k < st->n_fix; ++k) dxv[st->fix_var[k]] = 0.0;
   for (int i = 0; i < S->ng; ++i) {
-    if (is_eq(S, i)) { dsv[i] = 0.0; continue; }
+    if (IS_EQ(i)) { dsv[i] = 0.0; continue; }
     dsv[i] = (solution[nw + i] + slack_q(S, i, mu)) / (S->sigs[i] + dw);
   }
 }
 
 /* The inertia-free test: does (dx, ds) have positive curvature? */
 static int curvature_ok(ipm_ws *S, double dw) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
   const ipm_struct *st = S->st;
   const double *dx = S->dx, *ds = S->ds;
   for (int j = 0; j < S->nw; ++j) S->hdx[j] = 0.0;
@@ -482,7 +496,7 @@ static int curvature_ok(ipm_ws *S, double dw) {
   double curv = 0.0, nrm = 0.0;
   for (int j = 0; j < S->nw; ++j) { curv += dx[j] * (S->hdx[j] + (S->sigx[j] + dw) * dx[j]); nrm += dx[j] * dx[j]; }
   for (int i = 0; i < S->ng; ++i)
-    if (!is_eq(S, i)) { curv += (S->sigs[i] + dw) * ds[i] * ds[i]; nrm += ds[i] * ds[i]; }
+    if (!IS_EQ(i)) { curv += (S->sigs[i] + dw) * ds[i] * ds[i]; nrm += ds[i] * ds[i]; }
   return isfinite(curv) && curv >= IPM_CURVATURE_MIN * nrm;
 }
 
@@ -519,6 +533,7 @@ static int newton_step(ipm_ws *S, double mu, double dw_last, double *dw_out, ipm
 
 /* Steps of the bound multipliers implied by (dx, ds). */
 static void bound_multiplier_steps(ipm_ws *S, double mu) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
   const double *x = S->x, *lx = S->lx, *ux = S->ux, *zl = S->zl, *zu = S->zu, *dx = S->dx;
   const double *s = S->s, *lg = S->lg, *ug = S->ug, *vl = S->vl, *vu = S->vu, *ds = S->ds;
   for (int j = 0; j < S->nw; ++j) {
@@ -527,7 +542,7 @@ static void bound_multiplier_steps(ipm_ws *S, double mu) {
   }
   for (int i = 0; i < S->ng; ++i) {
     S->dvl[i] = S->dvu[i] = 0.0;
-    if (is_eq(S, i)) continue;
+    if (IS_EQ(i)) continue;
     if (isfinite(lg[i])) S->dvl[i] = mu / (s[i] - lg[i]) - vl[i] - vl[i] / (s[i] - lg[i]) * ds[i];
     if (isfinite(ug[i])) S->dvu[i] = mu / (ug[i] - s[i]) - vu[i] + vu[i] / (ug[i] - s[i]) * ds[i];
   }
@@ -537,14 +552,16 @@ static void bound_multiplier_steps(ipm_ws *S, double mu) {
 
 /* Largest primal step length <= 1 that keeps x and s a fraction tau inside their bounds. */
 static double primal_step_max(const ipm_ws *S, const double *dxv, const double *dsv, double tau) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
   const double *x = S->x, *lx = S->lx, *ux = S->ux, *s = S->s, *lg = S->lg, *ug = S->ug;
+  const int nw = S->nw, ng = S->ng;
   double a = 1.0;
-  for (int j = 0; j < S->nw; ++j) {
+  for (int j = 0; j < nw; ++j) {
     if (isfinite(lx[j]) && dxv[j] < 0.0) a = fmin(a, -tau * (x[j] - lx[j]) / dxv[j]);
     if (isfinite(ux[j]) && dxv[j] > 0.0) a = fmin(a, tau * (ux[j] - x[j]) / dxv[j]);
   }
-  for (int i = 0; i < S->ng; ++i) {
-    if (is_eq(S, i)) continue;
+  for (int i = 0; i < ng; ++i) {
+    if (IS_EQ(i)) continue;
     if (isfinite(lg[i]) && dsv[i] < 0.0) a = fmin(a, -tau * (s[i] - lg[i]) / dsv[i]);
     if (isfinite(ug[i]) && dsv[i] > 0.0) a = fmin(a, tau * (ug[i] - s[i]) / dsv[i]);
   }
@@ -553,15 +570,19 @@ static double primal_step_max(const ipm_ws *S, const double *dxv, const double *
 
 /* Largest dual step length <= 1 that keeps the bound multipliers a fraction tau above 0. */
 static double dual_step_max(const ipm_ws *S, double tau) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
+  const int nw = S->nw, ng = S->ng;
+  const double *zl = S->zl, *zu = S->zu, *dzl = S->dzl, *dzu = S->dzu;
+  const double *vl = S->vl, *vu = S->vu, *dvl = S->dvl, *dvu = S->dvu;
   double a = 1.0;
-  for (int j = 0; j < S->nw; ++j) {
-    if (S->dzl[j] < 0.0) a = fmin(a, -tau * S->zl[j] / S->dzl[j]);
-    if (S->dzu[j] < 0.0) a = fmin(a, -tau * S->zu[j] / S->dzu[j]);
+  for (int j = 0; j < nw; ++j) {
+    if (dzl[j] < 0.0) a = fmin(a, -tau * zl[j] / dzl[j]);
+    if (dzu[j] < 0.0) a = fmin(a, -tau * zu[j] / dzu[j]);
   }
-  for (int i = 0; i < S->ng; ++i) {
-    if (is_eq(S, i)) continue;
-    if (S->dvl[i] < 0.0) a = fmin(a, -tau * S->vl[i] / S->dvl[i]);
-    if (S->dvu[i] < 0.0) a = fmin(a, -tau * S->vu[i] / S->dvu[i]);
+  for (int i = 0; i < ng; ++i) {
+    if (IS_EQ(i)) continue;
+    if (dvl[i] < 0.0) a = fmin(a, -tau * vl[i] / dvl[i]);
+    if (dvu[i] < 0.0) a = fmin(a, -tau * vu[i] / dvu[i]);
   }
   return a;
 }
@@ -580,21 +601,24 @@ typedef struct {
 typedef struct { double theta0, phi0, dphi; } merit_t;
 
 static merit_t current_merit(const ipm_ws *S, double fval, double mu) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
   const double *x = S->x, *lx = S->lx, *ux = S->ux, *s = S->s, *lg = S->lg, *ug = S->ug;
+  const int nw = S->nw, ng = S->ng;
+  const double *cres = S->cres, *grad = S->grad, *dx = S->dx, *ds = S->ds;
   merit_t m = {0.0, fval, 0.0};
-  for (int i = 0; i < S->ng; ++i) m.theta0 += fabs(S->cres[i]);
-  for (int j = 0; j < S->nw; ++j) {
-    double gj = S->grad[j];
+  for (int i = 0; i < ng; ++i) m.theta0 += fabs(cres[i]);
+  for (int j = 0; j < nw; ++j) {
+    double gj = grad[j];
     if (isfinite(lx[j])) { m.phi0 -= mu * log(x[j] - lx[j]); gj -= mu / (x[j] - lx[j]); }
     if (isfinite(ux[j])) { m.phi0 -= mu * log(ux[j] - x[j]); gj += mu / (ux[j] - x[j]); }
-    m.dphi += gj * S->dx[j];
+    m.dphi += gj * dx[j];
   }
-  for (int i = 0; i < S->ng; ++i) {
-    if (is_eq(S, i)) continue;
+  for (int i = 0; i < ng; ++i) {
+    if (IS_EQ(i)) continue;
     double gs = 0.0;
     if (isfinite(lg[i])) { m.phi0 -= mu * log(s[i] - lg[i]); gs -= mu / (s[i] - lg[i]); }
     if (isfinite(ug[i])) { m.phi0 -= mu * log(ug[i] - s[i]); gs += mu / (ug[i] - s[i]); }
-    m.dphi += gs * S->ds[i];
+    m.dphi += gs * ds[i];
   }
   return m;
 }
@@ -606,12 +630,14 @@ typedef struct { double phi, theta; } trial_t;
    Returns 1 if finite, 0 if not evaluable (NaN/inf, out of the barrier's domain), -1 on an
    evaluation error. */
 static int trial_eval(ipm_ws *S, const double *dxv, const double *dsv, double a, double mu, trial_t *t) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
   const ipm_struct *st = S->st;
   const int nw = S->nw, ng = S->ng;
   const double *lx = S->lx, *ux = S->ux, *lg = S->lg, *ug = S->ug;
+  const double *x = S->x, *s = S->s, *dc = S->dc;
   double *xt = S->xt, *st_ = S->st_, *gt = S->gt;
-  for (int j = 0; j < nw; ++j) xt[j] = S->x[j] + a * dxv[j];
-  for (int i = 0; i < ng; ++i) st_[i] = S->s[i] + a * dsv[i];
+  for (int j = 0; j < nw; ++j) xt[j] = x[j] + a * dxv[j];
+  for (int i = 0; i < ng; ++i) st_[i] = s[i] + a * dsv[i];
   double ft = 0.0;
   if (call(&S->E, st->f_grad_f, xt, S->p, 0, 0, &ft, S->hdx)) return -1; /* hdx: gradient scratch */
   if (call(&S->E, st->f_g, xt, S->p, 0, 0, gt, 0)) return -1;
@@ -622,9 +648,9 @@ static int trial_eval(ipm_ws *S, const double *dxv, const double *dsv, double a,
     if (isfinite(ux[j])) ph -= mu * log(ux[j] - xt[j]);
   }
   for (int i = 0; i < ng; ++i) {
-    double gi = gt[i] * S->dc[i];
+    double gi = gt[i] * dc[i];
     if (!isfinite(gi)) return 0;
-    if (is_eq(S, i)) th += fabs(gi - lg[i]);
+    if (IS_EQ(i)) th += fabs(gi - lg[i]);
     else {
       th += fabs(gi - st_[i]);
       if (isfinite(lg[i])) ph -= mu * log(st_[i] - lg[i]);
@@ -665,13 +691,14 @@ typedef struct {
    and alpha. Returns -1 on an evaluation error. */
 static int second_order_corrections(ipm_ws *S, const merit_t *m, const filter_t *F, double mu, double dw,
                                     double tau, search_t *ls, ipm_stats *stats) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
   const int nw = S->nw, ng = S->ng;
   double *c_soc = S->sol + nw; /* the factorised step's rows are no longer needed */
   double theta_prev = ls->trial.theta;
   for (int i = 0; i < ng; ++i) c_soc[i] = ls->alpha * S->cres[i];
   for (int k = 0; k < IPM_MAX_SOC; ++k) {
     for (int i = 0; i < ng; ++i) {
-      double ci = is_eq(S, i) ? S->gt[i] * S->dc[i] - S->lg[i] : S->gt[i] * S->dc[i] - S->st_[i];
+      double ci = IS_EQ(i) ? S->gt[i] * S->dc[i] - S->lg[i] : S->gt[i] * S->dc[i] - S->st_[i];
       c_soc[i] += ci;
     }
     for (int j = 0; j < nw; ++j) S->tmp[j] = S->rhs[j];
@@ -750,15 +777,18 @@ static double clip_multiplier(double z, double b) {
 }
 
 static void clip_bound_multipliers(ipm_ws *S, double mu) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
   const double *x = S->x, *lx = S->lx, *ux = S->ux, *s = S->s, *lg = S->lg, *ug = S->ug;
-  for (int j = 0; j < S->nw; ++j) {
-    if (isfinite(lx[j])) S->zl[j] = clip_multiplier(S->zl[j], mu / (x[j] - lx[j]));
-    if (isfinite(ux[j])) S->zu[j] = clip_multiplier(S->zu[j], mu / (ux[j] - x[j]));
+  const int nw = S->nw, ng = S->ng;
+  double *zl = S->zl, *zu = S->zu, *vl = S->vl, *vu = S->vu;
+  for (int j = 0; j < nw; ++j) {
+    if (isfinite(lx[j])) zl[j] = clip_multiplier(zl[j], mu / (x[j] - lx[j]));
+    if (isfinite(ux[j])) zu[j] = clip_multiplier(zu[j], mu / (ux[j] - x[j]));
   }
-  for (int i = 0; i < S->ng; ++i) {
-    if (is_eq(S, i)) continue;
-    if (isfinite(lg[i])) S->vl[i] = clip_multiplier(S->vl[i], mu / (s[i] - lg[i]));
-    if (isfinite(ug[i])) S->vu[i] = clip_multiplier(S->vu[i], mu / (ug[i] - s[i]));
+  for (int i = 0; i < ng; ++i) {
+    if (IS_EQ(i)) continue;
+    if (isfinite(lg[i])) vl[i] = clip_multiplier(vl[i], mu / (s[i] - lg[i]));
+    if (isfinite(ug[i])) vu[i] = clip_multiplier(vu[i], mu / (ug[i] - s[i]));
   }
 }
 
