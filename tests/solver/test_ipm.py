@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import ctypes
 import math
+import re
 from pathlib import Path
 
 import casadi as ca
@@ -17,7 +18,7 @@ import numpy as np
 import pytest
 
 from mcverify.solver import ipm as ipm_mod
-from mcverify.solver import kernels
+from mcverify.solver import kernels, kkt
 from mcverify.solver.cfun import CFunction
 from mcverify.solver.ipm import COLD, STATUS, WARM_ATTEMPTS, Ipm, IpmAbiError, check_abi, with_options
 
@@ -230,6 +231,12 @@ def test_status_table_mirrors_the_header():
         assert f"IPM_{name.upper()} = {code}," in header
     assert f"IPM_STATUS_COUNT = {len(STATUS)}" in header
     assert f"#define IPM_ABI_VERSION {ipm_mod.ABI_VERSION}\n" in header
+
+
+def test_kkt_entry_kinds_mirror_the_header():
+    header = (kernels.CSRC_DIR / "ipm.h").read_text()
+    for name in ("HESSIAN", "PRIMAL_DIAG", "JAC_T", "JAC", "DUAL_DIAG"):
+        assert re.search(rf"IPM_ENTRY_{name} = {getattr(kkt, f'KIND_{name}')}\b", header), name
 
 
 def test_abi_check_passes_on_the_library(library):

@@ -427,10 +427,10 @@ static void assemble_kkt(ipm_ws *S, double dw, double dcr) {
     int r = st->ent_row[e];
     double v;
     switch (st->ent_kind[e]) {
-      case 0: v = S->hess[st->hs_src[st->ent_src[e]]]; break;
-      case 1: v = S->sigx[r] + dw; break;
-      case 2: case 3: v = S->jac[st->ent_src[e]]; break;
-      default: {
+      case IPM_ENTRY_HESSIAN: v = S->hess[st->hs_src[st->ent_src[e]]]; break;
+      case IPM_ENTRY_PRIMAL_DIAG: v = S->sigx[r] + dw; break;
+      case IPM_ENTRY_JAC_T: case IPM_ENTRY_JAC: v = S->jac[st->ent_src[e]]; break;
+      default: { /* IPM_ENTRY_DUAL_DIAG */
         int i = r - S->nw;
         v = IS_EQ(i) ? -dcr : -1.0 / (S->sigs[i] + dw) - dcr;
       }

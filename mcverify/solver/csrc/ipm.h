@@ -36,12 +36,22 @@
 enum ipm_status {
   IPM_CONVERGED = 0,             /* scaled KKT error <= tol and unscaled violation <= constr_viol_tol */
   IPM_MAX_ITERATIONS = 1,        /* max_iter iterations without convergence */
-  IPM_LINE_SEARCH_FAILED = 2,    /* no acceptable step down to IPM_ALPHA_MIN */
+  IPM_LINE_SEARCH_FAILED = 2,    /* no acceptable step in IPM_MAX_BACKTRACKS trials above IPM_ALPHA_MIN */
   IPM_REGULARISATION_FAILED = 3, /* KKT matrix singular or without positive curvature after
                                     IPM_MAX_REGULARISATIONS factorisations */
-  IPM_NONFINITE = 4,             /* NaN or inf in the residuals */
+  IPM_NONFINITE = 4,             /* an infinite dual or primal residual (the max-norms use fmax, which
+                                    skips NaN: a NaN derivative ends in IPM_REGULARISATION_FAILED) */
   IPM_EVALUATION_ERROR = 5,      /* a generated function returned nonzero */
   IPM_STATUS_COUNT = 6
+};
+
+/* Kinds of KKT entries in ipm_struct.ent_kind (mcverify.solver.kkt.KIND_*). */
+enum ipm_entry_kind {
+  IPM_ENTRY_HESSIAN = 0,     /* W: ent_src indexes hs_src */
+  IPM_ENTRY_PRIMAL_DIAG = 1, /* Sigma_x + dw of variable ent_row */
+  IPM_ENTRY_JAC_T = 2,       /* J^T: ent_src indexes the Jacobian nonzeros */
+  IPM_ENTRY_JAC = 3,         /* J: likewise */
+  IPM_ENTRY_DUAL_DIAG = 4    /* -D of row ent_row - n_w */
 };
 
 /* ---------------------------------------------------------------- algorithmic constants ---- */
@@ -93,7 +103,7 @@ typedef struct {
   int n_hs;                  /* full symmetric Hessian entries -> upper-triangle source */
   const int *hs_row, *hs_col, *hs_src;
   const int *perm;           /* (n,) perm[k]: original unknown at band position k */
-  int n_ent;                 /* KKT entries: kind (0 H (src: hs), 1 primal diag, 2 J^T, 3 J, 4 dual diag), */
+  int n_ent;                 /* KKT entries: kind (enum ipm_entry_kind), */
   const int *ent_kind, *ent_src, *ent_row;
   const int64_t *ent_pos;    /* source, row, flat position in LAPACK band storage */
   /* nlp_g(x, p) -> g; nlp_grad_f(x, p) -> (f, grad f); nlp_jac_g(x, p) -> (g, J);
