@@ -24,13 +24,11 @@ def main(argv: list[str] | None = None) -> int:
     if not hasattr(args, "func"):
         parser.print_help()
         return EXIT_USAGE
-    from mcverify.run.campaign import CampaignError
-    from mcverify.solver.kernels import KernelBuildError
-    from mcverify.store import RunError
+    from mcverify.errors import UserError
 
     try:
         return args.func(args) or 0
-    except (CampaignError, RunError, KernelBuildError) as err:
+    except UserError as err:
         print(f"mcverify: error: {err}", file=sys.stderr)
         return EXIT_USAGE
     except OSError as err:  # a folder that cannot be written, a full disk: the environment, not a bug

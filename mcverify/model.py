@@ -95,6 +95,10 @@ class Barrier:
         return len(self.lambdas_m)
 
 
+#: The valid values of ``Mpc.backend`` (implemented by :mod:`mcverify.solver.backends`).
+BACKEND_NAMES = ("ipopt", "ipm")
+
+
 @dataclass(frozen=True)
 class Mpc:
     """TO-CBF-MPC settings (box eq.tompc).

@@ -43,9 +43,9 @@ from typing import Any
 import numpy as np
 
 from mcverify.bench.agreement import agreement
-from mcverify.model import ModelParams
+from mcverify.model import BACKEND_NAMES, ModelParams
 from mcverify.run.campaign import Campaign, Cell, load_campaign
-from mcverify.solver.backends import BACKENDS, FALLBACK_PREFIX
+from mcverify.solver.backends import FALLBACK_PREFIX
 
 # ------------------------------------------------------------------------------------ helpers
 
@@ -308,7 +308,7 @@ def jax_step_overhead(cell: Cell, seed: int, batch_sizes: Sequence[int] = (1, 8)
 
 
 def run(campaign_path: Path, episodes: int, record_episodes: int, workers: int, chunk_size: int,
-        backends: Sequence[str] = BACKENDS, progress: bool = True) -> dict[str, Any]:
+        backends: Sequence[str] = BACKEND_NAMES, progress: bool = True) -> dict[str, Any]:
     """Everything above; returns a JSON-able dict (plus row lists)."""
     campaign = load_campaign(campaign_path, episodes=episodes)
     results: dict[str, Any] = {"machine": machine_info(), "campaign": str(campaign_path),

@@ -44,10 +44,9 @@ import tomllib
 from mcverify import levels
 from mcverify.cell import Cell
 from mcverify.errors import CampaignError
-from mcverify.model import ModelParams
+from mcverify.model import BACKEND_NAMES, ModelParams
 
 CONTROLLERS = ("vlcbf", "mpcdc")
-BACKENDS = ("ipopt", "ipm")
 OPPOSING_KINDS = ("none", "autonomous", "human")
 
 #: Grid/model keys in other units, converted on load: alias -> (field, factor).
@@ -335,8 +334,8 @@ def validate_params(p: ModelParams, where: str) -> None:
                   f"{s.control_period_s:.4g} s")
     if m.controller not in CONTROLLERS:
         raise bad("mpc.controller", f"unknown controller {_short(m.controller)}; valid: {', '.join(CONTROLLERS)}")
-    if m.backend not in BACKENDS:
-        raise bad("mpc.backend", f"unknown solver backend {_short(m.backend)}; valid: {', '.join(BACKENDS)}")
+    if m.backend not in BACKEND_NAMES:
+        raise bad("mpc.backend", f"unknown solver backend {_short(m.backend)}; valid: {', '.join(BACKEND_NAMES)}")
     if n.kind not in ("paper", "none"):
         raise bad("noise.kind", f"unknown noise model {_short(n.kind)}; valid: paper, none")
     if not b.lambdas_m or any(not (isinstance(x, int | float) and math.isfinite(x) and x > 0) for x in b.lambdas_m):

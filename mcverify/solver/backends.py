@@ -6,7 +6,8 @@ the previous solve of the same problem) or cold (from :func:`mcverify.ocp.proble
 returns a :class:`BackendResult`: the point, the multipliers, a status, an iteration count and its
 own success verdict, combined by :meth:`Problem.accept` with the common feasibility check (largest
 violation <= 1e-5). :class:`mcverify.solver.mpc.MpcSolver` builds the
-:class:`~mcverify.solver.mpc.MpcSolution` from it. Selection: ``params.mpc.backend`` (:data:`BACKENDS`).
+:class:`~mcverify.solver.mpc.MpcSolution` from it. Selection: ``params.mpc.backend``, one of
+:data:`~mcverify.model.BACKEND_NAMES`.
 
 ``ipopt``: IPOPT with MUMPS through CasADi, cold or warm started, a failed warm start retried cold
 (the behaviour of every result so far).
@@ -47,13 +48,10 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from mcverify.model import ModelParams
+from mcverify.model import BACKEND_NAMES, ModelParams
 from mcverify.solver.cfun import CFunction
 from mcverify.solver.ipm import COLD, WARM_ATTEMPTS, Ipm
 from mcverify.solver.kernels import Kernel, get_runtime_library
-
-#: Backend names accepted in ``params.mpc.backend``.
-BACKENDS = ("ipopt", "ipm")
 
 #: IPOPT's return_status values that count as solved (before the common feasibility check).
 SOLVED_STATUSES = frozenset({"Solve_Succeeded", "Solved_To_Acceptable_Level"})
@@ -289,10 +287,14 @@ class IpmBackend:
         )
 
 
+#: Backend name -> implementation, one for every name of :data:`mcverify.model.BACKEND_NAMES`.
+REGISTRY: dict[str, type] = {cls.name: cls for cls in (IpoptBackend, IpmBackend)}
+if set(REGISTRY) != set(BACKEND_NAMES):  # a name the model accepts must have a solver (checked even under -O)
+    raise ImportError(f"solver backends {sorted(REGISTRY)} do not implement BACKEND_NAMES {BACKEND_NAMES}")
+
+
 def create_backend(name: str, problem: Problem, params: ModelParams):
-    """The backend called ``name`` (one of :data:`BACKENDS`)."""
-    if name == "ipopt":
-        return IpoptBackend(problem, params)
-    if name == "ipm":
-        return IpmBackend(problem, params)
-    raise ValueError(f"unknown solver backend {name!r}; valid: {', '.join(BACKENDS)}")
+    """The backend called ``name`` (one of :data:`~mcverify.model.BACKEND_NAMES`)."""
+    if name not in REGISTRY:
+        raise ValueError(f"unknown solver backend {name!r}; valid: {', '.join(BACKEND_NAMES)}")
+    return REGISTRY[name](problem, params)

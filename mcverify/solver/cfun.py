@@ -60,6 +60,10 @@ class CFunction:
         if work(*[ctypes.byref(s) for s in sizes]) != 0:
             raise RuntimeError(f"{so_path}: {name}_work failed")
         sz_arg, sz_res, sz_iw, sz_w = (int(s.value) for s in sizes)
+        #: What ``NAME_work`` reports: (sz_arg, sz_res, sz_iw, sz_w), for callers with their own work vectors.
+        self.work_sizes = (sz_arg, sz_res, sz_iw, sz_w)
+        #: The entry point's address, for C code that calls it through a function pointer.
+        self.address = ctypes.cast(self._fun, ctypes.c_void_p).value
         incref = getattr(lib, f"{name}_incref", None)
         if incref is not None:
             incref.restype = None

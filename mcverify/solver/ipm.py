@@ -8,6 +8,10 @@ where an IPOPT iteration through CasADi costs 1.3-1.8 ms on the same kernel (mea
 results/BENCHMARKS.md). The C library is compiled once per machine into the kernel cache
 (:func:`mcverify.solver.kernels.get_runtime_library`).
 
+The ABI (the three structs below, the status codes, the exported functions) is declared in
+``csrc/ipm.h``; :func:`load_library` compares the library's own description of it with this module's
+ctypes structs and :data:`STATUS` and refuses a library that disagrees (:class:`IpmAbiError`).
+
 Options follow IPOPT's names; :data:`WARM_ATTEMPTS` and :data:`COLD` are the settings the
 backend uses (chosen by measurement on recorded Table II closed loops, see their docstrings).
 """
@@ -21,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mcverify.solver.cfun import CFunction
 from mcverify.solver.kkt import KktStructure
 
 _I = ctypes.POINTER(ctypes.c_int)
@@ -28,11 +33,15 @@ _D = ctypes.POINTER(ctypes.c_double)
 _L = ctypes.POINTER(ctypes.c_int64)
 _FUN = ctypes.c_void_p
 
-#: C status codes -> status strings.
+#: ``IPM_ABI_VERSION`` of ``csrc/ipm.h`` this binding is written for.
+ABI_VERSION = 1
+#: The status codes of ``csrc/ipm.h`` (``enum ipm_status``) -> status strings, the one table of them
+#: on this side (checked against the library's ``ipm_status_name`` at load).
 STATUS = {
     0: "Converged", 1: "Max_Iterations", 2: "Line_Search_Failed", 3: "Regularisation_Failed",
     4: "Nonfinite", 5: "Evaluation_Error",
 }
+CONVERGED = 0
 _KERNEL_FUNCTIONS = ("nlp_g", "nlp_grad_f", "nlp_jac_g", "nlp_hess_l")
 
 
@@ -80,6 +89,7 @@ WARM_ATTEMPTS: tuple[IpmOptions, ...] = (
 COLD = IpmOptions(mu_init=0.1, bound_push=1e-2, mult_push=1e-2, max_iter=150)
 
 
+# Mirrors of ipm_struct, ipm_opts, ipm_stats (csrc/ipm.h), field by field.
 class _Struct(ctypes.Structure):
     _fields_ = [
         ("n_w", ctypes.c_int), ("n_g", ctypes.c_int), ("n", ctypes.c_int), ("bw", ctypes.c_int),
@@ -109,6 +119,72 @@ class _Stats(ctypes.Structure):
         ("inf_pr", ctypes.c_double), ("inf_du", ctypes.c_double), ("mu", ctypes.c_double),
         ("theta_start", ctypes.c_double), ("first_alpha", ctypes.c_double),
     ]
+
+
+class IpmAbiError(RuntimeError):
+    """The compiled library and this binding disagree about ``csrc/ipm.h`` (one-line message)."""
+
+
+_ABI_STRUCTS = (_Struct, _Opts, _Stats)
+
+
+def abi_layout(structs=_ABI_STRUCTS) -> list[int]:
+    """What ``ipm_abi_layout`` writes, from the ctypes side: per struct its size, field count and
+    field offsets (declaration order)."""
+    out: list[int] = []
+    for cls in structs:
+        out += [ctypes.sizeof(cls), len(cls._fields_), *(getattr(cls, name).offset for name, _ in cls._fields_)]
+    return out
+
+
+def check_abi(lib: ctypes.CDLL, structs=_ABI_STRUCTS, status: dict[int, str] | None = None,
+              version: int = ABI_VERSION) -> None:
+    """Raise :class:`IpmAbiError` unless the library's ABI version, struct layouts and status names
+    are those of this binding (``structs``, ``status`` default to the ones :class:`Ipm` uses)."""
+    status = STATUS if status is None else status
+    where = f"{getattr(lib, '_name', lib)}: the ipm library and mcverify/solver/ipm.py disagree about csrc/ipm.h"
+    try:
+        lib.ipm_abi_version.restype = ctypes.c_int
+        lib.ipm_abi_layout.restype = ctypes.c_int
+        lib.ipm_status_name.restype = ctypes.c_char_p
+    except AttributeError as exc:
+        raise IpmAbiError(f"{where}: the library exports no ABI description ({exc})") from None
+    if lib.ipm_abi_version() != version:
+        raise IpmAbiError(f"{where}: ABI version {lib.ipm_abi_version()} in C, {version} in Python")
+    expected = abi_layout(structs)
+    n = lib.ipm_abi_layout(None, 0)
+    got = (ctypes.c_int64 * n)()
+    lib.ipm_abi_layout(got, n)
+    if list(got) != expected:
+        raise IpmAbiError(f"{where}: {_first_layout_difference(list(got), structs)}")
+    for code in range(len(status) + 1):
+        name = lib.ipm_status_name(code)
+        c_name = None if name is None else name.decode()
+        if c_name != status.get(code):
+            raise IpmAbiError(f"{where}: status {code} is {c_name!r} in C, {status.get(code)!r} in Python")
+
+
+def _first_layout_difference(got: list[int], structs) -> str:
+    """Where the C layout first differs from the ctypes one, in words."""
+    k = 0
+    for cls in structs:
+        size, count = got[k:k + 2] if k + 2 <= len(got) else (None, None)
+        if size != ctypes.sizeof(cls) or count != len(cls._fields_):
+            return (f"{cls.__name__}: {size} bytes with {count} fields in C, {ctypes.sizeof(cls)} bytes with "
+                    f"{len(cls._fields_)} fields in Python")
+        for i, (name, _) in enumerate(cls._fields_):
+            if got[k + 2 + i] != getattr(cls, name).offset:
+                return f"{cls.__name__}.{name}: offset {got[k + 2 + i]} in C, {getattr(cls, name).offset} in Python"
+        k += 2 + count
+    return f"layout tables of {len(got)} and {len(abi_layout(structs))} values"
+
+
+def load_library(library_so: str | Path) -> ctypes.CDLL:
+    """The compiled ``csrc/ipm.c``, its ABI checked (:func:`check_abi`)."""
+    lib = ctypes.CDLL(str(library_so))
+    check_abi(lib)
+    lib.ipm_solve.restype = ctypes.c_int
+    return lib
 
 
 @dataclass(frozen=True)
@@ -153,17 +229,10 @@ class Ipm:
         if (self.lbx.size, self.lbg.size) != (self.n_w, self.n_g):
             raise ValueError(f"bounds of sizes {self.lbx.size}, {self.lbg.size} for a kernel with "
                              f"{self.n_w} variables and {self.n_g} constraints")
-        kernel = ctypes.CDLL(str(kernel_so))
-        funs, sizes = [], []
-        for name in _KERNEL_FUNCTIONS:
-            funs.append(ctypes.cast(getattr(kernel, name), ctypes.c_void_p))
-            sz = [ctypes.c_longlong() for _ in range(4)]
-            if getattr(kernel, f"{name}_work")(*[ctypes.byref(v) for v in sz]) != 0:
-                raise RuntimeError(f"{kernel_so}: {name}_work failed")
-            sizes.extend(int(v.value) for v in sz)
-            incref = getattr(kernel, f"{name}_incref", None)
-            if incref is not None:
-                incref()
+        # the C solver calls the kernel's functions itself, with its own work vectors
+        functions = [CFunction(kernel_so, name) for name in _KERNEL_FUNCTIONS]
+        funs = [f.address for f in functions]
+        sizes = [size for f in functions for size in f.work_sizes]
         ints = {name: np.ascontiguousarray(getattr(kkt, name), dtype=np.int32) for name in (
             "j_rows", "j_cols", "h_rows", "h_cols", "hs_row", "hs_col", "hs_src", "perm", "ent_kind", "ent_src",
             "ent_row", "fix_row", "fix_var")}
@@ -180,14 +249,13 @@ class Ipm:
             pos.ctypes.data_as(_L), *funs, work_sizes.ctypes.data_as(_L),
             ints["fix_row"].size, _ip(ints["fix_row"]), _ip(ints["fix_var"]), coef.ctypes.data_as(_D),
         )
-        lib = ctypes.CDLL(str(library_so))
+        lib = load_library(library_so)
         n_dbl, n_int = ctypes.c_int64(), ctypes.c_int64()
         lib.ipm_work_sizes(ctypes.byref(self._st), ctypes.byref(n_dbl), ctypes.byref(n_int))
         self._wd = np.zeros(n_dbl.value)
         self._wi = np.zeros(n_int.value // 2 + 16, dtype=np.int64).view(np.int32)  # 8-byte aligned
         self._solve = lib.ipm_solve
-        self._solve.restype = ctypes.c_int
-        self._libs = (lib, kernel)  # keep both loaded while the pointers into them live
+        self._libs = (lib, functions)  # keep both loaded while the pointers into them live
 
     def solve(self, p: np.ndarray, w0: np.ndarray, lam_x0: np.ndarray | None = None,
               lam_g0: np.ndarray | None = None, options: IpmOptions | None = None) -> IpmResult:
@@ -213,7 +281,8 @@ class Ipm:
             self._wd.ctypes.data_as(_D), self._wi.ctypes.data_as(_I),
         )
         return IpmResult(
-            w=x, lam_x=lx, lam_g=lg, success=st.status == 0, status=STATUS.get(st.status, f"status {st.status}"),
+            w=x, lam_x=lx, lam_g=lg, success=st.status == CONVERGED,
+            status=STATUS.get(st.status, f"status {st.status}"),
             iterations=int(st.iterations), factorisations=int(st.factorisations), regularised=int(st.regularised),
             backtracks=int(st.backtracks), soc=int(st.soc), max_violation=float(st.inf_pr),
             dual_infeasibility=float(st.inf_du), far_start=bool(st.far), theta_start=float(st.theta_start),

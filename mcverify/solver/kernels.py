@@ -41,6 +41,7 @@ from pathlib import Path
 
 import casadi as ca
 
+from mcverify.errors import KernelBuildError
 from mcverify.ocp.problem import FORMULATION_VERSION, OcpStructure, build_nlp, formulation_digest
 
 COMPILER = "gcc"
@@ -54,7 +55,7 @@ KERNEL_PREFIX = "tocbf"
 C_FILE, SO_FILE, MANIFEST_FILE = "nlp.c", "nlp.so", "manifest.json"
 ENV_KERNEL_DIR = "MCVERIFY_KERNEL_DIR"
 _KERNEL_DIR_RE = re.compile(rf"^{KERNEL_PREFIX}-N\d+-m\d+(-opp)?(-freedt)?-[0-9a-f]{{12}}$")
-#: Runtime libraries: hand-written C shipped in ``mcverify/csrc`` (the interior-point solver),
+#: Runtime libraries: hand-written C shipped in ``mcverify/solver/csrc`` (the interior-point solver),
 #: compiled once per machine into the same cache. -O3 vectorises the banded LU's inner loops (85 us
 #: per factorisation of the N = 50 KKT system at -O3, 187 us at -O2); AVX2 is added where the CPU
 #: has it (-25%), but never FMA (-mfma): without fused multiply-adds every element-wise operation
@@ -77,10 +78,6 @@ def _runtime_cflags() -> tuple[str, ...]:
 RUNTIME_CFLAGS: tuple[str, ...] = _runtime_cflags()
 CSRC_DIR = Path(__file__).resolve().parent / "csrc"
 _RUNTIME_DIR_RE = re.compile(rf"^{RUNTIME_PREFIX}-[a-z0-9_]+-[0-9a-f]{{12}}$")
-
-
-class KernelBuildError(RuntimeError):
-    """The kernel could not be generated or compiled (one-line message with the command and a fix)."""
 
 
 @dataclass(frozen=True)
@@ -149,10 +146,17 @@ def get_kernel(structure: OcpStructure, kernel_dir: str | os.PathLike | None = N
     return _get_or_build(resolve_kernel_dir(kernel_dir), name, lambda tmp: _build(structure, name, tmp))
 
 
+def runtime_headers() -> list[Path]:
+    """The headers of ``csrc`` (sorted): every runtime library may include any of them."""
+    return sorted(CSRC_DIR.glob("*.h"))
+
+
 def runtime_hash(name: str) -> str:
-    """SHA-256 (hex) over the C source ``csrc/<name>.c``, the compiler command and the architecture."""
+    """SHA-256 (hex) over the C source ``csrc/<name>.c``, the headers of ``csrc``, the compiler
+    command and the architecture."""
     key = {
         "source": (CSRC_DIR / f"{name}.c").read_text(),
+        "headers": {h.name: h.read_text() for h in runtime_headers()},
         "compiler_command": " ".join([COMPILER, *RUNTIME_CFLAGS]),
         "machine": platform.machine(),
     }
@@ -160,14 +164,16 @@ def runtime_hash(name: str) -> str:
 
 
 def get_runtime_library(name: str, kernel_dir: str | os.PathLike | None = None) -> Kernel:
-    """The shared object of the shipped C source ``mcverify/csrc/<name>.c``, compiled once and cached
-    (same locking and atomic replace as the kernels); its ``so_path`` is ``<name>.so``."""
+    """The shared object of the shipped C source ``mcverify/solver/csrc/<name>.c`` (with the headers
+    of ``csrc``), compiled once and cached (same locking and atomic replace as the kernels); its
+    ``so_path`` is ``<name>.so``."""
     folder = f"{RUNTIME_PREFIX}-{name}-{runtime_hash(name)[:12]}"
 
     def build(tmp: Path) -> dict:
         t0 = time.perf_counter()
         src = CSRC_DIR / f"{name}.c"
-        shutil.copy(src, tmp / src.name)
+        for file in (src, *runtime_headers()):  # the folder holds everything the library was built from
+            shutil.copy(file, tmp / file.name)
         so = tmp / f"{name}.so"
         cmd = [COMPILER, *RUNTIME_CFLAGS, str(tmp / src.name), "-o", str(so), "-lm"]
         _run_compiler(cmd, so, what=f"the {name} runtime library")

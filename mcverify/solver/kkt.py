@@ -33,7 +33,7 @@ from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from mcverify.solver.cfun import CFunction
 
-#: Kinds of KKT entries (the C solver fills each from its source).
+#: Kinds of KKT entries (the C solver fills each from its source): ``enum ipm_entry_kind`` of csrc/ipm.h.
 KIND_HESSIAN, KIND_PRIMAL_DIAG, KIND_JAC_T, KIND_JAC, KIND_DUAL_DIAG = 0, 1, 2, 3, 4
 
 

@@ -188,3 +188,22 @@ def test_runtime_hash_follows_the_source(monkeypatch, tmp_path):
     h = kernels.runtime_hash("ipm")
     (src / "ipm.c").write_text((kernels.CSRC_DIR / "ipm.c").read_text() + "\n/* changed */\n")
     assert kernels.runtime_hash("ipm") != h
+
+
+def test_runtime_hash_follows_the_headers(monkeypatch, tmp_path):
+    """ipm.c includes ipm.h: a change of the header (a constant, a struct) must rebuild the library."""
+    src = tmp_path / "csrc"
+    shutil.copytree(kernels.CSRC_DIR, src)
+    monkeypatch.setattr(kernels, "CSRC_DIR", src)
+    h = kernels.runtime_hash("ipm")
+    header = (src / "ipm.h").read_text()
+    (src / "ipm.h").write_text(header.replace("#define IPM_KAPPA_SOC 0.99", "#define IPM_KAPPA_SOC 0.9"))
+    assert kernels.runtime_hash("ipm") != h
+    (src / "ipm.h").write_text(header)
+    assert kernels.runtime_hash("ipm") == h
+
+
+def test_header_is_installed_with_the_package():
+    pyproject = (REPO / "pyproject.toml").read_text()
+    assert '"mcverify.solver" = ["csrc/*.c", "csrc/*.h"]' in pyproject
+    assert '#include "ipm.h"' in (kernels.CSRC_DIR / "ipm.c").read_text()

@@ -1,72 +1,41 @@
 /*
- * ipm.c - a lean primal-dual interior-point method for the TO-CBF-MPC NLP (mcverify/ipm.py).
+ * ipm.c - a lean primal-dual interior-point method for the TO-CBF-MPC NLP (mcverify/solver/ipm.py;
+ * the ABI, status codes and constants are in ipm.h).
  *
- * The algorithm is IPOPT's (Waechter & Biegler 2006) without its filter: slacks for the
- * inequality rows, log barriers on every finite bound, the primal-dual Newton step from the
- * augmented system
+ * The algorithm is IPOPT's (Waechter & Biegler 2006): slacks for the inequality rows, log barriers
+ * on every finite bound, the primal-dual Newton step from the augmented system
  *
  *     [ W + Sigma_x + dw I    J^T ] [dx]   [ -grad phi_mu - J^T y            ]
  *     [ J                    -D   ] [dy] = [ -c (+ q / Sigma_s on slack rows) ]
  *
- * (D = 1/Sigma_s on inequality rows, dc on equality rows), fraction-to-the-boundary step
- * rules, a backtracking line search on the l1 merit function phi_mu + nu |c|_1, and the
- * monotone barrier update. What makes it fast is the linear algebra and the absence of layers:
- * the KKT matrix has a fixed pattern that a reverse Cuthill-McKee ordering makes banded
- * (bandwidth 16 for N = 50), factorised by a banded LU with partial pivoting in tens of
- * microseconds, and the NLP's functions are the CasADi-generated C of the kernel, called
- * through function pointers. Inertia is not available from an LU; the step is instead
- * accepted only if it has positive curvature, dx'(W + Sigma_x + dw)dx + ds' Sigma_s ds >=
- * 1e-12 |(dx, ds)|^2 (the inertia-free test of Chiang & Zavala 2016), otherwise dw grows as
- * in IPOPT (1e-4, then x8).
+ * (D = 1/Sigma_s on inequality rows, dc on equality rows), fraction-to-the-boundary step rules,
+ * IPOPT's filter line search on (theta = |c|_1, phi = barrier objective) with up to
+ * IPM_MAX_SOC second-order corrections at the first trial step, and the monotone barrier update.
+ * Left out: the restoration phase (a failed line search ends the solve), the acceptable-level
+ * exit and the objective scaling. What makes it fast is the linear algebra and the absence of
+ * layers: the KKT matrix has a fixed pattern that a reverse Cuthill-McKee ordering makes banded,
+ * factorised by a banded LU with partial pivoting, and the NLP's functions are the CasADi-generated
+ * C of the kernel, called through function pointers. Inertia is not available from an LU; the step
+ * is instead accepted only if it has positive curvature, dx'(W + Sigma_x + dw)dx + ds' Sigma_s ds >=
+ * IPM_CURVATURE_MIN |(dx, ds)|^2 (the inertia-free test of Chiang & Zavala 2016), otherwise dw
+ * grows as in IPOPT.
  *
- * Rows of g are scaled by min(1, 100 / max_j |J_ij|) at the starting point (IPOPT's
- * gradient-based scaling); the objective is not scaled. Multipliers come back unscaled in
+ * Rows of g are scaled by min(1, IPM_SCALING_MAX_GRADIENT / max_j |J_ij|) at the starting point
+ * (IPOPT's gradient-based scaling); the objective is not scaled. Multipliers come back unscaled in
  * CasADi's convention (L = f + lam_g' g + lam_x' x).
  *
- * Deterministic (fixed orders, no threads); no allocation (workspace from the caller).
+ * Deterministic (fixed orders, no threads); no allocation (workspace from the caller). The results
+ * depend on the exact order of the floating-point operations: a refactoring must keep it (compare
+ * recorded solves bit for bit), and the build must not allow contraction into FMAs or reassociation
+ * (mcverify.solver.kernels.RUNTIME_CFLAGS).
  */
 #include <math.h>
+#include <stddef.h>
 #include <stdint.h>
 #include <string.h>
 #include <stdio.h>
 
-typedef long long casadi_int_t;
-typedef int (*casadi_fun)(const double **arg, double **res, casadi_int_t *iw, double *w, int mem);
-
-typedef struct {
-  int n_w, n_g, n, bw, ldab;
-  int n_j;
-  const int *j_rows, *j_cols;
-  int n_h;                 /* upper-triangle Hessian nonzeros */
-  const int *h_rows, *h_cols;
-  int n_hs;                /* full symmetric Hessian entries -> upper-triangle source */
-  const int *hs_row, *hs_col, *hs_src;
-  const int *perm;         /* perm[k]: original index at band position k */
-  int n_ent;               /* KKT entries: kind 0 H (src: hs), 1 primal diag, 2 J^T, 3 J, 4 dual diag */
-  const int *ent_kind, *ent_src, *ent_row;
-  const int64_t *ent_pos;
-  /* generated functions and their work sizes (arg, res, iw, w) */
-  casadi_fun f_g, f_grad_f, f_jac_g, f_hess_l;
-  const int64_t *work_sizes; /* 4 functions x 4 */
-  /* rows of g with one constant Jacobian entry a (g_i = a x_j - c(p)), for the initial value embedding */
-  int n_fix;
-  const int *fix_row, *fix_var;
-  const double *fix_coef;
-} ipm_struct;
-
-typedef struct {
-  double tol, constr_viol_tol, mu_init, mu_min, bound_push, mult_push, bound_relax;
-  int max_iter, warm, verbose;
-  /* a start whose largest scaled constraint violation exceeds theta_far uses mu_far, push_far */
-  double theta_far, mu_far, push_far;
-} ipm_opts;
-
-typedef struct {
-  int iterations, status, factorisations, regularised, backtracks, soc, far;
-  double inf_pr, inf_du, mu, theta_start, first_alpha; /* first_alpha: primal step of iteration 0 */
-} ipm_stats;
-/* status: 0 converged, 1 max iterations, 2 line search failed, 3 singular / no regularisation,
-   4 nonfinite, 5 evaluation error */
+#include "ipm.h"
 
 /* ----------------------------------------------------------------------------- band LU ---- */
 
@@ -132,36 +101,546 @@ static void band_solve(const double *ab, int n, int bw, int ldab, const int *ipi
 /* ----------------------------------------------------------------------------- evaluation -- */
 
 typedef struct {
-  const ipm_struct *st;
-  const double *p;
   const double **arg;
   double **res;
   casadi_int_t *iw;
   double *w;
 } evalctx;
 
-static int call(const evalctx *e, int which, casadi_fun f, const double *a0, const double *a1, const double *a2,
+/* One call of a generated function: inputs a0..a3, outputs r0, r1 (0: not needed). Nonzero: error. */
+static int call(const evalctx *e, casadi_fun f, const double *a0, const double *a1, const double *a2,
                 const double *a3, double *r0, double *r1) {
-  (void)which;
   e->arg[0] = a0; e->arg[1] = a1; e->arg[2] = a2; e->arg[3] = a3;
   e->res[0] = r0; e->res[1] = r1;
   return f(e->arg, e->res, e->iw, e->w, 0);
 }
 
+/* --------------------------------------------------------------------------- solver state -- */
 
-/* Evaluate the barrier objective and the infeasibility at (x + a dx, s + a ds). Returns 1 if
-   finite, 0 if not evaluable (NaN/inf, out of the barrier's domain), -1 on an evaluation error. */
-static int trial_eval(const evalctx *E, const ipm_struct *st, const double *p, const double *x, const double *s,
-                      const double *dx, const double *ds, double a, double *xt, double *st_, double *gt,
-                      double *gscratch, const double *lx, const double *ux, const double *lg, const double *ug,
-                      const double *dc, const double *lbg, const double *ubg, double mu, double *phit,
-                      double *thetat) {
-  const int nw = st->n_w, ng = st->n_g;
-  for (int j = 0; j < nw; ++j) xt[j] = x[j] + a * dx[j];
-  for (int i = 0; i < ng; ++i) st_[i] = s[i] + a * ds[i];
+/* Views into the caller's workspace and the problem data of one ipm_solve. */
+typedef struct {
+  const ipm_struct *st;
+  const ipm_opts *o;
+  const double *p, *lbx, *ubx, *lbg, *ubg;
+  int nw, ng, n;
+  evalctx E;
+  /* KKT system (n): band storage, right-hand side, solution, scratch */
+  double *ab, *rhs, *sol, *tmp, *soc_buf;
+  int *ipiv;
+  /* per variable (n_w): iterate, relaxed bounds, bound multipliers, gradient, steps, trial point,
+     barrier diagonal, J^T y, H dx (also scratch of the trial gradient), corrected step */
+  double *x, *lx, *ux, *zl, *zu, *grad, *dx, *dzl, *dzu, *xt, *sigx, *jty, *hdx, *dx_soc;
+  /* per row (n_g): scaled relaxed bounds, row scales, scaled g, slacks, scaled multipliers, slack
+     multipliers, steps, residual c, barrier diagonal, trial g and slack, corrected slack step */
+  double *lg, *ug, *dc, *g, *s, *y, *vl, *vu, *ds, *dy, *dvl, *dvu, *cres, *sigs, *gt, *st_, *ds_soc;
+  double *jac, *jraw, *hess; /* scaled and raw Jacobian nonzeros, Hessian upper triangle */
+} ipm_ws;
+
+/* An equality row (lbg == ubg). A macro on the locals lbg, ubg (not S->lbg) so that the loops keep
+   the bounds' pointers in registers across the calls of log and pow. */
+#define IS_EQ(i) (lbg[i] == ubg[i])
+
+/* Largest work size of the four generated functions, for each of the four kinds (arg, res, iw, w). */
+static int64_t max_work_size(const ipm_struct *st, int kind) {
+  int64_t m = 0;
+  for (int k = 0; k < 4; ++k)
+    if (st->work_sizes[4 * k + kind] > m) m = st->work_sizes[4 * k + kind];
+  return m;
+}
+
+void ipm_work_sizes(const ipm_struct *st, int64_t *n_dbl, int64_t *n_int) {
+  int64_t n = st->n, nw = st->n_w, ng = st->n_g;
+  int64_t amax = max_work_size(st, 0), rmax = max_work_size(st, 1);
+  int64_t iwmax = max_work_size(st, 2), wmax = max_work_size(st, 3);
+  *n_dbl = (int64_t)st->ldab * n + 8 * n + 24 * nw + 24 * ng + 2 * st->n_j + st->n_h + wmax + 64;
+  *n_int = (n + 2) + 2 * (iwmax + 8) + 2 * (amax + 8) + 2 * (rmax + 8) + 64;
+}
+
+/* Carve the workspace (layout of ipm_work_sizes; the unnamed gaps are spare). */
+static void carve_workspace(ipm_ws *S, double *wd, int *wi) {
+  const ipm_struct *st = S->st;
+  const int nw = S->nw, ng = S->ng, n = S->n;
+  S->ab = wd; wd += (int64_t)st->ldab * n;
+  S->rhs = wd; wd += n;
+  S->sol = wd; wd += n;
+  S->tmp = wd; wd += n;
+  S->soc_buf = wd; wd += n;
+  wd += 4 * n;
+  double **per_var[] = {&S->lx, &S->ux, &S->zl, &S->zu, &S->grad, &S->dx, &S->dzl, &S->dzu, &S->xt, &S->sigx,
+                        &S->jty, &S->hdx, &S->dx_soc};
+  for (size_t k = 0; k < sizeof per_var / sizeof per_var[0]; ++k) { *per_var[k] = wd; wd += nw; }
+  wd += 11 * nw;
+  double **per_row[] = {&S->lg, &S->ug, &S->dc, &S->g, &S->s, &S->y, &S->vl, &S->vu, &S->ds, &S->dy, &S->dvl,
+                        &S->dvu, &S->cres, &S->sigs, &S->gt, &S->st_, &S->ds_soc};
+  for (size_t k = 0; k < sizeof per_row / sizeof per_row[0]; ++k) { *per_row[k] = wd; wd += ng; }
+  wd += 7 * ng;
+  S->jac = wd; wd += st->n_j;
+  S->jraw = wd; wd += st->n_j;
+  S->hess = wd; wd += st->n_h;
+  S->E.w = wd;
+  S->ipiv = wi; wi += n + (n & 1); /* keep 8-byte alignment for what follows */
+  S->E.iw = (casadi_int_t *)wi;
+  wi += 2 * (max_work_size(st, 2) + 8);
+  S->E.arg = (const double **)wi; wi += 2 * (max_work_size(st, 0) + 8);
+  S->E.res = (double **)wi;
+}
+
+static void init_stats(ipm_stats *stats, const ipm_opts *o) {
+  stats->iterations = 0; stats->status = IPM_CONVERGED; stats->factorisations = 0; stats->regularised = 0;
+  stats->backtracks = 0; stats->soc = 0; stats->far = 0; stats->theta_start = 0.0; stats->first_alpha = 0.0;
+  stats->inf_pr = INFINITY; stats->inf_du = INFINITY; stats->mu = o->mu_init;
+}
+
+/* ---------------------------------------------------------------------------- the start -- */
+
+/* Bounds relaxed by bound_relax (IPOPT's bound_relax_factor). */
+static void relax_variable_bounds(ipm_ws *S) {
+  const double *lbx = S->lbx, *ubx = S->ubx;
+  const double relax = S->o->bound_relax;
+  for (int j = 0; j < S->nw; ++j) {
+    S->lx[j] = isfinite(lbx[j]) ? lbx[j] - relax * fmax(1.0, fabs(lbx[j])) : -INFINITY;
+    S->ux[j] = isfinite(ubx[j]) ? ubx[j] + relax * fmax(1.0, fabs(ubx[j])) : INFINITY;
+  }
+}
+
+/* Initial value embedding: each fixing row g_i = a x_j - c(p) is solved for x_j exactly, by
+   evaluating g with x_j = 0 (g_i = -c(p)). */
+static int embed_initial_value(ipm_ws *S) {
+  const ipm_struct *st = S->st;
+  for (int k = 0; k < st->n_fix; ++k) S->x[st->fix_var[k]] = 0.0;
+  if (call(&S->E, st->f_g, S->x, S->p, 0, 0, S->g, 0)) return IPM_EVALUATION_ERROR;
+  for (int k = 0; k < st->n_fix; ++k) {
+    int i = st->fix_row[k], j = st->fix_var[k];
+    S->x[j] = (S->lbg[i] - S->g[i]) / st->fix_coef[k];
+  }
+  return IPM_CONVERGED;
+}
+
+/* Row scales from the Jacobian at the (embedded) start, and the largest scaled violation there. */
+static int scale_rows(ipm_ws *S, double *theta_start) {
+  const ipm_struct *st = S->st;
+  const int nw = S->nw, ng = S->ng;
+  double *dc = S->dc, *g = S->g, *x = S->x;
+  if (call(&S->E, st->f_jac_g, x, S->p, 0, 0, g, S->jraw)) return IPM_EVALUATION_ERROR;
+  for (int i = 0; i < ng; ++i) dc[i] = 0.0;
+  for (int e = 0; e < st->n_j; ++e) {
+    double a = fabs(S->jraw[e]);
+    if (a > dc[st->j_rows[e]]) dc[st->j_rows[e]] = a;
+  }
+  for (int i = 0; i < ng; ++i) dc[i] = dc[i] > IPM_SCALING_MAX_GRADIENT ? IPM_SCALING_MAX_GRADIENT / dc[i] : 1.0;
+  double theta = 0.0;
+  for (int i = 0; i < ng; ++i) {
+    double v = fmax(S->lbg[i] - g[i], g[i] - S->ubg[i]);
+    if (v > 0.0) theta = fmax(theta, v * dc[i]);
+  }
+  for (int j = 0; j < nw; ++j) theta = fmax(theta, fmax(S->lbx[j] - x[j], x[j] - S->ubx[j]));
+  *theta_start = theta;
+  return IPM_CONVERGED;
+}
+
+/* v pushed at least push * max(1, |bound|) inside [l, u] (each push at most half the interval). */
+static double push_inside(double v, double l, double u, double push) {
+  double push_l = isfinite(l) ? push * fmax(1.0, fabs(l)) : 0.0;
+  double push_u = isfinite(u) ? push * fmax(1.0, fabs(u)) : 0.0;
+  if (isfinite(l) && isfinite(u)) {
+    double half = 0.5 * (u - l);
+    if (push_l > half) push_l = half;
+    if (push_u > half) push_u = half;
+  }
+  if (isfinite(l) && v < l + push_l) v = l + push_l;
+  if (isfinite(u) && v > u - push_u) v = u - push_u;
+  return v;
+}
+
+/* Scaled row bounds; inequality rows relaxed like the variable bounds, equality rows kept exact. */
+static void relax_row_bounds(ipm_ws *S) {
+  const double relax = S->o->bound_relax;
+  for (int i = 0; i < S->ng; ++i) {
+    double lb = S->lbg[i], ub = S->ubg[i];
+    double l = lb * S->dc[i], u = ub * S->dc[i];
+    if (lb == ub) { S->lg[i] = l; S->ug[i] = u; }
+    else {
+      S->lg[i] = isfinite(lb) ? l - relax * fmax(1.0, fabs(l)) : -INFINITY;
+      S->ug[i] = isfinite(ub) ? u + relax * fmax(1.0, fabs(u)) : INFINITY;
+    }
+  }
+}
+
+/* Primal start: x pushed inside its relaxed bounds, slacks at the scaled g pushed inside theirs. */
+static int primal_start(ipm_ws *S, double push) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
+  for (int j = 0; j < S->nw; ++j) S->x[j] = push_inside(S->x[j], S->lx[j], S->ux[j], push);
+  if (call(&S->E, S->st->f_g, S->x, S->p, 0, 0, S->g, 0)) return IPM_EVALUATION_ERROR;
+  relax_row_bounds(S);
+  for (int i = 0; i < S->ng; ++i) {
+    double gi = S->g[i] * S->dc[i];
+    if (IS_EQ(i)) { S->s[i] = S->lg[i]; continue; }
+    S->s[i] = push_inside(gi, S->lg[i], S->ug[i], push);
+  }
+  return IPM_CONVERGED;
+}
+
+/* Dual start: the caller's multipliers (warm; scaled, split by sign into the bound multipliers),
+   else 0 for y and 1 for the bound multipliers; each bound multiplier at least mult_push. */
+static void dual_start(ipm_ws *S, const double *lam_x, const double *lam_g) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
+  const int warm = S->o->warm;
+  const double mult_push = S->o->mult_push;
+  for (int i = 0; i < S->ng; ++i) {
+    double *y = S->y, *vl = S->vl, *vu = S->vu;
+    y[i] = warm ? lam_g[i] / S->dc[i] : 0.0;
+    vl[i] = vu[i] = 0.0;
+    if (IS_EQ(i)) continue;
+    /* on slack rows y = vU - vL */
+    if (isfinite(S->lg[i])) vl[i] = fmax(warm ? fmax(-y[i], 0.0) : 1.0, mult_push);
+    if (isfinite(S->ug[i])) vu[i] = fmax(warm ? fmax(y[i], 0.0) : 1.0, mult_push);
+  }
+  for (int j = 0; j < S->nw; ++j) {
+    double *zl = S->zl, *zu = S->zu;
+    zl[j] = zu[j] = 0.0;
+    if (isfinite(S->lx[j])) zl[j] = fmax(warm ? fmax(-lam_x[j], 0.0) : 1.0, mult_push);
+    if (isfinite(S->ux[j])) zu[j] = fmax(warm ? fmax(lam_x[j], 0.0) : 1.0, mult_push);
+  }
+}
+
+/* ------------------------------------------------------------------------ KKT residuals -- */
+
+/* f, grad f, g and J at x; g and J scaled by the row scales. */
+static int evaluate(ipm_ws *S, double *fval) {
+  const ipm_struct *st = S->st;
+  if (call(&S->E, st->f_grad_f, S->x, S->p, 0, 0, fval, S->grad)) return IPM_EVALUATION_ERROR;
+  if (call(&S->E, st->f_jac_g, S->x, S->p, 0, 0, S->g, S->jraw)) return IPM_EVALUATION_ERROR;
+  for (int e = 0; e < st->n_j; ++e) S->jac[e] = S->jraw[e] * S->dc[st->j_rows[e]];
+  for (int i = 0; i < S->ng; ++i) S->g[i] *= S->dc[i];
+  return IPM_CONVERGED;
+}
+
+/* The optimality errors of the current iterate (IPOPT's, with its dual scaling sd, sc). */
+typedef struct {
+  double inf_du, inf_pr, inf_co, viol_unscaled;
+  double sd, sc; /* scaling of the dual and complementarity errors */
+} kkt_errors;
+
+/* J^T y, the residual c (cres), and the errors at mu = 0. */
+static kkt_errors residuals(ipm_ws *S) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
+  const ipm_struct *st = S->st;
+  const int nw = S->nw, ng = S->ng;
+  const double *x = S->x, *lx = S->lx, *ux = S->ux, *zl = S->zl, *zu = S->zu, *lbx = S->lbx, *ubx = S->ubx;
+  const double *g = S->g, *s = S->s, *y = S->y, *vl = S->vl, *vu = S->vu, *lg = S->lg, *ug = S->ug;
+  const double *grad = S->grad, *jac = S->jac, *dc = S->dc;
+  double *jty = S->jty, *cres = S->cres;
+  for (int j = 0; j < nw; ++j) jty[j] = 0.0;
+  for (int e = 0; e < st->n_j; ++e) jty[st->j_cols[e]] += jac[e] * y[st->j_rows[e]];
+  double inf_du = 0.0, inf_pr = 0.0, inf_co = 0.0, viol_unscaled = 0.0;
+  double ysum = 0.0, zsum = 0.0, cnt_y = ng, cnt_z = 0;
+  for (int j = 0; j < nw; ++j) {
+    double r = grad[j] + jty[j] - zl[j] + zu[j];
+    inf_du = fmax(inf_du, fabs(r));
+    zsum += zl[j] + zu[j]; cnt_z += 2;
+    if (isfinite(lx[j])) inf_co = fmax(inf_co, fabs((x[j] - lx[j]) * zl[j] - 0.0));
+    if (isfinite(ux[j])) inf_co = fmax(inf_co, fabs((ux[j] - x[j]) * zu[j]));
+    double vlow = isfinite(lbx[j]) ? lbx[j] - x[j] : 0.0, vupp = isfinite(ubx[j]) ? x[j] - ubx[j] : 0.0;
+    viol_unscaled = fmax(viol_unscaled, fmax(vlow, vupp));
+  }
+  for (int i = 0; i < ng; ++i) {
+    ysum += fabs(y[i]);
+    if (IS_EQ(i)) { cres[i] = g[i] - lg[i]; }
+    else {
+      cres[i] = g[i] - s[i];
+      double r = -y[i] - vl[i] + vu[i];
+      inf_du = fmax(inf_du, fabs(r));
+      zsum += vl[i] + vu[i]; cnt_z += 2;
+      if (isfinite(lg[i])) inf_co = fmax(inf_co, fabs((s[i] - lg[i]) * vl[i]));
+      if (isfinite(ug[i])) inf_co = fmax(inf_co, fabs((ug[i] - s[i]) * vu[i]));
+    }
+    inf_pr = fmax(inf_pr, fabs(cres[i]));
+    double graw = g[i] / dc[i];
+    viol_unscaled = fmax(viol_unscaled, fmax(lbg[i] - graw, graw - ubg[i]));
+  }
+  kkt_errors err = {inf_du, inf_pr, inf_co, viol_unscaled, 0.0, 0.0};
+  err.sd = fmax(IPM_S_MAX, (ysum + zsum) / (cnt_y + cnt_z)) / IPM_S_MAX;
+  err.sc = fmax(IPM_S_MAX, zsum / (cnt_z > 0 ? cnt_z : 1)) / IPM_S_MAX;
+  return err;
+}
+
+/* Largest complementarity error |slack * multiplier - mu| (the barrier problem's). */
+static double complementarity_error(const ipm_ws *S, double mu) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
+  const int nw = S->nw, ng = S->ng;
+  const double *x = S->x, *lx = S->lx, *ux = S->ux, *s = S->s, *lg = S->lg, *ug = S->ug;
+  const double *zl = S->zl, *zu = S->zu, *vl = S->vl, *vu = S->vu;
+  double co_mu = 0.0;
+  for (int j = 0; j < nw; ++j) {
+    if (isfinite(lx[j])) co_mu = fmax(co_mu, fabs((x[j] - lx[j]) * zl[j] - mu));
+    if (isfinite(ux[j])) co_mu = fmax(co_mu, fabs((ux[j] - x[j]) * zu[j] - mu));
+  }
+  for (int i = 0; i < ng; ++i) {
+    if (IS_EQ(i)) continue;
+    if (isfinite(lg[i])) co_mu = fmax(co_mu, fabs((s[i] - lg[i]) * vl[i] - mu));
+    if (isfinite(ug[i])) co_mu = fmax(co_mu, fabs((ug[i] - s[i]) * vu[i] - mu));
+  }
+  return co_mu;
+}
+
+/* Monotone barrier update: decrease mu while the barrier problem is solved to kappa_eps mu
+   (possibly several times, IPOPT's rule). */
+static double update_barrier(const ipm_ws *S, double mu, const kkt_errors *err) {
+  for (int k = 0; k < IPM_MAX_MU_UPDATES; ++k) {
+    double co_mu = complementarity_error(S, mu);
+    double err_mu = fmax(err->inf_du / err->sd, fmax(err->inf_pr, co_mu / err->sc));
+    if (err_mu > IPM_KAPPA_EPSILON * mu || mu <= S->o->mu_min) break;
+    double mnew = fmin(IPM_KAPPA_MU * mu, pow(mu, IPM_THETA_MU));
+    mu = fmax(S->o->mu_min, mnew);
+  }
+  return mu;
+}
+
+/* -------------------------------------------------------------------------- Newton step -- */
+
+/* Sigma_x and Sigma_s: the barrier terms' diagonals, multiplier / slack. */
+static void barrier_diagonals(ipm_ws *S) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
+  const double *x = S->x, *lx = S->lx, *ux = S->ux, *s = S->s, *lg = S->lg, *ug = S->ug;
+  for (int j = 0; j < S->nw; ++j) {
+    double sg = 0.0;
+    if (isfinite(lx[j])) sg += S->zl[j] / (x[j] - lx[j]);
+    if (isfinite(ux[j])) sg += S->zu[j] / (ux[j] - x[j]);
+    S->sigx[j] = sg;
+  }
+  for (int i = 0; i < S->ng; ++i) {
+    double sg = 0.0;
+    if (!IS_EQ(i)) {
+      if (isfinite(lg[i])) sg += S->vl[i] / (s[i] - lg[i]);
+      if (isfinite(ug[i])) sg += S->vu[i] / (ug[i] - s[i]);
+    }
+    S->sigs[i] = sg;
+  }
+}
+
+/* The augmented matrix in band storage, regularised by dw (primal) and dcr (constraints). */
+static void assemble_kkt(ipm_ws *S, double dw, double dcr) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
+  const ipm_struct *st = S->st;
+  memset(S->ab, 0, sizeof(double) * (size_t)st->ldab * (size_t)S->n);
+  for (int e = 0; e < st->n_ent; ++e) {
+    int r = st->ent_row[e];
+    double v;
+    switch (st->ent_kind[e]) {
+      case IPM_ENTRY_HESSIAN: v = S->hess[st->hs_src[st->ent_src[e]]]; break;
+      case IPM_ENTRY_PRIMAL_DIAG: v = S->sigx[r] + dw; break;
+      case IPM_ENTRY_JAC_T: case IPM_ENTRY_JAC: v = S->jac[st->ent_src[e]]; break;
+      default: { /* IPM_ENTRY_DUAL_DIAG */
+        int i = r - S->nw;
+        v = IS_EQ(i) ? -dcr : -1.0 / (S->sigs[i] + dw) - dcr;
+      }
+    }
+    S->ab[st->ent_pos[e]] += v;
+  }
+}
+
+/* y + mu / (s - lg) - mu / (ug - s) of an inequality row: its slack's barrier gradient term. */
+static double slack_q(const ipm_ws *S, int i, double mu) {
+  double q = S->y[i];
+  if (isfinite(S->lg[i])) q += mu / (S->s[i] - S->lg[i]);
+  if (isfinite(S->ug[i])) q -= mu / (S->ug[i] - S->s[i]);
+  return q;
+}
+
+/* Right-hand side of the augmented system (slacks eliminated). */
+static void newton_rhs(ipm_ws *S, double mu, double dw) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
+  const double *x = S->x, *lx = S->lx, *ux = S->ux;
+  const int nw = S->nw;
+  for (int j = 0; j < nw; ++j) {
+    double r = -S->grad[j] - S->jty[j];
+    if (isfinite(lx[j])) r += mu / (x[j] - lx[j]);
+    if (isfinite(ux[j])) r -= mu / (ux[j] - x[j]);
+    S->rhs[j] = r;
+  }
+  for (int i = 0; i < S->ng; ++i) {
+    if (IS_EQ(i)) S->rhs[nw + i] = -S->cres[i];
+    else S->rhs[nw + i] = -S->cres[i] + slack_q(S, i, mu) / (S->sigs[i] + dw);
+  }
+}
+
+/* Solve the factorised system for b (n, original order) into out (n), through the band order. */
+static void solve_permuted(ipm_ws *S, const double *b, double *band_buf, double *out) {
+  const ipm_struct *st = S->st;
+  for (int k = 0; k < S->n; ++k) band_buf[k] = b[st->perm[k]];
+  band_solve(S->ab, S->n, st->bw, st->ldab, S->ipiv, band_buf);
+  for (int k = 0; k < S->n; ++k) out[st->perm[k]] = band_buf[k];
+}
+
+/* Primal step dx from a solution of the augmented system, and the slack step ds it implies. */
+static void unpack_step(ipm_ws *S, const double *solution, double mu, double dw, double *dxv, double *dsv) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
+  const ipm_struct *st = S->st;
+  const int nw = S->nw;
+  for (int j = 0; j < nw; ++j) dxv[j] = solution[j];
+  /* a fixing row has one variable and zero residual: its step is exactly 0 (not round-off) */
+  for (int k = 0; k < st->n_fix; ++k) dxv[st->fix_var[k]] = 0.0;
+  for (int i = 0; i < S->ng; ++i) {
+    if (IS_EQ(i)) { dsv[i] = 0.0; continue; }
+    dsv[i] = (solution[nw + i] + slack_q(S, i, mu)) / (S->sigs[i] + dw);
+  }
+}
+
+/* The inertia-free test: does (dx, ds) have positive curvature? */
+static int curvature_ok(ipm_ws *S, double dw) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
+  const ipm_struct *st = S->st;
+  const double *dx = S->dx, *ds = S->ds;
+  for (int j = 0; j < S->nw; ++j) S->hdx[j] = 0.0;
+  for (int e = 0; e < st->n_hs; ++e) S->hdx[st->hs_row[e]] += S->hess[st->hs_src[e]] * dx[st->hs_col[e]];
+  double curv = 0.0, nrm = 0.0;
+  for (int j = 0; j < S->nw; ++j) { curv += dx[j] * (S->hdx[j] + (S->sigx[j] + dw) * dx[j]); nrm += dx[j] * dx[j]; }
+  for (int i = 0; i < S->ng; ++i)
+    if (!IS_EQ(i)) { curv += (S->sigs[i] + dw) * ds[i] * ds[i]; nrm += ds[i] * ds[i]; }
+  return isfinite(curv) && curv >= IPM_CURVATURE_MIN * nrm;
+}
+
+/* The next primal regularisation after a failed factorisation or curvature test. */
+static double next_dw(double dw, double dw_last) {
+  if (dw != 0.0) return IPM_KAPPA_W_PLUS * dw;
+  return dw_last == 0.0 ? IPM_DELTA_W_FIRST : fmax(IPM_DELTA_W_MIN, dw_last / IPM_KAPPA_W_MINUS);
+}
+
+/* Newton step (dx, dy, ds) with the smallest regularisation dw (in *dw) that passes. Leaves the
+   factorisation in ab for the second-order corrections. */
+static int newton_step(ipm_ws *S, double mu, double dw_last, double *dw_out, ipm_stats *stats) {
+  const ipm_struct *st = S->st;
+  double dw = 0.0, dcr = 0.0;
+  for (int attempt = 0; attempt < IPM_MAX_REGULARISATIONS; ++attempt) {
+    assemble_kkt(S, dw, dcr);
+    int info = band_lu(S->ab, S->n, st->bw, st->ldab, S->ipiv);
+    stats->factorisations++;
+    if (info != 0) {
+      /* singular: regularise the constraints as well as the primal block */
+      dcr = IPM_DELTA_C * pow(mu, IPM_KAPPA_C);
+      dw = next_dw(dw, dw_last);
+      continue;
+    }
+    newton_rhs(S, mu, dw);
+    solve_permuted(S, S->rhs, S->tmp, S->sol);
+    for (int i = 0; i < S->ng; ++i) S->dy[i] = S->sol[S->nw + i];
+    unpack_step(S, S->sol, mu, dw, S->dx, S->ds);
+    if (curvature_ok(S, dw)) { *dw_out = dw; return IPM_CONVERGED; }
+    dw = next_dw(dw, dw_last);
+  }
+  return IPM_REGULARISATION_FAILED;
+}
+
+/* Steps of the bound multipliers implied by (dx, ds). */
+static void bound_multiplier_steps(ipm_ws *S, double mu) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
+  const double *x = S->x, *lx = S->lx, *ux = S->ux, *zl = S->zl, *zu = S->zu, *dx = S->dx;
+  const double *s = S->s, *lg = S->lg, *ug = S->ug, *vl = S->vl, *vu = S->vu, *ds = S->ds;
+  for (int j = 0; j < S->nw; ++j) {
+    S->dzl[j] = isfinite(lx[j]) ? mu / (x[j] - lx[j]) - zl[j] - zl[j] / (x[j] - lx[j]) * dx[j] : 0.0;
+    S->dzu[j] = isfinite(ux[j]) ? mu / (ux[j] - x[j]) - zu[j] + zu[j] / (ux[j] - x[j]) * dx[j] : 0.0;
+  }
+  for (int i = 0; i < S->ng; ++i) {
+    S->dvl[i] = S->dvu[i] = 0.0;
+    if (IS_EQ(i)) continue;
+    if (isfinite(lg[i])) S->dvl[i] = mu / (s[i] - lg[i]) - vl[i] - vl[i] / (s[i] - lg[i]) * ds[i];
+    if (isfinite(ug[i])) S->dvu[i] = mu / (ug[i] - s[i]) - vu[i] + vu[i] / (ug[i] - s[i]) * ds[i];
+  }
+}
+
+/* ----------------------------------------------------------------- fraction to the boundary -- */
+
+/* Largest primal step length <= 1 that keeps x and s a fraction tau inside their bounds. */
+static double primal_step_max(const ipm_ws *S, const double *dxv, const double *dsv, double tau) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
+  const double *x = S->x, *lx = S->lx, *ux = S->ux, *s = S->s, *lg = S->lg, *ug = S->ug;
+  const int nw = S->nw, ng = S->ng;
+  double a = 1.0;
+  for (int j = 0; j < nw; ++j) {
+    if (isfinite(lx[j]) && dxv[j] < 0.0) a = fmin(a, -tau * (x[j] - lx[j]) / dxv[j]);
+    if (isfinite(ux[j]) && dxv[j] > 0.0) a = fmin(a, tau * (ux[j] - x[j]) / dxv[j]);
+  }
+  for (int i = 0; i < ng; ++i) {
+    if (IS_EQ(i)) continue;
+    if (isfinite(lg[i]) && dsv[i] < 0.0) a = fmin(a, -tau * (s[i] - lg[i]) / dsv[i]);
+    if (isfinite(ug[i]) && dsv[i] > 0.0) a = fmin(a, tau * (ug[i] - s[i]) / dsv[i]);
+  }
+  return a;
+}
+
+/* Largest dual step length <= 1 that keeps the bound multipliers a fraction tau above 0. */
+static double dual_step_max(const ipm_ws *S, double tau) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
+  const int nw = S->nw, ng = S->ng;
+  const double *zl = S->zl, *zu = S->zu, *dzl = S->dzl, *dzu = S->dzu;
+  const double *vl = S->vl, *vu = S->vu, *dvl = S->dvl, *dvu = S->dvu;
+  double a = 1.0;
+  for (int j = 0; j < nw; ++j) {
+    if (dzl[j] < 0.0) a = fmin(a, -tau * zl[j] / dzl[j]);
+    if (dzu[j] < 0.0) a = fmin(a, -tau * zu[j] / dzu[j]);
+  }
+  for (int i = 0; i < ng; ++i) {
+    if (IS_EQ(i)) continue;
+    if (dvl[i] < 0.0) a = fmin(a, -tau * vl[i] / dvl[i]);
+    if (dvu[i] < 0.0) a = fmin(a, -tau * vu[i] / dvu[i]);
+  }
+  return a;
+}
+
+/* ------------------------------------------------------------------------- line search -- */
+
+typedef struct {
+  double theta[IPM_MAX_FILTER], phi[IPM_MAX_FILTER];
+  int n;
+  double mu;        /* barrier parameter the filter belongs to (reset when mu changes) */
+  double theta_max; /* no trial point above this infeasibility */
+} filter_t;
+
+/* The current point's merit: theta = |c|_1 (scaled rows), phi = barrier objective, and phi's
+   directional derivative along (dx, ds). */
+typedef struct { double theta0, phi0, dphi; } merit_t;
+
+static merit_t current_merit(const ipm_ws *S, double fval, double mu) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
+  const double *x = S->x, *lx = S->lx, *ux = S->ux, *s = S->s, *lg = S->lg, *ug = S->ug;
+  const int nw = S->nw, ng = S->ng;
+  const double *cres = S->cres, *grad = S->grad, *dx = S->dx, *ds = S->ds;
+  merit_t m = {0.0, fval, 0.0};
+  for (int i = 0; i < ng; ++i) m.theta0 += fabs(cres[i]);
+  for (int j = 0; j < nw; ++j) {
+    double gj = grad[j];
+    if (isfinite(lx[j])) { m.phi0 -= mu * log(x[j] - lx[j]); gj -= mu / (x[j] - lx[j]); }
+    if (isfinite(ux[j])) { m.phi0 -= mu * log(ux[j] - x[j]); gj += mu / (ux[j] - x[j]); }
+    m.dphi += gj * dx[j];
+  }
+  for (int i = 0; i < ng; ++i) {
+    if (IS_EQ(i)) continue;
+    double gs = 0.0;
+    if (isfinite(lg[i])) { m.phi0 -= mu * log(s[i] - lg[i]); gs -= mu / (s[i] - lg[i]); }
+    if (isfinite(ug[i])) { m.phi0 -= mu * log(ug[i] - s[i]); gs += mu / (ug[i] - s[i]); }
+    m.dphi += gs * ds[i];
+  }
+  return m;
+}
+
+/* A trial point's merit. */
+typedef struct { double phi, theta; } trial_t;
+
+/* Evaluate the barrier objective and the infeasibility at (x + a dx, s + a ds) into xt, st_, gt.
+   Returns 1 if finite, 0 if not evaluable (NaN/inf, out of the barrier's domain), -1 on an
+   evaluation error. */
+static int trial_eval(ipm_ws *S, const double *dxv, const double *dsv, double a, double mu, trial_t *t) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
+  const ipm_struct *st = S->st;
+  const int nw = S->nw, ng = S->ng;
+  const double *lx = S->lx, *ux = S->ux, *lg = S->lg, *ug = S->ug;
+  const double *x = S->x, *s = S->s, *dc = S->dc;
+  double *xt = S->xt, *st_ = S->st_, *gt = S->gt;
+  for (int j = 0; j < nw; ++j) xt[j] = x[j] + a * dxv[j];
+  for (int i = 0; i < ng; ++i) st_[i] = s[i] + a * dsv[i];
   double ft = 0.0;
-  if (call(E, 1, st->f_grad_f, xt, p, 0, 0, &ft, gscratch)) return -1;
-  if (call(E, 0, st->f_g, xt, p, 0, 0, gt, 0)) return -1;
+  if (call(&S->E, st->f_grad_f, xt, S->p, 0, 0, &ft, S->hdx)) return -1; /* hdx: gradient scratch */
+  if (call(&S->E, st->f_g, xt, S->p, 0, 0, gt, 0)) return -1;
   double ph = ft, th = 0.0;
   if (!isfinite(ft)) return 0;
   for (int j = 0; j < nw; ++j) {
@@ -171,516 +650,277 @@ static int trial_eval(const evalctx *E, const ipm_struct *st, const double *p, c
   for (int i = 0; i < ng; ++i) {
     double gi = gt[i] * dc[i];
     if (!isfinite(gi)) return 0;
-    if (lbg[i] == ubg[i]) th += fabs(gi - lg[i]);
+    if (IS_EQ(i)) th += fabs(gi - lg[i]);
     else {
       th += fabs(gi - st_[i]);
       if (isfinite(lg[i])) ph -= mu * log(st_[i] - lg[i]);
       if (isfinite(ug[i])) ph -= mu * log(ug[i] - st_[i]);
     }
   }
-  *phit = ph; *thetat = th;
+  t->phi = ph; t->theta = th;
   return isfinite(ph) ? 1 : 0;
 }
 
-/* IPOPT's filter acceptance (switching condition, Armijo for f-type, sufficient decrease for h-type). */
-static int acceptable(double phit, double thetat, double phi0, double theta0, double dphi, double alpha,
-                      double theta_min, double theta_max, const double *ft, const double *fp, int nf, int *f_type) {
-  if (thetat > theta_max) return 0;
-  for (int k = 0; k < nf; ++k)
-    if (!(thetat < ft[k] || phit < fp[k])) return 0;
-  int switching = dphi < 0.0 && alpha * pow(-dphi, 2.3) > pow(theta0, 1.1) && theta0 <= theta_min;
+/* IPOPT's filter acceptance (switching condition, Armijo for f-type, sufficient decrease for
+   h-type). *f_type is set only once the trial passed theta_max and the filter. */
+static int acceptable(const trial_t *t, const merit_t *m, double alpha, double theta_min, const filter_t *F,
+                      int *f_type) {
+  if (t->theta > F->theta_max) return 0;
+  for (int k = 0; k < F->n; ++k)
+    if (!(t->theta < F->theta[k] || t->phi < F->phi[k])) return 0;
+  int switching = m->dphi < 0.0 && alpha * pow(-m->dphi, IPM_S_PHI) > pow(m->theta0, IPM_S_THETA) &&
+                  m->theta0 <= theta_min;
   *f_type = 0;
   if (switching) {
-    if (phit <= phi0 + 1e-8 * alpha * dphi) { *f_type = 1; return 1; }
+    if (t->phi <= m->phi0 + IPM_ETA_PHI * alpha * m->dphi) { *f_type = 1; return 1; }
     return 0;
   }
-  return thetat <= (1.0 - 1e-5) * theta0 || phit <= phi0 - 1e-8 * theta0;
+  return t->theta <= (1.0 - IPM_GAMMA_THETA) * m->theta0 || t->phi <= m->phi0 - IPM_GAMMA_PHI * m->theta0;
+}
+
+/* What a line search ends with: the step length and kind, and whether it was a corrected step. */
+typedef struct {
+  double alpha, theta_min;
+  int accepted, f_type, soc_used;
+  trial_t trial;
+} search_t;
+
+/* Second-order corrections after a first trial (at ls->alpha) that did not reduce theta: up to
+   IPM_MAX_SOC, each re-solving with the accumulated constraint values of the last trial (IPOPT's
+   c_soc), each required to cut theta by IPM_KAPPA_SOC. An accepted correction replaces (dx, ds)
+   and alpha. Returns -1 on an evaluation error. */
+static int second_order_corrections(ipm_ws *S, const merit_t *m, const filter_t *F, double mu, double dw,
+                                    double tau, search_t *ls, ipm_stats *stats) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
+  const int nw = S->nw, ng = S->ng;
+  double *c_soc = S->sol + nw; /* the factorised step's rows are no longer needed */
+  double theta_prev = ls->trial.theta;
+  for (int i = 0; i < ng; ++i) c_soc[i] = ls->alpha * S->cres[i];
+  for (int k = 0; k < IPM_MAX_SOC; ++k) {
+    for (int i = 0; i < ng; ++i) {
+      double ci = IS_EQ(i) ? S->gt[i] * S->dc[i] - S->lg[i] : S->gt[i] * S->dc[i] - S->st_[i];
+      c_soc[i] += ci;
+    }
+    for (int j = 0; j < nw; ++j) S->tmp[j] = S->rhs[j];
+    for (int i = 0; i < ng; ++i) S->tmp[nw + i] = S->rhs[nw + i] + S->cres[i] - c_soc[i];
+    solve_permuted(S, S->tmp, S->soc_buf, S->tmp);
+    unpack_step(S, S->tmp, mu, dw, S->dx_soc, S->ds_soc);
+    double asoc = primal_step_max(S, S->dx_soc, S->ds_soc, tau);
+    int ok = trial_eval(S, S->dx_soc, S->ds_soc, asoc, mu, &ls->trial);
+    if (ok < 0) return -1;
+    stats->soc++;
+    if (ok && acceptable(&ls->trial, m, ls->alpha, ls->theta_min, F, &ls->f_type)) {
+      ls->accepted = 1; ls->soc_used = 1;
+      memcpy(S->dx, S->dx_soc, sizeof(double) * nw);
+      memcpy(S->ds, S->ds_soc, sizeof(double) * ng);
+      ls->alpha = asoc;
+      return 0;
+    }
+    if (!ok || ls->trial.theta > IPM_KAPPA_SOC * theta_prev) return 0;
+    theta_prev = ls->trial.theta;
+  }
+  return 0;
+}
+
+/* IPOPT's filter line search by backtracking from alpha_max. A trial point must be acceptable to
+   the filter and either (f-type, when the step is a good descent direction for phi and theta is
+   small) satisfy Armijo on phi, or (h-type) reduce theta or phi sufficiently; h-type steps add the
+   current point to the filter (done by the caller). Returns -1 on an evaluation error. */
+static int line_search(ipm_ws *S, const merit_t *m, const filter_t *F, double alpha_max, double mu, double dw,
+                       double tau, search_t *ls, ipm_stats *stats) {
+  ls->theta_min = IPM_THETA_MIN_FACTOR * fmax(1.0, m->theta0);
+  ls->alpha = alpha_max;
+  ls->accepted = ls->f_type = ls->soc_used = 0;
+  ls->trial.phi = ls->trial.theta = 0.0;
+  for (int k = 0; k < IPM_MAX_BACKTRACKS; ++k) {
+    int ok = trial_eval(S, S->dx, S->ds, ls->alpha, mu, &ls->trial);
+    if (ok < 0) return -1;
+    if (ok && acceptable(&ls->trial, m, ls->alpha, ls->theta_min, F, &ls->f_type)) { ls->accepted = 1; break; }
+    if (k == 0 && ok && ls->trial.theta >= m->theta0) {
+      if (second_order_corrections(S, m, F, mu, dw, tau, ls, stats) < 0) return -1;
+      if (ls->accepted) break;
+    }
+    ls->alpha *= IPM_ALPHA_FACTOR;
+    stats->backtracks++;
+    if (ls->alpha < IPM_ALPHA_MIN) break;
+  }
+  return 0;
+}
+
+/* h-type steps add the current point (with IPOPT's margins) to the filter. */
+static void augment_filter(filter_t *F, const merit_t *m) {
+  if (F->n >= IPM_MAX_FILTER) return;
+  F->theta[F->n] = (1.0 - IPM_GAMMA_THETA) * m->theta0;
+  F->phi[F->n] = m->phi0 - IPM_GAMMA_PHI * m->theta0;
+  F->n++;
+}
+
+/* ------------------------------------------------------------------------------ update -- */
+
+static void take_step(ipm_ws *S, double alpha, double ad) {
+  for (int j = 0; j < S->nw; ++j) {
+    S->x[j] += alpha * S->dx[j];
+    S->zl[j] += ad * S->dzl[j];
+    S->zu[j] += ad * S->dzu[j];
+  }
+  for (int i = 0; i < S->ng; ++i) {
+    S->y[i] += alpha * S->dy[i];
+    S->s[i] += alpha * S->ds[i];
+    S->vl[i] += ad * S->dvl[i];
+    S->vu[i] += ad * S->dvu[i];
+  }
+}
+
+/* z kept within [b / kappa_sigma, kappa_sigma b], b = mu / slack (IPOPT's kappa_Sigma safeguard). */
+static double clip_multiplier(double z, double b) {
+  return fmax(fmin(z, IPM_KAPPA_SIGMA * b), b / IPM_KAPPA_SIGMA);
+}
+
+static void clip_bound_multipliers(ipm_ws *S, double mu) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
+  const double *x = S->x, *lx = S->lx, *ux = S->ux, *s = S->s, *lg = S->lg, *ug = S->ug;
+  const int nw = S->nw, ng = S->ng;
+  double *zl = S->zl, *zu = S->zu, *vl = S->vl, *vu = S->vu;
+  for (int j = 0; j < nw; ++j) {
+    if (isfinite(lx[j])) zl[j] = clip_multiplier(zl[j], mu / (x[j] - lx[j]));
+    if (isfinite(ux[j])) zu[j] = clip_multiplier(zu[j], mu / (ux[j] - x[j]));
+  }
+  for (int i = 0; i < ng; ++i) {
+    if (IS_EQ(i)) continue;
+    if (isfinite(lg[i])) vl[i] = clip_multiplier(vl[i], mu / (s[i] - lg[i]));
+    if (isfinite(ug[i])) vu[i] = clip_multiplier(vu[i], mu / (ug[i] - s[i]));
+  }
 }
 
 /* ----------------------------------------------------------------------------- the solver -- */
 
-
-void ipm_work_sizes(const ipm_struct *st, int64_t *n_dbl, int64_t *n_int) {
-  int64_t n = st->n, nw = st->n_w, ng = st->n_g;
-  int64_t wmax = 0, iwmax = 0, amax = 0, rmax = 0;
-  for (int k = 0; k < 4; ++k) {
-    if (st->work_sizes[4 * k + 0] > amax) amax = st->work_sizes[4 * k + 0];
-    if (st->work_sizes[4 * k + 1] > rmax) rmax = st->work_sizes[4 * k + 1];
-    if (st->work_sizes[4 * k + 2] > iwmax) iwmax = st->work_sizes[4 * k + 2];
-    if (st->work_sizes[4 * k + 3] > wmax) wmax = st->work_sizes[4 * k + 3];
-  }
-  *n_dbl = (int64_t)st->ldab * n + 8 * n + 24 * nw + 24 * ng + 2 * st->n_j + st->n_h + wmax + 64;
-  *n_int = (n + 2) + 2 * (iwmax + 8) + 2 * (amax + 8) + 2 * (rmax + 8) + 64;
+static int finish(ipm_stats *stats, int status) {
+  stats->status = status;
+  return status;
 }
 
-/* x (n_w), lam_x (n_w), lam_g (n_g): start in, solution out (multipliers unscaled, CasADi sign). */
-int ipm_solve(const ipm_struct *st, const ipm_opts *o, const double *p, const double *lbx, const double *ubx,
-              const double *lbg, const double *ubg, double *x, double *lam_x, double *lam_g, ipm_stats *stats,
-              double *wd, int *wi) {
-  const int nw = st->n_w, ng = st->n_g, n = st->n, bw = st->bw, ldab = st->ldab;
-  /* ---- workspace ---- */
-  double *ab = wd; wd += (int64_t)ldab * n;
-  double *rhs = wd; wd += n;
-  double *sol = wd; wd += n;
-  double *tmp = wd; wd += n;
-  double *soc_buf = wd; wd += n;
-  wd += 4 * n;
-  double *lx = wd; wd += nw;     /* relaxed bounds */
-  double *ux = wd; wd += nw;
-  double *zl = wd; wd += nw;
-  double *zu = wd; wd += nw;
-  double *grad = wd; wd += nw;
-  double *dx = wd; wd += nw;
-  double *dzl = wd; wd += nw;
-  double *dzu = wd; wd += nw;
-  double *xt = wd; wd += nw;     /* trial point */
-  double *sigx = wd; wd += nw;
-  double *jty = wd; wd += nw;
-  double *hdx = wd; wd += nw;
-  double *dx_soc = wd; wd += nw;
-  wd += 11 * nw;
-  double *lg = wd; wd += ng;     /* scaled, relaxed row bounds */
-  double *ug = wd; wd += ng;
-  double *dc = wd; wd += ng;     /* row scales */
-  double *g = wd; wd += ng;      /* scaled g */
-  double *s = wd; wd += ng;
-  double *y = wd; wd += ng;      /* scaled multipliers */
-  double *vl = wd; wd += ng;
-  double *vu = wd; wd += ng;
-  double *ds = wd; wd += ng;
-  double *dy = wd; wd += ng;
-  double *dvl = wd; wd += ng;
-  double *dvu = wd; wd += ng;
-  double *cres = wd; wd += ng;
-  double *sigs = wd; wd += ng;
-  double *gt = wd; wd += ng;
-  double *st_ = wd; wd += ng;    /* trial slack */
-  double *ds_soc = wd; wd += ng;
-  wd += 7 * ng;
-  double *jac = wd; wd += st->n_j; /* scaled */
-  double *jraw = wd; wd += st->n_j;
-  double *hess = wd; wd += st->n_h;
-  double *fw = wd;               /* function work */
-  int *ipiv = wi; wi += n + (n & 1); /* keep 8-byte alignment for what follows */
-  casadi_int_t *iw = (casadi_int_t *)wi;
-  int64_t iwmax = 0, amax = 0, rmax = 0;
-  for (int k = 0; k < 4; ++k) {
-    if (st->work_sizes[4 * k + 0] > amax) amax = st->work_sizes[4 * k + 0];
-    if (st->work_sizes[4 * k + 1] > rmax) rmax = st->work_sizes[4 * k + 1];
-    if (st->work_sizes[4 * k + 2] > iwmax) iwmax = st->work_sizes[4 * k + 2];
-  }
-  wi += 2 * (iwmax + 8);
-  const double **arg = (const double **)wi; wi += 2 * (amax + 8);
-  double **res = (double **)wi;
-  evalctx E = {st, p, arg, res, iw, fw};
-
-  stats->iterations = 0; stats->status = 0; stats->factorisations = 0; stats->regularised = 0; stats->backtracks = 0;
-  stats->soc = 0; stats->far = 0; stats->theta_start = 0.0; stats->first_alpha = 0.0;
-  stats->inf_pr = INFINITY; stats->inf_du = INFINITY; stats->mu = o->mu_init;
-  double fval = 0.0, one = 1.0;
-
-  /* ---- relaxed bounds (IPOPT's bound_relax_factor) ---- */
-  for (int j = 0; j < nw; ++j) {
-    lx[j] = isfinite(lbx[j]) ? lbx[j] - o->bound_relax * fmax(1.0, fabs(lbx[j])) : -INFINITY;
-    ux[j] = isfinite(ubx[j]) ? ubx[j] + o->bound_relax * fmax(1.0, fabs(ubx[j])) : INFINITY;
-  }
-  /* ---- initial value embedding: each fixing row g_i = a x_j - c(p) is solved for x_j exactly, by
-     evaluating g with x_j = 0 (g_i = -c(p)) ---- */
-  for (int k = 0; k < st->n_fix; ++k) x[st->fix_var[k]] = 0.0;
-  if (call(&E, 0, st->f_g, x, p, 0, 0, g, 0)) { stats->status = 5; return 5; }
-  for (int k = 0; k < st->n_fix; ++k) {
-    int i = st->fix_row[k], j = st->fix_var[k];
-    x[j] = (lbg[i] - g[i]) / st->fix_coef[k];
-  }
-  /* ---- row scales from the Jacobian at the (embedded) start; how far is it from feasible? ---- */
-  if (call(&E, 2, st->f_jac_g, x, p, 0, 0, g, jraw)) { stats->status = 5; return 5; }
-  for (int i = 0; i < ng; ++i) dc[i] = 0.0;
-  for (int e = 0; e < st->n_j; ++e) { double a = fabs(jraw[e]); if (a > dc[st->j_rows[e]]) dc[st->j_rows[e]] = a; }
-  for (int i = 0; i < ng; ++i) dc[i] = dc[i] > 100.0 ? 100.0 / dc[i] : 1.0;
+/* The start: relaxed bounds, embedding, row scales, pushed primal point, duals; sets *mu. */
+static int start(ipm_ws *S, const double *lam_x, const double *lam_g, ipm_stats *stats, double *mu) {
+  const ipm_opts *o = S->o;
+  relax_variable_bounds(S);
+  if (embed_initial_value(S)) return IPM_EVALUATION_ERROR;
   double theta_start = 0.0;
-  for (int i = 0; i < ng; ++i) {
-    double v = fmax(lbg[i] - g[i], g[i] - ubg[i]);
-    if (v > 0.0) theta_start = fmax(theta_start, v * dc[i]);
-  }
-  for (int j = 0; j < nw; ++j) theta_start = fmax(theta_start, fmax(lbx[j] - x[j], x[j] - ubx[j]));
+  if (scale_rows(S, &theta_start)) return IPM_EVALUATION_ERROR;
   stats->theta_start = theta_start;
   stats->far = o->warm && theta_start > o->theta_far;
   const double push = stats->far ? o->push_far : o->bound_push;
-  double mu = stats->far ? o->mu_far : o->mu_init;
-  /* ---- primal start: pushed inside the (relaxed) bounds ---- */
-  for (int j = 0; j < nw; ++j) {
-    double push_l = isfinite(lx[j]) ? push * fmax(1.0, fabs(lx[j])) : 0.0;
-    double push_u = isfinite(ux[j]) ? push * fmax(1.0, fabs(ux[j])) : 0.0;
-    if (isfinite(lx[j]) && isfinite(ux[j])) {
-      double half = 0.5 * (ux[j] - lx[j]);
-      if (push_l > half) push_l = half;
-      if (push_u > half) push_u = half;
-    }
-    if (isfinite(lx[j]) && x[j] < lx[j] + push_l) x[j] = lx[j] + push_l;
-    if (isfinite(ux[j]) && x[j] > ux[j] - push_u) x[j] = ux[j] - push_u;
-  }
-  if (call(&E, 0, st->f_g, x, p, 0, 0, g, 0)) { stats->status = 5; return 5; }
-  for (int i = 0; i < ng; ++i) {
-    double l = lbg[i] * dc[i], u = ubg[i] * dc[i];
-    if (lbg[i] == ubg[i]) { lg[i] = l; ug[i] = u; }
-    else {
-      lg[i] = isfinite(lbg[i]) ? l - o->bound_relax * fmax(1.0, fabs(l)) : -INFINITY;
-      ug[i] = isfinite(ubg[i]) ? u + o->bound_relax * fmax(1.0, fabs(u)) : INFINITY;
-    }
-  }
-#define IS_EQ(i) (lbg[i] == ubg[i])
-  for (int i = 0; i < ng; ++i) {
-    double gi = g[i] * dc[i];
-    if (IS_EQ(i)) { s[i] = lg[i]; continue; }
-    double push_l = isfinite(lg[i]) ? push * fmax(1.0, fabs(lg[i])) : 0.0;
-    double push_u = isfinite(ug[i]) ? push * fmax(1.0, fabs(ug[i])) : 0.0;
-    if (isfinite(lg[i]) && isfinite(ug[i])) {
-      double half = 0.5 * (ug[i] - lg[i]);
-      if (push_l > half) push_l = half;
-      if (push_u > half) push_u = half;
-    }
-    s[i] = gi;
-    if (isfinite(lg[i]) && s[i] < lg[i] + push_l) s[i] = lg[i] + push_l;
-    if (isfinite(ug[i]) && s[i] > ug[i] - push_u) s[i] = ug[i] - push_u;
-  }
-  /* ---- dual start ---- */
-  for (int i = 0; i < ng; ++i) {
-    y[i] = o->warm ? lam_g[i] / dc[i] : 0.0;
-    vl[i] = vu[i] = 0.0;
-    if (IS_EQ(i)) continue;
-    /* on slack rows y = vU - vL */
-    if (isfinite(lg[i])) vl[i] = fmax(o->warm ? fmax(-y[i], 0.0) : 1.0, o->mult_push);
-    if (isfinite(ug[i])) vu[i] = fmax(o->warm ? fmax(y[i], 0.0) : 1.0, o->mult_push);
-  }
-  for (int j = 0; j < nw; ++j) {
-    zl[j] = zu[j] = 0.0;
-    if (isfinite(lx[j])) zl[j] = fmax(o->warm ? fmax(-lam_x[j], 0.0) : 1.0, o->mult_push);
-    if (isfinite(ux[j])) zu[j] = fmax(o->warm ? fmax(lam_x[j], 0.0) : 1.0, o->mult_push);
-  }
+  *mu = stats->far ? o->mu_far : o->mu_init;
+  if (primal_start(S, push)) return IPM_EVALUATION_ERROR;
+  dual_start(S, lam_x, lam_g);
+  return IPM_CONVERGED;
+}
 
-#define MAX_FILTER 256
-  double filt_theta[MAX_FILTER], filt_phi[MAX_FILTER];
-  int nfilter = 0;
-  double mu_filter = -1.0, theta_max = INFINITY;
+int ipm_solve(const ipm_struct *st, const ipm_opts *o, const double *p, const double *lbx, const double *ubx,
+              const double *lbg, const double *ubg, double *x, double *lam_x, double *lam_g, ipm_stats *stats,
+              double *wd, int *wi) {
+  ipm_ws W = {0};
+  ipm_ws *S = &W;
+  S->st = st; S->o = o; S->p = p; S->lbx = lbx; S->ubx = ubx; S->lbg = lbg; S->ubg = ubg; S->x = x;
+  S->nw = st->n_w; S->ng = st->n_g; S->n = st->n;
+  carve_workspace(S, wd, wi);
+  init_stats(stats, o);
+  double mu = 0.0, fval = 0.0, one = 1.0;
+  int status = start(S, lam_x, lam_g, stats, &mu);
+  if (status) return finish(stats, status);
+
+  filter_t F = {.n = 0, .mu = -1.0, .theta_max = INFINITY};
   double dw_last = 0.0; /* last successful primal regularisation */
   for (int it = 0; it <= o->max_iter; ++it) {
     stats->iterations = it;
-    /* ---- evaluate at x ---- */
-    if (call(&E, 1, st->f_grad_f, x, p, 0, 0, &fval, grad)) { stats->status = 5; return 5; }
-    if (call(&E, 2, st->f_jac_g, x, p, 0, 0, g, jraw)) { stats->status = 5; return 5; }
-    for (int e = 0; e < st->n_j; ++e) jac[e] = jraw[e] * dc[st->j_rows[e]];
-    for (int i = 0; i < ng; ++i) g[i] *= dc[i];
-    /* residuals */
-    for (int j = 0; j < nw; ++j) jty[j] = 0.0;
-    for (int e = 0; e < st->n_j; ++e) jty[st->j_cols[e]] += jac[e] * y[st->j_rows[e]];
-    double inf_du = 0.0, inf_pr = 0.0, inf_co = 0.0, viol_unscaled = 0.0;
-    double ysum = 0.0, zsum = 0.0, cnt_y = ng, cnt_z = 0;
-    for (int j = 0; j < nw; ++j) {
-      double r = grad[j] + jty[j] - zl[j] + zu[j];
-      inf_du = fmax(inf_du, fabs(r));
-      zsum += zl[j] + zu[j]; cnt_z += 2;
-      if (isfinite(lx[j])) inf_co = fmax(inf_co, fabs((x[j] - lx[j]) * zl[j] - 0.0));
-      if (isfinite(ux[j])) inf_co = fmax(inf_co, fabs((ux[j] - x[j]) * zu[j]));
-      double vlow = isfinite(lbx[j]) ? lbx[j] - x[j] : 0.0, vupp = isfinite(ubx[j]) ? x[j] - ubx[j] : 0.0;
-      viol_unscaled = fmax(viol_unscaled, fmax(vlow, vupp));
-    }
-    for (int i = 0; i < ng; ++i) {
-      ysum += fabs(y[i]);
-      if (IS_EQ(i)) { cres[i] = g[i] - lg[i]; }
-      else {
-        cres[i] = g[i] - s[i];
-        double r = -y[i] - vl[i] + vu[i];
-        inf_du = fmax(inf_du, fabs(r));
-        zsum += vl[i] + vu[i]; cnt_z += 2;
-        if (isfinite(lg[i])) inf_co = fmax(inf_co, fabs((s[i] - lg[i]) * vl[i]));
-        if (isfinite(ug[i])) inf_co = fmax(inf_co, fabs((ug[i] - s[i]) * vu[i]));
-      }
-      inf_pr = fmax(inf_pr, fabs(cres[i]));
-      double graw = g[i] / dc[i];
-      viol_unscaled = fmax(viol_unscaled, fmax(lbg[i] - graw, graw - ubg[i]));
-    }
-    double smax = 100.0;
-    double sd = fmax(smax, (ysum + zsum) / (cnt_y + cnt_z)) / smax;
-    double sc = fmax(smax, zsum / (cnt_z > 0 ? cnt_z : 1)) / smax;
-    stats->inf_pr = viol_unscaled; stats->inf_du = inf_du / sd; stats->mu = mu;
-    if (!isfinite(inf_du) || !isfinite(inf_pr)) { stats->status = 4; return 4; }
-    /* overall optimality (mu = 0) */
-    double err0 = fmax(inf_du / sd, fmax(inf_pr, inf_co / sc));
-    if (err0 <= o->tol && viol_unscaled <= o->constr_viol_tol) { stats->status = 0; break; }
-    if (it == o->max_iter) { stats->status = 1; break; }
-    /* barrier error and monotone mu update (possibly several times, IPOPT's rule) */
-    for (int k = 0; k < 10; ++k) {
-      double co_mu = 0.0;
-      for (int j = 0; j < nw; ++j) {
-        if (isfinite(lx[j])) co_mu = fmax(co_mu, fabs((x[j] - lx[j]) * zl[j] - mu));
-        if (isfinite(ux[j])) co_mu = fmax(co_mu, fabs((ux[j] - x[j]) * zu[j] - mu));
-      }
-      for (int i = 0; i < ng; ++i) {
-        if (IS_EQ(i)) continue;
-        if (isfinite(lg[i])) co_mu = fmax(co_mu, fabs((s[i] - lg[i]) * vl[i] - mu));
-        if (isfinite(ug[i])) co_mu = fmax(co_mu, fabs((ug[i] - s[i]) * vu[i] - mu));
-      }
-      double err_mu = fmax(inf_du / sd, fmax(inf_pr, co_mu / sc));
-      if (err_mu > 10.0 * mu || mu <= o->mu_min) break;
-      double mnew = fmin(0.2 * mu, pow(mu, 1.5));
-      mu = fmax(o->mu_min, mnew);
-    }
-    double tau = fmax(0.99, 1.0 - mu);
-    /* ---- Hessian of the Lagrangian (unscaled multipliers) ---- */
-    for (int i = 0; i < ng; ++i) tmp[i] = y[i] * dc[i];
-    if (call(&E, 3, st->f_hess_l, x, p, &one, tmp, hess, 0)) { stats->status = 5; return 5; }
-    /* ---- barrier diagonals ---- */
-    for (int j = 0; j < nw; ++j) {
-      double sg = 0.0;
-      if (isfinite(lx[j])) sg += zl[j] / (x[j] - lx[j]);
-      if (isfinite(ux[j])) sg += zu[j] / (ux[j] - x[j]);
-      sigx[j] = sg;
-    }
-    for (int i = 0; i < ng; ++i) {
-      double sg = 0.0;
-      if (!IS_EQ(i)) {
-        if (isfinite(lg[i])) sg += vl[i] / (s[i] - lg[i]);
-        if (isfinite(ug[i])) sg += vu[i] / (ug[i] - s[i]);
-      }
-      sigs[i] = sg;
-    }
-    /* ---- Newton step with inertia-free regularisation ---- */
-    double dw = 0.0, dcr = 0.0;
-    int solved = 0;
-    for (int attempt = 0; attempt < 12 && !solved; ++attempt) {
-      memset(ab, 0, sizeof(double) * (size_t)ldab * (size_t)n);
-      for (int e = 0; e < st->n_ent; ++e) {
-        int r = st->ent_row[e];
-        double v;
-        switch (st->ent_kind[e]) {
-          case 0: v = hess[st->hs_src[st->ent_src[e]]]; break;
-          case 1: v = sigx[r] + dw; break;
-          case 2: case 3: v = jac[st->ent_src[e]]; break;
-          default: {
-            int i = r - nw;
-            v = IS_EQ(i) ? -dcr : -1.0 / (sigs[i] + dw) - dcr;
-          }
-        }
-        ab[st->ent_pos[e]] += v;
-      }
-      int info = band_lu(ab, n, bw, ldab, ipiv);
-      stats->factorisations++;
-      if (info != 0) {
-        /* singular: regularise the constraints as well as the primal block */
-        dcr = 1e-8 * pow(mu, 0.25);
-        dw = dw == 0.0 ? (dw_last == 0.0 ? 1e-4 : fmax(1e-20, dw_last / 3.0)) : 8.0 * dw;
-        continue;
-      }
-      /* right-hand side */
-      for (int j = 0; j < nw; ++j) {
-        double r = -grad[j] - jty[j];
-        if (isfinite(lx[j])) r += mu / (x[j] - lx[j]);
-        if (isfinite(ux[j])) r -= mu / (ux[j] - x[j]);
-        rhs[j] = r;
-      }
-      for (int i = 0; i < ng; ++i) {
-        if (IS_EQ(i)) rhs[nw + i] = -cres[i];
-        else {
-          double q = y[i];
-          if (isfinite(lg[i])) q += mu / (s[i] - lg[i]);
-          if (isfinite(ug[i])) q -= mu / (ug[i] - s[i]);
-          rhs[nw + i] = -cres[i] + q / (sigs[i] + dw);
-        }
-      }
-      for (int k = 0; k < n; ++k) tmp[k] = rhs[st->perm[k]];
-      band_solve(ab, n, bw, ldab, ipiv, tmp);
-      for (int k = 0; k < n; ++k) sol[st->perm[k]] = tmp[k];
-      for (int j = 0; j < nw; ++j) dx[j] = sol[j];
-      for (int i = 0; i < ng; ++i) dy[i] = sol[nw + i];
-      /* a fixing row has one variable and zero residual: its step is exactly 0 (not round-off) */
-      for (int k = 0; k < st->n_fix; ++k) dx[st->fix_var[k]] = 0.0;
-      /* slack step */
-      for (int i = 0; i < ng; ++i) {
-        if (IS_EQ(i)) { ds[i] = 0.0; continue; }
-        double q = y[i];
-        if (isfinite(lg[i])) q += mu / (s[i] - lg[i]);
-        if (isfinite(ug[i])) q -= mu / (ug[i] - s[i]);
-        ds[i] = (dy[i] + q) / (sigs[i] + dw);
-      }
-      /* curvature test */
-      for (int j = 0; j < nw; ++j) hdx[j] = 0.0;
-      for (int e = 0; e < st->n_hs; ++e) hdx[st->hs_row[e]] += hess[st->hs_src[e]] * dx[st->hs_col[e]];
-      double curv = 0.0, nrm = 0.0;
-      for (int j = 0; j < nw; ++j) { curv += dx[j] * (hdx[j] + (sigx[j] + dw) * dx[j]); nrm += dx[j] * dx[j]; }
-      for (int i = 0; i < ng; ++i) if (!IS_EQ(i)) { curv += (sigs[i] + dw) * ds[i] * ds[i]; nrm += ds[i] * ds[i]; }
-      int finite = isfinite(curv);
-      if (finite && curv >= 1e-12 * nrm) { solved = 1; break; }
-      dw = dw == 0.0 ? (dw_last == 0.0 ? 1e-4 : fmax(1e-20, dw_last / 3.0)) : 8.0 * dw;
-    }
-    if (!solved) { stats->status = 3; return 3; }
+    if (evaluate(S, &fval)) return finish(stats, IPM_EVALUATION_ERROR);
+    kkt_errors err = residuals(S);
+    stats->inf_pr = err.viol_unscaled; stats->inf_du = err.inf_du / err.sd; stats->mu = mu;
+    if (!isfinite(err.inf_du) || !isfinite(err.inf_pr)) return finish(stats, IPM_NONFINITE);
+    /* termination: overall optimality (mu = 0) */
+    double err0 = fmax(err.inf_du / err.sd, fmax(err.inf_pr, err.inf_co / err.sc));
+    if (err0 <= o->tol && err.viol_unscaled <= o->constr_viol_tol) { stats->status = IPM_CONVERGED; break; }
+    if (it == o->max_iter) { stats->status = IPM_MAX_ITERATIONS; break; }
+    mu = update_barrier(S, mu, &err);
+    double tau = fmax(IPM_TAU_MIN, 1.0 - mu);
+    /* Hessian of the Lagrangian (unscaled multipliers) */
+    for (int i = 0; i < S->ng; ++i) S->tmp[i] = S->y[i] * S->dc[i];
+    if (call(&S->E, st->f_hess_l, x, p, &one, S->tmp, S->hess, 0)) return finish(stats, IPM_EVALUATION_ERROR);
+    barrier_diagonals(S);
+    double dw = 0.0;
+    if (newton_step(S, mu, dw_last, &dw, stats)) return finish(stats, IPM_REGULARISATION_FAILED);
     dw_last = dw;
     if (dw > 0.0) stats->regularised++;
-    /* bound-multiplier steps */
-    for (int j = 0; j < nw; ++j) {
-      dzl[j] = isfinite(lx[j]) ? mu / (x[j] - lx[j]) - zl[j] - zl[j] / (x[j] - lx[j]) * dx[j] : 0.0;
-      dzu[j] = isfinite(ux[j]) ? mu / (ux[j] - x[j]) - zu[j] + zu[j] / (ux[j] - x[j]) * dx[j] : 0.0;
-    }
-    for (int i = 0; i < ng; ++i) {
-      dvl[i] = dvu[i] = 0.0;
-      if (IS_EQ(i)) continue;
-      if (isfinite(lg[i])) dvl[i] = mu / (s[i] - lg[i]) - vl[i] - vl[i] / (s[i] - lg[i]) * ds[i];
-      if (isfinite(ug[i])) dvu[i] = mu / (ug[i] - s[i]) - vu[i] + vu[i] / (ug[i] - s[i]) * ds[i];
-    }
-    /* fraction to the boundary */
-    double ap = 1.0, ad = 1.0;
-    for (int j = 0; j < nw; ++j) {
-      if (isfinite(lx[j]) && dx[j] < 0.0) ap = fmin(ap, -tau * (x[j] - lx[j]) / dx[j]);
-      if (isfinite(ux[j]) && dx[j] > 0.0) ap = fmin(ap, tau * (ux[j] - x[j]) / dx[j]);
-      if (dzl[j] < 0.0) ad = fmin(ad, -tau * zl[j] / dzl[j]);
-      if (dzu[j] < 0.0) ad = fmin(ad, -tau * zu[j] / dzu[j]);
-    }
-    for (int i = 0; i < ng; ++i) {
-      if (IS_EQ(i)) continue;
-      if (isfinite(lg[i]) && ds[i] < 0.0) ap = fmin(ap, -tau * (s[i] - lg[i]) / ds[i]);
-      if (isfinite(ug[i]) && ds[i] > 0.0) ap = fmin(ap, tau * (ug[i] - s[i]) / ds[i]);
-      if (dvl[i] < 0.0) ad = fmin(ad, -tau * vl[i] / dvl[i]);
-      if (dvu[i] < 0.0) ad = fmin(ad, -tau * vu[i] / dvu[i]);
-    }
-    /* ---- filter line search (IPOPT's, without second-order corrections) ----
-       theta = |c|_1 (scaled rows), phi = barrier objective. A trial point must be acceptable to
-       the filter and either (f-type, when the step is a good descent direction for phi and theta
-       is small) satisfy Armijo on phi, or (h-type) reduce theta or phi sufficiently; h-type
-       steps add the current point to the filter. */
-    double theta0 = 0.0;
-    for (int i = 0; i < ng; ++i) theta0 += fabs(cres[i]);
-    double phi0 = fval, dphi = 0.0;
-    for (int j = 0; j < nw; ++j) {
-      double gj = grad[j];
-      if (isfinite(lx[j])) { phi0 -= mu * log(x[j] - lx[j]); gj -= mu / (x[j] - lx[j]); }
-      if (isfinite(ux[j])) { phi0 -= mu * log(ux[j] - x[j]); gj += mu / (ux[j] - x[j]); }
-      dphi += gj * dx[j];
-    }
-    for (int i = 0; i < ng; ++i) {
-      if (IS_EQ(i)) continue;
-      double gs = 0.0;
-      if (isfinite(lg[i])) { phi0 -= mu * log(s[i] - lg[i]); gs -= mu / (s[i] - lg[i]); }
-      if (isfinite(ug[i])) { phi0 -= mu * log(ug[i] - s[i]); gs += mu / (ug[i] - s[i]); }
-      dphi += gs * ds[i];
-    }
-    if (it == 0 || mu != mu_filter) { nfilter = 0; mu_filter = mu; theta_max = 1e4 * fmax(1.0, theta0); }
-    double theta_min = 1e-4 * fmax(1.0, theta0);
-    double alpha = ap;
-    int accepted = 0, f_type = 0, soc_used = 0;
-    double phit = 0.0, thetat = 0.0;
-    /* trial at (x + a dx_, s + a ds_): sets phit, thetat; returns 1 if evaluable */
-#define TRIAL(a_, DX_, DS_) trial_eval(&E, st, p, x, s, DX_, DS_, a_, xt, st_, gt, hdx, lx, ux, lg, ug, dc, lbg, ubg, mu, &phit, &thetat)
-#define ACCEPTABLE(a_) acceptable(phit, thetat, phi0, theta0, dphi, a_, theta_min, theta_max, filt_theta, filt_phi, nfilter, &f_type)
-    for (int ls = 0; ls < 40; ++ls) {
-      int ok = TRIAL(alpha, dx, ds);
-      if (ok < 0) { stats->status = 5; return 5; }
-      if (ok && ACCEPTABLE(alpha)) { accepted = 1; break; }
-      if (ls == 0 && ok && thetat >= theta0) {
-        /* second-order corrections (IPOPT: up to 4, each must cut theta by kappa_soc = 0.99) */
-        double theta_prev = thetat;
-        for (int i = 0; i < ng; ++i) sol[nw + i] = alpha * cres[i]; /* c_soc accumulates here */
-        for (int k = 0; k < 4; ++k) {
-          for (int i = 0; i < ng; ++i) {
-            double ci = IS_EQ(i) ? gt[i] * dc[i] - lg[i] : gt[i] * dc[i] - st_[i];
-            sol[nw + i] += ci;
-          }
-          for (int j = 0; j < nw; ++j) tmp[j] = rhs[j];
-          for (int i = 0; i < ng; ++i) tmp[nw + i] = rhs[nw + i] + cres[i] - sol[nw + i];
-          for (int q = 0; q < n; ++q) soc_buf[q] = tmp[st->perm[q]];
-          band_solve(ab, n, bw, ldab, ipiv, soc_buf);
-          for (int q = 0; q < n; ++q) tmp[st->perm[q]] = soc_buf[q];
-          for (int j = 0; j < nw; ++j) dx_soc[j] = tmp[j];
-          for (int q = 0; q < st->n_fix; ++q) dx_soc[st->fix_var[q]] = 0.0;
-          for (int i = 0; i < ng; ++i) {
-            if (IS_EQ(i)) { ds_soc[i] = 0.0; continue; }
-            double qv = y[i];
-            if (isfinite(lg[i])) qv += mu / (s[i] - lg[i]);
-            if (isfinite(ug[i])) qv -= mu / (ug[i] - s[i]);
-            ds_soc[i] = (tmp[nw + i] + qv) / (sigs[i] + dw);
-          }
-          double asoc = 1.0;
-          for (int j = 0; j < nw; ++j) {
-            if (isfinite(lx[j]) && dx_soc[j] < 0.0) asoc = fmin(asoc, -tau * (x[j] - lx[j]) / dx_soc[j]);
-            if (isfinite(ux[j]) && dx_soc[j] > 0.0) asoc = fmin(asoc, tau * (ux[j] - x[j]) / dx_soc[j]);
-          }
-          for (int i = 0; i < ng; ++i) {
-            if (IS_EQ(i)) continue;
-            if (isfinite(lg[i]) && ds_soc[i] < 0.0) asoc = fmin(asoc, -tau * (s[i] - lg[i]) / ds_soc[i]);
-            if (isfinite(ug[i]) && ds_soc[i] > 0.0) asoc = fmin(asoc, tau * (ug[i] - s[i]) / ds_soc[i]);
-          }
-          int ok2 = TRIAL(asoc, dx_soc, ds_soc);
-          if (ok2 < 0) { stats->status = 5; return 5; }
-          stats->soc++;
-          if (ok2 && ACCEPTABLE(alpha)) {
-            accepted = 1; soc_used = 1;
-            memcpy(dx, dx_soc, sizeof(double) * nw);
-            memcpy(ds, ds_soc, sizeof(double) * ng);
-            alpha = asoc;
-            break;
-          }
-          if (!ok2 || thetat > 0.99 * theta_prev) break;
-          theta_prev = thetat;
-        }
-        if (accepted) break;
-      }
-      alpha *= 0.5;
-      stats->backtracks++;
-      if (alpha < 1e-14) break;
-    }
-#undef TRIAL
-#undef ACCEPTABLE
-    if (soc_used) { /* bound-multiplier steps and their step size from the corrected step */
-      ad = 1.0;
-      for (int j = 0; j < nw; ++j) {
-        dzl[j] = isfinite(lx[j]) ? mu / (x[j] - lx[j]) - zl[j] - zl[j] / (x[j] - lx[j]) * dx[j] : 0.0;
-        dzu[j] = isfinite(ux[j]) ? mu / (ux[j] - x[j]) - zu[j] + zu[j] / (ux[j] - x[j]) * dx[j] : 0.0;
-        if (dzl[j] < 0.0) ad = fmin(ad, -tau * zl[j] / dzl[j]);
-        if (dzu[j] < 0.0) ad = fmin(ad, -tau * zu[j] / dzu[j]);
-      }
-      for (int i = 0; i < ng; ++i) {
-        dvl[i] = dvu[i] = 0.0;
-        if (IS_EQ(i)) continue;
-        if (isfinite(lg[i])) dvl[i] = mu / (s[i] - lg[i]) - vl[i] - vl[i] / (s[i] - lg[i]) * ds[i];
-        if (isfinite(ug[i])) dvu[i] = mu / (ug[i] - s[i]) - vu[i] + vu[i] / (ug[i] - s[i]) * ds[i];
-        if (dvl[i] < 0.0) ad = fmin(ad, -tau * vl[i] / dvl[i]);
-        if (dvu[i] < 0.0) ad = fmin(ad, -tau * vu[i] / dvu[i]);
-      }
+    bound_multiplier_steps(S, mu);
+    double ap = primal_step_max(S, S->dx, S->ds, tau);
+    double ad = dual_step_max(S, tau);
+
+    merit_t m = current_merit(S, fval, mu);
+    if (it == 0 || mu != F.mu) { F.n = 0; F.mu = mu; F.theta_max = IPM_THETA_MAX_FACTOR * fmax(1.0, m.theta0); }
+    search_t ls;
+    if (line_search(S, &m, &F, ap, mu, dw, tau, &ls, stats)) return finish(stats, IPM_EVALUATION_ERROR);
+    if (ls.soc_used) { /* bound-multiplier steps and their step size from the corrected step */
+      bound_multiplier_steps(S, mu);
+      ad = dual_step_max(S, tau);
     }
     if (o->verbose)
       fprintf(stderr, "it %2d mu %.1e theta0 %.2e phi0 %.6e dphi %.2e inf_du %.2e err0 %.2e ap %.3e ad %.3e alpha %.3e dw %.1e %s\n",
-              it, mu, theta0, phi0, dphi, inf_du / sd, err0, ap, ad, alpha, dw, f_type ? "f" : "h");
-    if (!accepted) { stats->status = 2; return 2; }
-    if (!f_type && nfilter < MAX_FILTER) { /* augment the filter */
-      filt_theta[nfilter] = (1.0 - 1e-5) * theta0;
-      filt_phi[nfilter] = phi0 - 1e-8 * theta0;
-      nfilter++;
-    }
-    if (it == 0) stats->first_alpha = soc_used ? -alpha : alpha; /* negative: a corrected step */
-    /* ---- update ---- */
-    for (int j = 0; j < nw; ++j) {
-      x[j] += alpha * dx[j];
-      zl[j] += ad * dzl[j];
-      zu[j] += ad * dzu[j];
-    }
-    for (int i = 0; i < ng; ++i) {
-      y[i] += alpha * dy[i];
-      s[i] += alpha * ds[i];
-      vl[i] += ad * dvl[i];
-      vu[i] += ad * dvu[i];
-    }
-    /* keep bound multipliers within a factor of mu / slack (IPOPT's kappa_Sigma safeguard) */
-    for (int j = 0; j < nw; ++j) {
-      if (isfinite(lx[j])) { double b = mu / (x[j] - lx[j]); zl[j] = fmax(fmin(zl[j], 1e10 * b), b / 1e10); }
-      if (isfinite(ux[j])) { double b = mu / (ux[j] - x[j]); zu[j] = fmax(fmin(zu[j], 1e10 * b), b / 1e10); }
-    }
-    for (int i = 0; i < ng; ++i) {
-      if (IS_EQ(i)) continue;
-      if (isfinite(lg[i])) { double b = mu / (s[i] - lg[i]); vl[i] = fmax(fmin(vl[i], 1e10 * b), b / 1e10); }
-      if (isfinite(ug[i])) { double b = mu / (ug[i] - s[i]); vu[i] = fmax(fmin(vu[i], 1e10 * b), b / 1e10); }
-    }
+              it, mu, m.theta0, m.phi0, m.dphi, err.inf_du / err.sd, err0, ap, ad, ls.alpha, dw, ls.f_type ? "f" : "h");
+    if (!ls.accepted) return finish(stats, IPM_LINE_SEARCH_FAILED);
+    if (!ls.f_type) augment_filter(&F, &m);
+    if (it == 0) stats->first_alpha = ls.soc_used ? -ls.alpha : ls.alpha; /* negative: a corrected step */
+    take_step(S, ls.alpha, ad);
+    clip_bound_multipliers(S, mu);
   }
-  /* ---- outputs in CasADi's convention ---- */
-  for (int i = 0; i < ng; ++i) lam_g[i] = y[i] * dc[i];
-  for (int j = 0; j < nw; ++j) lam_x[j] = zu[j] - zl[j];
+  /* outputs in CasADi's convention */
+  for (int i = 0; i < S->ng; ++i) lam_g[i] = S->y[i] * S->dc[i];
+  for (int j = 0; j < S->nw; ++j) lam_x[j] = S->zu[j] - S->zl[j];
   return stats->status;
-#undef IS_EQ
+}
+
+/* ---------------------------------------------------------------------------------- ABI -- */
+
+int ipm_abi_version(void) { return IPM_ABI_VERSION; }
+
+#define OFF(T, f) (int64_t)offsetof(T, f)
+
+int ipm_abi_layout(int64_t *out, int cap) {
+  const int64_t layout[] = {
+    (int64_t)sizeof(ipm_struct), 30,
+    OFF(ipm_struct, n_w), OFF(ipm_struct, n_g), OFF(ipm_struct, n), OFF(ipm_struct, bw), OFF(ipm_struct, ldab),
+    OFF(ipm_struct, n_j), OFF(ipm_struct, j_rows), OFF(ipm_struct, j_cols),
+    OFF(ipm_struct, n_h), OFF(ipm_struct, h_rows), OFF(ipm_struct, h_cols),
+    OFF(ipm_struct, n_hs), OFF(ipm_struct, hs_row), OFF(ipm_struct, hs_col), OFF(ipm_struct, hs_src),
+    OFF(ipm_struct, perm), OFF(ipm_struct, n_ent), OFF(ipm_struct, ent_kind), OFF(ipm_struct, ent_src),
+    OFF(ipm_struct, ent_row), OFF(ipm_struct, ent_pos),
+    OFF(ipm_struct, f_g), OFF(ipm_struct, f_grad_f), OFF(ipm_struct, f_jac_g), OFF(ipm_struct, f_hess_l),
+    OFF(ipm_struct, work_sizes), OFF(ipm_struct, n_fix), OFF(ipm_struct, fix_row), OFF(ipm_struct, fix_var),
+    OFF(ipm_struct, fix_coef),
+    (int64_t)sizeof(ipm_opts), 13,
+    OFF(ipm_opts, tol), OFF(ipm_opts, constr_viol_tol), OFF(ipm_opts, mu_init), OFF(ipm_opts, mu_min),
+    OFF(ipm_opts, bound_push), OFF(ipm_opts, mult_push), OFF(ipm_opts, bound_relax), OFF(ipm_opts, max_iter),
+    OFF(ipm_opts, warm), OFF(ipm_opts, verbose), OFF(ipm_opts, theta_far), OFF(ipm_opts, mu_far),
+    OFF(ipm_opts, push_far),
+    (int64_t)sizeof(ipm_stats), 12,
+    OFF(ipm_stats, iterations), OFF(ipm_stats, status), OFF(ipm_stats, factorisations),
+    OFF(ipm_stats, regularised), OFF(ipm_stats, backtracks), OFF(ipm_stats, soc), OFF(ipm_stats, far),
+    OFF(ipm_stats, inf_pr), OFF(ipm_stats, inf_du), OFF(ipm_stats, mu), OFF(ipm_stats, theta_start),
+    OFF(ipm_stats, first_alpha),
+  };
+  const int count = (int)(sizeof layout / sizeof layout[0]);
+  if (count <= cap) memcpy(out, layout, sizeof layout);
+  return count;
+}
+
+#undef OFF
+
+const char *ipm_status_name(int status) {
+  static const char *const names[IPM_STATUS_COUNT] = {
+    [IPM_CONVERGED] = "Converged",
+    [IPM_MAX_ITERATIONS] = "Max_Iterations",
+    [IPM_LINE_SEARCH_FAILED] = "Line_Search_Failed",
+    [IPM_REGULARISATION_FAILED] = "Regularisation_Failed",
+    [IPM_NONFINITE] = "Nonfinite",
+    [IPM_EVALUATION_ERROR] = "Evaluation_Error",
+  };
+  return status >= 0 && status < IPM_STATUS_COUNT ? names[status] : NULL;
 }
