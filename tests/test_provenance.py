@@ -53,7 +53,7 @@ def test_adding_a_module_to_a_simulation_layer_changes_the_version(package_copy:
     assert provenance.source_digest(package_copy) != before
 
 
-@pytest.mark.parametrize("edited", ["report/figures.py", "analysis/summary.py", "cli.py", "bench/engine.py"])
+@pytest.mark.parametrize("edited", ["report/cell_figures.py", "analysis/summary.py", "cli.py", "bench/engine.py"])
 def test_editing_presentation_does_not_change_the_version(package_copy: Path, edited: str) -> None:
     before = provenance.source_digest(package_copy)
     _append(package_copy / edited, "\n# edited\n")
