@@ -24,6 +24,7 @@ from mcverify import store
 from mcverify.run.campaign import campaign_from_dict, load_campaign
 from mcverify.run.executors import ChunkOutput, SerialExecutor
 from mcverify.solver.mpc import MpcSolution
+from mcverify.solver.status import SolveStatus
 
 FIXTURE = Path(__file__).resolve().parent / "fixtures" / "tiny.toml"
 
@@ -173,7 +174,7 @@ class FailingSolver:
     def solve(self, ego, front, direction, lambda0, warm=None, **kw):
         n = self.n
         return MpcSolution(
-            success=False, status="Infeasible_Problem_Detected", iterations=3, solve_time_s=0.0,
+            success=False, status=SolveStatus.ipopt("Infeasible_Problem_Detected"), iterations=3, solve_time_s=0.0,
             total_time_s=math.nan, x_plan=np.full((n + 1, 4), np.nan), u_plan=np.full((n, 2), np.nan),
             dt_plan=np.full(n, np.nan), warm=None,
         )
@@ -198,7 +199,7 @@ class NanSolver(FailingSolver):
 
     def solve(self, *args, **kw):
         sol = super().solve(*args, **kw)
-        return MpcSolution(**{**sol.__dict__, "success": True, "status": "Solve_Succeeded"})
+        return MpcSolution(**{**sol.__dict__, "success": True, "status": SolveStatus.ipopt("Solve_Succeeded")})
 
 
 def with_solver(solver_factory):
