@@ -12,7 +12,8 @@ import pytest
 
 from mcverify.run import executors
 from mcverify.run.campaign import campaign_from_dict, load_campaign
-from mcverify.episode.rollout import TIMING_COLUMNS, episode_key, run_episodes, sample_scenario
+from mcverify.episode.rollout import episode_key, run_episodes, sample_scenario
+from mcverify.schema import TIMING_COLUMNS
 
 FAST_SIM = {"control_period_s": 0.1, "substeps": 20}
 
