@@ -14,10 +14,9 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from mcverify.run import runner
-
 from mcverify import schema, store
 from mcverify.episode.row import identity
+from mcverify.run import runner
 from mcverify.run.campaign import Cell, campaign_from_dict
 
 #: Probabilities of a synthetic cell: P(unsafe), P(overtook | not error), P(went back), P(error).

@@ -13,7 +13,8 @@ from mcverify import schema, store
 
 def rows(cell_index, ids, **extra):
     return [
-        {"episode_id": 100 * cell_index + i, "cell_episode": i, "cell_index": cell_index, "min_h_front": float(i), **extra}
+        {"episode_id": 100 * cell_index + i, "cell_episode": i, "cell_index": cell_index, "min_h_front": float(i),
+         **extra}
         for i in ids
     ]
 

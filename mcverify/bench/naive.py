@@ -18,11 +18,11 @@ from collections.abc import Sequence
 import casadi as ca
 import numpy as np
 
-from mcverify.ocp import problem
-from mcverify.run.campaign import Cell
-from mcverify.model import ModelParams
 from mcverify.control.planner import Planner
 from mcverify.episode.rollout import run_episodes
+from mcverify.model import ModelParams
+from mcverify.ocp import problem
+from mcverify.run.campaign import Cell
 from mcverify.solver.mpc import MpcSolution, WarmStart
 from mcverify.solver.status import SolveStatus
 

@@ -27,6 +27,7 @@ also turned into an error row: a NaN must never read as "safe" or "unsafe".
 
 from __future__ import annotations
 
+from mcverify.episode.row import error_row
 from mcverify.run.local import MAX_STARTUP_FAILURES, LocalExecutor
 from mcverify.run.ray_executor import RayExecutor, probe_address
 from mcverify.run.scheduler import MAX_ATTEMPTS, ChunkOutput, Executor, SerialExecutor, execute
@@ -43,12 +44,13 @@ from mcverify.run.work import (
     simulate,
     solver_for,
 )
+from mcverify.schema import ERROR_OUTCOME
 
 __all__ = [
-    "MAX_ATTEMPTS", "MAX_MESSAGE", "MAX_STARTUP_FAILURES", "ChunkOutput", "ChunkResultLike", "EpisodeFn",
-    "Executor", "ExecutorError", "LocalExecutor", "Outcome", "RayExecutor", "SerialExecutor", "Work",
-    "default_workers", "execute", "make_executor", "one_line", "probe_address", "run_work", "simulate",
-    "solver_for",
+    "ERROR_OUTCOME", "MAX_ATTEMPTS", "MAX_MESSAGE", "MAX_STARTUP_FAILURES", "ChunkOutput", "ChunkResultLike",
+    "EpisodeFn", "Executor", "ExecutorError", "LocalExecutor", "Outcome", "RayExecutor", "SerialExecutor", "Work",
+    "default_workers", "error_row", "execute", "make_executor", "one_line", "probe_address", "run_work",
+    "simulate", "solver_for",
 ]
 
 

@@ -18,8 +18,8 @@ started like the reference, with a second, more central attempt; IPOPT is its fa
 * whatever the IPM does not solve (no convergence in its iteration limit, a failed line search,
   anything non-finite, a point that fails the common feasibility check) goes to the IPOPT
   reference path (warm, then cold) for the same solve, and the result's status has the route
-  :attr:`~mcverify.solver.status.SolveRoute.FALLBACK`. So a failed solve always means "the reference could not solve it either",
-  never "the fast path gave up";
+  :attr:`~mcverify.solver.status.SolveRoute.FALLBACK`. So a failed solve always means "the
+  reference could not solve it either", never "the fast path gave up";
 * an IPM success has IPOPT's contract: scaled KKT error <= ``params.mpc.tol``, unscaled
   constraint violation <= 1e-7, then the common 1e-5 check.
 
@@ -47,11 +47,11 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from mcverify.model import ModelParams
 from mcverify.solver.cfun import CFunction
 from mcverify.solver.ipm import COLD, WARM_ATTEMPTS, Ipm
 from mcverify.solver.kernels import Kernel, get_runtime_library
 from mcverify.solver.status import SolveRoute, SolveStatus
-from mcverify.model import ModelParams
 
 #: Backend names accepted in ``params.mpc.backend``.
 BACKENDS = ("ipopt", "ipm")

@@ -2,8 +2,9 @@
 
 ``MpcSolver(params).solve(ego_state, front_xyv, direction, lambda0, warm)`` returns an
 :class:`MpcSolution`; it never raises for numerical trouble (solver failures, exceptions, NaNs become
-``success=False`` with a :class:`~mcverify.solver.status.SolveStatus`). Solves are deterministic: the same inputs (including the
-same ``warm``) give bit-identical outputs; nothing depends on wall time or on earlier solves.
+``success=False`` with a :class:`~mcverify.solver.status.SolveStatus`). Solves are deterministic:
+the same inputs (including the same ``warm``) give bit-identical outputs; nothing depends on wall
+time or on earlier solves.
 
 The numerical work is done by the backend named in ``params.mpc.backend`` (:mod:`mcverify.solver.backends`:
 "ipopt", the reference, or "ipm", the fast path with IPOPT as its fallback).
@@ -16,9 +17,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mcverify.solver.backends import BackendResult, Problem, Start, create_backend
-from mcverify.solver.kernels import get_kernel
-from mcverify.solver.status import SolveStatus
 from mcverify.model import ModelParams
 from mcverify.ocp.problem import (
     NlpLayout,
@@ -28,6 +26,9 @@ from mcverify.ocp.problem import (
     initial_guess,
     pack_params,
 )
+from mcverify.solver.backends import BackendResult, Problem, Start, create_backend
+from mcverify.solver.kernels import get_kernel
+from mcverify.solver.status import SolveStatus
 
 
 @dataclass(frozen=True)

@@ -10,9 +10,7 @@ import pyarrow as pa
 import pytest
 import synthetic
 
-from mcverify.analysis import stats
-
-from mcverify.analysis import summary
+from mcverify.analysis import stats, summary
 from mcverify.run.campaign import campaign_from_dict
 
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from mcverify.control.decision import Mode
-from mcverify.model import ModelParams
 from mcverify.control.planner import EpisodeState, Planner, ego_in_own_lane, fallback_input, held_input
+from mcverify.model import ModelParams
 from mcverify.solver.status import SolveRoute, SolveStatus
 
 P = ModelParams()

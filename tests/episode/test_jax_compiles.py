@@ -6,10 +6,10 @@ from __future__ import annotations
 import jax
 import jax.monitoring as monitoring
 
-from mcverify.sim import plant
-from mcverify.run.campaign import campaign_from_dict
-from mcverify.episode.rollout import run_episodes
 from mcverify.bench.solver_bench import stub_planner
+from mcverify.episode.rollout import run_episodes
+from mcverify.run.campaign import campaign_from_dict
+from mcverify.sim import plant
 
 COMPILE_EVENT = "/jax/core/compile/backend_compile_duration"
 TRACE_EVENT = "/jax/core/compile/jaxpr_trace_duration"

@@ -11,13 +11,8 @@ from pathlib import Path
 import pytest
 import synthetic_episodes as synth
 
-from mcverify import cli
-
-from mcverify.run import executors
-
-from mcverify.run import runner
-
-from mcverify import store
+from mcverify import cli, store
+from mcverify.run import executors, runner
 from mcverify.run.campaign import campaign_from_dict
 
 REPO = Path(__file__).resolve().parent.parent

@@ -18,9 +18,8 @@ import numpy as np
 import pytest
 import synthetic_episodes as synth
 
-from mcverify.run import executors
-
 from mcverify import schema, store
+from mcverify.run import executors
 from mcverify.run.campaign import campaign_from_dict, load_campaign
 from mcverify.run.executors import ChunkOutput, SerialExecutor
 from mcverify.solver.mpc import MpcSolution

@@ -29,11 +29,8 @@ import pyarrow.parquet as pq
 import pytest
 import synthetic_episodes as synth
 
-from mcverify.run import executors
-
-from mcverify.run import runner
-
 from mcverify import schema, store
+from mcverify.run import executors, runner
 from mcverify.run.campaign import campaign_from_dict, load_campaign
 from mcverify.schema import TIMING_COLUMNS
 
