@@ -9,7 +9,7 @@ import pytest
 
 from mcverify.run.campaign import CampaignError, campaign_from_dict, load_campaign
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def spec(**over):

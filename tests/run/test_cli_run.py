@@ -15,7 +15,7 @@ from mcverify import cli, store
 from mcverify.run import executors, runner
 from mcverify.run.campaign import campaign_from_dict
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 FIXTURE = REPO / "tests" / "fixtures" / "tiny.toml"
 
 

@@ -25,7 +25,7 @@ from mcverify.run.executors import ChunkOutput, SerialExecutor
 from mcverify.solver.mpc import MpcSolution
 from mcverify.solver.status import SolveStatus
 
-FIXTURE = Path(__file__).resolve().parent / "fixtures" / "tiny.toml"
+FIXTURE = Path(__file__).resolve().parents[1] / "fixtures" / "tiny.toml"
 
 
 def campaign(episodes=3, cells=2, seed=5):

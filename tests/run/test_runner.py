@@ -34,7 +34,7 @@ from mcverify.run import executors, runner
 from mcverify.run.campaign import campaign_from_dict, load_campaign
 from mcverify.schema import TIMING_COLUMNS
 
-TESTS = Path(__file__).resolve().parent
+TESTS = Path(__file__).resolve().parents[1]
 REPO = TESTS.parent
 FIXTURE = TESTS / "fixtures" / "tiny.toml"
 
@@ -222,7 +222,7 @@ def test_a_chunk_file_without_its_ledger_line_is_redone(tmp_path: Path):
 
 def test_error_rows_are_stored_and_the_campaign_finishes(tmp_path: Path, monkeypatch):
     # The report is the stats module's part (tested below); here: execution and storage.
-    monkeypatch.setattr(runner.report, "write", lambda run_dir: Path(run_dir) / "report.md")
+    monkeypatch.setattr(runner.run_report, "write", lambda run_dir: Path(run_dir) / "report.md")
     camp = synthetic_campaign()
     fn = functools.partial(synth.faulty, raise_on=(5,))
     run_dir = tmp_path / "run"
