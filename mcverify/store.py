@@ -40,10 +40,12 @@ from typing import Any
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from mcverify import schema
 from mcverify.errors import RunError
 
 # The run manifest's provenance, re-exported for the run layer's callers.
 from mcverify.provenance import code_differences, code_version, environment_info, now_utc  # noqa: F401
+from mcverify.schema import ERROR_COLUMN, ERROR_OUTCOME
 
 MANIFEST = "manifest.json"
 EPISODES = "episodes.parquet"
@@ -53,9 +55,6 @@ TRAJECTORY_DIR = "trajectories"
 LOCK = ".lock"
 #: Version of the run-folder layout; a resume refuses another one.
 FORMAT = 2
-
-#: The column that carries an episode's error message (null for every simulated episode).
-ERROR_COLUMN = "error_message"
 
 
 
@@ -127,7 +126,7 @@ def write_chunk(run_dir: Path, chunk: Chunk, rows: list[dict], *, attempts: int 
     ids = sorted(int(r["cell_episode"]) for r in rows)
     if ids != list(chunk.episode_ids):
         raise ValueError(f"chunk {chunk.name}: rows hold episodes {ids}, expected {list(chunk.episode_ids)}")
-    table = _with_error_column(_table_from_rows(rows))
+    table = _table_from_rows(rows)
     path = chunk_path(run_dir, chunk)
     path.parent.mkdir(parents=True, exist_ok=True)
     digest = _atomic_parquet(table, path)
@@ -137,7 +136,7 @@ def write_chunk(run_dir: Path, chunk: Chunk, rows: list[dict], *, attempts: int 
         first_episode=chunk.episode_ids[0],
         last_episode=chunk.episode_ids[-1],
         rows=table.num_rows,
-        errors=sum(r.get("outcome") == "error" for r in rows),
+        errors=sum(r.get("outcome") == ERROR_OUTCOME for r in rows),
         attempts=attempts,
         sha256=digest,
         finished_utc=now_utc(),
@@ -226,34 +225,32 @@ def merge_chunks(run_dir: Path, chunks: Sequence[Chunk]) -> int:
 
     Chunks are planned in (cell, episode) order and each file is sorted here, so the merged table
     is sorted by (cell_index, episode_id) while at most :data:`ROW_GROUP_ROWS` rows (plus one
-    chunk) are held in memory. Schemas are unified first (a chunk of error rows has nulls where
-    others have numbers).
+    chunk) are held in memory. The file's schema is the declared one (:mod:`mcverify.schema`),
+    narrowed to the columns the chunks have (a run of error rows only has no metrics).
     """
     run_dir = Path(run_dir)
-    schemas: list[pa.Schema] = []  # the distinct ones (nearly every chunk has the same)
+    names: set[str] = set()
     for chunk in chunks:
         try:
-            schema = pq.ParquetFile(chunk_path(run_dir, chunk)).schema_arrow
+            names.update(pq.ParquetFile(chunk_path(run_dir, chunk)).schema_arrow.names)
         except Exception:  # noqa: BLE001 - missing or corrupt: the user must resume
             raise _missing(run_dir, chunk) from None
-        if not any(schema.equals(s) for s in schemas):
-            schemas.append(schema)
-    if not schemas:
+    if not names:
         raise RunError(f"{run_dir}: the run has no chunks")
-    schema = _unified_schema(schemas)
+    table_schema = _declared_schema(names, f"{run_dir}: a chunk")
     fd, tmp = tempfile.mkstemp(dir=run_dir, prefix=f".{EPISODES}.", suffix=".tmp")
     os.close(fd)
     rows = 0
     try:
         os.chmod(tmp, _FILE_MODE)
-        with pq.ParquetWriter(tmp, schema) as writer:
+        with pq.ParquetWriter(tmp, table_schema) as writer:
             pending: list[pa.Table] = []
             held = 0
             for chunk in chunks:
                 table = read_chunk(run_dir, chunk)
                 if table is None:
                     raise _missing(run_dir, chunk)
-                pending.append(_conform(table.sort_by([("episode_id", "ascending")]), schema))
+                pending.append(_conform(table.sort_by([("episode_id", "ascending")]), table_schema))
                 held += table.num_rows
                 rows += table.num_rows
                 if len(pending) >= 64:  # many small tables cost far more than their rows: compact
@@ -282,47 +279,39 @@ def read_episodes(run_dir: Path) -> pa.Table:
     return pq.read_table(path)
 
 
-def _unified_schema(schemas: list[pa.Schema]) -> pa.Schema:
-    """One schema for all chunks, its column order that of the widest chunk (a chunk of error rows
-    lacks the metrics, so which chunk comes first must not decide the order)."""
-    schema = pa.unify_schemas(schemas, promote_options="permissive")
-    widest = max(schemas, key=len).names
-    order = widest + [n for n in schema.names if n not in widest]
-    fields = []
-    for f in (schema.field(n) for n in order):
-        if pa.types.is_null(f.type):  # only nulls in every chunk (e.g. error_message of a clean run)
-            f = f.with_type(pa.string() if f.name == ERROR_COLUMN else pa.float64())
-        fields.append(f)
-    return pa.schema(fields)
+def _declared_schema(names: Iterable[str], where: str) -> pa.Schema:
+    """The declared schema of the columns ``names`` (file order, declared types), ``error_message``
+    always included; an undeclared column is refused (:class:`ValueError`, naming it)."""
+    undeclared = sorted(set(names) - set(schema.COLUMN_NAMES))
+    if undeclared:
+        raise ValueError(
+            f"{where} has columns that mcverify.schema does not declare: {', '.join(undeclared)}"
+        )
+    return schema.arrow_schema({*names, ERROR_COLUMN})
 
 
-def _conform(table: pa.Table, schema: pa.Schema) -> pa.Table:
-    if table.schema.equals(schema):
+def _conform(table: pa.Table, target: pa.Schema) -> pa.Table:
+    """``table`` with the columns and types of ``target`` (missing ones null)."""
+    if table.schema.equals(target):
         return table
     columns = []
-    for f in schema:
+    for f in target:
         if f.name in table.column_names:
             columns.append(table.column(f.name).cast(f.type))
         else:
             columns.append(pa.nulls(table.num_rows, f.type))
-    return pa.Table.from_arrays(columns, schema=schema)
+    return pa.Table.from_arrays(columns, schema=target)
 
 
 def _table_from_rows(rows: list[dict]) -> pa.Table:
-    """Rows -> table over the union of the rows' keys, in first-seen order (``Table.from_pylist``
-    would keep only the first row's keys, and an error row has fewer)."""
-    names: dict[str, None] = {}
+    """Rows -> table of the declared columns the rows have (any row: an error row has fewer), in
+    file order and with the declared types; ``error_message`` always (null for simulated episodes)."""
+    names: set[str] = set()
     for row in rows:
-        names.update(dict.fromkeys(row))
-    return pa.table({name: [row.get(name) for row in rows] for name in names})
-
-
-def _with_error_column(table: pa.Table) -> pa.Table:
-    """Every chunk file carries ``error_message`` as a string column (null for simulated episodes)."""
-    if ERROR_COLUMN in table.column_names:
-        i = table.column_names.index(ERROR_COLUMN)
-        return table.set_column(i, ERROR_COLUMN, table.column(ERROR_COLUMN).cast(pa.string()))
-    return table.append_column(ERROR_COLUMN, pa.nulls(table.num_rows, pa.string()))
+        names.update(row)
+    target = _declared_schema(names, "an episode row")
+    return pa.table({f.name: pa.array([row.get(f.name) for row in rows], type=f.type) for f in target},
+                    schema=target)
 
 
 # ------------------------------------------------------------------------------ trajectories

@@ -14,9 +14,11 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from mcverify import store
+from mcverify import schema, store
+from mcverify.cell import Cell
+from mcverify.episode.row import identity
 from mcverify.run import runner
-from mcverify.run.campaign import Cell, campaign_from_dict
+from mcverify.run.campaign import campaign_from_dict
 
 #: Probabilities of a synthetic cell: P(unsafe), P(overtook | not error), P(went back), P(error).
 Probs = dict[str, float]
@@ -47,11 +49,7 @@ def episode_rows(cell: Cell, seed: int, probs: Probs, *, opposing: bool, crn: bo
         min_h = ((1.0 + min_dist / 6.9) ** 2 - 1.0) if min_dist > -6.9 else -1.0
         collision = bool(unsafe and u[4] < 0.3)
         row: dict[str, Any] = {
-            "episode_id": cell.episode_offset + e,
-            "cell_episode": e,
-            "cell": cell.name,
-            "cell_index": cell.index,
-            "seed": seed,
+            **identity(cell, seed, e),
             "sample_front_accel_mps2": float(1.0 + 2.0 * u[5]),
             "outcome": outcome,
             "overtook": outcome == "overtook",
@@ -174,7 +172,7 @@ def make_run(
     rows = []
     for cell in camp.cells:
         rows += episode_rows(cell, camp.seed, probs(cell), opposing=opposing, crn=camp.common_random_numbers)
-    pq.write_table(pa.Table.from_pylist(rows), run_dir / store.EPISODES)
+    pq.write_table(pa.Table.from_pylist(rows, schema=schema.arrow_schema(rows[0])), run_dir / store.EPISODES)
     if trajectories:
         (run_dir / "trajectories").mkdir(exist_ok=True)
         for cell in camp.cells:

@@ -18,25 +18,25 @@ from pathlib import Path
 
 import numpy as np
 
+from mcverify.episode.recording import EpisodeRecording
+from mcverify.episode.row import identity
+
 
 @dataclass
 class Result:
     rows: list[dict]
-    trajectories: dict = field(default_factory=dict)
+    recordings: dict[int, EpisodeRecording] = field(default_factory=dict)
 
 
 def row(cell, seed: int, episode: int, common_random_numbers: bool = False) -> dict:
-    """One synthetic episode row with the shape of :func:`mcverify.episode.rollout._episode_row`'s."""
+    """One synthetic episode row: a subset of the declared columns (:mod:`mcverify.schema`) with the
+    types of :func:`mcverify.episode.row.episode_row`'s."""
     rng = np.random.default_rng([seed, 0 if common_random_numbers else cell.index + 1, episode])
     u = rng.random(12)
     outcome = ("overtook", "went_back", "timeout")[int(u[0] * 3)]
     min_h = float(u[1] * 2.0 - 0.1)
     return {
-        "episode_id": cell.episode_offset + episode,
-        "cell_episode": episode,
-        "cell": cell.name,
-        "cell_index": cell.index,
-        "seed": seed,
+        **identity(cell, seed, episode),
         "sample_front_accel_mps2": float(u[2]),
         "outcome": outcome,
         "overtook": outcome == "overtook",
@@ -73,10 +73,13 @@ def row(cell, seed: int, episode: int, common_random_numbers: bool = False) -> d
 
 
 def episodes(cell, episode_ids, seed, common_random_numbers, record) -> Result:
-    """Synthetic episodes; a small trajectory for each id in ``record``."""
+    """Synthetic episodes; a small trajectory (no plans) for each id in ``record``."""
     rows = [row(cell, seed, int(e), common_random_numbers) for e in episode_ids]
-    traj = {int(e): {"t_s": np.arange(5) * 0.1, "ego_x_m": 10 + np.arange(5.0)} for e in episode_ids if e in record}
-    return Result(rows, traj)
+    recordings = {
+        int(e): EpisodeRecording({"t_s": np.arange(5) * 0.1, "ego_x_m": 10 + np.arange(5.0)})
+        for e in episode_ids if e in record
+    }
+    return Result(rows, recordings)
 
 
 def faulty(

@@ -8,12 +8,13 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from mcverify import store
+from mcverify import schema, store
 
 
 def rows(cell_index, ids, **extra):
     return [
-        {"episode_id": 100 * cell_index + i, "cell_episode": i, "cell_index": cell_index, "x": float(i), **extra}
+        {"episode_id": 100 * cell_index + i, "cell_episode": i, "cell_index": cell_index, "min_h_front": float(i),
+         **extra}
         for i in ids
     ]
 
@@ -85,17 +86,29 @@ def test_merge_streams_sorted_rows_and_unifies_error_chunks(tmp_path: Path):
     chunks = store.plan_chunks([3, 2], 2)
     # The first chunk holds only an error row: fewer columns, nulls where others have numbers.
     error_row = {"episode_id": 0, "cell_episode": 0, "cell_index": 0, "outcome": "error",
-                 store.ERROR_COLUMN: "RuntimeError: boom"}
+                 schema.ERROR_COLUMN: "RuntimeError: boom"}
     store.write_chunk(tmp_path, chunks[0], [rows(0, [1], outcome="ok")[0], error_row])
     for c in chunks[1:]:
         store.write_chunk(tmp_path, c, rows(c.cell_index, reversed(c.episode_ids), outcome="ok"))
     assert store.merge_chunks(tmp_path, chunks) == 5
     merged = store.read_episodes(tmp_path)
     assert merged.column("episode_id").to_pylist() == [0, 1, 2, 100, 101]
-    assert merged.column_names[:5] == ["episode_id", "cell_episode", "cell_index", "x", "outcome"]
-    assert merged.column("x").to_pylist()[:2] == [None, 1.0]
-    assert merged.column(store.ERROR_COLUMN).to_pylist() == ["RuntimeError: boom", None, None, None, None]
-    assert merged.schema.field(store.ERROR_COLUMN).type == pa.string()
+    # the declared order and types, whichever chunk comes first
+    assert merged.column_names == ["episode_id", "cell_episode", "cell_index", "outcome", "min_h_front",
+                                   schema.ERROR_COLUMN]
+    assert merged.schema.equals(schema.arrow_schema(merged.column_names))
+    assert merged.column("min_h_front").to_pylist()[:2] == [None, 1.0]
+    assert merged.column(schema.ERROR_COLUMN).to_pylist() == ["RuntimeError: boom", None, None, None, None]
+    assert merged.schema.field(schema.ERROR_COLUMN).type == pa.string()
+
+
+def test_chunks_have_the_declared_types_and_refuse_undeclared_columns(tmp_path: Path):
+    chunk = store.plan_chunks([2], 2)[0]
+    # an int where the schema declares a double is stored as a double
+    store.write_chunk(tmp_path, chunk, [{**r, "min_h_front": 1} for r in rows(0, [0, 1])])
+    assert store.read_chunk(tmp_path, chunk).schema.field("min_h_front").type == pa.float64()
+    with pytest.raises(ValueError, match="does not declare: x_m"):
+        store.write_chunk(tmp_path, chunk, rows(0, [0, 1], x_m=1.0))
 
 
 def test_merge_of_a_clean_run_has_a_typed_error_column(tmp_path: Path):
@@ -103,8 +116,8 @@ def test_merge_of_a_clean_run_has_a_typed_error_column(tmp_path: Path):
     store.write_chunk(tmp_path, chunks[0], rows(0, [0, 1]))
     store.merge_chunks(tmp_path, chunks)
     table = pq.read_table(tmp_path / store.EPISODES)
-    assert table.schema.field(store.ERROR_COLUMN).type == pa.string()
-    assert table.column(store.ERROR_COLUMN).null_count == 2
+    assert table.schema.field(schema.ERROR_COLUMN).type == pa.string()
+    assert table.column(schema.ERROR_COLUMN).null_count == 2
 
 
 def test_merge_names_a_missing_chunk(tmp_path: Path):

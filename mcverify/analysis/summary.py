@@ -24,7 +24,9 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from mcverify import schema
 from mcverify.analysis import stats
+from mcverify.schema import ERROR_OUTCOME, OUTCOME_FLAGS
 
 #: Version of the summary.json / cells.parquet layout.
 FORMAT = 2
@@ -92,7 +94,7 @@ METRICS: dict[str, Metric] = {m.name: m for m in RATE_METRICS + VALUE_METRICS}
 QUANTILES = (0.0, 0.05, 0.25, 0.5, 0.75, 0.95, 1.0)
 
 #: Outcomes in report order; "error" episodes are kept apart from the safety statistics.
-OUTCOMES = ("overtook", "went_back", "timeout", "error")
+OUTCOMES = (*OUTCOME_FLAGS, ERROR_OUTCOME)
 
 #: Categorical episode columns counted per cell (empty strings are not counted): what drove the ego
 #: when it first left the safe set ("planned", "held", "fallback") and why it went back.
@@ -122,6 +124,25 @@ _COLLISION_COLUMNS = ("collision_front", "collision_opp")
 #: Metrics about the opposing vehicle: left out of a cell that has none (the rollout writes them
 #: as False / NaN there), so runs without opposing traffic show no empty veh_o columns.
 OPPOSING_METRICS = ("collision_opp", "opp_invariance_breach", "min_gap_opp_m", "min_gap_opp_any_m", "min_h_opp")
+#: Per-episode solver columns aggregated in a cell's ``solver`` statistics.
+SOLVER_COLUMNS = ("solves", "iterations_mean", "iterations_max", "cold_retries", "solve_time_mean_s",
+                  "solve_time_max_s", "solver_statuses")
+#: Summary metrics that are not episode columns (derived here from several).
+DERIVED_METRICS = ("collision",)
+
+
+def summarised_columns() -> frozenset[str]:
+    """Every episode column this module reads by name (each one declared in :mod:`mcverify.schema`)."""
+    metrics = {m.name for m in RATE_METRICS + VALUE_METRICS} - set(DERIVED_METRICS)
+    theorem = {col for col, _ in THEOREM_CHECKS.values()}
+    return frozenset(metrics | theorem | set(CATEGORY_COLUMNS) | set(JSON_COUNT_COLUMNS) | set(OPPOSING_METRICS)
+                     | set(_COLLISION_COLUMNS) | set(SOLVER_COLUMNS) | set(OUTCOME_FLAGS)
+                     | {"outcome", "cell", "cell_index", "controller", "opposing_kind", "epsilon", "lambda0"})
+
+
+# A renamed or dropped episode column must fail here, at import, not as a silently missing statistic.
+for _name in summarised_columns():
+    schema.column(_name)
 
 
 def summarise(
@@ -207,7 +228,7 @@ def cell_summary(
         t = t.drop(OPPOSING_METRICS)
     n_all = t.num_rows
     outcome = _strings(t, "outcome")
-    error = outcome == "error"
+    error = outcome == ERROR_OUTCOME
     v = t.take(np.flatnonzero(~error)) if error.any() else t
     n = v.num_rows
 

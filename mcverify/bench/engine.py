@@ -37,9 +37,10 @@ import numpy as np
 
 from mcverify.bench.agreement import agreement
 from mcverify.bench.naive import run_naive
+from mcverify.cell import Cell
 from mcverify.episode.rollout import PhaseClock, episode_key, run_episodes
 from mcverify.run import executors
-from mcverify.run.campaign import Cell, load_campaign
+from mcverify.run.campaign import load_campaign
 from mcverify.sim.plant import LaneGroups, initial_plant
 
 DEFAULT_CAMPAIGN = "campaigns/table4.toml"

@@ -19,11 +19,12 @@ import casadi as ca
 import numpy as np
 
 from mcverify import ocp
+from mcverify.cell import Cell
 from mcverify.control.planner import Planner
 from mcverify.episode.rollout import run_episodes
 from mcverify.model import ModelParams
-from mcverify.run.campaign import Cell
-from mcverify.solver.mpc import SOLVED_STATUSES, MpcSolution, WarmStart
+from mcverify.solver.mpc import MpcSolution, WarmStart
+from mcverify.solver.status import SolveStatus
 
 
 class NaiveOptiSolver:
@@ -76,8 +77,8 @@ class NaiveOptiSolver:
         except RuntimeError:  # Opti raises when IPOPT does not succeed
             w = np.asarray(self.opti.debug.value(self.w), dtype=float).ravel()
             stats = self.opti.stats()
-        status = str(stats.get("return_status", "unknown"))
-        success = status in SOLVED_STATUSES and bool(np.all(np.isfinite(w)))
+        status = SolveStatus.ipopt(str(stats.get("return_status", "unknown")))
+        success = status.outcome.converged and bool(np.all(np.isfinite(w)))
         x_plan, u_plan, dt_plan = self.layout.unpack(w)
         return MpcSolution(
             success=success, status=status, iterations=int(stats.get("iter_count", -1)),

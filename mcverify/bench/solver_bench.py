@@ -43,9 +43,9 @@ from typing import Any
 import numpy as np
 
 from mcverify.bench.agreement import agreement
+from mcverify.cell import Cell
 from mcverify.model import BACKEND_NAMES, ModelParams
-from mcverify.run.campaign import Campaign, Cell, load_campaign
-from mcverify.solver.backends import FALLBACK_PREFIX
+from mcverify.run.campaign import Campaign, load_campaign
 
 # ------------------------------------------------------------------------------------ helpers
 
@@ -157,8 +157,8 @@ def replay(params: ModelParams, backend: str, calls: Sequence[RecordedSolve], wa
         cpu.append(time.thread_time() - t0)
         its.append(sol.iterations)
         ok.append(sol.success)
-        fallback.append(sol.status.startswith(FALLBACK_PREFIX))
-        statuses[sol.status] += 1
+        fallback.append(sol.status.fallback)
+        statuses[str(sol.status)] += 1
         sols.append(sol)
     cpu_a = np.array(cpu)
     out: dict[str, Any] = {
@@ -262,11 +262,13 @@ class StubSolver:
 
     def __init__(self, params: ModelParams, structure=None) -> None:
         from mcverify.solver.mpc import MpcSolution
+        from mcverify.solver.status import SolveOutcome, SolveStatus
 
         n = params.mpc.horizon
         self.structure = structure
         self._sol = MpcSolution(
-            success=True, status="stub", iterations=0, solve_time_s=0.0, total_time_s=1.0,
+            success=True, status=SolveStatus("stub", SolveOutcome.SOLVED), iterations=0, solve_time_s=0.0,
+            total_time_s=1.0,
             x_plan=np.zeros((n + 1, 4)), u_plan=np.zeros((n, 2)), dt_plan=np.full(n, 1.0 / n), warm=None,
         )
 

@@ -7,7 +7,8 @@ Pure decision logic, no solving: which problem drives the ego in this control st
   of the Q1 loop for good and follows Q2 back behind veh_f.
 * A human-driven opposing vehicle: Table I decides from the two plans (:func:`table_one`).
 * Going back, the ego applies Q2 while Q2 solves. When no applicable problem has a solution the
-  controller falls back to braking towards its own lane, and the step is counted.
+  planner applies the rest of the last plan it followed, then brakes in its own lane
+  (:mod:`mcverify.control.planner`), and the step is counted.
 """
 
 from __future__ import annotations
@@ -28,8 +29,8 @@ class Source(IntEnum):
 
     Q1 = 1
     Q2 = 2
-    FALLBACK = 3  # neither applicable problem solved: brake towards the own lane
-    HELD = 4  # MPC-DC only: its problem failed, the rest of its last plan is applied
+    FALLBACK = 3  # no applicable problem solved, no plan left to hold: stay in lane and brake
+    HELD = 4  # no applicable problem solved: the rest of the last applied plan (either controller)
 
 
 def decide(mode: Mode, q1_ok: bool, q2_ok: bool) -> tuple[Mode, Source]:

@@ -32,7 +32,6 @@ import numpy as np
 from mcverify.control.decision import Mode, Source, TableOneInput, decide, table_one
 from mcverify.model import ModelParams
 from mcverify.ocp.problem import OcpStructure
-from mcverify.solver.backends import INFEASIBLE_STATUS, PRESUMED_PREFIX
 from mcverify.solver.mpc import MpcSolution, MpcSolver, WarmStart
 
 Q1, Q2 = +1, -1  # the OCP's direction parameter: goal ahead of / behind the front vehicle
@@ -66,7 +65,7 @@ class EpisodeState:
     table_one_rows: dict[int, int] = field(default_factory=dict)
     iterations: list[int] = field(default_factory=list)
     solve_times_s: list[float] = field(default_factory=list)
-    statuses: dict[str, int] = field(default_factory=dict)
+    statuses: dict[str, int] = field(default_factory=dict)  # str(SolveStatus) -> solves (solver_statuses)
     warm: dict[tuple[int, bool], WarmStart] = field(default_factory=dict)
     # problems IPOPT certified infeasible: key -> (fast-only solves since the last full attempt, steps
     # to wait before the next one) (Mpc.infeasible_recheck_steps, infeasible_recheck_max_steps)
@@ -76,9 +75,10 @@ class EpisodeState:
     def record_solve(self, sol: MpcSolution) -> None:
         self.iterations.append(sol.iterations)
         self.solve_times_s.append(sol.solve_time_s)
-        self.statuses[sol.status] = self.statuses.get(sol.status, 0) + 1
+        shown = str(sol.status)  # the stored form: "fallback:" / "presumed_infeasible:" + raw
+        self.statuses[shown] = self.statuses.get(shown, 0) + 1
         self.cold_retries += int(sol.retried_cold)
-        self.presumed_infeasible_solves += int(sol.status.startswith(PRESUMED_PREFIX))
+        self.presumed_infeasible_solves += int(sol.status.presumed_infeasible)
 
 
 @dataclass(frozen=True)
@@ -278,7 +278,7 @@ class Planner:
             return (memo[0] + 1, memo[1])
         if memo is not None:  # the full attempt after a wait failed too: wait twice as long
             return (0, min(2 * memo[1], m.infeasible_recheck_max_steps))
-        if sol.status.endswith(INFEASIBLE_STATUS):  # newly certified
+        if sol.status.certified_infeasible:  # newly certified
             return (0, m.infeasible_recheck_steps)
         return None
 

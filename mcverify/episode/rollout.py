@@ -16,7 +16,6 @@ fixed-width lane groups, see :mod:`mcverify.sim.plant`), which ``mcverify replay
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -27,9 +26,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mcverify.cell import Cell
 from mcverify.control.decision import Source
 from mcverify.control.planner import EpisodeState, Planner, StepRecord
-from mcverify.run.campaign import Cell
+from mcverify.episode.recording import EpisodeRecording
+from mcverify.episode.row import Row, episode_row
 from mcverify.sim.plant import LaneGroups, SafetyTrace, Substep, initial_plant
 
 Array = jax.Array
@@ -38,8 +39,6 @@ Array = jax.Array
 SCENARIO_STREAM = 1_000_000
 #: Planned trajectories of recorded episodes are kept every this many seconds (figures).
 PLAN_SNAPSHOT_PERIOD_S = 0.5
-#: Columns that depend on wall-clock time; everything else is reproducible bit for bit.
-TIMING_COLUMNS = ("solve_time_mean_s", "solve_time_max_s")
 
 
 # --------------------------------------------------------------------------------------- phases
@@ -105,11 +104,11 @@ def sample_scenario(key: Array, params) -> dict[str, float]:
 
 @dataclass
 class ChunkResult:
-    """Rows (one per episode) and, for recorded episodes, trajectory and plan tables (columns)."""
+    """Rows (one per episode, :mod:`mcverify.episode.row`) and the recordings of the recorded
+    episodes, by cell-local episode id."""
 
-    rows: list[dict]
-    trajectories: dict[int, dict[str, np.ndarray]] = field(default_factory=dict)
-    plans: dict[int, dict[str, np.ndarray]] = field(default_factory=dict)
+    rows: list[Row]
+    recordings: dict[int, EpisodeRecording] = field(default_factory=dict)
 
 
 def run_episodes(
@@ -183,13 +182,13 @@ def run_episodes(
     ]
     if rec is None:
         return ChunkResult(rows)
-    return ChunkResult(rows, *rec.tables(ids))
+    return ChunkResult(rows, rec.recordings(ids))
 
 
 #: What drove the ego in the control period where it first left the safe set (``first_unsafe_cause``):
 #: "planned" - a solved Q1/Q2 (or MPC-DC) plan, so the plan itself or the noise let it in (for MPC-DC:
-#: the ellipse held only at its nodes); "held" - a failed problem's old plan (no backup problem);
-#: "fallback" - no plan at all.
+#: the ellipse held only at its nodes); "held" - no applicable problem solved, the rest of the last
+#: applied plan; "fallback" - no plan at all.
 UNSAFE_CAUSES = {Source.Q1: "planned", Source.Q2: "planned", Source.HELD: "held", Source.FALLBACK: "fallback"}
 
 
@@ -205,78 +204,6 @@ def _finish(st: EpisodeState, t_s: float, outcome: str) -> None:
     st.done, st.end_time_s, st.outcome = True, t_s, outcome
     if outcome == "overtook":
         st.overtake_time_s = t_s
-
-
-def _finite_or_nan(x: float) -> float:
-    return float(x) if math.isfinite(x) else math.nan
-
-
-def episode_row(cell: Cell, seed: int, st: EpisodeState, sample: dict[str, float], tr: SafetyTrace, h0: float) -> dict:
-    """The metrics of one finished episode (the columns of ``episodes.parquet``; README: Metrics)."""
-    p = cell.params
-    eps = cell.epsilon
-    min_h = float(tr.min_h_front)
-    first, last = float(tr.first_opp_lane_s), float(tr.last_opp_lane_s)
-    collision_front, collision_opp = bool(tr.collision_front), bool(tr.collision_opp)
-    iters = np.array(st.iterations or [0])
-    times = np.array(st.solve_times_s or [0.0])
-    has_opp = p.opposing.kind != "none"
-    min_h_opp = _finite_or_nan(float(tr.min_h_opp))
-    return {
-        "episode_id": cell.episode_offset + st.episode_id,
-        "cell_episode": st.episode_id,
-        "cell": cell.name,
-        "cell_index": cell.index,
-        "seed": seed,
-        "controller": p.mpc.controller,
-        "opposing_kind": p.opposing.kind,
-        **{f"sample_{k}": v for k, v in sample.items()},
-        "outcome": st.outcome,
-        "overtook": st.outcome == "overtook",
-        "went_back": st.outcome == "went_back",
-        "timeout": st.outcome == "timeout",
-        "end_time_s": st.end_time_s,
-        "overtake_time_s": st.overtake_time_s,
-        "lane_borrow_time_s": (last - first) if math.isfinite(first) else math.nan,
-        "collision_front": collision_front,
-        "collision_opp": collision_opp,
-        "min_h_front": min_h,
-        "min_dist_front_m": float(tr.min_dist_front_m),
-        "min_gap_front_m": float(tr.min_gap_front_m),
-        "min_gap_opp_m": _finite_or_nan(float(tr.min_gap_opp_m)) if has_opp else math.nan,
-        "min_gap_opp_any_m": _finite_or_nan(float(tr.min_gap_opp_any_m)) if has_opp else math.nan,
-        "min_h_opp": min_h_opp if has_opp else math.nan,
-        "ellipse_violation": min_h < 0.0,
-        "safe": (not collision_front) and (not collision_opp) and min_h >= 0.0,
-        "first_unsafe_s": st.first_unsafe_s,
-        "first_unsafe_cause": st.first_unsafe_cause,
-        "h0_front": h0,
-        "epsilon": eps,
-        "lambda0": cell.lambda0,
-        "invariance_breach": bool(h0 >= eps and min_h < eps),
-        "invariance_margin": min_h - eps,
-        "opp_invariance_breach": bool(has_opp and math.isfinite(min_h_opp) and min_h_opp < p.barrier.opp_epsilon_m),
-        "steps": st.steps,
-        "opp_detected_steps": st.opp_detected_steps,
-        "q1_fail_steps": st.q1_fail_steps,
-        "q2_fail_steps": st.q2_fail_steps,
-        "both_infeasible_steps": st.both_infeasible_steps,
-        "fallback_steps": st.fallback_steps,
-        "held_steps": st.held_steps,
-        "q2_driven_steps": st.q2_driven_steps,
-        "q1_rescue_steps": st.q1_rescue_steps,
-        "switched_to_q2_at_s": st.switched_to_q2_at_s,
-        "went_back_reason": st.went_back_reason,
-        "table_one_rows": json.dumps({str(k): v for k, v in sorted(st.table_one_rows.items())}),
-        "solves": len(st.iterations),
-        "cold_retries": st.cold_retries,
-        "presumed_infeasible_solves": st.presumed_infeasible_solves,
-        "iterations_mean": float(iters.mean()),
-        "iterations_max": int(iters.max()),
-        "solve_time_mean_s": float(times.mean()),
-        "solve_time_max_s": float(times.max()),
-        "solver_statuses": json.dumps(dict(sorted(st.statuses.items()))),
-    }
 
 
 class _Recorder:
@@ -330,14 +257,13 @@ class _Recorder:
                     if sol is not None and sol.success:
                         self.plans[b].append(_plan_table(t_s, name, sol))
 
-    def tables(self, ids: Sequence[int]):
-        traj, plans = {}, {}
-        for b in self.lanes:
-            parts = self.parts[b]
-            traj[ids[b]] = {key: np.concatenate([pt[key] for pt in parts]) for key in parts[0]} if parts else {}
-            pl = self.plans[b]
-            plans[ids[b]] = {key: np.concatenate([x[key] for x in pl]) for key in pl[0]} if pl else {}
-        return traj, plans
+    def recordings(self, ids: Sequence[int]) -> dict[int, EpisodeRecording]:
+        """Cell-local episode id -> its recording (the per-step parts concatenated)."""
+        return {ids[b]: EpisodeRecording(_concat(self.parts[b]), _concat(self.plans[b])) for b in self.lanes}
+
+
+def _concat(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    return {key: np.concatenate([pt[key] for pt in parts]) for key in parts[0]} if parts else {}
 
 
 def _solved(sol) -> float:
@@ -357,8 +283,3 @@ def _plan_table(t_s: float, name: str, sol) -> dict[str, np.ndarray]:
         "t_node_s": t_nodes, "x_m": sol.x_plan[:, 0], "y_m": sol.x_plan[:, 1], "speed_mps": sol.x_plan[:, 3],
         "opp_x_m": opp_x,
     }
-
-
-def describe_sources() -> dict[int, str]:
-    """Names of the ``active_problem`` codes in trajectories."""
-    return {0: "none", **{int(s): s.name for s in Source}}

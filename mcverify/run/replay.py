@@ -11,9 +11,11 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from mcverify import store
-from mcverify.episode.rollout import TIMING_COLUMNS, run_episodes
+from mcverify.episode.recording import PLANS_SUFFIX
+from mcverify.episode.rollout import run_episodes
 from mcverify.run import executors
 from mcverify.run.runner import campaign_from_manifest
+from mcverify.schema import ERROR_COLUMN, ERROR_OUTCOME, TIMING_COLUMNS
 
 
 class ReplayMismatch(RuntimeError):
@@ -51,21 +53,22 @@ def replay(run_dir: Path, episode_id: int, out_dir: Path | None = None) -> Repla
             record=True,
         )
     except Exception as exc:  # noqa: BLE001 - the stored error row says what to expect
-        if stored.get("outcome") != "error":
+        if stored.get("outcome") != ERROR_OUTCOME:
             raise
         raise store.RunError(
             f"{run_dir}: episode {episode_id} ended in an error in the run "
-            f"({stored.get(store.ERROR_COLUMN)}); the replay fails again: {type(exc).__name__}: {exc}"
+            f"({stored.get(ERROR_COLUMN)}); the replay fails again: {type(exc).__name__}: {exc}"
         ) from exc
     row = result.rows[0]
     diffs = compare_rows(stored, row)
     out_dir = Path(out_dir) if out_dir else run_dir / "replay"
     out_dir.mkdir(parents=True, exist_ok=True)
-    traj = result.trajectories[local]
+    recording = result.recordings[local]
+    traj = recording.trajectory
     traj_path = out_dir / f"episode-{episode_id:06d}.parquet"
-    pq.write_table(pa.table(traj), traj_path)
-    if result.plans.get(local):
-        pq.write_table(pa.table(result.plans[local]), out_dir / f"episode-{episode_id:06d}-plans.parquet")
+    pq.write_table(pa.table(dict(traj)), traj_path)
+    if recording.plans:  # unlike a run folder, no empty plans file
+        pq.write_table(pa.table(dict(recording.plans)), out_dir / f"episode-{episode_id:06d}{PLANS_SUFFIX}.parquet")
     plot_path = out_dir / f"episode-{episode_id:06d}.png"
     from mcverify.report import episode_plot
 

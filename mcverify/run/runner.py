@@ -20,6 +20,7 @@ from typing import Any
 from tqdm.auto import tqdm
 
 from mcverify import store
+from mcverify.episode.recording import EpisodeRecording
 from mcverify.report import run_report
 from mcverify.run import executors
 from mcverify.run.campaign import Campaign, CampaignError, campaign_from_dict
@@ -282,9 +283,9 @@ def _execute(
     def on_done(chunk: store.Chunk, output: ChunkOutput) -> None:
         nonlocal errors
         cell = campaign.cells[chunk.cell_index]
-        # Trajectories first: a chunk in the ledger implies its trajectories are on disk.
-        for episode, trajectory in output.trajectories.items():
-            _write_trajectory(run_dir, cell.episode_offset + int(episode), trajectory)
+        # Recordings first: a chunk in the ledger implies its trajectories are on disk.
+        for episode, recording in output.recordings.items():
+            _write_recording(run_dir, cell.episode_offset + int(episode), recording)
         rec = store.write_chunk(run_dir, chunk, output.rows, attempts=output.attempts)
         store.append_record(run_dir, rec)
         errors += rec.errors
@@ -305,15 +306,11 @@ def _execute(
     return path
 
 
-def _write_trajectory(run_dir: Path, episode_id: int, trajectory: Any) -> None:
-    """One episode's trajectory: a mapping of columns, or of named tables (``{"trajectory": ...,
-    "plans": ...}`` -> ``episode-NNNNNN.parquet`` and ``episode-NNNNNN-plans.parquet``)."""
-    if trajectory and all(isinstance(v, dict) for v in trajectory.values()):
-        for name, columns in trajectory.items():
-            suffix = "" if name == "trajectory" else f"-{name}"
-            store.write_trajectory(run_dir, episode_id, columns, suffix=suffix)
-    else:
-        store.write_trajectory(run_dir, episode_id, trajectory)
+def _write_recording(run_dir: Path, episode_id: int, recording: EpisodeRecording) -> None:
+    """One episode's recording: ``trajectories/episode-NNNNNN.parquet`` and, when plans were
+    recorded, ``episode-NNNNNN-plans.parquet``."""
+    for suffix, columns in recording.to_columns().items():
+        store.write_trajectory(run_dir, episode_id, columns, suffix=suffix)
 
 
 def _prepare_kernels(campaign: Campaign, episode_fn: EpisodeFn) -> dict[str, str]:
@@ -334,6 +331,3 @@ def describe(campaign: Campaign) -> str:
         lines.append(f"  [{c.index}] {c.name}  episodes={c.episodes} eps={c.epsilon:.3g} lambda0={c.lambda0:.4g}")
     return "\n".join(lines)
 
-
-def dumps(obj: Any) -> str:
-    return json.dumps(obj, indent=2, default=str)

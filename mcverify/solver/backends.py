@@ -18,9 +18,9 @@ started like the reference, with a second, more central attempt; IPOPT is its fa
 
 * whatever the IPM does not solve (no convergence in its iteration limit, a failed line search,
   anything non-finite, a point that fails the common feasibility check) goes to the IPOPT
-  reference path (warm, then cold) for the same solve, and the result's status carries the prefix
-  ``"fallback:"``. So a failed solve always means "the reference could not solve it either",
-  never "the fast path gave up";
+  reference path (warm, then cold) for the same solve, and the result's status has the route
+  :attr:`~mcverify.solver.status.SolveRoute.FALLBACK`. So a failed solve always means "the
+  reference could not solve it either", never "the fast path gave up";
 * an IPM success has IPOPT's contract: scaled KKT error <= ``params.mpc.tol``, unscaled
   constraint violation <= 1e-7, then the common 1e-5 check.
 
@@ -52,17 +52,10 @@ from mcverify.model import BACKEND_NAMES, ModelParams
 from mcverify.solver.cfun import CFunction
 from mcverify.solver.ipm import COLD, WARM_ATTEMPTS, Ipm
 from mcverify.solver.kernels import Kernel, get_runtime_library
+from mcverify.solver.status import SolveRoute, SolveStatus
 
-#: IPOPT's return_status values that count as solved (before the common feasibility check).
-SOLVED_STATUSES = frozenset({"Solve_Succeeded", "Solved_To_Acceptable_Level"})
 #: Largest constraint or bound violation (unscaled, any unit) of a plan reported as a success.
 MAX_VIOLATION = 1e-5
-#: Status prefix of a solve the SQP handed to the IPOPT reference path.
-FALLBACK_PREFIX = "fallback:"
-#: Status prefix of a fast-only failure of a problem IPOPT certified infeasible a step before.
-PRESUMED_PREFIX = "presumed_infeasible:"
-#: IPOPT's certificate of (local) infeasibility.
-INFEASIBLE_STATUS = "Infeasible_Problem_Detected"
 
 
 @dataclass(frozen=True)
@@ -78,21 +71,20 @@ class Start:
 class BackendResult:
     """One solve: the point (w, multipliers), the backend's status, iterations and verdict.
 
-    success: the backend's own verdict (IPOPT: a solved return status with finite output; SQP:
+    success: the backend's own verdict (IPOPT: a solved return status with finite output; the IPM:
     converged), then combined by :meth:`Problem.accept` with the common feasibility check.
-    retried_cold: a warm IPOPT start failed and this is its cold retry. fallback: the SQP handed
-    this solve to IPOPT (the status then starts with :data:`FALLBACK_PREFIX`).
+    status: what the solver reported and which path answered (``status.fallback``: the IPM handed
+    this solve to IPOPT). retried_cold: a warm IPOPT start failed and this is its cold retry.
     """
 
     w: np.ndarray
     lam_x: np.ndarray
     lam_g: np.ndarray
-    status: str
+    status: SolveStatus
     iterations: int
     success: bool
     max_violation: float = float("nan")
     retried_cold: bool = False
-    fallback: bool = False
 
 
 class Problem:
@@ -220,15 +212,15 @@ class IpoptBackend:
                 out = self._cold(x0=guess(), p=p, lbx=pr.lbx, ubx=pr.ubx, lbg=pr.lbg, ubg=pr.ubg)
                 stats = self._cold.stats()
         except Exception as exc:  # noqa: BLE001 - IPOPT/CasADi errors become a failed solve
-            return _failed(pr, f"exception: {exc}".splitlines()[0])
+            return _failed(pr, SolveStatus.exception(str(exc)))
         w = np.asarray(out["x"], dtype=float).ravel()
         lam_x = np.asarray(out["lam_x"], dtype=float).ravel()
         lam_g = np.asarray(out["lam_g"], dtype=float).ravel()
-        status = str(stats.get("return_status", "unknown"))
-        return BackendResult(w, lam_x, lam_g, status, int(stats.get("iter_count", -1)), status in SOLVED_STATUSES)
+        status = SolveStatus.ipopt(str(stats.get("return_status", "unknown")))
+        return BackendResult(w, lam_x, lam_g, status, int(stats.get("iter_count", -1)), status.outcome.converged)
 
 
-def _failed(problem: Problem, status: str) -> BackendResult:
+def _failed(problem: Problem, status: SolveStatus) -> BackendResult:
     nan_w, nan_g = np.full(problem.n_w, np.nan), np.full(problem.n_g, np.nan)
     return BackendResult(nan_w, nan_w.copy(), nan_g, status, 0, False)
 
@@ -264,7 +256,7 @@ class IpmBackend:
         self, p: np.ndarray, warm: Start | None, guess: Callable[[], np.ndarray], fast_only: bool = False
     ) -> BackendResult:
         """The IPM attempts, then the IPOPT reference; ``fast_only``: no reference, a failure of the
-        IPM is returned with the status prefix :data:`PRESUMED_PREFIX` (see
+        IPM is returned with the route :attr:`~mcverify.solver.status.SolveRoute.PRESUMED` (see
         :attr:`mcverify.model.Mpc.infeasible_recheck_steps`)."""
         iterations = 0
         attempts = [] if warm is None else [(o, warm.x, warm.lam_x, warm.lam_g) for o in self.warm_attempts]
@@ -275,15 +267,15 @@ class IpmBackend:
             tag = f"{'warm' if lx0 is not None else 'cold'}{k + 1}:{r.status}"
             self.ipm_outcomes[tag] += 1
             res = self.problem.accept(
-                BackendResult(r.w, r.lam_x, r.lam_g, f"IPM_{r.status}", iterations, r.success), p
+                BackendResult(r.w, r.lam_x, r.lam_g, SolveStatus.ipm(r.status), iterations, r.success), p
             )
             if res.success:
                 return res
         if fast_only:
-            return dataclasses.replace(res, status=f"{PRESUMED_PREFIX}{res.status}")
+            return dataclasses.replace(res, status=res.status.via(SolveRoute.PRESUMED))
         ref = self.reference.solve(p, warm, guess)
         return dataclasses.replace(
-            ref, status=f"{FALLBACK_PREFIX}{ref.status}", iterations=iterations + ref.iterations, fallback=True
+            ref, status=ref.status.via(SolveRoute.FALLBACK), iterations=iterations + ref.iterations
         )
 
 

@@ -2,8 +2,9 @@
 
 ``MpcSolver(params).solve(ego_state, front_xyv, direction, lambda0, warm)`` returns an
 :class:`MpcSolution`; it never raises for numerical trouble (solver failures, exceptions, NaNs become
-``success=False`` with a status string). Solves are deterministic: the same inputs (including the
-same ``warm``) give bit-identical outputs; nothing depends on wall time or on earlier solves.
+``success=False`` with a :class:`~mcverify.solver.status.SolveStatus`). Solves are deterministic:
+the same inputs (including the same ``warm``) give bit-identical outputs; nothing depends on wall
+time or on earlier solves.
 
 The numerical work is done by the backend named in ``params.mpc.backend`` (:mod:`mcverify.solver.backends`:
 "ipopt", the reference, or "ipm", the fast path with IPOPT as its fallback).
@@ -25,16 +26,9 @@ from mcverify.ocp import (
     initial_guess,
     pack_params,
 )
-from mcverify.solver.backends import (  # noqa: F401 - SOLVED_STATUSES, ipopt_options re-exported
-    MAX_VIOLATION,
-    SOLVED_STATUSES,
-    BackendResult,
-    Problem,
-    Start,
-    create_backend,
-    ipopt_options,
-)
+from mcverify.solver.backends import BackendResult, Problem, Start, create_backend
 from mcverify.solver.kernels import get_kernel
+from mcverify.solver.status import SolveStatus
 
 
 @dataclass(frozen=True)
@@ -53,9 +47,8 @@ class WarmStart:
 
 @dataclass(frozen=True)
 class MpcSolution:
-    success: bool  # the backend solved it AND max constraint/bound violation <= MAX_VIOLATION
-    status: str  # backend status (IPOPT return_status, "IPM_Converged", "fallback:<IPOPT status>"),
-    # or "exception: <msg>" / "invalid_input: <msg>"
+    success: bool  # the backend solved it AND max constraint/bound violation <= backends.MAX_VIOLATION
+    status: SolveStatus  # what the solver reported (raw text kept for display) and which path answered
     iterations: int
     solve_time_s: float  # wall time of this solve (time.perf_counter)
     total_time_s: float  # T = sum DT (the planned time to goal, seconds)
@@ -127,7 +120,7 @@ class MpcSolver:
         except ValueError as exc:  # wrong shapes or direction: a caller error, not numerics
             raise ValueError(f"MpcSolver.solve: {exc}") from exc
         if not np.all(np.isfinite(p)):
-            return self._failure("invalid_input: non-finite ego_state, front_xyv or lambda0", t0)
+            return self._failure(SolveStatus.invalid_input("non-finite ego_state, front_xyv or lambda0"), t0)
         use_warm = warm is not None and warm.direction == direction and warm.x.size == self.layout.n_w
         start = Start(warm.x, warm.lam_x, warm.lam_g) if use_warm else None
 
@@ -139,7 +132,7 @@ class MpcSolver:
         try:
             res = self.backend.solve(p, start, cold_guess, fast_only=fast_only)
         except Exception as exc:  # noqa: BLE001 - solver errors become a failed solution
-            return self._failure(f"exception: {exc}".splitlines()[0], t0)
+            return self._failure(SolveStatus.exception(str(exc)), t0)
         return self._solution(res, direction, t0)
 
     def guess_from_plan(self, plan: MpcSolution, opp_xv: np.ndarray | None) -> np.ndarray | None:
@@ -177,7 +170,7 @@ class MpcSolver:
             opp_plan=self.layout.unpack_opposing(res.w) if self.structure.with_opposing else None,
         )
 
-    def _failure(self, status: str, t0: float) -> MpcSolution:
+    def _failure(self, status: SolveStatus, t0: float) -> MpcSolution:
         n = self.structure.horizon
         return MpcSolution(
             success=False,

@@ -8,6 +8,7 @@ import pytest
 from mcverify.control.decision import Mode
 from mcverify.control.planner import EpisodeState, Planner, ego_in_own_lane, fallback_input, held_input
 from mcverify.model import ModelParams
+from mcverify.solver.status import SolveRoute, SolveStatus
 
 P = ModelParams()
 FRONT = np.array([64.0, 0.0, 7.0])
@@ -92,7 +93,10 @@ class _CertifiedInfeasibleSolver:
             return self.ok
         if not fast_only:
             self.full_calls.append(self.calls)
-        status = "presumed_infeasible:IPM_MaxIter" if fast_only else "fallback:Infeasible_Problem_Detected"
+        if fast_only:
+            status = SolveStatus.ipm("Max_Iterations").via(SolveRoute.PRESUMED)
+        else:
+            status = SolveStatus.ipopt("Infeasible_Problem_Detected").via(SolveRoute.FALLBACK)
         return dataclasses.replace(self.ok, success=False, status=status)
 
     def guess_from_plan(self, plan, opp_xv):

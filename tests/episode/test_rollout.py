@@ -10,9 +10,10 @@ import jax
 import numpy as np
 import pytest
 
-from mcverify.episode.rollout import TIMING_COLUMNS, episode_key, run_episodes, sample_scenario
+from mcverify.episode.rollout import episode_key, run_episodes, sample_scenario
 from mcverify.run import executors
 from mcverify.run.campaign import campaign_from_dict, load_campaign
+from mcverify.schema import COLUMN_NAMES, ERROR_COLUMN, TIMING_COLUMNS
 
 FAST_SIM = {"control_period_s": 0.1, "substeps": 20}
 
@@ -42,6 +43,16 @@ def test_an_episode_does_not_depend_on_its_chunk():
         for r in run_episodes(cell, ids, camp.seed, planner).rows:
             assert same(strip(r), together[r["cell_episode"]]), r["cell_episode"]
     assert len({r["min_h_front"] for r in together.values()}) == 3  # different noise, different episodes
+
+
+def test_rows_have_the_declared_columns_in_file_order_and_recordings_their_tables():
+    camp, cell = cell_of({"sim": {**FAST_SIM, "max_time_s": 1.0}}, episodes=1)
+    result = run_episodes(cell, [0], camp.seed, executors.solver_for(cell.params), record=True)
+    assert tuple(result.rows[0]) == tuple(n for n in COLUMN_NAMES if n != ERROR_COLUMN)
+    recording = result.recordings[0]
+    steps = recording.trajectory["t_s"].size
+    assert steps > 0 and all(col.shape == (steps,) for col in recording.trajectory.values())
+    assert recording.plans is not None and set(recording.to_columns()) == {"", "-plans"}
 
 
 @pytest.mark.parametrize("front_kmh", [25, 36])

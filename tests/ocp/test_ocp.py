@@ -12,6 +12,7 @@ from mcverify import ocp
 from mcverify.model import ModelParams
 from mcverify.ocp import problem
 from mcverify.solver.mpc import MpcSolver
+from mcverify.solver.status import SolveStatus
 
 P = ModelParams()
 TABLE_II_EGO = np.array([10.0, 0.0, 0.0, 10.0])
@@ -199,7 +200,7 @@ def test_uncatchable_front_vehicle_is_reported_infeasible(solver):
     sol = solver.solve(TABLE_II_EGO, front, 1, LAMBDA0)
     assert not sol.success
     assert sol.warm is None
-    assert isinstance(sol.status, str) and sol.status
+    assert isinstance(sol.status, SolveStatus) and sol.status.raw
 
 
 def test_smoothing_weight_keeps_plan_time_optimal():

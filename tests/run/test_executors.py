@@ -18,11 +18,12 @@ import numpy as np
 import pytest
 import synthetic_episodes as synth
 
-from mcverify import store
+from mcverify import schema, store
 from mcverify.run import executors
 from mcverify.run.campaign import campaign_from_dict, load_campaign
 from mcverify.run.executors import ChunkOutput, SerialExecutor
 from mcverify.solver.mpc import MpcSolution
+from mcverify.solver.status import SolveStatus
 
 FIXTURE = Path(__file__).resolve().parents[1] / "fixtures" / "tiny.toml"
 
@@ -72,7 +73,7 @@ def test_an_exception_is_retried_then_isolated_to_its_own_episode(tmp_path):
     out = collect(camp, chunk_size=5, episode_fn=fn)["cell000_ep000000-000004"]
     rows = {r["episode_id"]: r for r in out.rows}
     assert rows[2]["outcome"] == "error"
-    assert rows[2][store.ERROR_COLUMN] == "RuntimeError: injected failure in episode 2"
+    assert rows[2][schema.ERROR_COLUMN] == "RuntimeError: injected failure in episode 2"
     assert "safe" not in rows[2] and "min_h_front" not in rows[2]  # null in the table: never safe or unsafe
     clean = by_episode(collect(camp, chunk_size=5))
     for k in (0, 1, 3, 4):  # its chunk-mates are simulated as if nothing had happened
@@ -98,7 +99,7 @@ def test_a_dead_worker_is_replaced_and_only_its_episode_is_lost():
     rows = by_episode(outputs)
     assert sorted(rows) == list(range(6))
     assert rows[4]["outcome"] == "error"
-    assert rows[4][store.ERROR_COLUMN] == "worker process died (SIGKILL)"
+    assert rows[4][schema.ERROR_COLUMN] == "worker process died (SIGKILL)"
     assert outputs["cell001_ep000001-000001"].attempts == 2
     assert all(rows[k]["outcome"] != "error" for k in (0, 1, 2, 3, 5))
 
@@ -108,16 +109,16 @@ def test_a_non_finite_metric_becomes_an_error_row_without_retry(tmp_path):
     fn = functools.partial(synth.faulty, nan_on=(1,), log_dir=str(tmp_path))
     out = collect(camp, chunk_size=3, episode_fn=fn)["cell000_ep000000-000002"]
     assert [r["outcome"] == "error" for r in out.rows] == [False, True, False]
-    assert out.rows[1][store.ERROR_COLUMN].startswith("non-finite result: min_h_front = nan")
+    assert out.rows[1][schema.ERROR_COLUMN].startswith("non-finite result: min_h_front = nan")
     assert len(list(tmp_path.iterdir())) == 1, "a deterministic NaN is not worth a retry"
 
 
-def test_only_requested_trajectories_come_back():
+def test_only_requested_recordings_come_back():
     camp = campaign(episodes=3, cells=2)
     outputs = collect(camp, chunk_size=2, record=[(0, 0), (1, 0)])
-    assert outputs["cell000_ep000000-000001"].trajectories.keys() == {0}
-    assert outputs["cell001_ep000000-000001"].trajectories.keys() == {0}
-    assert outputs["cell000_ep000002-000002"].trajectories == {}
+    assert outputs["cell000_ep000000-000001"].recordings.keys() == {0}
+    assert outputs["cell001_ep000000-000001"].recordings.keys() == {0}
+    assert outputs["cell000_ep000002-000002"].recordings == {}
 
 
 def test_a_worker_with_other_code_stops_the_run():
@@ -172,7 +173,7 @@ class FailingSolver:
     def solve(self, ego, front, direction, lambda0, warm=None, **kw):
         n = self.n
         return MpcSolution(
-            success=False, status="Infeasible_Problem_Detected", iterations=3, solve_time_s=0.0,
+            success=False, status=SolveStatus.ipopt("Infeasible_Problem_Detected"), iterations=3, solve_time_s=0.0,
             total_time_s=math.nan, x_plan=np.full((n + 1, 4), np.nan), u_plan=np.full((n, 2), np.nan),
             dt_plan=np.full(n, np.nan), warm=None,
         )
@@ -197,7 +198,7 @@ class NanSolver(FailingSolver):
 
     def solve(self, *args, **kw):
         sol = super().solve(*args, **kw)
-        return MpcSolution(**{**sol.__dict__, "success": True, "status": "Solve_Succeeded"})
+        return MpcSolution(**{**sol.__dict__, "success": True, "status": SolveStatus.ipopt("Solve_Succeeded")})
 
 
 def with_solver(solver_factory):
@@ -229,11 +230,11 @@ def test_unsolvable_steps_apply_the_fallback_and_are_counted(tiny):
 def test_a_solver_exception_in_a_real_episode_becomes_error_rows(tiny):
     rows = by_episode(collect(tiny, chunk_size=2, episode_fn=with_solver(lambda: RaisingSolver(after=3))))
     assert [r["outcome"] for r in rows.values()] == ["error", "error"]
-    assert all(r[store.ERROR_COLUMN] == "RuntimeError: solver exploded" for r in rows.values())
+    assert all(r[schema.ERROR_COLUMN] == "RuntimeError: solver exploded" for r in rows.values())
 
 
 def test_a_nan_plant_in_a_real_episode_becomes_an_error_row(tiny):
     rows = by_episode(collect(tiny, chunk_size=2, episode_fn=with_solver(NanSolver)))
     for r in rows.values():
         assert r["outcome"] == "error"
-        assert r[store.ERROR_COLUMN].startswith("non-finite result: min_h_front = nan")
+        assert r[schema.ERROR_COLUMN].startswith("non-finite result: min_h_front = nan")

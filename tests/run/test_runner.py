@@ -29,10 +29,10 @@ import pyarrow.parquet as pq
 import pytest
 import synthetic_episodes as synth
 
-from mcverify import store
-from mcverify.episode.rollout import TIMING_COLUMNS
+from mcverify import schema, store
 from mcverify.run import executors, runner
 from mcverify.run.campaign import campaign_from_dict, load_campaign
+from mcverify.schema import TIMING_COLUMNS
 
 TESTS = Path(__file__).resolve().parents[1]
 REPO = TESTS.parent
@@ -79,7 +79,7 @@ def test_reference_run_is_complete_and_recorded(reference: Path):
     assert eps["episode_id"] == [0, 1, 2, 3, 4, 5]
     assert eps["cell_episode"] == [0, 1, 2, 0, 1, 2]
     assert eps["outcome"] == ["timeout"] * 6  # the fixture's 1 s episodes
-    assert eps[store.ERROR_COLUMN] == [None] * 6
+    assert eps[schema.ERROR_COLUMN] == [None] * 6
     assert len(set(eps["min_h_front"])) == 6, "every episode has its own noise draws"
     manifest = json.loads((reference / store.MANIFEST).read_text())
     assert manifest["finished_utc"] and manifest["chunks"]["planned"] == 6 and manifest["chunk_size"] == 1
@@ -222,16 +222,16 @@ def test_a_chunk_file_without_its_ledger_line_is_redone(tmp_path: Path):
 
 def test_error_rows_are_stored_and_the_campaign_finishes(tmp_path: Path, monkeypatch):
     # The report is the stats module's part (tested below); here: execution and storage.
-    monkeypatch.setattr(runner.report, "write", lambda run_dir: Path(run_dir) / "report.md")
+    monkeypatch.setattr(runner.run_report, "write", lambda run_dir: Path(run_dir) / "report.md")
     camp = synthetic_campaign()
     fn = functools.partial(synth.faulty, raise_on=(5,))
     run_dir = tmp_path / "run"
     runner.run(camp, run_dir, executor=executors.SerialExecutor(), chunk_size=2, progress=False, episode_fn=fn)
     eps = episodes_of(run_dir)
     assert eps["episode_id"] == list(range(8))
-    assert eps["outcome"][5] == "error" and eps[store.ERROR_COLUMN][5] == "RuntimeError: injected failure in episode 5"
+    assert eps["outcome"][5] == "error" and eps[schema.ERROR_COLUMN][5] == "RuntimeError: injected failure in episode 5"
     assert eps["safe"][5] is None and eps["min_h_front"][5] is None  # neither safe nor unsafe
-    assert eps["outcome"][4] != "error" and eps[store.ERROR_COLUMN][4] is None
+    assert eps["outcome"][4] != "error" and eps[schema.ERROR_COLUMN][4] is None
     assert [rec.errors for rec in store.read_ledger(run_dir).values()] == [0, 0, 1, 0]
     assert json.loads((run_dir / store.MANIFEST).read_text())["finished_utc"]
 

@@ -120,7 +120,7 @@ def test_second_process_reuses_cached_kernel_without_compiler(tmp_path):
         from mcverify.model import ModelParams
         from mcverify.solver.mpc import MpcSolver
         sol = MpcSolver(ModelParams()).solve(np.array([10., 0, 0, 10]), np.array([64., 0, 25 / 3.6]), 1, -0.3135)
-        print("OK" if sol.success else "FAIL " + sol.status)
+        print("OK" if sol.success else "FAIL " + str(sol.status))
         """,
         env,
     )

@@ -11,6 +11,7 @@ import pytest
 from mcverify.model import ModelParams
 from mcverify.ocp.problem import OcpStructure
 from mcverify.solver.mpc import MpcSolution, MpcSolver
+from mcverify.solver.status import SolveOutcome
 
 P = dataclasses.replace(ModelParams(), mpc=dataclasses.replace(ModelParams().mpc, backend="ipopt"))
 LAMBDA0 = -(0.3 + 0.5 * 0.3**3)  # -kappa~(epsilon = 0.3) with lambdas (1, 0.5)
@@ -41,7 +42,7 @@ def test_solution_fields(solver):
     assert isinstance(sol, MpcSolution) and sol.success
     n = P.mpc.horizon
     assert sol.x_plan.shape == (n + 1, 4) and sol.u_plan.shape == (n, 2) and sol.dt_plan.shape == (n,)
-    assert sol.status == "Solve_Succeeded"
+    assert str(sol.status) == "Solve_Succeeded"
     assert 0 < sol.iterations <= P.mpc.max_iter
     assert sol.solve_time_s > 0
     assert sol.total_time_s == pytest.approx(sol.dt_plan.sum())
@@ -110,7 +111,7 @@ def test_warm_start_of_other_direction_is_ignored(solver):
 
 def test_non_finite_input_is_a_failed_solution(solver):
     sol = solver.solve(np.array([10.0, 0.0, np.nan, 10.0]), FRONT, 1, LAMBDA0)
-    assert not sol.success and sol.status.startswith("invalid_input")
+    assert not sol.success and sol.status.outcome is SolveOutcome.INVALID_INPUT
     assert sol.warm is None and np.all(np.isnan(sol.x_plan))
 
 
@@ -121,7 +122,7 @@ def test_solver_exception_is_a_failed_solution(solver, monkeypatch):
     monkeypatch.setattr(solver.backend, "_cold", boom)
     sol = solver.solve(EGO, FRONT, 1, LAMBDA0)
     assert not sol.success
-    assert sol.status == "exception: simulated IPOPT crash"
+    assert str(sol.status) == "exception: simulated IPOPT crash"
 
 
 def test_structure_must_match_params():

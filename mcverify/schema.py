@@ -1,0 +1,159 @@
+"""The episode row, declared once: every column of ``episodes.parquet`` (and of the chunk files).
+
+:data:`EPISODE_COLUMNS` lists, in file order, each column's name, Arrow type, unit and one-line
+definition. The rollout's rows (:mod:`mcverify.episode.row`) carry exactly these names, the
+executors' error rows a subset of them, the store writes and merges chunks with these types
+(:func:`arrow_schema`), the summary reads them by these names, and the README's metric table is
+rendered from them (:func:`markdown_table`; a test keeps the two equal).
+
+Units: ``m``, ``s``, ``m/s^2``; an empty unit means dimensionless, a count, a flag or text. The
+barrier values (``h_*``, ``epsilon``, ``lambda0``) are dimensionless except h_eo, which is a
+distance (m).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import pyarrow as pa
+
+#: ``outcome`` of an episode that could not be simulated (its metrics are null).
+ERROR_OUTCOME = "error"
+#: The column that carries an episode's error message (null for every simulated episode).
+ERROR_COLUMN = "error_message"
+
+_INT, _FLOAT, _STR, _BOOL = pa.int64(), pa.float64(), pa.string(), pa.bool_()
+
+
+@dataclass(frozen=True)
+class Column:
+    """One episode column.
+
+    name: the column name; type: its Arrow type; unit: its unit ("" if none); definition: one
+    sentence; identity: it identifies the episode (present in every row, error rows included);
+    wall_clock: it depends on the machine (the only columns not reproducible bit for bit);
+    finite: finite for every simulated episode (NaN or inf there means the plant blew up).
+    """
+
+    name: str
+    type: pa.DataType
+    unit: str
+    definition: str
+    identity: bool = False
+    wall_clock: bool = False
+    finite: bool = False
+
+
+def _c(name: str, type_: pa.DataType, unit: str, definition: str, **flags: bool) -> Column:
+    return Column(name, type_, unit, definition, **flags)
+
+
+#: Every column of ``episodes.parquet``, in file order.
+EPISODE_COLUMNS: tuple[Column, ...] = (
+    # identification
+    _c("episode_id", _INT, "", "episode id, unique in the run (the cell's offset + cell_episode)", identity=True),
+    _c("cell_episode", _INT, "", "episode id within its cell (0, 1, ...)", identity=True),
+    _c("cell", _STR, "", "the cell's name", identity=True),
+    _c("cell_index", _INT, "", "the cell's index in the campaign", identity=True),
+    _c("seed", _INT, "", "the campaign's seed", identity=True),
+    _c("controller", _STR, "", "the controller: vlcbf (the paper's dual TO-CBF-MPC) or mpcdc (the baseline)"),
+    _c("opposing_kind", _STR, "", "the opposing vehicle: none, autonomous or human"),
+    _c("sample_front_accel_mps2", _FLOAT, "m/s^2", "the front vehicle's acceleration drawn for the episode"),
+    # outcome
+    _c("outcome", _STR, "", "overtook, went_back, timeout or error (an episode that could not be simulated)"),
+    _c("overtook", _BOOL, "", "the paper's convergence test was met ahead of the front vehicle"),
+    _c("went_back", _BOOL, "", "the episode ended behind the front vehicle in the ego lane (Q2's goal)"),
+    _c("timeout", _BOOL, "", "neither goal was reached within the episode time limit"),
+    _c("end_time_s", _FLOAT, "s", "simulated time until the episode ended"),
+    _c("overtake_time_s", _FLOAT, "s", "time from the start to the paper's convergence test (x_e >= x_f + phi v_f "
+       "and |y_e| <= eps_y on measured values); NaN unless overtaken"),
+    _c("lane_borrow_time_s", _FLOAT, "s", "first to last sub-step with the ego footprint in the opposing lane"),
+    # safety
+    _c("collision_front", _BOOL, "", "the oriented footprints of ego and front vehicle overlapped at some sub-step"),
+    _c("collision_opp", _BOOL, "", "the oriented footprints of ego and opposing vehicle overlapped at some sub-step"),
+    _c("min_h_front", _FLOAT, "", "minimum of the barrier h_ef along the true trajectory", finite=True),
+    _c("min_dist_front_m", _FLOAT, "m", "the paper's \"min dist. with veh_f\": smallest signed distance from the "
+       "ego c.g. to the ellipse h_ef = 0, negative inside", finite=True),
+    _c("min_gap_front_m", _FLOAT, "m", "smallest gap between the ego and front vehicle footprints", finite=True),
+    _c("min_gap_opp_m", _FLOAT, "m", "the paper's \"min dist. with veh_o\": smallest footprint gap to veh_o while "
+       "the ego footprint reaches into the opposing lane with veh_o ahead (NaN if never)"),
+    _c("min_gap_opp_any_m", _FLOAT, "m", "smallest footprint gap to veh_o at any time (NaN without veh_o)"),
+    _c("min_h_opp", _FLOAT, "m", "minimum of h_eo under the condition of min_gap_opp_m (NaN if never)"),
+    _c("ellipse_violation", _BOOL, "", "min_h_front < 0: the ego c.g. entered the safety ellipse"),
+    _c("safe", _BOOL, "", "no collision with either vehicle and no ellipse violation"),
+    _c("first_unsafe_s", _FLOAT, "s", "start of the control period in which the ego first left the safe set"),
+    _c("first_unsafe_cause", _STR, "", "what drove the ego then: planned (a solved plan), held (a failed "
+       "problem's old plan) or fallback (no plan); empty if safe"),
+    _c("h0_front", _FLOAT, "", "h_ef at the start", finite=True),
+    _c("epsilon", _FLOAT, "", "the cell's level epsilon of h_ef"),
+    _c("lambda0", _FLOAT, "", "the cell's level parameter lambda0 (<= 0)"),
+    _c("invariance_breach", _BOOL, "", "h_ef started at or above epsilon and fell below it (Theorem 2)"),
+    _c("invariance_margin", _FLOAT, "", "min_h_front - epsilon"),
+    _c("opp_invariance_breach", _BOOL, "", "h_eo fell below its level while the ego borrowed the opposing lane"),
+    # decisions (Theorem 5, Algorithm 1, Table I)
+    _c("steps", _INT, "", "control steps run"),
+    _c("opp_detected_steps", _INT, "", "control steps with veh_o detected"),
+    _c("q1_fail_steps", _INT, "", "control steps where Q1 was solved and failed"),
+    _c("q2_fail_steps", _INT, "", "control steps where Q2 failed"),
+    _c("both_infeasible_steps", _INT, "", "control steps with neither Q1 nor Q2 solved (Theorem 5)"),
+    _c("fallback_steps", _INT, "", "control steps with no plan at all: brake in lane"),
+    _c("held_steps", _INT, "", "control steps that applied the rest of the last plan (no problem solved)"),
+    _c("q2_driven_steps", _INT, "", "control steps driven by Q2"),
+    _c("q1_rescue_steps", _INT, "", "control steps going back where Q2 failed and Q1's plan was applied"),
+    _c("switched_to_q2_at_s", _FLOAT, "s", "when the ego abandoned the overtake (NaN if never)"),
+    _c("went_back_reason", _STR, "", "why it went back: q1_not_solved or table_one_row_<k>; empty if not"),
+    _c("table_one_rows", _STR, "", "JSON counts of the Table I rows met (row -> steps)"),
+    # solver
+    _c("solves", _INT, "", "problems solved (attempted) in the episode"),
+    _c("cold_retries", _INT, "", "failed warm IPOPT starts retried cold"),
+    _c("presumed_infeasible_solves", _INT, "", "fast-path-only solves of a problem IPOPT certified infeasible"),
+    _c("iterations_mean", _FLOAT, "", "mean solver iterations per solve"),
+    _c("iterations_max", _INT, "", "most solver iterations of one solve"),
+    _c("solve_time_mean_s", _FLOAT, "s", "mean wall time per solve (machine-dependent)", wall_clock=True),
+    _c("solve_time_max_s", _FLOAT, "s", "longest wall time of one solve (machine-dependent)", wall_clock=True),
+    _c("solver_statuses", _STR, "", "JSON counts of solve statuses (str of SolveStatus: fallback: and "
+       "presumed_infeasible: mark the route)"),
+    # failures
+    _c(ERROR_COLUMN, _STR, "", "why the episode could not be simulated; null for every simulated episode"),
+)
+
+_BY_NAME: dict[str, Column] = {c.name: c for c in EPISODE_COLUMNS}
+
+#: Column names in file order.
+COLUMN_NAMES: tuple[str, ...] = tuple(_BY_NAME)
+#: The columns that identify an episode (every row has them, error rows included).
+IDENTITY_COLUMNS: tuple[str, ...] = tuple(c.name for c in EPISODE_COLUMNS if c.identity)
+#: Columns that depend on wall-clock time; everything else is reproducible bit for bit.
+TIMING_COLUMNS: tuple[str, ...] = tuple(c.name for c in EPISODE_COLUMNS if c.wall_clock)
+#: Columns finite for every simulated episode; NaN or inf there means the plant state blew up.
+FINITE_COLUMNS: tuple[str, ...] = tuple(c.name for c in EPISODE_COLUMNS if c.finite)
+#: The boolean outcome flags, derived from ``outcome`` (False in an error row).
+OUTCOME_FLAGS: tuple[str, ...] = ("overtook", "went_back", "timeout")
+
+
+def column(name: str) -> Column:
+    """The declared column ``name``; KeyError naming the column if it is not declared."""
+    try:
+        return _BY_NAME[name]
+    except KeyError:
+        raise KeyError(f"{name!r} is not an episode column (mcverify.schema.EPISODE_COLUMNS)") from None
+
+
+def arrow_schema(names: Iterable[str] | None = None) -> pa.Schema:
+    """The Arrow schema of the declared columns (all, or those in the collection ``names``), in
+    file order; a name in ``names`` that is not declared raises KeyError."""
+    if names is None:
+        return pa.schema([pa.field(c.name, c.type) for c in EPISODE_COLUMNS])
+    wanted = set(names)
+    for name in wanted:
+        column(name)
+    return pa.schema([pa.field(c.name, c.type) for c in EPISODE_COLUMNS if c.name in wanted])
+
+
+def markdown_table() -> str:
+    """The README's metric table: one line per column (name, type, unit, definition), file order."""
+    lines = ["| column | type | unit | definition |", "|---|---|---|---|"]
+    for c in EPISODE_COLUMNS:
+        lines.append(f"| `{c.name}` | {c.type} | {c.unit} | {c.definition} |")
+    return "\n".join(lines)
