@@ -28,8 +28,8 @@ from mcverify.errors import RunError
 if TYPE_CHECKING:
     import pyarrow as pa
 
-    from mcverify.run.campaign import Campaign
-    from mcverify.run.replay import ReplayResult
+    from mcverify.campaign.replay import ReplayResult
+    from mcverify.campaign.spec import Campaign
 
 PathLike = str | os.PathLike
 
@@ -81,7 +81,7 @@ def load_campaign(path: PathLike, *, episodes: int | None = None, seed: int | No
                   settings: Sequence[str] = ()) -> Campaign:
     """Read and validate a campaign file (:class:`~mcverify.errors.CampaignError` on bad input);
     ``settings`` are ``SECTION.FIELD=VALUE`` overrides as for ``mcverify run --set``."""
-    from mcverify.run.campaign import load_campaign as _load
+    from mcverify.campaign.spec import load_campaign as _load
 
     return _load(path, episodes=episodes, seed=seed, settings=list(settings))
 
@@ -94,7 +94,7 @@ def run(campaign: Campaign | PathLike, out: PathLike | None = None, *, episodes:
 
     ``out`` is the new run folder; by default a fresh ``results/<name>-<timestamp>`` folder.
     """
-    from mcverify.run import executors, runner
+    from mcverify.campaign import executors, runner
 
     if not hasattr(campaign, "cells"):
         campaign = load_campaign(campaign, episodes=episodes, seed=seed, settings=settings)
@@ -109,7 +109,7 @@ def run(campaign: Campaign | PathLike, out: PathLike | None = None, *, episodes:
 def resume(run_dir: PathLike, *, executor: str = "local", workers: int | None = None,
            address: str | None = None, progress: bool = True) -> Run:
     """Finish an interrupted run: only the chunks that are not done are run."""
-    from mcverify.run import executors, runner
+    from mcverify.campaign import executors, runner
 
     runner.resume(Path(run_dir), executor=executors.make_executor(executor, workers=workers, address=address),
                   progress=progress)
@@ -118,14 +118,14 @@ def resume(run_dir: PathLike, *, executor: str = "local", workers: int | None = 
 
 def replay(run_dir: PathLike, episode_id: int, out_dir: PathLike | None = None) -> ReplayResult:
     """Re-simulate one stored episode; raises ``ReplayMismatch`` if any stored metric differs."""
-    from mcverify.run.replay import replay as _replay
+    from mcverify.campaign.replay import replay as _replay
 
     return _replay(Path(run_dir), episode_id, Path(out_dir) if out_dir is not None else None)
 
 
 def report(run_dir: PathLike, *, level: float = 0.95, method: str = "clopper-pearson") -> Path:
     """Regenerate every report file of a run folder from stored data; returns ``report.md``."""
-    from mcverify.report import run_report
+    from mcverify.reporting import run_report
 
     return run_report.write(Path(run_dir), level=level, method=method)
 
@@ -133,7 +133,7 @@ def report(run_dir: PathLike, *, level: float = 0.95, method: str = "clopper-pea
 def compare(run_a: PathLike, run_b: PathLike, *, level: float = 0.95, test: str = "fisher",
             pairs: Sequence[tuple[str, str]] | None = None) -> Mapping[str, Any]:
     """Per-cell differences between two runs with intervals (paired when they share episode keys)."""
-    from mcverify.report import compare as _compare
+    from mcverify.reporting import compare as _compare
 
     return _compare.compare_runs(_compare.load_run(Path(run_a)), _compare.load_run(Path(run_b)),
                                  level=level, test=test, pairs=list(pairs) if pairs else None)

@@ -1,7 +1,7 @@
 """A cell: one combination of a campaign's grid values, the unit every episode belongs to.
 
 Declared below the run layer because the rollout, the executors, the reports and the benchmarks
-all take one; a campaign file expands into cells (:mod:`mcverify.run.campaign`).
+all take one; a campaign file expands into cells (:mod:`mcverify.campaign.spec`).
 """
 
 from __future__ import annotations

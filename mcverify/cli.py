@@ -143,9 +143,9 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _cmd_run(args) -> int:
-    from mcverify.run import executors, runner
-    from mcverify.run.campaign import load_campaign
-    from mcverify.store import RunError
+    from mcverify.campaign import executors, runner
+    from mcverify.campaign.spec import load_campaign
+    from mcverify.errors import RunError
 
     if args.address is not None and args.executor != "ray":
         raise RunError("--address is for the Ray executor: add --executor ray")
@@ -190,7 +190,7 @@ def _cmd_run(args) -> int:
 
 
 def _cmd_replay(args) -> int:
-    from mcverify.run.replay import ReplayMismatch, replay
+    from mcverify.campaign.replay import ReplayMismatch, replay
 
     try:
         res = replay(args.run_dir, args.episode_id, args.out)
@@ -204,7 +204,7 @@ def _cmd_replay(args) -> int:
 
 
 def _cmd_report(args) -> int:
-    from mcverify.report import run_report
+    from mcverify.reporting import run_report
 
     path = run_report.write(
         args.run_dir, level=args.level, method=args.method, bootstrap_resamples=args.bootstrap_resamples
@@ -214,7 +214,7 @@ def _cmd_report(args) -> int:
 
 
 def _cmd_compare(args) -> int:
-    from mcverify.report import compare
+    from mcverify.reporting import compare
 
     result = compare.compare_runs(
         compare.load_run(args.run_a),
@@ -232,7 +232,7 @@ def _cmd_compare(args) -> int:
 
 def _cmd_bench(args) -> int:
     from mcverify.bench import engine
-    from mcverify.run.campaign import CampaignError
+    from mcverify.campaign.spec import CampaignError
 
     if args.engine_episodes < args.naive_episodes:
         raise CampaignError("--engine-episodes must be at least --naive-episodes (the naive episodes are paired)")
@@ -251,8 +251,8 @@ def _cmd_bench_solver(args) -> int:
     from datetime import datetime
 
     from mcverify.bench import solver_bench, solver_bench_report
-    from mcverify.run import executors
-    from mcverify.run.campaign import CampaignError
+    from mcverify.campaign import executors
+    from mcverify.campaign.spec import CampaignError
 
     if not args.campaign.is_file():
         raise CampaignError(f"campaign file not found: {args.campaign}")

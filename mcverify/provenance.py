@@ -27,12 +27,12 @@ PACKAGE_DIR = Path(__file__).resolve().parent
 #: the run layer (cell expansion, error rows).
 SIMULATION_PARTS = (
     "model.py", "levels.py", "cell.py", "schema.py",
-    "sim", "ocp", "solver", "control", "episode", "run",
+    "sim", "ocp", "solver", "control", "episode", "campaign",
 )
 #: Parts that only read, present or measure stored rows; editing them never refuses a resume.
 PRESENTATION_PARTS = (
     "__init__.py", "api.py", "cli.py", "errors.py", "provenance.py", "store.py",
-    "analysis", "report", "bench",
+    "analysis", "reporting", "bench",
 )
 #: Source files that enter the hash.
 SOURCE_SUFFIXES = (".py", ".c", ".h")

@@ -42,9 +42,7 @@ import pyarrow.parquet as pq
 
 from mcverify import schema
 from mcverify.errors import RunError
-
-# The run manifest's provenance, re-exported for the run layer's callers.
-from mcverify.provenance import code_differences, code_version, environment_info, now_utc  # noqa: F401
+from mcverify.provenance import now_utc
 from mcverify.schema import ERROR_COLUMN, ERROR_OUTCOME
 
 MANIFEST = "manifest.json"

@@ -15,10 +15,10 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from mcverify import schema, store
+from mcverify.campaign import runner
+from mcverify.campaign.spec import campaign_from_dict
 from mcverify.cell import Cell
 from mcverify.episode.row import identity
-from mcverify.run import runner
-from mcverify.run.campaign import campaign_from_dict
 
 #: Probabilities of a synthetic cell: P(unsafe), P(overtook | not error), P(went back), P(error).
 Probs = dict[str, float]

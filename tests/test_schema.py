@@ -12,9 +12,9 @@ import pytest
 
 from mcverify import schema
 from mcverify.analysis import summary
+from mcverify.campaign.spec import campaign_from_dict
 from mcverify.episode.recording import EpisodeRecording
 from mcverify.episode.row import error_row, identity
-from mcverify.run.campaign import campaign_from_dict
 
 README = Path(__file__).resolve().parent.parent / "README.md"
 _ROW = re.compile(r"^\| `(?P<name>[^`]+)` \| (?P<type>[^|]*) \| (?P<unit>[^|]*) \| (?P<definition>.*) \|$")

@@ -9,6 +9,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from mcverify import schema, store
+from mcverify.errors import RunError
 
 
 def rows(cell_index, ids, **extra):
@@ -123,32 +124,32 @@ def test_merge_of_a_clean_run_has_a_typed_error_column(tmp_path: Path):
 def test_merge_names_a_missing_chunk(tmp_path: Path):
     chunks = store.plan_chunks([4], 2)
     store.write_chunk(tmp_path, chunks[0], rows(0, [0, 1]))
-    with pytest.raises(store.RunError, match=r"cell000_ep000002-000003 is missing.*--resume"):
+    with pytest.raises(RunError, match=r"cell000_ep000002-000003 is missing.*--resume"):
         store.merge_chunks(tmp_path, chunks)
     assert not (tmp_path / store.EPISODES).exists()
 
 
 def test_run_folder_messages(tmp_path: Path):
-    with pytest.raises(store.RunError, match="no episodes.parquet"):
+    with pytest.raises(RunError, match="no episodes.parquet"):
         store.read_episodes(tmp_path)
-    with pytest.raises(store.RunError, match="run folder not found"):
+    with pytest.raises(RunError, match="run folder not found"):
         store.read_manifest(tmp_path / "nope")
-    with pytest.raises(store.RunError, match=r"not an mcverify run folder \(no manifest.json\)"):
+    with pytest.raises(RunError, match=r"not an mcverify run folder \(no manifest.json\)"):
         store.read_manifest(tmp_path)
     (tmp_path / "file").write_text("x")
-    with pytest.raises(store.RunError, match="not a run folder"):
+    with pytest.raises(RunError, match="not a run folder"):
         store.read_manifest(tmp_path / "file")
     (tmp_path / store.MANIFEST).write_text("{not json")
-    with pytest.raises(store.RunError, match="not valid JSON"):
+    with pytest.raises(RunError, match="not valid JSON"):
         store.read_manifest(tmp_path)
     (tmp_path / store.MANIFEST).write_text("[1, 2]")
-    with pytest.raises(store.RunError, match="not an mcverify manifest"):
+    with pytest.raises(RunError, match="not an mcverify manifest"):
         store.read_manifest(tmp_path)
 
 
 def test_run_lock_refuses_a_second_holder(tmp_path: Path):
     with store.run_lock(tmp_path):
-        with pytest.raises(store.RunError, match=rf"being run by another mcverify process \(pid {os.getpid()}\)"):
+        with pytest.raises(RunError, match=rf"being run by another mcverify process \(pid {os.getpid()}\)"):
             with store.run_lock(tmp_path):
                 pass
     with store.run_lock(tmp_path):  # released on exit

@@ -22,10 +22,10 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.compute as pc
 
 from mcverify import schema
 from mcverify.analysis import stats
+from mcverify.analysis.columns import Columns, bools, floats, strings
 from mcverify.schema import ERROR_OUTCOME, OUTCOME_FLAGS
 
 #: Version of the summary.json / cells.parquet layout.
@@ -227,7 +227,7 @@ def cell_summary(
     if opposing_kind == "none":
         t = t.drop(OPPOSING_METRICS)
     n_all = t.num_rows
-    outcome = _strings(t, "outcome")
+    outcome = strings(t, "outcome")
     error = outcome == ERROR_OUTCOME
     v = t.take(np.flatnonzero(~error)) if error.any() else t
     n = v.num_rows
@@ -245,7 +245,7 @@ def cell_summary(
         if m.name in v.column_names:
             seed = zlib.crc32(f"{bootstrap_seed}/{name}/{m.name}".encode())
             values[m.name] = value_summary(
-                _floats(v, m.name), level=level, n_resamples=bootstrap_resamples, seed=seed
+                floats(v, m.name), level=level, n_resamples=bootstrap_resamples, seed=seed
             )
 
     return {
@@ -406,7 +406,7 @@ def _theorem_checks(v: Columns) -> dict[str, int]:
     out = {}
     for key, (col, how) in THEOREM_CHECKS.items():
         if col in v.column_names:
-            x = _floats(v, col)
+            x = floats(v, col)
             out[key] = int((x > 0).sum()) if how == "episodes" else int(np.nansum(x))
     return out
 
@@ -414,17 +414,17 @@ def _theorem_checks(v: Columns) -> dict[str, int]:
 def _solver(v: Columns) -> dict[str, Any]:
     if v.num_rows == 0 or "solves" not in v.column_names:
         return {}
-    solves = _floats(v, "solves")
+    solves = floats(v, "solves")
     weights = np.maximum(solves, 1.0)
     out: dict[str, Any] = {"solves": int(solves.sum())}
     if "iterations_mean" in v.column_names:
-        out["iterations_mean"] = float(np.average(_floats(v, "iterations_mean"), weights=weights))
-        out["iterations_max"] = int(np.nanmax(_floats(v, "iterations_max")))
+        out["iterations_mean"] = float(np.average(floats(v, "iterations_mean"), weights=weights))
+        out["iterations_max"] = int(np.nanmax(floats(v, "iterations_max")))
     if "cold_retries" in v.column_names:
-        out["cold_retries"] = int(np.nansum(_floats(v, "cold_retries")))
+        out["cold_retries"] = int(np.nansum(floats(v, "cold_retries")))
     if "solve_time_mean_s" in v.column_names:
-        out["solve_time_mean_s"] = float(np.average(_floats(v, "solve_time_mean_s"), weights=weights))
-        out["solve_time_max_s"] = float(np.nanmax(_floats(v, "solve_time_max_s")))
+        out["solve_time_mean_s"] = float(np.average(floats(v, "solve_time_mean_s"), weights=weights))
+        out["solve_time_max_s"] = float(np.nanmax(floats(v, "solve_time_max_s")))
     if "solver_statuses" in v.column_names:
         out["statuses"] = _json_counts(v["solver_statuses"])
     return out
@@ -455,63 +455,12 @@ def _flags(t: Columns, name: str) -> np.ndarray | None:
         present = [c for c in _COLLISION_COLUMNS if c in t.column_names]
         if not present:
             return None
-        return np.logical_or.reduce([_bools(t, c) for c in present])
+        return np.logical_or.reduce([bools(t, c) for c in present])
     if name in t.column_names:
-        return _bools(t, name)
+        return bools(t, name)
     if name in OUTCOMES and "outcome" in t.column_names:  # the flag columns are derived from outcome
-        return _strings(t, "outcome") == name
+        return strings(t, "outcome") == name
     return None
-
-
-class Columns:
-    """An episode table as numpy columns, converted once: booleans (null = False), numbers as
-    float64 (null = NaN), anything else as an object array. ``take`` selects rows."""
-
-    def __init__(self, data: Mapping[str, np.ndarray], num_rows: int) -> None:
-        self._data = dict(data)
-        self.num_rows = num_rows
-        self.column_names = tuple(self._data)
-
-    @classmethod
-    def from_table(cls, t: pa.Table) -> Columns:
-        data = {}
-        for name in t.column_names:
-            col = t.column(name)
-            if pa.types.is_boolean(col.type):
-                data[name] = np.asarray(pc.fill_null(col, False).to_numpy(zero_copy_only=False), dtype=bool)
-            elif pa.types.is_integer(col.type) or pa.types.is_floating(col.type):
-                data[name] = np.asarray(pc.cast(col, pa.float64()).to_numpy(zero_copy_only=False), dtype=np.float64)
-            else:
-                data[name] = np.asarray(col.to_pylist(), dtype=object)
-        return cls(data, t.num_rows)
-
-    def __getitem__(self, name: str) -> np.ndarray:
-        return self._data[name]
-
-    def drop(self, names: Sequence[str]) -> Columns:
-        return Columns({k: v for k, v in self._data.items() if k not in names}, self.num_rows)
-
-    def take(self, rows: np.ndarray) -> Columns:
-        rows = np.asarray(rows, dtype=np.int64)
-        return Columns({k: v[rows] for k, v in self._data.items()}, int(rows.size))
-
-
-def _bools(t: Columns, name: str) -> np.ndarray:
-    x = t[name]
-    return x if x.dtype == bool else np.array([bool(v) if v is not None else False for v in x], dtype=bool)
-
-
-def _floats(t: Columns, name: str) -> np.ndarray:
-    x = t[name]
-    if x.dtype == np.float64:
-        return x
-    return np.array([math.nan if v is None else float(v) for v in x], dtype=np.float64)
-
-
-def _strings(t: Columns, name: str) -> np.ndarray:
-    if name not in t.column_names:
-        return np.full(t.num_rows, "", dtype=object)
-    return t[name].astype(object)
 
 
 def _first(t: Columns, name: str) -> Any:

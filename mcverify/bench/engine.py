@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import platform
 import resource
 import shlex
@@ -35,12 +36,13 @@ from typing import Any
 import jax
 import numpy as np
 
+from mcverify import provenance
 from mcverify.bench.agreement import agreement
 from mcverify.bench.naive import run_naive
+from mcverify.campaign import executors
+from mcverify.campaign.spec import load_campaign
 from mcverify.cell import Cell
 from mcverify.episode.rollout import PhaseClock, episode_key, run_episodes
-from mcverify.run import executors
-from mcverify.run.campaign import load_campaign
 from mcverify.sim.plant import LaneGroups, initial_plant
 
 DEFAULT_CAMPAIGN = "campaigns/table4.toml"
@@ -123,24 +125,15 @@ def pick_cell(campaign_path: str, cell_name: str, backend: str | None) -> tuple[
     camp = load_campaign(campaign_path)
     cell = camp.cell(cell_name)
     if backend is not None:
-        from mcverify.run.campaign import apply_overrides
+        from mcverify.campaign.spec import apply_overrides
 
         cell = dataclasses.replace(cell, params=apply_overrides(cell.params, {"mpc.backend": backend}, "--backend"))
     return cell, camp.seed, camp.common_random_numbers
 
 
 def machine() -> str:
-    model = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    import os
-
-    return f"{model}, {os.cpu_count()} logical cores, Python {platform.python_version()}"
+    """One line naming the machine for a benchmark row."""
+    return f"{provenance.cpu_model()}, {os.cpu_count()} logical cores, Python {platform.python_version()}"
 
 
 def run(

@@ -28,9 +28,7 @@ import dataclasses
 import math
 import multiprocessing as mp
 import os
-import platform
 import resource
-import subprocess
 import sys
 import time
 from collections import Counter
@@ -42,10 +40,12 @@ from typing import Any
 
 import numpy as np
 
+from mcverify import provenance
 from mcverify.bench.agreement import agreement
+from mcverify.campaign import executors
+from mcverify.campaign.spec import Campaign, load_campaign
 from mcverify.cell import Cell
 from mcverify.model import BACKEND_NAMES, ModelParams
-from mcverify.run.campaign import Campaign, load_campaign
 
 # ------------------------------------------------------------------------------------ helpers
 
@@ -59,30 +59,18 @@ def without_noise(params: ModelParams) -> ModelParams:
 
 
 def machine_info() -> dict[str, Any]:
-    """CPU model and count (from ``lscpu`` where available), Python, CasADi, JAX, load average."""
-    info: dict[str, Any] = {"platform": platform.platform(), "python": platform.python_version()}
+    """The machine of a solver benchmark: CPU, Python, package versions, git commit, load average."""
+    env = provenance.environment_info()
     try:
-        out = subprocess.run(["lscpu"], capture_output=True, text=True, check=False).stdout
-        fields = dict(line.split(":", 1) for line in out.splitlines() if ":" in line)
-        info["cpu_model"] = fields.get("Model name", "").strip()
-        info["cpus"] = fields.get("CPU(s)", "").strip()
+        load = [round(v, 2) for v in os.getloadavg()]
     except OSError:
-        info["cpu_model"], info["cpus"] = platform.processor(), str(os.cpu_count())
-    info["cpus_usable"] = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    try:
-        info["load_average"] = [round(v, 2) for v in os.getloadavg()]
-    except OSError:
-        info["load_average"] = None
-    import casadi
-    import jax
-
-    info["casadi"], info["jax"] = casadi.__version__, jax.__version__
-    try:
-        info["git_commit"] = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                                            check=False, cwd=Path(__file__).resolve().parent).stdout.strip()
-    except OSError:
-        info["git_commit"] = ""
-    return info
+        load = None
+    return {
+        "platform": env["platform"], "python": env["python"], "cpu_model": env["cpu_model"],
+        "cpus": str(env["cpu_count"]), "cpus_usable": executors.default_workers(), "load_average": load,
+        "casadi": env["packages"]["casadi"], "jax": env["packages"]["jax"],
+        "git_commit": provenance.git_commit(short=True) or "",
+    }
 
 
 # --------------------------------------------------------------------------- recorded states

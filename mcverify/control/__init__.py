@@ -1,1 +1,8 @@
-""""""
+"""The control layer: the paper's controller on the host, one control step of one episode.
+
+* :mod:`~mcverify.control.decision`: Algorithm 1 (alg.framework) and the Conditions for Overtaking
+  (Table I, tab.cons_for_overtaking): which problem drives the ego;
+* :mod:`~mcverify.control.planner`: the dual TO-CBF-MPC planner (Q1 overtake, Q2 go back) or the
+  MPC-DC baseline on the compiled solvers, with warm starts, held plans, the infeasibility memo and
+  the fallback brake.
+"""

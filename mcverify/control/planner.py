@@ -245,9 +245,8 @@ class Planner:
         key = (direction, opp is not None)
         guess = None
         if opp is not None and key not in state.warm:
-            # Two-stage cold start: the plain problem (no veh_o, 25-40 IPOPT iterations cold, a few
-            # warm) gives the primal guess; measured on Table IV-like starts this halves the 80-400
-            # iterations of a cold start from the heuristic guess.
+            # Two-stage cold start: the plain problem (no veh_o, cheap cold and warm) gives the primal
+            # guess, far better than the heuristic guess for the problem with veh_o (docs/decisions.md).
             plain = self.plain.solve(ego, front_meas, direction, lambda0, state.warm.get((direction, False)))
             state.record_solve(plain)
             if plain.success:

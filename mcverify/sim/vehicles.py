@@ -11,7 +11,7 @@ differently for a vmapped batch and for a single episode (it depends on the batc
 row's position), so results agree only to the last bit or two. Running with
 ``XLA_FLAGS=--xla_cpu_max_isa=AVX`` (set before JAX's backend starts) removes the contraction and
 makes a batched row bit-identical to the same episode run alone under jit
-(tests/test_vehicles.py::test_vmap_bit_identical_to_single_episode_without_fma).
+(tests/sim/test_vehicles.py::test_vmap_bit_identical_to_single_episode_without_fma).
 """
 
 from __future__ import annotations

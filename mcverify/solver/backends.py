@@ -35,7 +35,7 @@ g - s (s the row's slack, kept strictly above 0 by the barrier) is therefore mul
 (1 - alpha) by a step of length alpha: after the first full step (usually the first or second
 iteration) the returned u_0 satisfies the CBF condition at the sample exactly, with a positive
 margin, whether or not the rest of the plan has converged; and a converged plan satisfies it like
-every other row. Tests: ``tests/test_backends.py``.
+every other row. Tests: ``tests/solver/test_backends.py``.
 """
 
 from __future__ import annotations

@@ -1,10 +1,10 @@
 """Call CasADi-generated C functions directly (ctypes), without CasADi's Python call layer.
 
-Why: a ``casadi.Function`` call from Python costs 80-400 us of argument conversion and DM
-building (measured on the N = 50 kernel: ``nlp_hess_l`` 220 us per Python call for about 10 us of
-compiled work, ``DM.sparse()`` another 400 us), which is more than the whole numerical work of an
-SQP iteration. A :class:`CFunction` binds the generated entry point once, with input and output
-buffers preallocated as numpy arrays, so a call is one ctypes call (a few microseconds).
+Why: a ``casadi.Function`` call from Python costs far more in argument conversion and DM
+building than the compiled work it runs (figures in ``docs/decisions.md``), more than the whole
+numerical work of an interior-point iteration. A :class:`CFunction` binds the generated entry
+point once, with input and output buffers preallocated as numpy arrays, so a call is one ctypes
+call (a few microseconds).
 
 The generated API (CasADi code generation, any version >= 3.5)::
 

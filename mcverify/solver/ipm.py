@@ -2,10 +2,10 @@
 
 The algorithm is IPOPT's primal-dual barrier method with its filter line search and second-order
 corrections (see the C source for what is left out). It runs entirely in C: the banded KKT system
-of :class:`mcverify.solver.kkt.KktStructure` is factorised by a banded LU, and the NLP's functions are
-the kernel's generated C, called through function pointers, so an iteration costs about 0.2-0.3 ms
-where an IPOPT iteration through CasADi costs 1.3-1.8 ms on the same kernel (measured,
-results/BENCHMARKS.md). The C library is compiled once per machine into the kernel cache
+of :class:`mcverify.solver.kkt.KktStructure` is factorised by a banded LU, and the NLP's functions
+are the kernel's generated C, called through function pointers, so an iteration costs several
+times less than an IPOPT iteration through CasADi on the same kernel (results/BENCHMARKS.md). The
+C library is compiled once per machine into the kernel cache
 (:func:`mcverify.solver.kernels.get_runtime_library`).
 
 The ABI (the three structs below, the status codes, the exported functions) is declared in
@@ -70,22 +70,15 @@ class IpmOptions:
 
 #: Warm starts: first the IPOPT reference's own warm-start settings (mu_init 1e-7, pushes 1e-6),
 #: which keep the previous primal-dual point nearly as is; if that fails, once more from a more
-#: central start (mu_init 1e-5, bound push 1e-4); then (in the backend) a cold start. Why two:
-#: a large jump of the measured front vehicle (the paper's +-10% speed noise moves the goal by
-#: metres) leaves the warm point glued to bounds the Newton step must cross, and at mu 1e-7 the
-#: fraction-to-the-boundary rule then allows steps of 1-5%; on 652 warm solves of a noisy Table II
-#: closed loop (v_f = 25 km/h) the first setting alone converged in 85% within 25 iterations.
-#: mu_init 1e-5 from the start converged in 93% but needs 13 iterations in the noise-free loop,
-#: where 1e-7 needs 5; choosing the start by the scaled violation of the warm point (above 1 or 2)
-#: was no better. Replaying the warm solves of that loop with the cold attempt and the IPOPT
-#: fallback behind, mean CPU per solve: 30/30 iterations 3.7 ms, 60/60 4.0 ms, only the first
-#: setting (20, 30, 40 iterations) then cold 4.1-4.7 ms; no solve reached the fallback.
+#: central start (mu_init 1e-5, bound push 1e-4); then (in the backend) a cold start. Why two: a
+#: large jump of the measured front vehicle leaves the warm point glued to bounds the Newton step
+#: must cross, and at mu 1e-7 the fraction-to-the-boundary rule then allows only tiny steps. The
+#: measurements behind the settings: docs/decisions.md.
 WARM_ATTEMPTS: tuple[IpmOptions, ...] = (
     IpmOptions(mu_init=1e-7, bound_push=1e-6, mult_push=1e-6, max_iter=30),
     IpmOptions(mu_init=1e-5, bound_push=1e-4, mult_push=1e-6, max_iter=30),
 )
-#: Cold starts (no multipliers): IPOPT's defaults (mu_init 0.1, bound_push 0.01). On 27 recorded
-#: states: 96% converged, 53 iterations, 14 ms (IPOPT: 100%, 47 iterations, 52 ms).
+#: Cold starts (no multipliers): IPOPT's defaults (mu_init 0.1, bound_push 0.01).
 COLD = IpmOptions(mu_init=0.1, bound_push=1e-2, mult_push=1e-2, max_iter=150)
 
 

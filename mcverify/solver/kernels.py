@@ -45,11 +45,8 @@ from mcverify.errors import KernelBuildError
 from mcverify.ocp.problem import FORMULATION_VERSION, OcpStructure, build_nlp, formulation_digest
 
 COMPILER = "gcc"
-# -O1, measured on the N = 50, m = 2 kernel (1.4 MB of C; gcc 12, x86-64, 2 shared cores): compile
-# -O0 3.1 s, -O1 19.5 s, -O2 20.3 s. In an IPOPT solve the compiled functions take 7.0% of the
-# time at -O0 and 2.8% / 2.5% at -O1 / -O2 (MUMPS and IPOPT's own linear algebra take the rest), so
-# -O1 makes every solve about 4% faster than -O0, which repays its extra 16 s of one-off compile
-# after some 10^5 solves (a few hundred closed-loop episodes); -O2 is no faster than -O1.
+# -O1: as fast per solve as -O2 and compiles in about the same time; -O0 compiles faster but every
+# solve is slower (figures in docs/decisions.md).
 CFLAGS: tuple[str, ...] = ("-O1", "-fPIC", "-shared")
 KERNEL_PREFIX = "tocbf"
 C_FILE, SO_FILE, MANIFEST_FILE = "nlp.c", "nlp.so", "manifest.json"

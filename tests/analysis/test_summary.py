@@ -11,7 +11,7 @@ import pytest
 import synthetic
 
 from mcverify.analysis import stats, summary
-from mcverify.run.campaign import campaign_from_dict
+from mcverify.campaign.spec import campaign_from_dict
 
 
 def _table(**cols) -> pa.Table:
@@ -67,7 +67,7 @@ def test_collision_is_either_vehicle():
 def test_manifest_supplies_labels_and_empty_cells():
     camp = campaign_from_dict({"campaign": {"name": "x", "seed": 1, "episodes": 4},
                                "grid": {"barrier.epsilon": [0.1, 0.3], "noise.scale": [1.0, 2.0]}})
-    from mcverify.run import runner
+    from mcverify.campaign import runner
 
     manifest = runner.manifest_for(camp, 4, {})
     rows = synthetic.episode_rows(camp.cells[0], 1, synthetic.default_probs(camp.cells[0]), opposing=False, crn=False)
@@ -119,7 +119,7 @@ def test_coverage_through_summarise():
 def test_cells_table_is_flat_and_null_for_missing():
     camp = campaign_from_dict({"campaign": {"name": "x", "seed": 1, "episodes": 5},
                                "grid": {"barrier.epsilon": [0.1, 0.3]}})
-    from mcverify.run import runner
+    from mcverify.campaign import runner
 
     rows = []
     for cell in camp.cells:

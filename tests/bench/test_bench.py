@@ -60,7 +60,7 @@ def test_markdown_rows_go_into_the_bench_table(tmp_path):
 
 
 def _short_cell():
-    from mcverify.run.campaign import campaign_from_dict
+    from mcverify.campaign.spec import campaign_from_dict
 
     raw = {"campaign": {"name": "phases", "seed": 3, "episodes": 2},
            "model": {"sim": {"max_time_s": 0.2}, "noise": {"kind": "paper"}}}

@@ -28,7 +28,7 @@ def test_opti_and_the_compiled_kernel_solve_the_same_problem(direction):
 
 
 def test_naive_loop_runs_the_same_controller():
-    from mcverify.run.campaign import campaign_from_dict
+    from mcverify.campaign.spec import campaign_from_dict
 
     camp = campaign_from_dict({"campaign": {"name": "t", "seed": 1, "episodes": 1},
                                "model": {"sim": {"control_period_s": 0.1, "substeps": 20, "max_time_s": 1.0}}})

@@ -7,8 +7,8 @@ import jax
 import jax.monitoring as monitoring
 
 from mcverify.bench.solver_bench import stub_planner
+from mcverify.campaign.spec import campaign_from_dict
 from mcverify.episode.rollout import run_episodes
-from mcverify.run.campaign import campaign_from_dict
 from mcverify.sim import plant
 
 COMPILE_EVENT = "/jax/core/compile/backend_compile_duration"

@@ -10,9 +10,9 @@ import jax
 import numpy as np
 import pytest
 
+from mcverify.campaign import executors
+from mcverify.campaign.spec import campaign_from_dict, load_campaign
 from mcverify.episode.rollout import episode_key, run_episodes, sample_scenario
-from mcverify.run import executors
-from mcverify.run.campaign import campaign_from_dict, load_campaign
 from mcverify.schema import COLUMN_NAMES, ERROR_COLUMN, TIMING_COLUMNS
 
 FAST_SIM = {"control_period_s": 0.1, "substeps": 20}

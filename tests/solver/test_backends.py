@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from test_solver import bicycle_step
 
+from mcverify.campaign import spec as campaign
 from mcverify.model import BACKEND_NAMES, ModelParams
 from mcverify.ocp import NlpLayout, OcpStructure, constraint_bounds, pack_params
-from mcverify.run import campaign
 from mcverify.solver import backends
 from mcverify.solver.cfun import CFunction
 from mcverify.solver.ipm import WARM_ATTEMPTS, IpmResult, with_options

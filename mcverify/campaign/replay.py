@@ -1,0 +1,101 @@
+"""Replay one stored episode: re-simulate it alone, check its metrics, write its trajectory and a plot."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from mcverify import store
+from mcverify.campaign import executors
+from mcverify.campaign.runner import campaign_from_manifest
+from mcverify.episode.recording import PLANS_SUFFIX
+from mcverify.episode.rollout import run_episodes
+from mcverify.errors import RunError
+from mcverify.schema import ERROR_COLUMN, ERROR_OUTCOME, TIMING_COLUMNS
+
+
+class ReplayMismatch(RuntimeError):
+    """The re-simulated episode's metrics differ from the stored row."""
+
+
+@dataclass(frozen=True)
+class ReplayResult:
+    episode_id: int
+    trajectory_path: Path
+    plot_path: Path
+    row: dict
+
+
+def replay(run_dir: Path, episode_id: int, out_dir: Path | None = None) -> ReplayResult:
+    run_dir = Path(run_dir)
+    manifest = store.read_json(run_dir / store.MANIFEST)
+    table = store.read_episodes(run_dir)
+    ids = table.column("episode_id").to_pylist()
+    if episode_id not in ids:
+        raise RunError(
+            f"{run_dir}: no episode {episode_id}; episode ids run from {min(ids)} to {max(ids)}"
+        )
+    stored = table.slice(ids.index(episode_id), 1).to_pylist()[0]
+    campaign = campaign_from_manifest(manifest)
+    cell = campaign.cells[stored["cell_index"]]
+    local = stored["cell_episode"]
+    try:
+        result = run_episodes(
+            cell,
+            [local],
+            campaign.seed,
+            executors.solver_for(cell.params),
+            common_random_numbers=campaign.common_random_numbers,
+            record=True,
+        )
+    except Exception as exc:  # noqa: BLE001 - the stored error row says what to expect
+        if stored.get("outcome") != ERROR_OUTCOME:
+            raise
+        raise RunError(
+            f"{run_dir}: episode {episode_id} ended in an error in the run "
+            f"({stored.get(ERROR_COLUMN)}); the replay fails again: {type(exc).__name__}: {exc}"
+        ) from exc
+    row = result.rows[0]
+    diffs = compare_rows(stored, row)
+    out_dir = Path(out_dir) if out_dir else run_dir / "replay"
+    out_dir.mkdir(parents=True, exist_ok=True)
+    recording = result.recordings[local]
+    traj = recording.trajectory
+    traj_path = out_dir / f"episode-{episode_id:06d}.parquet"
+    pq.write_table(pa.table(dict(traj)), traj_path)
+    if recording.plans:  # unlike a run folder, no empty plans file
+        pq.write_table(pa.table(dict(recording.plans)), out_dir / f"episode-{episode_id:06d}{PLANS_SUFFIX}.parquet")
+    plot_path = out_dir / f"episode-{episode_id:06d}.png"
+    from mcverify.reporting import episode_plot
+
+    episode_plot.episode_figure(traj, cell, row, plot_path)
+    if diffs:
+        detail = "; ".join(f"{k}: stored {a!r} vs replayed {b!r}" for k, (a, b) in diffs.items())
+        raise ReplayMismatch(f"episode {episode_id} does not reproduce: {detail}")
+    return ReplayResult(episode_id, traj_path, plot_path, row)
+
+
+def compare_rows(stored: dict, replayed: dict) -> dict[str, tuple]:
+    """Columns whose values differ (bit for bit; NaN equals NaN); timing columns are skipped."""
+    diffs = {}
+    for key, value in replayed.items():
+        if key in TIMING_COLUMNS:
+            continue
+        old = stored.get(key)
+        if not _same(old, value):
+            diffs[key] = (old, value)
+    return diffs
+
+
+def _same(a, b) -> bool:
+    if isinstance(a, float) or isinstance(b, float):
+        if a is None or b is None:
+            return False
+        fa, fb = float(a), float(b)
+        return (math.isnan(fa) and math.isnan(fb)) or np.float64(fa).tobytes() == np.float64(fb).tobytes()
+    return a == b

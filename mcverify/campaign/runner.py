@@ -1,0 +1,333 @@
+"""Run a campaign into a run folder, or finish an interrupted one: plan chunks, execute them,
+merge, summarise, run_report.
+
+Finished chunks are written (atomically) and recorded in the ledger as they complete, so a killed
+run loses at most the chunks in flight. ``resume`` re-plans the chunks from the manifest, runs only
+those that are not done (see :func:`mcverify.store.verify_chunk`), and refuses a folder whose
+campaign or simulation code differs from what the manifest recorded, since the finished chunks
+would then not be the episodes this code would produce.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from collections.abc import Callable
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+from tqdm.auto import tqdm
+
+from mcverify import provenance, store
+from mcverify.campaign import executors
+from mcverify.campaign.executors import ChunkOutput, EpisodeFn, Executor
+from mcverify.campaign.spec import Campaign, CampaignError, campaign_from_dict
+from mcverify.episode.recording import EpisodeRecording
+from mcverify.errors import RunError
+from mcverify.reporting import run_report
+
+#: Episodes per chunk when the command line does not say.
+DEFAULT_CHUNK_SIZE = 8
+
+
+def default_run_dir(campaign: Campaign, results_dir: Path = Path("results")) -> Path:
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    return results_dir / f"{campaign.name}-{stamp}"
+
+
+# ---------------------------------------------------------------------------------- manifest
+
+
+def campaign_record(campaign: Campaign) -> dict[str, Any]:
+    """What defines a campaign's episodes, as JSON data: name, seed, counts, paired draws, and every
+    cell's name, labels, episode range, level and parameters. Two campaigns with the same record
+    produce the same episodes (with the same code)."""
+    record = {
+        "name": campaign.name,
+        "seed": campaign.seed,
+        "episodes_per_cell": campaign.episodes_per_cell,
+        "common_random_numbers": campaign.common_random_numbers,
+        "cells": [
+            {
+                "index": c.index,
+                "name": c.name,
+                "labels": c.labels,
+                "controller": c.controller,
+                "overrides": c.overrides,
+                "episodes": c.episodes,
+                "episode_offset": c.episode_offset,
+                "epsilon": c.epsilon,
+                "lambda0": c.lambda0,
+                "params": dataclasses.asdict(c.params),
+            }
+            for c in campaign.cells
+        ],
+    }
+    return json.loads(json.dumps(record, default=store.json_default))
+
+
+def manifest_for(campaign: Campaign, chunk_size: int, kernels: dict[str, str]) -> dict[str, Any]:
+    record = campaign_record(campaign)
+    chunks = store.plan_chunks([c.episodes for c in campaign.cells], chunk_size)
+    return {
+        "format": store.FORMAT,
+        "campaign": {
+            "name": campaign.name,
+            "description": campaign.description,
+            "source": campaign.source,
+            "seed": campaign.seed,
+            "episodes_per_cell": campaign.episodes_per_cell,
+            "common_random_numbers": campaign.common_random_numbers,
+            "grid": campaign.grid,
+            "axes": campaign.axes,
+            "reference": campaign.reference,
+            "raw": campaign.raw,
+        },
+        "cells": record["cells"],
+        "chunk_size": chunk_size,
+        "chunks": {"dir": store.CHUNK_DIR, "ledger": store.LEDGER, "planned": len(chunks), "size": chunk_size},
+        "kernels": kernels,
+        "code": provenance.code_version(),
+        "environment": provenance.environment_info(),
+        "sessions": [],
+    }
+
+
+def campaign_from_manifest(manifest: dict[str, Any]) -> Campaign:
+    """Rebuild the exact campaign a run used (the file's content plus the command line's overrides).
+
+    The manifest keeps the file's content and the resolved seed and per-cell episode counts; a
+    ``--episodes`` override (which replaces every bundle's own count) is recognised by the counts:
+    the campaign is rebuilt without it first and with it if the counts then differ.
+    """
+    camp = manifest["campaign"]
+    recorded = [c["episodes"] for c in manifest.get("cells", [])]
+    last_error: CampaignError | None = None
+    for episodes in (None, camp["episodes_per_cell"]):
+        try:
+            campaign = campaign_from_dict(camp["raw"], source=camp["source"], episodes=episodes, seed=camp["seed"])
+        except CampaignError as err:
+            last_error = err
+            continue
+        if [c.episodes for c in campaign.cells] == recorded or episodes is not None:
+            return campaign
+    assert last_error is not None
+    raise last_error
+
+
+def first_difference(a: Any, b: Any, path: str = "") -> str | None:
+    """The first place where two JSON values differ, as ``path: a -> b``; None if equal."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        for key in list(a) + [k for k in b if k not in a]:
+            diff = first_difference(a.get(key), b.get(key), f"{path}.{key}" if path else str(key))
+            if diff:
+                return diff
+        return None
+    if isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            diff = first_difference(x, y, f"{path}[{i}]")
+            if diff:
+                return diff
+        return None
+    if a != b:
+        show = lambda v: json.dumps(v)[:60]  # noqa: E731
+        return f"{path or 'campaign'}: {show(a)} -> {show(b)}"
+    return None
+
+
+# ---------------------------------------------------------------------------------- run/resume
+
+
+def run(
+    campaign: Campaign,
+    run_dir: Path,
+    *,
+    executor: Executor | None = None,
+    chunk_size: int = DEFAULT_CHUNK_SIZE,
+    progress: bool = True,
+    episode_fn: EpisodeFn = executors.simulate,
+    record_first: bool = True,
+    on_chunk: Callable[[store.ChunkRecord], None] | None = None,
+    on_start: Callable[[int, int], None] | None = None,
+) -> Path:
+    """Run ``campaign`` into a new folder ``run_dir``; returns the report path.
+
+    executor: default a :class:`~mcverify.campaign.executors.LocalExecutor` on all cores; episode_fn: the
+    episode simulation (tests inject cheap ones); record_first: write the trajectory of every
+    cell's first episode to ``trajectories/``; on_chunk: called with each ledger record, after the
+    chunk is safely on disk; on_start: called with (chunks planned, chunks already done) once every
+    check has passed and the executor is up, just before the first chunk runs.
+    """
+    run_dir = Path(run_dir)
+    if chunk_size < 1:
+        raise RunError(f"chunk size must be >= 1, got {chunk_size}")
+    if (run_dir / store.MANIFEST).exists():
+        raise RunError(f"{run_dir} already holds a run; choose another --out or use --resume {run_dir}")
+    if run_dir.exists() and (not run_dir.is_dir() or any(p.name != store.LOCK for p in run_dir.iterdir())):
+        raise RunError(f"{run_dir} exists and is not an empty folder; choose another --out")
+    executor = executor or executors.LocalExecutor()
+    with executor:  # a Ray cluster is reached before anything is written
+        kernels = _prepare_kernels(campaign, episode_fn)
+        run_dir.mkdir(parents=True, exist_ok=True)
+        with store.run_lock(run_dir):
+            manifest = manifest_for(campaign, chunk_size, kernels)
+            manifest["sessions"].append(_session(executor, resumed=False))
+            store.write_json_atomic(run_dir / store.MANIFEST, manifest)
+            return _execute(
+                campaign, run_dir, chunk_size, executor, progress, episode_fn, record_first, on_chunk, on_start
+            )
+
+
+def resume(
+    run_dir: Path,
+    *,
+    executor: Executor | None = None,
+    progress: bool = True,
+    campaign: Campaign | None = None,
+    chunk_size: int | None = None,
+    episode_fn: EpisodeFn = executors.simulate,
+    record_first: bool = True,
+    on_chunk: Callable[[store.ChunkRecord], None] | None = None,
+    on_start: Callable[[int, int], None] | None = None,
+) -> Path:
+    """Finish an interrupted run in ``run_dir``: only chunks that are not done are run.
+
+    campaign / chunk_size: if given, they must match the run's (a check, not a change).
+    Refuses (:class:`~mcverify.RunError`, one line) a folder that is not a run, a finished
+    run, another manifest format, other simulation code or package versions, and a campaign that
+    no longer expands to the recorded cells.
+    """
+    run_dir = Path(run_dir)
+    manifest = store.read_manifest(run_dir)
+    if manifest.get("format") != store.FORMAT:
+        raise RunError(
+            f"cannot resume {run_dir}: its manifest has format {manifest.get('format')!r}, this mcverify "
+            f"writes format {store.FORMAT}; start a new run"
+        )
+    if manifest.get("finished_utc"):
+        total = sum(c["episodes"] for c in manifest["cells"])
+        raise RunError(
+            f"{run_dir} is already finished ({total} episodes); nothing to resume "
+            f"(`mcverify report {run_dir}` rebuilds its report)"
+        )
+    diffs = provenance.code_differences(manifest.get("code", {}), provenance.code_version())
+    if diffs:
+        commit = manifest.get("environment", {}).get("git_commit") or "unknown"
+        raise RunError(
+            f"cannot resume {run_dir}: it was started with other code ({'; '.join(diffs)}); "
+            f"finish it with the code it started with (git {commit}) or start a new run"
+        )
+    try:
+        rebuilt = campaign_from_manifest(manifest)
+    except CampaignError as err:
+        raise RunError(f"cannot resume {run_dir}: its campaign no longer loads: {err}") from None
+    recorded = {k: manifest["campaign"][k] for k in ("name", "seed", "episodes_per_cell", "common_random_numbers")}
+    recorded["cells"] = manifest["cells"]
+    diff = first_difference(recorded, campaign_record(rebuilt))
+    if diff:
+        raise RunError(f"cannot resume {run_dir}: its campaign expands differently with this code ({diff})")
+    if campaign is not None:
+        diff = first_difference(recorded, campaign_record(campaign))
+        if diff:
+            raise RunError(
+                f"cannot resume {run_dir} with {campaign.source}: the campaign differs from the run's ({diff})"
+            )
+    planned = int(manifest["chunk_size"])
+    if chunk_size is not None and chunk_size != planned:
+        raise RunError(
+            f"cannot resume {run_dir} with chunk size {chunk_size}: it was planned with {planned} "
+            "(leave --chunk-size out)"
+        )
+    executor = executor or executors.LocalExecutor()
+    with executor:
+        kernels = _prepare_kernels(rebuilt, episode_fn)
+        if episode_fn is executors.simulate and kernels != manifest.get("kernels"):
+            raise RunError(f"cannot resume {run_dir}: the solver kernels differ from the run's (compiler or CasADi)")
+        with store.run_lock(run_dir):
+            manifest["sessions"] = [*manifest.get("sessions", []), _session(executor, resumed=True)]
+            store.write_json_atomic(run_dir / store.MANIFEST, manifest)
+            return _execute(
+                rebuilt, run_dir, planned, executor, progress, episode_fn, record_first, on_chunk, on_start
+            )
+
+
+def _execute(
+    campaign: Campaign,
+    run_dir: Path,
+    chunk_size: int,
+    executor: Executor,
+    progress: bool,
+    episode_fn: EpisodeFn,
+    record_first: bool,
+    on_chunk: Callable[[store.ChunkRecord], None] | None,
+    on_start: Callable[[int, int], None] | None = None,
+) -> Path:
+    chunks = store.plan_chunks([c.episodes for c in campaign.cells], chunk_size)
+    done = store.done_chunks(run_dir, chunks)
+    todo = [c for c in chunks if c.name not in done]
+    if on_start is not None:
+        on_start(len(chunks), len(done))
+    done_episodes = sum(len(c.episode_ids) for c in chunks if c.name in done)
+    record = [(c.index, 0) for c in campaign.cells if c.episodes > 0] if record_first else []
+    bar = tqdm(
+        total=campaign.total_episodes,
+        initial=done_episodes,
+        unit="ep",
+        desc=campaign.name,
+        disable=not progress,
+        dynamic_ncols=True,
+    )
+    errors = 0
+
+    def on_done(chunk: store.Chunk, output: ChunkOutput) -> None:
+        nonlocal errors
+        cell = campaign.cells[chunk.cell_index]
+        # Recordings first: a chunk in the ledger implies its trajectories are on disk.
+        for episode, recording in output.recordings.items():
+            _write_recording(run_dir, cell.episode_offset + int(episode), recording)
+        rec = store.write_chunk(run_dir, chunk, output.rows, attempts=output.attempts)
+        store.append_record(run_dir, rec)
+        errors += rec.errors
+        bar.update(rec.rows)
+        unsafe = sum(r.get("safe") is False for r in output.rows)
+        if unsafe or errors:
+            bar.set_postfix_str(f"unsafe in last chunk: {unsafe}, error episodes: {errors}")
+        if on_chunk is not None:
+            on_chunk(rec)
+
+    with bar:
+        executors.execute(campaign, todo, on_done, executor=executor, episode_fn=episode_fn, record=record)
+    store.merge_chunks(run_dir, chunks)
+    path = run_report.write(run_dir)
+    manifest = store.read_json(run_dir / store.MANIFEST)
+    manifest["finished_utc"] = provenance.now_utc()
+    store.write_json_atomic(run_dir / store.MANIFEST, manifest)
+    return path
+
+
+def _write_recording(run_dir: Path, episode_id: int, recording: EpisodeRecording) -> None:
+    """One episode's recording: ``trajectories/episode-NNNNNN.parquet`` and, when plans were
+    recorded, ``episode-NNNNNN-plans.parquet``."""
+    for suffix, columns in recording.to_columns().items():
+        store.write_trajectory(run_dir, episode_id, columns, suffix=suffix)
+
+
+def _prepare_kernels(campaign: Campaign, episode_fn: EpisodeFn) -> dict[str, str]:
+    """Build (or load) every cell's kernel here, once, before any worker starts: workers then only
+    load the cached shared object and never race to compile it. Cell name -> kernel hash."""
+    if episode_fn is not executors.simulate:
+        return {}
+    return {c.name: executors.solver_for(c.params).kernel_hash for c in campaign.cells}
+
+
+def _session(executor: Executor, *, resumed: bool) -> dict[str, Any]:
+    return {"started_utc": provenance.now_utc(), "resumed": resumed, **executor.describe()}
+
+
+def describe(campaign: Campaign) -> str:
+    lines = [f"{campaign.name}: {len(campaign.cells)} cells, {campaign.total_episodes} episodes"]
+    for c in campaign.cells:
+        lines.append(f"  [{c.index}] {c.name}  episodes={c.episodes} eps={c.epsilon:.3g} lambda0={c.lambda0:.4g}")
+    return "\n".join(lines)
+

@@ -1,0 +1,204 @@
+"""Which work runs next, retries, splitting of failed chunks, and the executor interface.
+
+:func:`execute` runs a campaign's chunks on an :class:`Executor` and hands each finished chunk to
+the caller as soon as it is complete. Failures never stop a campaign. An exception escaping a
+chunk, or a worker that dies, is retried (``max_attempts`` runs in all); if the chunk still fails
+its episodes are run one by one (with the same retries), so a failing episode cannot take its
+chunk-mates with it and the result does not depend on the chunk size; an episode that still fails
+becomes a row with ``outcome = "error"`` and its ``error_message``.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections import deque
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from mcverify import provenance
+from mcverify.campaign.spec import Campaign
+from mcverify.campaign.work import EpisodeFn, ExecutorError, Outcome, Work, run_work, simulate
+from mcverify.episode.recording import EpisodeRecording
+from mcverify.episode.row import Row, error_row
+from mcverify.schema import ERROR_OUTCOME
+from mcverify.store import Chunk
+
+#: Runs of one task (a chunk, or one episode of a split chunk) before it counts as failed.
+MAX_ATTEMPTS = 2
+
+
+@dataclass(frozen=True)
+class ChunkOutput:
+    """A finished chunk: its rows sorted by cell-local episode id, the recordings of its recorded
+    episodes (by cell-local id), and how many runs (chunk or single-episode) it took."""
+
+    rows: list[Row]
+    recordings: dict[int, EpisodeRecording]
+    attempts: int
+
+    @property
+    def errors(self) -> int:
+        return sum(r.get("outcome") == ERROR_OUTCOME for r in self.rows)
+
+
+@dataclass
+class _Task:
+    chunk: Chunk
+    episode_ids: tuple[int, ...]
+    attempt: int = 1
+
+
+class _Scheduler:
+    """Which task runs next, retries, splitting of failed chunks, and assembly of chunk results."""
+
+    def __init__(self, campaign: Campaign, chunks: Sequence[Chunk], max_attempts: int) -> None:
+        self.campaign = campaign
+        self.max_attempts = max_attempts
+        self.queue: deque[_Task] = deque(_Task(c, c.episode_ids) for c in chunks)
+        self.runs: dict[str, int] = {}
+        self.partial: dict[str, dict[int, Row]] = {}  # split chunks: cell-local id -> row
+        self.partial_recordings: dict[str, dict[int, EpisodeRecording]] = {}
+
+    def next(self) -> _Task | None:
+        return self.queue.popleft() if self.queue else None
+
+    def finish(self, task: _Task, outcome: Outcome) -> list[tuple[Chunk, ChunkOutput]]:
+        chunk = task.chunk
+        self.runs[chunk.name] = self.runs.get(chunk.name, 0) + 1
+        whole = task.episode_ids == chunk.episode_ids
+        if outcome.error is None:
+            rows = outcome.rows or []
+            if whole:
+                return [self._output(chunk, rows, outcome.recordings)]
+            return self._collect(chunk, rows, outcome.recordings)
+        if task.attempt < self.max_attempts:
+            self.queue.appendleft(_Task(chunk, task.episode_ids, task.attempt + 1))
+            return []
+        if len(task.episode_ids) > 1:
+            # Run the episodes one by one: a deterministic failure then costs only its own episode,
+            # so the rows do not depend on which episodes happened to share its chunk.
+            self.partial.setdefault(chunk.name, {})
+            self.queue.extendleft(_Task(chunk, (e,)) for e in reversed(task.episode_ids))
+            return []
+        cell = self.campaign.cells[chunk.cell_index]
+        row = error_row(cell, self.campaign.seed, task.episode_ids[0], outcome.error or "unknown failure")
+        if whole:
+            return [self._output(chunk, [row], {})]
+        return self._collect(chunk, [row], {})
+
+    def _collect(self, chunk: Chunk, rows: list[Row], recordings: dict[int, EpisodeRecording]):
+        got = self.partial.setdefault(chunk.name, {})
+        for r in rows:
+            got[int(r["cell_episode"])] = r
+        self.partial_recordings.setdefault(chunk.name, {}).update(recordings)
+        if len(got) < len(chunk.episode_ids):
+            return []
+        rows = [got[e] for e in chunk.episode_ids]
+        del self.partial[chunk.name]
+        return [self._output(chunk, rows, self.partial_recordings.pop(chunk.name, {}))]
+
+    def _output(self, chunk: Chunk, rows: list[Row], recordings: dict[int, EpisodeRecording]):
+        rows = sorted(rows, key=lambda r: int(r["cell_episode"]))
+        return chunk, ChunkOutput(rows, dict(recordings), self.runs.pop(chunk.name, 1))
+
+
+def execute(
+    campaign: Campaign,
+    chunks: Sequence[Chunk],
+    on_done: Callable[[Chunk, ChunkOutput], None],
+    *,
+    executor: Executor | None = None,
+    episode_fn: EpisodeFn = simulate,
+    record: Iterable[tuple[int, int]] = (),
+    max_attempts: int = MAX_ATTEMPTS,
+) -> None:
+    """Run ``chunks`` on ``executor`` (default: in this process) and hand each finished one to
+    ``on_done`` in this process, as soon as it is complete (results are streamed, never gathered).
+
+    The caller enters and leaves ``executor`` (``with executor: execute(...)``), so that a Ray
+    cluster is reached before anything is written. record: (cell_index, cell-local episode id)
+    pairs whose recordings are returned.
+    """
+    if max_attempts < 1:
+        raise ValueError(f"max_attempts must be >= 1, got {max_attempts}")
+    executor = executor or SerialExecutor()
+    wanted: dict[int, set[int]] = {}
+    for cell_index, episode in record:
+        wanted.setdefault(cell_index, set()).add(episode)
+    scheduler = _Scheduler(campaign, chunks, max_attempts)
+    driver_code = provenance.code_version()
+    inflight: dict[Any, _Task] = {}
+    while True:
+        while len(inflight) < executor.capacity:
+            task = scheduler.next()
+            if task is None:
+                break
+            rec = tuple(sorted(wanted.get(task.chunk.cell_index, set()) & set(task.episode_ids)))
+            work = Work(
+                campaign.cells[task.chunk.cell_index], task.episode_ids, campaign.seed,
+                campaign.common_random_numbers, rec, episode_fn,
+            )
+            inflight[executor.submit(work)] = task
+        if not inflight:
+            break
+        handle, outcome = executor.wait()
+        task = inflight.pop(handle)
+        if outcome.code is not None and outcome.code != driver_code:
+            diff = "; ".join(provenance.code_differences(outcome.code, driver_code))
+            raise ExecutorError(
+                f"worker {outcome.worker} runs other code than this process ({diff}); "
+                "install the same mcverify and packages on every node"
+            )
+        for chunk, output in scheduler.finish(task, outcome):
+            on_done(chunk, output)
+
+
+# ---------------------------------------------------------------------------------- executors
+
+
+class Executor(ABC):
+    """Runs :class:`Work` units; ``capacity`` of them at a time. Use as a context manager."""
+
+    kind: str = "?"
+    capacity: int = 1
+
+    def __enter__(self) -> Executor:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close(failed=exc[0] is not None)
+
+    def close(self, failed: bool = False) -> None:  # noqa: B027 - optional hook
+        """Release workers (``failed``: the run is aborting; do not wait for them)."""
+
+    @abstractmethod
+    def submit(self, work: Work) -> Any:
+        """Start ``work``; returns a handle that :meth:`wait` will return with its outcome."""
+
+    @abstractmethod
+    def wait(self) -> tuple[Any, Outcome]:
+        """Block until one submitted unit is finished; its handle and outcome."""
+
+    def describe(self) -> dict[str, Any]:
+        return {"executor": self.kind, "capacity": self.capacity}
+
+
+class SerialExecutor(Executor):
+    """In this process, one unit at a time (no crash isolation: for tests and debugging)."""
+
+    kind = "serial"
+    capacity = 1
+
+    def __init__(self) -> None:
+        self._pending: deque[tuple[int, Work]] = deque()
+        self._next = 0
+
+    def submit(self, work: Work) -> int:
+        self._next += 1
+        self._pending.append((self._next, work))
+        return self._next
+
+    def wait(self) -> tuple[int, Outcome]:
+        handle, work = self._pending.popleft()
+        return handle, run_work(work)

@@ -1,0 +1,206 @@
+"""Validation of a cell's model parameters: every value a campaign may set, checked at load.
+
+Each problem becomes a :class:`~mcverify.errors.CampaignError` whose one line names the file, the
+field and what is wrong; nothing is simulated with a parameter set that fails here.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+from mcverify import levels
+from mcverify.errors import CampaignError
+from mcverify.model import BACKEND_NAMES, ModelParams
+
+CONTROLLERS = ("vlcbf", "mpcdc")
+OPPOSING_KINDS = ("none", "autonomous", "human")
+#: Bounds that keep one episode computable (the kernel's size grows with the horizon; an episode
+#: runs max_time_s / control_period_s steps of ``substeps`` RK4 sub-steps each).
+MAX_HORIZON = 500
+MAX_SUBSTEPS = 1000
+MAX_CONTROL_STEPS = 1_000_000
+
+
+def validate_params(p: ModelParams, where: str) -> None:
+    """Reject impossible parameter combinations with a message naming the field."""
+
+    def bad(key: str, why: str) -> CampaignError:
+        return CampaignError(f"{where}: {key}: {why}")
+
+    # NaN and inf slip through the comparisons below: refuse them first (inf only where the model's
+    # own default is inf, meaning "no limit", e.g. scenario.front_accel_duration_s).
+    for sec in dataclasses.fields(p):
+        section = getattr(p, sec.name)
+        for f in dataclasses.fields(section):
+            v = getattr(section, f.name)
+            default = getattr(type(section)(), f.name)
+            unbounded = isinstance(default, float) and math.isinf(default)
+            for x in v if isinstance(v, tuple) else (v,):
+                if isinstance(x, float) and not math.isfinite(x) and not (unbounded and x == default):
+                    raise bad(f"{sec.name}.{f.name}", f"must be finite, got {_short(v)}")
+    e, b, m, n, s, sc = p.ego, p.barrier, p.mpc, p.noise, p.sim, p.scenario
+    positive = {
+        "geometry.length_m": p.geometry.length_m,
+        "geometry.width_m": p.geometry.width_m,
+        "road.lane_width_m": p.road.lane_width_m,
+        "ego.accel_max_mps2": e.accel_max_mps2,
+        "ego.slip_max_rad": e.slip_max_rad,
+        "ego.speed_max_mps": e.speed_max_mps,
+        "ego.heading_max_rad": e.heading_max_rad,
+        "ego.l_r_m": e.l_r_m,
+        "barrier.ellipse_a_m": b.ellipse_a_m,
+        "barrier.ellipse_b_m": b.ellipse_b_m,
+        "mpc.dt_max_s": m.dt_max_s,
+        "mpc.dt_min_s": m.dt_min_s,
+        "mpc.eps_y_m": m.eps_y_m,
+        "mpc.tol": m.tol,
+        "sim.control_period_s": s.control_period_s,
+        "sim.max_time_s": s.max_time_s,
+    }
+    for key, v in positive.items():
+        if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
+            raise bad(key, f"must be a finite number > 0, got {_short(v)}")
+    nonneg = {
+        "mpc.phi_s": m.phi_s,
+        "mpc.smooth_weight": m.smooth_weight,
+        "noise.pos_far_m": n.pos_far_m,
+        "noise.pos_near_m": n.pos_near_m,
+        "noise.near_threshold_m": n.near_threshold_m,
+        "noise.speed_rel": n.speed_rel,
+        "noise.scale": n.scale,
+        "scenario.ego_speed_mps": sc.ego_speed_mps,
+        "scenario.front_speed_mps": sc.front_speed_mps,
+        "scenario.front_accel_onset_s": sc.front_accel_onset_s,
+        "scenario.front_accel_duration_s": 0.0 if sc.front_accel_duration_s == math.inf else sc.front_accel_duration_s,
+        "scenario.front_speed_max_mps": sc.front_speed_max_mps,
+        "ego.speed_min_mps": e.speed_min_mps,
+    }
+    for key, v in nonneg.items():
+        if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
+            raise bad(key, f"must be a finite number >= 0, got {_short(v)}")
+    if e.accel_min_mps2 >= 0:
+        raise bad("ego.accel_min_mps2", f"must be < 0 (braking), got {e.accel_min_mps2}")
+    if e.y_min_m >= e.y_max_m:
+        raise bad("ego.y_min_m", f"must be below ego.y_max_m ({e.y_max_m}), got {e.y_min_m}")
+    if m.dt_min_s >= m.dt_max_s:
+        raise bad("mpc.dt_min_s", f"must be below mpc.dt_max_s ({m.dt_max_s}), got {m.dt_min_s}")
+    if not 2 <= m.horizon <= MAX_HORIZON:
+        raise bad("mpc.horizon", f"must be >= 2 and <= {MAX_HORIZON} (the paper's N is 50), got {m.horizon}")
+    if m.max_iter < 1:
+        raise bad("mpc.max_iter", f"must be >= 1, got {m.max_iter}")
+    if m.max_iter_cold < 1:
+        raise bad("mpc.max_iter_cold", f"must be >= 1, got {m.max_iter_cold}")
+    if m.infeasible_recheck_steps < 1:
+        raise bad("mpc.infeasible_recheck_steps", f"must be >= 1 (1: IPOPT on every failure), "
+                  f"got {m.infeasible_recheck_steps}")
+    if m.infeasible_recheck_max_steps < m.infeasible_recheck_steps:
+        raise bad("mpc.infeasible_recheck_max_steps", f"must be >= mpc.infeasible_recheck_steps "
+                  f"({m.infeasible_recheck_steps}), got {m.infeasible_recheck_max_steps} "
+                  "(set both; equal: a fixed period)")
+    if not 1 <= s.substeps <= MAX_SUBSTEPS:
+        raise bad("sim.substeps", f"must be >= 1 and <= {MAX_SUBSTEPS}, got {s.substeps}")
+    if s.max_time_s < s.control_period_s:
+        raise bad("sim.max_time_s",
+                  f"must be at least one control period (sim.control_period_s = {s.control_period_s:.4g})")
+    if s.max_time_s / s.control_period_s > MAX_CONTROL_STEPS:
+        raise bad("sim.max_time_s", f"is more than {MAX_CONTROL_STEPS:,} control periods of sim.control_period_s = "
+                  f"{s.control_period_s:.4g} s")
+    if m.controller not in CONTROLLERS:
+        raise bad("mpc.controller", f"unknown controller {_short(m.controller)}; valid: {', '.join(CONTROLLERS)}")
+    if m.backend not in BACKEND_NAMES:
+        raise bad("mpc.backend", f"unknown solver backend {_short(m.backend)}; valid: {', '.join(BACKEND_NAMES)}")
+    if n.kind not in ("paper", "none"):
+        raise bad("noise.kind", f"unknown noise model {_short(n.kind)}; valid: paper, none")
+    if not b.lambdas_m or any(not (isinstance(x, int | float) and math.isfinite(x) and x > 0) for x in b.lambdas_m):
+        raise bad("barrier.lambdas_m", f"needs one or more values, all > 0, got {_short(list(b.lambdas_m))}")
+    if (b.epsilon is None) == (b.lambda0 is None):
+        raise bad("barrier.epsilon", "set exactly one of barrier.epsilon and barrier.lambda0")
+    if b.epsilon is not None and not (math.isfinite(b.epsilon) and b.epsilon >= 0):
+        raise bad("barrier.epsilon", f"must be >= 0 (the level eps of the VL-CBF), got {b.epsilon}")
+    if b.lambda0 is not None and not (math.isfinite(b.lambda0) and b.lambda0 <= 0):
+        raise bad("barrier.lambda0", f"must be <= 0 (Theorem 2 needs lambda_0 <= 0), got {b.lambda0}")
+    if not (e.speed_min_mps <= sc.ego_speed_mps <= e.speed_max_mps):
+        raise bad(
+            "scenario.ego_speed_mps",
+            f"{sc.ego_speed_mps:.4g} m/s is outside the ego speed range [ego.speed_min_mps, "
+            f"ego.speed_max_mps] = [{e.speed_min_mps:.4g}, {e.speed_max_mps:.4g}] m/s",
+        )
+    if sc.front_speed_mps > sc.front_speed_max_mps:
+        raise bad(
+            "scenario.front_speed_mps",
+            f"{sc.front_speed_mps:.4g} m/s is above scenario.front_speed_max_mps ({sc.front_speed_max_mps:.4g})",
+        )
+    if sc.front_x_m <= sc.ego_x_m:
+        raise bad("scenario.front_x_m", f"the front vehicle must start ahead of the ego (x > scenario.ego_x_m = "
+                  f"{sc.ego_x_m:.4g})")
+    _validate_front_and_opposing(p, bad)
+    level = "barrier.epsilon" if b.epsilon is not None else "barrier.lambda0"
+    try:
+        eps = level_epsilon(p)
+        level_lambda0(p)
+        h0 = ((sc.ego_x_m - sc.front_x_m) / b.ellipse_a_m) ** 2 - 1.0
+    except (ArithmeticError, ValueError) as err:  # e.g. an overflow from an absurd lambda0
+        raise bad(level, f"cannot compute the level eps ({err})") from None
+    if not (h0 >= eps):
+        raise bad(
+            "scenario.front_x_m",
+            f"infeasible scenario: the ego starts inside the level set h >= eps of the front "
+            f"vehicle's ellipse (h0 = {h0:.4g} < eps = {eps:.4g}, from {level}); start further behind",
+        )
+
+
+def _validate_front_and_opposing(p: ModelParams, bad) -> None:
+    b, sc, o = p.barrier, p.scenario, p.opposing
+    rng = sc.front_accel_range_mps2
+    if rng and (len(rng) != 2 or not (0 <= rng[0] < rng[1]) or not all(math.isfinite(x) for x in rng)):
+        raise bad("scenario.front_accel_range_mps2",
+                  f"must be [lo, hi] with 0 <= lo < hi (alpha_f is drawn in (lo, hi]), got {_short(list(rng))}")
+    if sc.front_accel_mps2 < 0:
+        raise bad("scenario.front_accel_mps2", f"must be >= 0 (the front vehicle never switches sign), got "
+                  f"{sc.front_accel_mps2}")
+    if not (math.isfinite(b.decel_max_mps2) and b.decel_max_mps2 > 0):
+        raise bad("barrier.decel_max_mps2", f"must be > 0 (a_l of h_eo), got {b.decel_max_mps2}")
+    if not (math.isfinite(b.opp_epsilon_m) and b.opp_epsilon_m >= 0):
+        raise bad("barrier.opp_epsilon_m", f"must be >= 0 (the level of h_eo, m), got {b.opp_epsilon_m}")
+    for key, lam in (("barrier.opp_lambdas_m", b.opp_lambdas_m), ("opposing.lambdas_m", o.lambdas_m)):
+        if not lam or any(not (isinstance(x, int | float) and math.isfinite(x) and x > 0) for x in lam):
+            raise bad(key, f"needs one or more values, all > 0, got {_short(list(lam))}")
+    if o.kind not in OPPOSING_KINDS:
+        raise bad("opposing.kind", f"unknown opposing vehicle {_short(o.kind)}; valid: {', '.join(OPPOSING_KINDS)}")
+    for key in ("speed_mps", "accel_mps2", "epsilon_m"):
+        v = getattr(o, key)
+        if not (math.isfinite(v) and v >= 0):
+            raise bad(f"opposing.{key}", f"must be a finite number >= 0, got {_short(v)}")
+    for key in ("speed_limit_mps", "accel_max_mps2", "brake_max_mps2", "cruise_gain_per_s", "detect_range_m"):
+        v = getattr(o, key)
+        if not (math.isfinite(v) and v > 0):
+            raise bad(f"opposing.{key}", f"must be a finite number > 0, got {_short(v)}")
+    if o.kind != "none":
+        if o.speed_mps > o.speed_limit_mps:
+            raise bad("opposing.speed_mps", f"{o.speed_mps:.4g} m/s is above opposing.speed_limit_mps "
+                      f"({o.speed_limit_mps:.4g})")
+        if o.x_m <= sc.front_x_m:
+            raise bad("opposing.x_m", f"the opposing vehicle must start ahead of the front vehicle "
+                      f"(x > scenario.front_x_m = {sc.front_x_m:.4g}), got {o.x_m:.4g}")
+
+
+def _short(value: Any, limit: int = 60) -> str:
+    """``repr(value)`` cut to ``limit`` characters (messages stay one short line)."""
+    text = f"{value:.6g}" if isinstance(value, float) else repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def level_epsilon(p: ModelParams) -> float:
+    b = p.barrier
+    if b.epsilon is not None:
+        return float(b.epsilon)
+    return levels.epsilon_from_lambda0(b.lambdas_m, float(b.lambda0))
+
+
+def level_lambda0(p: ModelParams) -> float:
+    b = p.barrier
+    if b.lambda0 is not None:
+        return float(b.lambda0)
+    return levels.lambda0_from_epsilon(b.lambdas_m, float(b.epsilon))

@@ -1,0 +1,205 @@
+"""Campaign-level figures of a run, drawn from its summary (one entry per cell).
+
+Rates per cell with their intervals (:func:`rates_per_cell`), a rate against a numeric axis such as
+ε with interval bands (:func:`rate_vs_axis`), a heat map of a rate over two axes with the counts
+written in (:func:`rate_heatmap`) and minimum-distance histograms per cell
+(:func:`distance_histograms`). Sizes and saving: :mod:`mcverify.reporting.figure_common`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.ticker import MaxNLocator  # noqa: E402
+
+from mcverify.reporting.figure_common import MAX_PANELS, inches, panel_grid, save  # noqa: E402
+from mcverify.reporting.tables import fmt_p  # noqa: E402
+
+_OUTCOME_COLOURS = {"overtook": "tab:green", "went_back": "tab:orange", "timeout": "tab:gray", "error": "black"}
+
+
+def rates_per_cell(cells: Sequence[Mapping[str, Any]], path: Path) -> dict[str, int]:
+    """Left: safe, collision and ellipse-violation rates per cell with their two-sided intervals
+    (points and bars). Right: the share of each outcome per cell, with the counts."""
+    n = len(cells)
+    height = min(0.32 * n + 1.8, 0.32 * MAX_PANELS + 1.8)
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=inches(12, height), sharey=True, gridspec_kw={"width_ratios": [1.3, 1]})
+    y = np.arange(n)
+    metrics = (("safe", "tab:green", -0.2), ("collision", "tab:red", 0.0), ("ellipse_violation", "tab:purple", 0.2))
+    for name, colour, dy in metrics:
+        rs = [c["rates"].get(name) for c in cells]
+        ok = [i for i, r in enumerate(rs) if r and r["n"]]
+        if not ok:
+            continue
+        rate = np.array([rs[i]["rate"] for i in ok])
+        low = np.array([rs[i]["low"] for i in ok])
+        high = np.array([rs[i]["high"] for i in ok])
+        ax.errorbar(rate, y[ok] + dy, xerr=[rate - low, high - rate], fmt="o", ms=4, color=colour, capsize=2,
+                    lw=1, label=name.replace("_", " "))
+    ax.set_xlim(-0.02, 1.02)
+    ax.set_yticks(y, [c["cell"] for c in cells], fontsize=8)
+    ax.invert_yaxis()
+    ax.set_xlabel("rate (point) with its two-sided interval (bar)")
+    ax.grid(axis="x", alpha=0.3)
+    ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=3, fontsize=8, frameon=False)
+    left = np.zeros(n)
+    for outcome, colour in _OUTCOME_COLOURS.items():
+        counts = np.array([c["outcomes"].get(outcome, 0) for c in cells], dtype=float)
+        totals = np.array([max(c["episodes"], 1) for c in cells], dtype=float)
+        if not counts.any():
+            continue
+        share = counts / totals
+        ax2.barh(y, share, left=left, color=colour, alpha=0.8, label=outcome.replace("_", " "))
+        for i in np.flatnonzero(counts):
+            if share[i] > 0.06:
+                ax2.text(left[i] + share[i] / 2, y[i], f"{int(counts[i])}", ha="center", va="center", fontsize=7,
+                         color="white")
+        left += share
+    ax2.set_xlim(0, 1)
+    ax2.set_xlabel("share of episodes by outcome (counts written in)")
+    ax2.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=4, fontsize=8, frameon=False)
+    fig.tight_layout()
+    return save(fig, path)
+
+
+def rate_vs_axis(
+    cells: Sequence[Mapping[str, Any]],
+    x_axis: str,
+    x_values: Sequence[float],
+    groups: Sequence[str],
+    metrics: Sequence[tuple[str, str]],
+    path: Path,
+    *,
+    level: float,
+    x_label: str | None = None,
+) -> dict[str, int]:
+    """One panel per ``(metric, title)``: the rate against ``x_values`` (one per cell), one line per
+    group label (``groups``, one per cell), each with its two-sided interval as a band; zero-event
+    points show the exact one-sided upper bound as a marker."""
+    fig, axes = plt.subplots(1, len(metrics), figsize=inches(6 * len(metrics), 4.2), squeeze=False)
+    xs, gs = np.asarray(x_values, dtype=float), list(groups)
+    colours = plt.get_cmap("tab10")
+    for ax, (metric, title) in zip(axes[0], metrics, strict=True):
+        for gi, group in enumerate(dict.fromkeys(gs)):
+            idx = [i for i, g in enumerate(gs) if g == group and cells[i]["rates"].get(metric, {}).get("n")]
+            if not idx:
+                continue
+            idx.sort(key=lambda i: xs[i])
+            r = [cells[i]["rates"][metric] for i in idx]
+            x = xs[idx]
+            colour = colours(gi % 10)
+            ax.fill_between(x, [q["low"] for q in r], [q["high"] for q in r], color=colour, alpha=0.18, lw=0)
+            ax.plot(x, [q["rate"] for q in r], "o-", color=colour, ms=4, lw=1.4, label=group or "all cells")
+            zero = [j for j, q in enumerate(r) if q["k"] == 0]
+            if zero:
+                ax.plot(x[zero], [r[j]["upper_one_sided"] for j in zero], "v", color=colour, ms=5, alpha=0.8)
+        ax.set_title(title, fontsize=10)
+        ax.set_xlabel(x_label or x_axis)
+        ax.set_ylabel(f"rate with {level:.0%} interval")
+        ax.set_ylim(bottom=0)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="upper right")
+    fig.suptitle(f"band: two-sided {level:.0%} interval; ▼: exact one-sided upper bound where no event occurred",
+                 fontsize=9)
+    fig.tight_layout()
+    return save(fig, path)
+
+
+def rate_heatmap(
+    cells: Sequence[Mapping[str, Any]],
+    row_axis: str,
+    row_labels: Sequence[str],
+    col_axis: str,
+    col_labels: Sequence[str],
+    metric: str,
+    path: Path,
+    *,
+    title: str,
+    higher_is_better: bool = True,
+    tick_labels: tuple[Sequence[str], Sequence[str]] | None = None,
+) -> dict[str, int]:
+    """A rate over two axes: colour = rate, each square annotated with k/n and its interval (or
+    the one-sided bound when k is 0 or n). Empty squares (no such cell) stay white. Cells are
+    placed by their labels; ``tick_labels`` (rows, columns) are the texts shown for them."""
+    grid = np.full((len(row_labels), len(col_labels)), np.nan)
+    size = inches(max(5.0, 1.9 * len(col_labels) + 2.5), max(3.0, 0.75 * len(row_labels) + 1.6))
+    fig, ax = plt.subplots(figsize=size)
+    for c in cells:
+        lab = c["labels"]
+        if lab.get(row_axis) not in row_labels or lab.get(col_axis) not in col_labels:
+            continue
+        i, j = row_labels.index(lab[row_axis]), col_labels.index(lab[col_axis])
+        r = c["rates"].get(metric)
+        if not r or not r["n"]:
+            continue
+        grid[i, j] = r["rate"]
+        k, n = r["k"], r["n"]
+        if k == 0:
+            bound = f"≤ {fmt_p(r['upper_one_sided'])}"
+        elif k == n:
+            bound = f"≥ {fmt_p(r['lower_one_sided'])}"
+        else:
+            bound = f"[{fmt_p(r['low'])}, {fmt_p(r['high'])}]"
+        good = r["rate"] if higher_is_better else 1 - r["rate"]
+        ax.text(j, i, f"{k}/{n}\n{bound}", ha="center", va="center", fontsize=8,
+                color="black" if 0.25 < good < 0.9 else "white")
+    cmap = plt.get_cmap("RdYlGn" if higher_is_better else "RdYlGn_r").with_extremes(bad="white")
+    im = ax.imshow(np.ma.masked_invalid(grid), cmap=cmap, vmin=0.0, vmax=1.0, aspect="auto")
+    ax.set_xticks(range(len(col_labels)), tick_labels[1] if tick_labels else col_labels, fontsize=8)
+    ax.set_yticks(range(len(row_labels)), tick_labels[0] if tick_labels else row_labels, fontsize=8)
+    ax.set_xlabel(col_axis)
+    ax.set_ylabel(row_axis)
+    ax.set_title(title, fontsize=10)
+    fig.colorbar(im, ax=ax, label=f"{metric.replace('_', ' ')} rate")
+    fig.tight_layout()
+    return save(fig, path)
+
+
+def distance_histograms(
+    names: Sequence[str],
+    samples: Sequence[np.ndarray],
+    path: Path,
+    *,
+    x_label: str,
+    boundary: float | None = 0.0,
+    boundary_label: str = "ellipse boundary",
+) -> dict[str, int]:
+    """One histogram per cell of a per-episode minimum distance, on shared bins; a line at the
+    ``boundary`` (0: the safety ellipse) and the cell's minimum written in."""
+    finite = [np.asarray(s, dtype=float)[np.isfinite(s)] for s in samples]
+    every = np.concatenate(finite) if finite else np.zeros(0)
+    if every.size == 0:
+        raise ValueError("no finite value to draw")
+    lo, hi = float(every.min()), float(every.max())
+    if boundary is not None:
+        lo, hi = min(lo, boundary), max(hi, boundary)
+    if hi - lo < 1e-9:
+        lo, hi = lo - 0.5, hi + 0.5
+    pad = 0.04 * (hi - lo)
+    bins = np.linspace(lo - pad, hi + pad, int(np.clip(np.sqrt(every.size / max(len(finite), 1)) * 3, 8, 40)) + 1)
+    fig, axes = panel_grid(len(names), 4, 3.0, 2.3, sharex=True)
+    for ax, name, x in zip(axes, names, finite, strict=True):
+        if x.size:
+            ax.hist(x, bins=bins, color="tab:blue", alpha=0.75, histtype="stepfilled")  # one patch: fast
+            ax.set_title(f"{name}\nmin {x.min():.2f} · n = {x.size}", fontsize=7)
+        else:
+            ax.text(0.5, 0.5, "no value", transform=ax.transAxes, ha="center", va="center", fontsize=8)
+            ax.set_title(name, fontsize=7)
+        if boundary is not None:
+            ax.axvline(boundary, color="tab:red", ls=":", lw=1, label=boundary_label)
+        ax.yaxis.set_major_locator(MaxNLocator(integer=True))
+        ax.tick_params(labelsize=7)
+    for ax in axes[-min(4, len(axes)):]:
+        ax.set_xlabel(x_label, fontsize=8)
+    fig.tight_layout()
+    return save(fig, path)
+
+
+# --------------------------------------------------------------------------------- episode level

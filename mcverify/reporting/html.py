@@ -1,0 +1,85 @@
+"""report.html: one self-contained page (no script, no external file) with the run's facts, every
+table, every figure embedded as a base64 PNG with its caption, and the definitions.
+
+The page is a pure function of its inputs, so the same stored data give the same bytes.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+from collections.abc import Sequence
+from pathlib import Path
+
+from mcverify.reporting.run_figures import FigureResult
+from mcverify.reporting.tables import Table, to_html
+
+_CSS = """
+body { font-family: system-ui, -apple-system, "Segoe UI", Roboto, sans-serif; margin: 2em auto; max-width: 1250px;
+       padding: 0 1em; color: #222; line-height: 1.4; }
+h1 { font-size: 1.6em; } h2 { margin-top: 2em; border-bottom: 1px solid #ccc; } h3 { margin-top: 1.5em; }
+dl.facts { display: grid; grid-template-columns: max-content 1fr; gap: 0.2em 1em; }
+dl.facts dt { font-weight: bold; } dl.facts dd { margin: 0; }
+table { border-collapse: collapse; margin: 1em 0 0.3em; font-size: 0.86em; font-variant-numeric: tabular-nums; }
+caption { caption-side: top; text-align: left; font-weight: bold; padding-bottom: 0.4em; font-size: 1.1em; }
+th, td { padding: 0.25em 0.6em; border-bottom: 1px solid #e3e3e3; text-align: right; white-space: nowrap; }
+thead th { border-bottom: 2px solid #555; vertical-align: bottom; white-space: normal; }
+tbody th { text-align: left; font-weight: normal; }
+tr.section th { text-align: left; font-style: italic; background: #f3f3f3; }
+tbody tr:hover { background: #fafae8; }
+.scroll { overflow-x: auto; }
+ul.notes { font-size: 0.85em; color: #444; margin-top: 0.2em; }
+figure { margin: 1.5em 0; } figure img { max-width: 100%; border: 1px solid #ddd; }
+figcaption { font-size: 0.9em; color: #333; margin-top: 0.4em; }
+nav ul { columns: 2; }
+"""
+
+
+def render(
+    run_dir: Path,
+    facts: Sequence[tuple[str, str]],
+    tables: Sequence[Table],
+    figures: Sequence[FigureResult],
+    definitions: Sequence[tuple[str, str]],
+    *,
+    title: str,
+) -> str:
+    """The page; figure files are read from ``run_dir`` and embedded."""
+    esc = html.escape
+    out = [
+        "<!DOCTYPE html>",
+        '<html lang="en">',
+        "<head>",
+        '<meta charset="utf-8">',
+        '<meta name="viewport" content="width=device-width, initial-scale=1">',
+        f"<title>{esc(title)}</title>",
+        f"<style>{_CSS}</style>",
+        "</head>",
+        "<body>",
+        f"<h1>{esc(title)}</h1>",
+        '<dl class="facts">',
+    ]
+    out += [f"<dt>{esc(k)}</dt><dd>{esc(v)}</dd>" for k, v in facts]
+    out.append("</dl>")
+    drawn = [f for f in figures if f.file]
+    out.append("<nav><h2>Contents</h2><ul>")
+    out += [f'<li><a href="#tab-{esc(t.key)}">{esc(t.title)}</a></li>' for t in tables]
+    out += [f'<li><a href="#fig-{esc(f.key)}">{esc(f.title)}</a></li>' for f in drawn]
+    out.append('<li><a href="#definitions">Definitions</a></li></ul></nav>')
+    out.append("<h2>Tables</h2>")
+    for t in tables:
+        out.append(f'<div class="scroll">{to_html(t)}</div>')
+    out.append("<h2>Figures</h2>")
+    for f in drawn:
+        data = base64.b64encode((Path(run_dir) / f.file).read_bytes()).decode("ascii")
+        out.append(f'<figure id="fig-{esc(f.key)}"><h3>{esc(f.title)}</h3>'
+                   f'<img alt="{esc(f.title)}" src="data:image/png;base64,{data}">'
+                   f"<figcaption>{esc(f.caption)}</figcaption></figure>")
+    skipped = [f for f in figures if not f.file]
+    if skipped:
+        out.append("<p>Not drawn:</p><ul>" + "".join(f"<li>{esc(f.title)}: {esc(f.skipped)}</li>" for f in skipped)
+                   + "</ul>")
+    out.append('<h2 id="definitions">Definitions</h2><dl>')
+    out += [f"<dt><strong>{esc(k)}</strong></dt><dd>{esc(v)}.</dd>" for k, v in definitions]
+    out += ["</dl>", "</body>", "</html>", ""]
+    return "\n".join(out)

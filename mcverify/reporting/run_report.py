@@ -1,0 +1,402 @@
+"""A run's report, regenerated from stored data only: ``mcverify report RUN_DIR``.
+
+:func:`write` reads ``manifest.json`` and ``episodes.parquet`` (and any stored trajectories) and
+writes, without re-simulating anything:
+
+- ``summary.json``: per-cell statistics (:func:`mcverify.analysis.summary.summarise`), strict JSON (a
+  statistic that does not exist is ``null``);
+- ``cells.parquet``: the same statistics, one row per cell (:func:`mcverify.analysis.summary.cells_table`);
+- ``tables/<key>.md`` and ``tables/<key>.tex``: every table in Markdown and LaTeX (booktabs), the
+  paper-style table first when the campaign's ``[reference]`` names one (``paper_tables``);
+- ``figures/*.png`` (``report_figures``);
+- ``report.md``: the tables, the figures and the definitions; ``report.html``: the same as one
+  self-contained page (figures embedded).
+
+The output is a pure function of the stored data and the options: the bootstrap is seeded, no
+timestamp or absolute path is rendered, the figures carry fixed metadata, so writing twice gives
+the same bytes (``tests/reporting/test_report.py``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from mcverify import store
+from mcverify.analysis import stats, summary
+from mcverify.errors import RunError
+from mcverify.reporting import html, paper_tables, run_figures
+from mcverify.reporting.run_figures import FigureResult
+from mcverify.reporting.tables import (
+    DASH,
+    Table,
+    fmt_mean_ci,
+    fmt_num,
+    fmt_rate,
+    is_missing,
+    method_name,
+    to_latex,
+    to_markdown,
+)
+
+REPORT = "report.md"
+HTML = "report.html"
+SUMMARY = "summary.json"
+CELLS = "cells.parquet"
+TABLES_DIR = "tables"
+
+#: Kept for callers of the former module: a reference quantity's value in a cell summary.
+lookup = paper_tables.lookup
+
+
+@dataclass(frozen=True)
+class Options:
+    """How the statistics are computed: two-sided ``level`` and ``method`` of every rate interval
+    (``stats.PROPORTION_METHODS``) and the bootstrap of every mean."""
+
+    level: float = 0.95
+    method: str = "clopper-pearson"
+    bootstrap_resamples: int = 2000
+    bootstrap_seed: int = 0
+
+    def check(self) -> Options:
+        try:
+            stats.rate_summary(0, 1, self.level, self.method)
+        except ValueError as err:
+            raise RunError(f"report options: {err}") from None
+        if self.bootstrap_resamples < 1:
+            raise RunError(f"report options: bootstrap resamples must be >= 1, got {self.bootstrap_resamples}")
+        return self
+
+
+def write(
+    run_dir: Path,
+    *,
+    level: float = 0.95,
+    method: str = "clopper-pearson",
+    bootstrap_resamples: int = 2000,
+    bootstrap_seed: int = 0,
+) -> Path:
+    """Regenerate every report file of a finished run folder; returns the path of ``report.md``.
+
+    Raises :class:`RunError` (one line for the user) when the folder is not a run folder or
+    an option is out of range."""
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise RunError(f"run folder not found: {run_dir}")
+    opts = Options(level, method, bootstrap_resamples, bootstrap_seed).check()
+    manifest = store.read_json(run_dir / store.MANIFEST)
+    table = store.read_episodes(run_dir)
+    summ = build_summary(manifest, table, opts)
+    tables = report_tables(summ, manifest)
+    figs = run_figures.write_figures(run_dir, summ, table, manifest)
+
+    store.write_json_atomic(run_dir / SUMMARY, summary.json_ready(summ))
+    _write_parquet(run_dir / CELLS, summary.cells_table(summ))
+    tdir = run_dir / TABLES_DIR
+    tdir.mkdir(exist_ok=True)
+    for old in sorted(tdir.glob("*.md")) + sorted(tdir.glob("*.tex")):
+        old.unlink()
+    for t in tables:
+        _write_text(tdir / f"{t.key}.md", to_markdown(t) + "\n")
+        _write_text(tdir / f"{t.key}.tex", to_latex(t) + "\n")
+    _write_text(run_dir / REPORT, render_markdown(manifest, summ, tables, figs))
+    _write_text(run_dir / HTML, html.render(run_dir, facts(manifest, summ), tables, figs, definitions(summ),
+                                                   title=_title(manifest)))
+    return run_dir / REPORT
+
+
+def build_summary(manifest: Mapping[str, Any], table: pa.Table, opts: Options = Options()) -> dict[str, Any]:
+    """:func:`summary.summarise` of the run, with the campaign's name."""
+    summ = summary.summarise(
+        table,
+        manifest,
+        level=opts.level,
+        method=opts.method,
+        bootstrap_resamples=opts.bootstrap_resamples,
+        bootstrap_seed=opts.bootstrap_seed,
+    )
+    return {"campaign": manifest["campaign"]["name"], **summ}
+
+
+# ----------------------------------------------------------------------------------------- tables
+
+
+def report_tables(summ: Mapping[str, Any], manifest: Mapping[str, Any]) -> list[Table]:
+    """Every table of the report, in order: the paper's layout (if the campaign names one), the
+    outcomes, the pivot tables of a two-axis grid, distances, times, theorem checks, decisions and
+    solver."""
+    out: list[Table] = []
+    ref = manifest["campaign"].get("reference") or {}
+    if ref:
+        paper = paper_tables.paper_table(summ, ref)
+        if paper is not None:
+            out.append(paper)
+    out.append(outcome_table(summ))
+    out += pivot_tables(summ)
+    out += [distance_table(summ), time_table(summ), theorem_table(summ), solver_table(summ)]
+    return out
+
+
+def _rate_note(summ: Mapping[str, Any]) -> str:
+    return (f"k/n [low, high]: k episodes of n with the two-sided {summ['confidence_level']:.0%} "
+            f"{method_name(summ['interval_method'])} interval; 0/n (≤ u) and n/n (≥ l): the exact one-sided "
+            f"{summ['confidence_level']:.0%} bound when no or every episode counts.")
+
+
+def outcome_table(summ: Mapping[str, Any]) -> Table:
+    """Rates per cell: safe, collisions, ellipse violation, invariance breach, outcomes, errors."""
+    cells = summ["cells"]
+    has = {m: any(m in c["rates"] for c in cells) for m in summary.RATE_NAMES}
+    names = ["safe"]
+    if has["collision_opp"]:
+        names += ["collision_front", "collision_opp"]
+    else:
+        names += ["collision_front"]
+    names += ["ellipse_violation", "invariance_breach", "opp_invariance_breach", "overtook", "went_back", "timeout"]
+    names = [n for n in names if has.get(n)]
+    errors = any(c["rates"]["error"]["k"] for c in cells)
+    columns = ["cell", "episodes", *(summary.METRICS[n].label for n in names)] + (["errors"] if errors else [])
+    rows = []
+    for c in cells:
+        row = [c["cell"], str(c["valid"])] + [fmt_rate(c["rates"].get(n)) for n in names]
+        if errors:
+            row.append(fmt_rate(c["rates"]["error"]))
+        rows.append(row)
+    notes = [_rate_note(summ), "Rates are over the episodes that ran; an episode that could not be simulated "
+             "(outcome error) is counted apart, as a rate over all of the cell's episodes."]
+    return Table("outcomes", "Safety and outcomes per cell", columns, rows, notes)
+
+
+def pivot_tables(summ: Mapping[str, Any]) -> list[Table]:
+    """For a grid over exactly two axes: safe, collision, ellipse-violation and overtaking rates
+    with rows = the axis with more values and columns = the other."""
+    axes = summ["axes"]
+    if len(axes) != 2:
+        return []
+    a, b = list(axes)
+    row_axis, col_axis = (a, b) if len(axes[a]) >= len(axes[b]) else (b, a)
+    by_labels = {(c["labels"].get(row_axis), c["labels"].get(col_axis)): c for c in summ["cells"]}
+    out = []
+    for metric in ("safe", "collision", "ellipse_violation", "overtook"):
+        if not any(metric in c["rates"] for c in summ["cells"]):
+            continue
+        rows = []
+        for r in axes[row_axis]:
+            row = [paper_tables.pretty_label(row_axis, r)]
+            for col in axes[col_axis]:
+                cell = by_labels.get((r, col))
+                row.append(fmt_rate(cell["rates"].get(metric)) if cell else DASH)
+            rows.append(row)
+        label = summary.METRICS[metric].label
+        out.append(Table(f"pivot-{metric}", f"{label.capitalize()} rate per {row_axis} and {col_axis}",
+                         [f"{row_axis} \\ {col_axis}", *(paper_tables.pretty_label(col_axis, x) for x in axes[col_axis])],
+                         rows, [_rate_note(summ)]))
+    return out
+
+
+def _value(c: Mapping[str, Any], name: str) -> Mapping[str, Any] | None:
+    return c["values"].get(name)
+
+
+def _stat(v: Mapping[str, Any] | None, key: str, digits: int = 2) -> str:
+    if not v:
+        return DASH
+    x = v["quantiles"].get(key) if key.startswith("q") else v.get(key)
+    return fmt_num(x, digits)
+
+
+def distance_table(summ: Mapping[str, Any]) -> Table:
+    """Minimum distances per cell: to the front ellipse (min, 5 %, median, mean), the footprint gap,
+    min h_ef, and to the opposing vehicle when the run has it."""
+    cells = summ["cells"]
+    opp = any(c["values"].get("min_gap_opp_m", {}).get("count") for c in cells)
+    columns = ["cell", "min dist. veh_f: min (m)", "5 % quantile", "median", "mean [CI]", "min gap veh_f (m)",
+               "min h_ef"]
+    any_time = opp and any(c["values"].get("min_gap_opp_any_m", {}).get("count") for c in cells)
+    if opp:
+        columns += ["min dist. veh_o: min (m)", "median", "episodes in opp. lane"]
+    if any_time:
+        columns += ["min gap veh_o, any time (m)"]
+    rows = []
+    for c in cells:
+        d = _value(c, "min_dist_front_m")
+        row = [c["cell"], _stat(d, "min"), _stat(d, "q5"), _stat(d, "q50"), fmt_mean_ci(d),
+               _stat(_value(c, "min_gap_front_m"), "min"), _stat(_value(c, "min_h_front"), "min", 3)]
+        if opp:
+            o = _value(c, "min_gap_opp_m")
+            row += [_stat(o, "min"), _stat(o, "q50"), str(o["count"]) if o else DASH]
+        if any_time:
+            row += [_stat(_value(c, "min_gap_opp_any_m"), "min")]
+        rows.append(row)
+    notes = ["min dist. veh_f is the paper's \"min dist. with veh_f\": signed distance from the ego c.g. to the safety "
+             "ellipse, negative inside; the min column is the smallest over the cell's episodes, the others describe "
+             "the per-episode minima (mean with its percentile-bootstrap interval)."]
+    if opp:
+        notes.append("min dist. veh_o is the paper's \"min dist. with veh_o\": bumper gap to the opposing vehicle while "
+                     "the ego reaches into the opposing lane; episodes that never did have no value.")
+    return Table("distances", "Minimum distances per cell", columns, rows, notes)
+
+
+def time_table(summ: Mapping[str, Any]) -> Table:
+    """Overtaking and lane-borrow times per cell (min / mean [CI] / max, as in the paper's Table II)."""
+    columns = ["cell", "overtakes", "overtake time min (s)", "mean [CI] (s)", "max (s)", "lane-borrow time min (s)",
+               "mean [CI] (s)", "max (s)"]
+    rows = []
+    for c in summ["cells"]:
+        ot, lb = _value(c, "overtake_time_s"), _value(c, "lane_borrow_time_s")
+        rows.append([c["cell"], str(ot["count"]) if ot else DASH, _stat(ot, "min"), fmt_mean_ci(ot), _stat(ot, "max"),
+                     _stat(lb, "min"), fmt_mean_ci(lb), _stat(lb, "max")])
+    notes = ["Overtake time: from the episode start to the paper's convergence test, over overtaking episodes only. "
+             "Lane-borrow time: while the ego footprint reaches into the opposing lane. Means carry their "
+             "percentile-bootstrap interval."]
+    return Table("times", "Overtaking times per cell", columns, rows, notes)
+
+
+def _int(d: Mapping[str, Any], key: str) -> str:
+    return str(d[key]) if key in d else DASH
+
+
+def _counted(counts: Mapping[str, int] | None) -> str:
+    return ", ".join(f"{k} {v}" for k, v in (counts or {}).items()) or "none"
+
+
+def theorem_table(summ: Mapping[str, Any]) -> Table:
+    """Theorem checks per cell (2: the level set is invariant; 5: Q1 or Q2 is always feasible) and
+    what drove the ego when it first left the safe set."""
+    cells = summ["cells"]
+    opp = any("opp_invariance_breaches" in c["theorem_checks"] for c in cells)
+    held = any("held_steps" in c["theorem_checks"] for c in cells)
+    cause = any("first_unsafe_cause" in c.get("counts", {}) for c in cells)
+    columns = ["cell", "invariance breaches (Thm 2)"] + (["h_eo breaches"] if opp else []) + [
+        "episodes with Q1 and Q2 unsolved (Thm 5)", "such steps", "episodes with fallback", "fallback steps"]
+    columns += (["episodes holding a failed plan", "held steps"] if held else [])
+    columns += (["first unsafe step driven by"] if cause else [])
+    rows = []
+    for c in cells:
+        t = c["theorem_checks"]
+        row = [c["cell"], _int(t, "invariance_breaches")] + ([_int(t, "opp_invariance_breaches")] if opp else [])
+        row += [_int(t, "episodes_with_both_infeasible"), _int(t, "both_infeasible_steps"),
+                _int(t, "episodes_with_fallback"), _int(t, "fallback_steps")]
+        row += ([_int(t, "episodes_with_held"), _int(t, "held_steps")] if held else [])
+        row += ([_counted(c.get("counts", {}).get("first_unsafe_cause"))] if cause else [])
+        rows.append(row)
+    notes = ["Counts over the cell's episodes (steps: control steps). Fallback: neither problem solved, the ego "
+             "brakes towards its lane."]
+    if cause:
+        notes.append("First unsafe step driven by: the plan source in the control period where the ego first left "
+                     "the safe set (planned: a solved plan; held: a failed problem's old plan; fallback: no plan).")
+    return Table("theorem-checks", "Theorem checks per cell", columns, rows, notes,
+                 align="l" + "r" * (len(columns) - 2) + ("l" if cause else "r"))
+
+
+def solver_table(summ: Mapping[str, Any]) -> Table:
+    """Decisions (Algorithm 1) and the solver per cell."""
+    cells = summ["cells"]
+    reasons = any("went_back_reason" in c.get("counts", {}) for c in cells)
+    table_one = any(c.get("counts", {}).get("table_one_rows") for c in cells)
+    columns = ["cell", "Q1 failed steps", "Q2 failed steps", "Q2-driven steps", "Q1 rescue steps", "solves",
+               "cold retries", "mean / max iters", "mean / max solve time (ms)", "IPOPT statuses other than success"]
+    columns += (["went back because"] if reasons else []) + (["Table I rows met (steps)"] if table_one else [])
+    rows = []
+    for c in cells:
+        t, s, counts = c["theorem_checks"], c["solver"], c.get("counts", {})
+        statuses = {k: v for k, v in s.get("statuses", {}).items() if k != "Solve_Succeeded"}
+        row = [c["cell"], _int(t, "q1_fail_steps"), _int(t, "q2_fail_steps"), _int(t, "q2_driven_steps"),
+               _int(t, "q1_rescue_steps"), _int(s, "solves"), _int(s, "cold_retries"),
+               f"{fmt_num(s.get('iterations_mean'), 1)} / {s.get('iterations_max', DASH)}",
+               f"{_ms(s.get('solve_time_mean_s'))} / {_ms(s.get('solve_time_max_s'))}", _counted(statuses)]
+        row += ([_counted(counts.get("went_back_reason"))] if reasons else [])
+        rows_met = {f"row {k}:": v for k, v in counts.get("table_one_rows", {}).items()}
+        row += ([_counted(rows_met)] if table_one else [])
+        rows.append(row)
+    notes = ["Solve times are the only machine-dependent numbers of the report (they come from the stored "
+             "episodes, so regenerating the report does not change them)."]
+    return Table("solver", "Decisions and solver per cell", columns, rows, notes,
+                 align="l" + "r" * 8 + "l" * (len(columns) - 9))
+
+
+def _ms(x: Any) -> str:
+    return DASH if is_missing(x) else fmt_num(1e3 * float(x), 1)
+
+
+# ------------------------------------------------------------------------------------- markdown
+
+
+def _title(manifest: Mapping[str, Any]) -> str:
+    return f"mcverify report: {manifest['campaign']['name']}"
+
+
+def facts(manifest: Mapping[str, Any], summ: Mapping[str, Any]) -> list[tuple[str, str]]:
+    """The run's identity as (label, text) pairs: no timestamp and no absolute path."""
+    camp = manifest["campaign"]
+    cells = summ["cells"]
+    controllers = sorted({str(c.get("controller")) for c in cells})
+    kernels = sorted({str(h)[:12] for h in (manifest.get("kernels") or {}).values()})
+    axes = summ["axes"]
+    source = Path(str(camp.get("source", ""))).name or DASH
+    out = [
+        ("campaign", f"{camp['name']} ({source})"),
+        ("description", " ".join(str(camp.get("description") or DASH).split())),
+        ("episodes", f"{summ['episodes']} in {len(cells)} cell(s)"),
+        ("grid", "; ".join(f"{a}: {', '.join(v)}" for a, v in axes.items()) or "one cell"),
+        ("seed", f"{camp.get('seed')} (common random numbers: {'yes' if camp.get('common_random_numbers') else 'no'})"),
+        ("controllers", ", ".join(controllers)),
+        ("intervals", f"two-sided {summ['confidence_level']:.0%} {method_name(summ['interval_method'])} for rates; exact one-sided "
+                      f"bounds when no or every episode counts; percentile bootstrap "
+                      f"({summ['bootstrap']['resamples']} resamples, seed {summ['bootstrap']['seed']}) for means"),
+        ("code", f"git {(manifest.get('environment') or {}).get('git_commit') or DASH}; kernels "
+                 f"{', '.join(kernels) or DASH}"),
+    ]
+    return out
+
+
+def definitions(summ: Mapping[str, Any]) -> list[tuple[str, str]]:
+    """(term, definition) for every metric the report shows, and the theorem checks."""
+    shown = {m for c in summ["cells"] for m in c["rates"]} | {m for c in summ["cells"] for m in c["values"]}
+    out = [(m.label, m.definition) for m in summary.RATE_METRICS + summary.VALUE_METRICS if m.name in shown]
+    out += [
+        ("Thm 2 (invariance)", "an invariance breach contradicts Theorem 2 (h ≥ ε is forward invariant under the "
+                               "VL-CBF); with perception noise and sampling it can happen, which is what is measured"),
+        ("Thm 5 (one-in-two feasibility)", "steps where neither applicable problem (Q1 while overtaking, Q2) solved; "
+                                           "the fallback then brakes towards the ego lane"),
+        ("error", "the episode could not be simulated; it is counted apart and not in any safety rate"),
+    ]
+    return out
+
+
+def render_markdown(
+    manifest: Mapping[str, Any], summ: Mapping[str, Any], tables: Sequence[Table], figs: Sequence[FigureResult]
+) -> str:
+    """report.md: the run's facts, every table, the figures (links into figures/) and definitions."""
+    lines = [f"# {_title(manifest)}", ""]
+    lines += [f"- **{k}**: {v}" for k, v in facts(manifest, summ)]
+    lines += ["", "## Tables", "", f"Also in `{TABLES_DIR}/` as Markdown and LaTeX (booktabs); per-cell statistics in "
+              f"`{SUMMARY}` and `{CELLS}`.", ""]
+    for t in tables:
+        lines += [to_markdown(t), ""]
+    lines += ["## Figures", ""]
+    for f in figs:
+        if f.file:
+            lines += [f"### {f.title}", "", f"![{f.title}]({f.file})", "", f.caption, ""]
+    skipped = [f for f in figs if not f.file]
+    if skipped:
+        lines += ["Not drawn:", ""] + [f"- {f.title}: {f.skipped}" for f in skipped] + [""]
+    lines += ["## Definitions", ""] + [f"- **{k}**: {v}." for k, v in definitions(summ)] + [""]
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------------------------ files
+
+
+def _write_text(path: Path, text: str) -> None:
+    store.atomic_write(path, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
+
+
+def _write_parquet(path: Path, table: pa.Table) -> None:
+    store.atomic_write(path, lambda tmp: pq.write_table(table, tmp))

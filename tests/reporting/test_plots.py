@@ -1,0 +1,35 @@
+"""mcverify.reporting.episode_plot: the replay figure, from a trajectory as `mcverify replay` stores it."""
+
+from __future__ import annotations
+
+import matplotlib.image as mpimg
+import numpy as np
+import synthetic
+
+from mcverify.campaign.spec import campaign_from_dict
+from mcverify.reporting import episode_plot
+
+
+def _cell():
+    return campaign_from_dict({"campaign": {"name": "p", "seed": 1, "episodes": 1},
+                               "model": {"barrier": {"epsilon": 0.4}}}).cells[0]
+
+
+ROW = {"episode_id": 3, "outcome": "overtook", "safe": True, "min_dist_front_m": 0.7, "min_h_front": 0.55}
+
+
+def test_replay_figure_from_the_replay_columns(tmp_path):
+    # today's replay trajectory: no opposing or plan columns, measured front columns instead
+    traj = {k: v for k, v in synthetic.trajectory(opposing=False).items() if not k.startswith(("opp_", "h_opp",
+                                                                                               "gap_opp"))}
+    traj["meas_front_speed_mps"] = traj["front_speed_mps"] + 0.3 * np.sin(traj["t_s"])
+    path = episode_plot.episode_figure(traj, _cell(), ROW, tmp_path / "e.png")
+    img = mpimg.imread(path)
+    assert img.shape[:2] == (900, 1100) and img[..., :3].std() > 0.05
+
+
+def test_replay_figure_with_opposing_vehicle_and_missing_heading(tmp_path):
+    traj = {k: v for k, v in synthetic.trajectory(opposing=True).items() if k != "ego_psi_rad"}
+    path = episode_plot.episode_figure(traj, _cell(), ROW, tmp_path / "o.png")
+    assert mpimg.imread(path).shape[:2] == (900, 1100)
+    assert path.read_bytes() == episode_plot.episode_figure(traj, _cell(), ROW, tmp_path / "o2.png").read_bytes()
