@@ -32,8 +32,15 @@ DEFAULT_CHUNK_SIZE = 8
 
 
 def default_run_dir(campaign: Campaign, results_dir: Path = Path("results")) -> Path:
+    """A new folder ``results_dir/<name>-<timestamp>`` that does not exist yet (``-2``, ``-3``, ...
+    are appended when runs start within the same second, or a failed try left its folder)."""
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-    return results_dir / f"{campaign.name}-{stamp}"
+    base = results_dir / f"{campaign.name}-{stamp}"
+    path, n = base, 1
+    while path.exists():
+        n += 1
+        path = base.with_name(f"{base.name}-{n}")
+    return path
 
 
 # ---------------------------------------------------------------------------------- manifest

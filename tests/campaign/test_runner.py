@@ -336,6 +336,7 @@ print(json.dumps({{"samples": samples, "peak_kb": peak_kb, "held_rows_kb": rss_k
 """
 
 
+@pytest.mark.slow  # statistical: 10,000 synthetic episodes, memory sampled along the run
 def test_memory_stays_flat_over_10000_episodes(tmp_path: Path):
     run_dir = tmp_path / "run"
     code = MEMORY_SCRIPT.format(tests=str(TESTS), per_cell=5000, run_dir=str(run_dir))
@@ -359,3 +360,12 @@ def test_memory_stays_flat_over_10000_episodes(tmp_path: Path):
     assert driver_growth_kb < bound_kb, (driver_growth_kb, result["held_rows_kb"])
     assert worker_growth_kb < bound_kb, (worker_growth_kb, result["held_rows_kb"])
     assert pq.ParquetFile(run_dir / store.EPISODES).metadata.num_rows == 10_000
+
+
+def test_default_run_folders_never_collide(tmp_path: Path) -> None:
+    """A second run in the same second, or after a failed try that left its folder, gets a new one."""
+    camp = campaign_from_dict({"campaign": {"name": "same", "seed": 1, "episodes": 1}})
+    first = runner.default_run_dir(camp, tmp_path)
+    first.mkdir()
+    second = runner.default_run_dir(camp, tmp_path)
+    assert second != first and not second.exists() and second.name.startswith(first.name)
