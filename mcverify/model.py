@@ -97,6 +97,9 @@ class Barrier:
 
 #: The valid values of ``Mpc.backend`` (implemented by :mod:`mcverify.solver.backends`).
 BACKEND_NAMES = ("ipopt", "ipm")
+#: The MPC-DC baselines (Sec. VI-D): "mpcdc" keeps the ellipses at the nodes (h >= 0), "mpcdc_eps"
+#: at the level of the cell (h >= barrier.epsilon); everything else about them is the same.
+MPCDC_CONTROLLERS = ("mpcdc", "mpcdc_eps")
 
 
 @dataclass(frozen=True)
@@ -112,7 +115,9 @@ class Mpc:
 
     ``controller``: "vlcbf" (the paper's dual TO-CBF-MPC, Q1 and Q2 with VL-CBF constraints) or
     "mpcdc" (the Sec. VI-D baseline: the same time-optimal MPC and horizon with the ellipses as
-    distance constraints at the nodes, no Q2 backup). ``backend``: the NLP solver ("ipopt", the
+    distance constraints at the nodes, no Q2 backup) or "mpcdc_eps" (the same MPC-DC with the
+    distance constraints at the cell's level, h >= ε (``barrier.epsilon``) instead of h >= 0: the
+    ε-margin ellipse, a runtime bound of the same kernel). ``backend``: the NLP solver ("ipopt", the
     reference; "ipm", the fast path of :mod:`mcverify.solver.backends`, the default). ``max_iter`` bounds
     warm-started solves, ``max_iter_cold`` cold ones (a cold start with the opposing vehicle needs
     many more iterations than a warm one).
@@ -145,6 +150,11 @@ class Mpc:
     infeasible_recheck_steps: int = 10
     infeasible_recheck_max_steps: int = 50
     tol: float = 1e-6
+
+    @property
+    def is_mpcdc(self) -> bool:
+        """An MPC-DC baseline (:data:`MPCDC_CONTROLLERS`): distance constraints, no Q2."""
+        return self.controller in MPCDC_CONTROLLERS
 
 
 @dataclass(frozen=True)

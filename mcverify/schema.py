@@ -57,7 +57,8 @@ EPISODE_COLUMNS: tuple[Column, ...] = (
     _c("cell", _STR, "", "the cell's name", identity=True),
     _c("cell_index", _INT, "", "the cell's index in the campaign", identity=True),
     _c("seed", _INT, "", "the campaign's seed", identity=True),
-    _c("controller", _STR, "", "the controller: vlcbf (the paper's dual TO-CBF-MPC) or mpcdc (the baseline)"),
+    _c("controller", _STR, "", "the controller: vlcbf (the paper's dual TO-CBF-MPC), mpcdc (the baseline) or "
+       "mpcdc_eps (the baseline at the level epsilon)"),
     _c("opposing_kind", _STR, "", "the opposing vehicle: none, autonomous or human"),
     _c("sample_front_accel_mps2", _FLOAT, "m/s^2", "the front vehicle's acceleration drawn for the episode"),
     # outcome

@@ -40,11 +40,11 @@ class NaiveOptiSolver:
         self.p = self.opti.parameter(ocp.ParamLayout.of(structure).size)
         f, g = fn(self.w, self.p)
         lbx, ubx = ocp.decision_bounds(params, structure)
-        lbg, ubg = ocp.constraint_bounds(structure)
+        lbg, ubg = ocp.constraint_bounds(structure, ocp.distance_margin(params))
         self.opti.minimize(f)
         n_eq = self.layout.n_eq
         self.opti.subject_to(g[:n_eq] == 0)
-        self.opti.subject_to(g[n_eq:] >= 0)
+        self.opti.subject_to(g[n_eq:] >= lbg[n_eq:])
         finite_lo, finite_hi = np.isfinite(lbx), np.isfinite(ubx)
         self.opti.subject_to(self.opti.bounded(lbx[finite_lo], self.w[np.flatnonzero(finite_lo).tolist()],
                                                np.where(finite_hi, ubx, np.inf)[finite_lo]))

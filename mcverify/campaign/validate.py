@@ -14,7 +14,7 @@ from mcverify import levels
 from mcverify.errors import CampaignError
 from mcverify.model import BACKEND_NAMES, ModelParams
 
-CONTROLLERS = ("vlcbf", "mpcdc")
+CONTROLLERS = ("vlcbf", "mpcdc", "mpcdc_eps")
 OPPOSING_KINDS = ("none", "autonomous", "human")
 #: Bounds that keep one episode computable (the kernel's size grows with the horizon; an episode
 #: runs max_time_s / control_period_s steps of ``substeps`` RK4 sub-steps each).

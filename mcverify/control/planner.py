@@ -14,7 +14,8 @@ Controllers (``params.mpc.controller``):
   instead of braking blindly (``q1_rescue_steps``, a deviation from Algorithm 1, which has no
   answer for a failed Q2). The fallback brake only when neither problem solves.
 * "mpcdc", the baseline of Sec. VI-D: only the overtaking problem, with the ellipses as distance
-  constraints at the nodes; no Q2 backup.
+  constraints at the nodes; no Q2 backup. "mpcdc_eps" is the same with the constraints at the
+  cell's level (h >= barrier.epsilon, :func:`mcverify.ocp.layout.distance_margin`).
 
 When no applicable problem has a solution, both controllers apply the rest of the last plan they
 followed (``held_steps``; it was verified one step earlier from nearly this state), and brake in
@@ -170,7 +171,7 @@ class Planner:
         detected = self.detects(ego, opp_meas)
         state.steps += 1
         state.opp_detected_steps += int(detected)
-        if self.params.mpc.controller == "mpcdc":
+        if self.params.mpc.is_mpcdc:
             return self._step_mpcdc(state, t_s, ego, front_meas, opp_meas if detected else None, lambda0, detected)
         solver = self.with_opp if detected else self.plain
         opp = opp_meas if detected else None

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mcverify.levels import lambda0_from_epsilon
+from mcverify.levels import epsilon_from_lambda0, lambda0_from_epsilon
 from mcverify.model import ModelParams
 
 N_X = 4  # [x, y, psi, v]
@@ -84,7 +84,7 @@ class OcpStructure:
             order_m=params.barrier.order_m,
             with_opposing=with_opposing,
             uniform_dt=uniform_dt,
-            constraint="distance" if params.mpc.controller == "mpcdc" else "cbf",
+            constraint="distance" if params.mpc.is_mpcdc else "cbf",
             opp_order_m=len(params.barrier.opp_lambdas_m),
             opp_law_order_m=len(params.opposing.lambdas_m),
         )
@@ -200,7 +200,7 @@ def opposing_mode(params: ModelParams) -> str:
     MPC-DC (the conventional baseline) extrapolates the measured speed; the VL-CBF planner predicts
     an autonomous veh_o with its known law and a human driver with the worst case (Sec. V-C).
     """
-    if params.mpc.controller == "mpcdc":
+    if params.mpc.is_mpcdc:
         return "constant"
     return "law" if params.opposing.kind == "autonomous" else "worst"
 
@@ -345,12 +345,33 @@ class NlpLayout:
         return np.concatenate(parts)
 
 
-def constraint_bounds(structure: OcpStructure) -> tuple[np.ndarray, np.ndarray]:
-    """(lbg, ubg), each (n_g,): equalities == 0, inequalities >= 0."""
+def distance_margin(params: ModelParams) -> float:
+    """The level the MPC-DC distance rows keep (h >= it at the nodes): for "mpcdc_eps" (the
+    ε-margin ellipse) the cell's level ε (``barrier.epsilon``, or the ε of ``barrier.lambda0``), 0
+    otherwise (the ellipse itself)."""
+    if params.mpc.controller != "mpcdc_eps":
+        return 0.0
+    b = params.barrier
+    return float(b.epsilon) if b.epsilon is not None else epsilon_from_lambda0(b.lambdas_m, float(b.lambda0))
+
+
+def constraint_bounds(structure: OcpStructure, margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """(lbg, ubg), each (n_g,): equalities == 0, inequalities >= 0.
+
+    margin: with ``constraint="distance"`` (MPC-DC) the distance rows of the front and the opposing
+    vehicle's ellipses get ``>= margin`` (:func:`distance_margin`): a runtime bound, so the margin
+    needs no kernel of its own.
+    """
     lay = NlpLayout.of(structure)
     lbg = np.zeros(lay.n_g)
     ubg = np.full(lay.n_g, np.inf)
     ubg[: lay.n_eq] = 0.0
+    if margin and structure.constraint == "distance":
+        gs = lay.g_slices
+        lbg[gs["front"]] = margin
+        lbg[gs["opp"]] = margin
+    elif margin:
+        raise ValueError(f"a distance margin ({margin}) needs constraint='distance', got {structure.constraint!r}")
     return lbg, ubg
 
 

@@ -23,6 +23,7 @@ from mcverify.ocp import (
     OcpStructure,
     constraint_bounds,
     decision_bounds,
+    distance_margin,
     initial_guess,
     pack_params,
 )
@@ -85,7 +86,7 @@ class MpcSolver:
         self.kernel = get_kernel(structure, kernel_dir)
         self.kernel_hash: str = self.kernel.hash
         lbx, ubx = decision_bounds(params, structure)
-        lbg, ubg = constraint_bounds(structure)
+        lbg, ubg = constraint_bounds(structure, distance_margin(params))
         self.problem = Problem(self.kernel, lbx, ubx, lbg, ubg)
         self.backend = create_backend(params.mpc.backend, self.problem, params)
 

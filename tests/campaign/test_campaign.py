@@ -136,6 +136,17 @@ def test_bundle_axes_times_grid_with_own_episode_counts():
     assert [c.episodes for c in forced.cells] == [2, 2, 2, 2]
 
 
+def test_mpcdc_eps_is_a_controller_treated_as_mpcdc():
+    camp = campaign_from_dict(spec(axes={"method": {"MPC-DC eps=0.5": {"mpc.controller": "mpcdc_eps",
+                                                                        "barrier.epsilon": 0.5}}},
+                                   model={"opposing": {"kind": "human"}}))
+    (cell,) = camp.cells
+    assert cell.controller == "mpcdc_eps" and cell.params.mpc.is_mpcdc and cell.epsilon == 0.5
+    from mcverify.ocp import OcpStructure, distance_margin, opposing_mode
+    assert OcpStructure.from_params(cell.params).constraint == "distance"
+    assert opposing_mode(cell.params) == "constant" and distance_margin(cell.params) == 0.5
+
+
 def test_front_accel_range_grid_and_validation():
     camp = campaign_from_dict(spec(grid={"scenario.front_accel_range_mps2": [[1, 3], [3, 5]]}))
     assert [c.params.scenario.front_accel_range_mps2 for c in camp.cells] == [(1.0, 3.0), (3.0, 5.0)]
@@ -155,6 +166,8 @@ def test_front_accel_range_grid_and_validation():
         (spec(model={"opposing": {"kind": "human", "speed_mps": 30.0}}), "above opposing.speed_limit_mps"),
         (spec(model={"opposing": {"kind": "human", "x_m": 50.0}}), "must start ahead of the front vehicle"),
         (spec(model={"mpc": {"backend": "magic"}}), "unknown solver backend"),
+        (spec(model={"mpc": {"controller": "mpcdc_epsilon"}}),
+         "mpc.controller: unknown controller 'mpcdc_epsilon'; valid: vlcbf, mpcdc, mpcdc_eps$"),
     ],
 )
 def test_axes_and_opposing_errors_name_the_problem(raw, fragment):

@@ -237,13 +237,14 @@ def test_free_stage_intervals_variant_solves_table_ii_start(tmp_path):
 HUMAN = dataclasses.replace(P, opposing=dataclasses.replace(P.opposing, kind="human"))
 AUTO = dataclasses.replace(P, opposing=dataclasses.replace(P.opposing, kind="autonomous"))
 MPCDC = dataclasses.replace(HUMAN, mpc=dataclasses.replace(P.mpc, controller="mpcdc"))
+MPCDC_EPS = dataclasses.replace(HUMAN, mpc=dataclasses.replace(P.mpc, controller="mpcdc_eps"))
 FRONT_25 = np.array([64.0, 0.0, 25.0 / 3.6])
 
 
 @pytest.fixture(scope="module")
 def opp_solvers() -> dict[str, MpcSolver]:
     return {name: MpcSolver(p, ocp.OcpStructure.from_params(p, with_opposing=True))
-            for name, p in (("human", HUMAN), ("auto", AUTO), ("mpcdc", MPCDC))}
+            for name, p in (("human", HUMAN), ("auto", AUTO), ("mpcdc", MPCDC), ("mpcdc_eps", MPCDC_EPS))}
 
 
 def np_opp_accel_numbers(plan_xo, dt):
@@ -360,3 +361,30 @@ def test_mpcdc_keeps_the_ellipses_at_the_nodes_only(opp_solvers):
     # the plan rides the ellipse: its minimum over the nodes is (nearly) active
     h_nodes = [np_h(sol.x_plan[i], t[i], FRONT_25, b.ellipse_a_m, b.ellipse_b_m) for i in range(1, 51)]
     assert min(h_nodes) < 0.05
+
+
+def test_mpcdc_eps_keeps_the_margin_at_the_nodes_on_the_same_kernel(opp_solvers):
+    """MPC-DC with the eps-margin ellipse (controller "mpcdc_eps"): the same compiled kernel as
+    MPC-DC (the margin is a runtime bound on the distance rows), every node 1..N at h_ef >= eps and
+    h >= eps on veh_o's ellipse, and the plan rides the margin instead of the ellipse."""
+    b = MPCDC_EPS.barrier
+    eps = b.epsilon
+    assert ocp.distance_margin(MPCDC_EPS) == eps == 0.3 and ocp.distance_margin(MPCDC) == 0.0
+    assert opp_solvers["mpcdc_eps"].kernel_hash == opp_solvers["mpcdc"].kernel_hash
+    st = ocp.OcpStructure.from_params(MPCDC_EPS, with_opposing=True)
+    lbg, _ = ocp.constraint_bounds(st, eps)
+    gs = ocp.NlpLayout.of(st).g_slices
+    assert np.all(lbg[gs["front"]] == eps) and np.all(lbg[gs["opp"]] == eps) and np.all(lbg[gs["goal"]] == 0)
+    opp = np.array([420.0, -12.0])
+    sol = opp_solvers["mpcdc_eps"].solve(TABLE_II_EGO, FRONT_25, 1, LAMBDA0, opp_xv=opp)
+    assert sol.success, sol.status
+    t = np.concatenate([[0.0], np.cumsum(sol.dt_plan)])
+    h_nodes = [np_h(sol.x_plan[i], t[i], FRONT_25, b.ellipse_a_m, b.ellipse_b_m) for i in range(1, 51)]
+    assert min(h_nodes) >= eps - TOL
+    assert min(h_nodes) < eps + 0.05  # active: the margin, not the ellipse, is what binds
+    for i in range(1, 51):
+        ho = ((sol.x_plan[i, 0] - sol.opp_plan[i, 0]) / b.ellipse_a_m) ** 2 + \
+             ((sol.x_plan[i, 1] - 3.5) / b.ellipse_b_m) ** 2 - 1
+        assert ho >= eps - TOL
+    with pytest.raises(ValueError, match="constraint='distance'"):
+        ocp.constraint_bounds(ocp.OcpStructure.from_params(HUMAN), eps)
