@@ -24,7 +24,7 @@ import numpy as np
 import pyarrow as pa
 
 from mcverify import schema
-from mcverify.analysis import stats
+from mcverify.analysis import bounds, stats
 from mcverify.analysis.columns import Columns, bools, floats, strings
 from mcverify.schema import ERROR_OUTCOME, OUTCOME_FLAGS
 
@@ -44,10 +44,14 @@ class Metric:
 
 
 #: Boolean metrics summarised as rates with confidence intervals, in report order. ``collision`` is
-#: derived: a collision with either vehicle (the columns present are OR-ed).
+#: derived: a collision with either vehicle (the columns present are OR-ed); so is
+#: ``outside_margin``: safe with the cell's margin, no collision and min h_ef >= epsilon
+#: (``invariance_margin`` >= 0), the second meaning of "safe" beside ``safe`` (h_ef >= 0).
 RATE_METRICS: tuple[Metric, ...] = (
     Metric("safe", "safe", "no collision with either vehicle and h_ef ≥ 0 (outside the safety ellipse) at every "
            "integration sub-step"),
+    Metric("outside_margin", "outside ε margin", "no collision with either vehicle and h_ef ≥ ε (the cell's level; "
+           "min h_ef − ε ≥ 0) at every integration sub-step: safe with the margin"),
     Metric("collision", "collision", "the ego footprint overlapped the front or the opposing vehicle's at some "
            "sub-step"),
     Metric("collision_front", "collision veh_f", "the oriented footprints of ego and front vehicle overlapped"),
@@ -128,7 +132,7 @@ OPPOSING_METRICS = ("collision_opp", "opp_invariance_breach", "min_gap_opp_m", "
 SOLVER_COLUMNS = ("solves", "iterations_mean", "iterations_max", "cold_retries", "solve_time_mean_s",
                   "solve_time_max_s", "solver_statuses")
 #: Summary metrics that are not episode columns (derived here from several).
-DERIVED_METRICS = ("collision",)
+DERIVED_METRICS = ("collision", "outside_margin")
 
 
 def summarised_columns() -> frozenset[str]:
@@ -257,6 +261,7 @@ def cell_summary(
         "noise": {"kind": params.get("noise", {}).get("kind"), "scale": params.get("noise", {}).get("scale")},
         "epsilon": _num(info.get("epsilon", _first(t, "epsilon"))),
         "lambda0": _num(info.get("lambda0", _first(t, "lambda0"))),
+        "goal_time_bound_s": bounds.goal_time_bounds(params),
         "overrides": dict(info.get("overrides") or {}),
         "episodes_planned": int(info["episodes"]) if "episodes" in info else n_all,
         "episodes": n_all,
@@ -456,6 +461,12 @@ def _flags(t: Columns, name: str) -> np.ndarray | None:
         if not present:
             return None
         return np.logical_or.reduce([bools(t, c) for c in present])
+    if name == "outside_margin":
+        if "invariance_margin" not in t.column_names:
+            return None
+        collision = _flags(t, "collision")
+        outside = floats(t, "invariance_margin") >= 0.0  # NaN (no level): not outside
+        return outside if collision is None else outside & ~collision
     if name in t.column_names:
         return bools(t, name)
     if name in OUTCOMES and "outcome" in t.column_names:  # the flag columns are derived from outcome

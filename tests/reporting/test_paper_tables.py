@@ -128,3 +128,45 @@ def test_parse_cell_name_and_pretty_labels():
     assert paper_tables.pretty_label("epsilon", "0.3") == "ε = 0.3"
     assert paper_tables.pretty_label("lambda0", "-0.3135") == "λ₀ = -0.3135"
     assert paper_tables.pretty_label("scale", "2") == "scale = 2"
+
+
+def test_table4_shows_both_meanings_of_safe_and_the_eps_variant_beside_mpcdc():
+    import copy
+
+    raw = copy.deepcopy(synthetic.TABLE4)
+    raw["axes"]["method"]["MPC-DC eps=0.3"] = {"mpc.controller": "mpcdc_eps", "barrier.epsilon": 0.3}
+    raw["reference"]["cells"]["scenario=B,method=MPC-DC eps=0.3"] = {"safe.k": 19}
+    summ, manifest = _summary(raw, opposing=True)
+    t = paper_tables.paper_table(summ, manifest["campaign"]["reference"])
+    assert t.columns == ["", "MPC-DC", "MPC-DC eps=0.3", "VL-CBF eps=0.3", "VL-CBF eps=0.5"]
+    rows = _rows(t)  # the last block (Scenario B) wins for repeated labels
+    by_name = {c["cell"]: c for c in summ["cells"]}
+    for col, method in enumerate(["MPC-DC", "MPC-DC eps=0.3", "VL-CBF eps=0.3", "VL-CBF eps=0.5"]):
+        c = by_name[f"scenario=B,method={method}"]
+        safe, outside = c["rates"]["safe"], c["rates"]["outside_margin"]
+        assert rows["safe cases (h_ef ≥ 0): ours"][col].startswith(f"{safe['k']}/{safe['n']}")
+        assert rows["outside the ε margin (h_ef ≥ ε): ours"][col].startswith(f"{outside['k']}/{outside['n']}")
+    assert rows["safe cases (h_ef ≥ 0): paper"][:2] == ["19/30", "19/30"]
+    assert "outside the ε margin (h_ef ≥ ε): paper" not in rows  # the paper gives one count only
+    assert any("Two meanings of safe" in n for n in t.notes)
+
+
+def test_outside_margin_is_derived_from_the_margin_and_collisions():
+    rows = [{"cell": "c", "cell_index": 0, "outcome": "overtook", "invariance_margin": m, "collision_front": cf,
+             "collision_opp": False, "safe": True}
+            for m, cf in ((0.1, False), (0.0, False), (-0.01, False), (0.2, True), (math.nan, False))]
+    cell = summary.summarise(pa.Table.from_pylist(rows), bootstrap_resamples=10)["cells"][0]
+    assert cell["rates"]["outside_margin"]["k"] == 2 and cell["rates"]["outside_margin"]["n"] == 5
+
+
+def test_table2_shows_the_start_to_goal_lower_bounds():
+    raw = {"campaign": {"name": "t2", "seed": 1, "episodes": 3}, "grid": {"scenario.front_speed_kmh": [25, 36]},
+           "reference": {"table": "II", "cells": {"front_speed_kmh=25": {"overtake_time_s.mean": 4.64},
+                                                  "front_speed_kmh=36": {"overtake_time_s.mean": 5.90}}}}
+    summ, manifest = _summary(raw)
+    t = paper_tables.paper_table(summ, manifest["campaign"]["reference"])
+    rows = _rows(t)
+    assert rows["start-to-goal lower bound, at the speed limit from t = 0 (s)"] == ["5.34", "7.66"]
+    assert rows["start-to-goal lower bound, with the acceleration limit (s)"] == ["6.52", "9.23"]
+    assert summ["cells"][0]["goal_time_bound_s"]["speed_limit"] == pytest.approx(5.339, abs=1e-3)
+    assert any("Start-to-goal lower bound" in n for n in t.notes)
