@@ -100,6 +100,8 @@ BACKEND_NAMES = ("ipopt", "ipm")
 #: The MPC-DC baselines (Sec. VI-D): "mpcdc" keeps the ellipses at the nodes (h >= 0), "mpcdc_eps"
 #: at the level of the cell (h >= barrier.epsilon); everything else about them is the same.
 MPCDC_CONTROLLERS = ("mpcdc", "mpcdc_eps")
+#: The evidence that makes the ego abandon the overtake (:attr:`Mpc.abandon_rule`).
+ABANDON_RULES = ("first_failure", "consecutive", "certified")
 
 
 @dataclass(frozen=True)
@@ -135,6 +137,26 @@ class Mpc:
     a problem it can solve is back at once; the wait only delays what IPOPT alone could solve (up to
     1 s at 50 Hz). Only the ``ipm`` backend has a fast path; ``ipopt`` always runs in full. Why
     the memo exists, with its measurements: ``docs/decisions.md``.
+
+    ``abandon_rule``: what evidence makes the ego abandon the overtake (Algorithm 1's break out of
+    the Q1 loop, and Table I's row 0 "go back: Q1 not solved" for a human-driven veh_o). The paper
+    says only "whenever the feasibility of Q1 is being challenged, we merge back" (Sec. IV) and
+    Algorithm 1 breaks at the first step Q1 is not solved; it does not say what challenges it. A
+    failed solve is not a proof: half of the turn-backs measured on Table III-like runs came from
+    IPOPT iteration limits, often on a step where the noisy measured veh_f speed was 6-9 % above
+    the truth. The rules:
+
+    * "first_failure" (the default, the paper's Algorithm 1 read literally): the first failed Q1
+      solve abandons, whatever the reason;
+    * "consecutive": ``abandon_after_failures`` consecutive failed Q1 solves (k, default 3) abandon;
+    * "certified": only a Q1 failure the solver certified infeasible (IPOPT's certificate, or a
+      failure presumed infeasible by the infeasibility memo after such a certification) abandons;
+      iteration limits and numerical failures do not.
+
+    While the rule has not fired and Q1 failed (with Q2 solved), the ego keeps following its last
+    Q1 plan (the held plan, counted in ``q1_held_steps``); once that plan is used up (or there is
+    none) the rule no longer waits and Algorithm 1 goes on as in "first_failure". Everything else
+    of Algorithm 1 and Table I is unchanged.
     """
 
     controller: str = "vlcbf"
@@ -149,6 +171,8 @@ class Mpc:
     max_iter_cold: int = 400
     infeasible_recheck_steps: int = 10
     infeasible_recheck_max_steps: int = 50
+    abandon_rule: str = "first_failure"
+    abandon_after_failures: int = 3
     tol: float = 1e-6
 
     @property

@@ -105,6 +105,24 @@ EPISODE_COLUMNS: tuple[Column, ...] = (
     _c("switched_to_q2_at_s", _FLOAT, "s", "when the ego abandoned the overtake (NaN if never)"),
     _c("went_back_reason", _STR, "", "why it went back: q1_not_solved or table_one_row_<k>; empty if not"),
     _c("table_one_rows", _STR, "", "JSON counts of the Table I rows met (row -> steps)"),
+    # Q1 failures by kind, abandonment (mpc.abandon_rule) and Theorem 5 by evidence
+    _c("q1_fail_certified_steps", _INT, "", "q1_fail_steps where IPOPT certified Q1 infeasible (directly or as the "
+       "fast path's fallback)"),
+    _c("q1_fail_presumed_steps", _INT, "", "q1_fail_steps presumed infeasible: a fast-path-only failure of a Q1 "
+       "certified infeasible shortly before (the infeasibility memo)"),
+    _c("q1_fail_iteration_limit_steps", _INT, "", "q1_fail_steps that ended on the solver's iteration limit"),
+    _c("q1_fail_other_steps", _INT, "", "the other q1_fail_steps: numerical failure, exception, invalid input or a "
+       "solution rejected by the feasibility check (the four q1_fail_* columns sum to q1_fail_steps)"),
+    _c("q1_held_steps", _INT, "", "control steps overtaking where Q1 failed, Q2 solved and mpc.abandon_rule had not "
+       "fired: the ego kept its last Q1 plan"),
+    _c("went_back_q1_failure", _STR, "", "the kind of the Q1 failure that abandoned the overtake: "
+       "certified_infeasible, presumed_infeasible, iteration_limit or other; empty if none did"),
+    _c("both_certified_infeasible_steps", _INT, "", "both_infeasible_steps where IPOPT certified both Q1 and Q2 "
+       "infeasible at that step (a counter-example to Theorem 5, up to local infeasibility)"),
+    _c("both_unsolved_uncertified_steps", _INT, "", "the other both_infeasible_steps: at least one of Q1, Q2 ran out "
+       "of iterations, failed numerically or was only presumed infeasible (a solver budget, not a proof)"),
+    _c("both_infeasible_longest_run", _INT, "", "longest run of consecutive control steps counted in "
+       "both_infeasible_steps"),
     # solver
     _c("solves", _INT, "", "problems solved (attempted) in the episode"),
     _c("cold_retries", _INT, "", "failed warm IPOPT starts retried cold"),

@@ -102,26 +102,41 @@ OUTCOMES = (*OUTCOME_FLAGS, ERROR_OUTCOME)
 
 #: Categorical episode columns counted per cell (empty strings are not counted): what drove the ego
 #: when it first left the safe set ("planned", "held", "fallback") and why it went back.
-CATEGORY_COLUMNS = ("first_unsafe_cause", "went_back_reason")
+CATEGORY_COLUMNS = ("first_unsafe_cause", "went_back_reason", "went_back_q1_failure")
 #: JSON-count episode columns summed per cell: Table I rows met, IPOPT return statuses.
 JSON_COUNT_COLUMNS = ("table_one_rows",)
 
-#: ``theorem_checks`` of a cell: key -> (episode column, "sum" over episodes or "episodes" with a
-#: positive value). Theorem 2: invariance breaches; Theorem 5: steps with Q1 and Q2 both unsolved.
+#: ``theorem_checks`` of a cell: key -> (episode column, "sum" over episodes, "episodes" with a
+#: positive value or "max" over episodes). Theorem 2: invariance breaches; Theorem 5: steps with Q1
+#: and Q2 both unsolved, split by evidence (both certified infeasible, or a budget / numerical failure).
 THEOREM_CHECKS: dict[str, tuple[str, str]] = {
     "invariance_breaches": ("invariance_breach", "sum"),
     "opp_invariance_breaches": ("opp_invariance_breach", "sum"),
     "episodes_with_both_infeasible": ("both_infeasible_steps", "episodes"),
     "both_infeasible_steps": ("both_infeasible_steps", "sum"),
+    "episodes_with_both_certified": ("both_certified_infeasible_steps", "episodes"),
+    "both_certified_infeasible_steps": ("both_certified_infeasible_steps", "sum"),
+    "both_unsolved_uncertified_steps": ("both_unsolved_uncertified_steps", "sum"),
+    "both_infeasible_longest_run": ("both_infeasible_longest_run", "max"),
     "episodes_with_fallback": ("fallback_steps", "episodes"),
     "fallback_steps": ("fallback_steps", "sum"),
     "episodes_with_held": ("held_steps", "episodes"),
     "held_steps": ("held_steps", "sum"),
     "q1_fail_steps": ("q1_fail_steps", "sum"),
+    "q1_fail_certified_steps": ("q1_fail_certified_steps", "sum"),
+    "q1_fail_presumed_steps": ("q1_fail_presumed_steps", "sum"),
+    "q1_fail_iteration_limit_steps": ("q1_fail_iteration_limit_steps", "sum"),
+    "q1_fail_other_steps": ("q1_fail_other_steps", "sum"),
+    "q1_held_steps": ("q1_held_steps", "sum"),
     "q2_fail_steps": ("q2_fail_steps", "sum"),
     "q2_driven_steps": ("q2_driven_steps", "sum"),
     "q1_rescue_steps": ("q1_rescue_steps", "sum"),
 }
+
+#: The columns of one Theorem 5 finding (:func:`theorem_findings`), episode columns all.
+FINDING_COLUMNS = ("episode_id", "cell_episode", "both_infeasible_steps", "both_certified_infeasible_steps",
+                   "both_unsolved_uncertified_steps", "both_infeasible_longest_run")
+
 
 _COLLISION_COLUMNS = ("collision_front", "collision_opp")
 
@@ -138,7 +153,7 @@ DERIVED_METRICS = ("collision", "outside_margin")
 def summarised_columns() -> frozenset[str]:
     """Every episode column this module reads by name (each one declared in :mod:`mcverify.schema`)."""
     metrics = {m.name for m in RATE_METRICS + VALUE_METRICS} - set(DERIVED_METRICS)
-    theorem = {col for col, _ in THEOREM_CHECKS.values()}
+    theorem = {col for col, _ in THEOREM_CHECKS.values()} | set(FINDING_COLUMNS)
     return frozenset(metrics | theorem | set(CATEGORY_COLUMNS) | set(JSON_COUNT_COLUMNS) | set(OPPOSING_METRICS)
                      | set(_COLLISION_COLUMNS) | set(SOLVER_COLUMNS) | set(OUTCOME_FLAGS)
                      | {"outcome", "cell", "cell_index", "controller", "opposing_kind", "epsilon", "lambda0"})
@@ -222,7 +237,8 @@ def cell_summary(
     :data:`OUTCOMES`), ``rates`` (name -> :func:`stats.rate_summary`, over valid episodes;
     ``error`` over all), ``values`` (name -> :func:`value_summary`), ``counts`` (per
     :data:`CATEGORY_COLUMNS` and :data:`JSON_COUNT_COLUMNS` the run has: value -> episodes, or
-    summed counts), ``theorem_checks``, ``solver`` (iterations, solve times, cold retries, IPOPT
+    summed counts), ``theorem_checks``, ``theorem_findings`` (every episode with a step where
+    neither Q1 nor Q2 solved: :func:`theorem_findings`), ``solver`` (iterations, solve times, cold retries, IPOPT
     return statuses summed over episodes).
     """
     t = t if isinstance(t, Columns) else Columns.from_table(t)
@@ -271,6 +287,7 @@ def cell_summary(
         "values": values,
         "counts": _counts(v),
         "theorem_checks": _theorem_checks(v),
+        "theorem_findings": theorem_findings(v),
         "solver": _solver(v),
     }
 
@@ -412,8 +429,26 @@ def _theorem_checks(v: Columns) -> dict[str, int]:
     for key, (col, how) in THEOREM_CHECKS.items():
         if col in v.column_names:
             x = floats(v, col)
-            out[key] = int((x > 0).sum()) if how == "episodes" else int(np.nansum(x))
+            if how == "episodes":
+                out[key] = int((x > 0).sum())
+            elif how == "max":
+                out[key] = int(np.nanmax(x)) if np.isfinite(x).any() else 0
+            else:
+                out[key] = int(np.nansum(x))
     return out
+
+
+def theorem_findings(v: Columns) -> list[dict[str, int]]:
+    """Every episode with a step where neither Q1 nor Q2 solved (Theorem 5 says there is none), in
+    episode order: :data:`FINDING_COLUMNS` (a column the run lacks is left out)."""
+    if "both_infeasible_steps" not in v.column_names or v.num_rows == 0:
+        return []
+    cols = [c for c in FINDING_COLUMNS if c in v.column_names]
+    values = {c: floats(v, c) for c in cols}
+    out = []
+    for i in np.flatnonzero(values["both_infeasible_steps"] > 0):
+        out.append({c: int(values[c][i]) for c in cols if np.isfinite(values[c][i])})
+    return sorted(out, key=lambda f: f.get("episode_id", 0))
 
 
 def _solver(v: Columns) -> dict[str, Any]:

@@ -12,7 +12,7 @@ from typing import Any
 
 from mcverify import levels
 from mcverify.errors import CampaignError
-from mcverify.model import BACKEND_NAMES, ModelParams
+from mcverify.model import ABANDON_RULES, BACKEND_NAMES, ModelParams
 
 CONTROLLERS = ("vlcbf", "mpcdc", "mpcdc_eps")
 OPPOSING_KINDS = ("none", "autonomous", "human")
@@ -99,6 +99,11 @@ def validate_params(p: ModelParams, where: str) -> None:
         raise bad("mpc.infeasible_recheck_max_steps", f"must be >= mpc.infeasible_recheck_steps "
                   f"({m.infeasible_recheck_steps}), got {m.infeasible_recheck_max_steps} "
                   "(set both; equal: a fixed period)")
+    if m.abandon_rule not in ABANDON_RULES:
+        raise bad("mpc.abandon_rule", f"unknown rule {_short(m.abandon_rule)}; valid: {', '.join(ABANDON_RULES)}")
+    if type(m.abandon_after_failures) is not int or m.abandon_after_failures < 1:
+        raise bad("mpc.abandon_after_failures", f"must be an integer >= 1 (consecutive failed Q1 solves), "
+                  f"got {_short(m.abandon_after_failures)}")
     if not 1 <= s.substeps <= MAX_SUBSTEPS:
         raise bad("sim.substeps", f"must be >= 1 and <= {MAX_SUBSTEPS}, got {s.substeps}")
     if s.max_time_s < s.control_period_s:

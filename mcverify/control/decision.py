@@ -6,6 +6,10 @@ Pure decision logic, no solving: which problem drives the ego in this control st
   When Q1 cannot be solved (e.g. veh_f accelerates away, thm.one_in_two_feasibility) it breaks out
   of the Q1 loop for good and follows Q2 back behind veh_f.
 * A human-driven opposing vehicle: Table I decides from the two plans (:func:`table_one`).
+* What counts as "Q1 cannot be solved" is :attr:`mcverify.model.Mpc.abandon_rule`
+  (:func:`abandon_overtake`): the first failed solve (Algorithm 1 read literally, the default), k
+  consecutive failed solves, or only a certified infeasibility. While the rule has not fired, a
+  failed Q1 leaves the ego on its last Q1 plan (``Source.HELD``) instead of going back.
 * Going back, the ego applies Q2 while Q2 solves. When no applicable problem has a solution the
   planner applies the rest of the last plan it followed, then brakes in its own lane
   (:mod:`mcverify.control.planner`), and the step is counted.
@@ -33,12 +37,34 @@ class Source(IntEnum):
     HELD = 4  # no applicable problem solved: the rest of the last applied plan (either controller)
 
 
-def decide(mode: Mode, q1_ok: bool, q2_ok: bool) -> tuple[Mode, Source]:
+#: How a failed solve failed, from the strongest evidence of infeasibility to the weakest (the
+#: split of ``q1_fail_steps`` and the ``went_back_q1_failure`` column).
+FAILURE_KINDS = ("certified_infeasible", "presumed_infeasible", "iteration_limit", "other")
+
+
+def abandon_overtake(rule: str, failures_in_a_row: int, failure: str, k: int) -> bool:
+    """Does this step's failed Q1 solve abandon the overtake (:attr:`Mpc.abandon_rule`)?
+
+    rule: "first_failure", "consecutive" or "certified"; failures_in_a_row: failed Q1 solves in a
+    row up to and including this one; failure: this solve's kind (:data:`FAILURE_KINDS`); k:
+    ``Mpc.abandon_after_failures``.
+    """
+    if rule == "first_failure":
+        return True
+    if rule == "consecutive":
+        return failures_in_a_row >= k
+    if rule == "certified":
+        return failure in ("certified_infeasible", "presumed_infeasible")
+    raise ValueError(f"unknown abandon rule {rule!r}")
+
+
+def decide(mode: Mode, q1_ok: bool, q2_ok: bool, abandon: bool = True) -> tuple[Mode, Source]:
     """Next mode and the source of this step's input (Algorithm 1 without a human opposing driver).
 
     - overtaking and Q1 solved: apply Q1;
     - overtaking, Q1 unsolvable, Q2 solved: break out of the Q1 loop (the overtake is abandoned
-      for good) and apply Q2;
+      for good) and apply Q2 - if ``abandon`` (the abandonment rule fired, :func:`abandon_overtake`;
+      always with the default rule); else keep overtaking on the last Q1 plan (``Source.HELD``);
     - going back: apply Q2 while it solves;
     - otherwise: fall back (neither applicable problem solved).
     """
@@ -46,7 +72,7 @@ def decide(mode: Mode, q1_ok: bool, q2_ok: bool) -> tuple[Mode, Source]:
         if q1_ok:
             return Mode.OVERTAKE, Source.Q1
         if q2_ok:
-            return Mode.GO_BACK, Source.Q2
+            return (Mode.GO_BACK, Source.Q2) if abandon else (Mode.OVERTAKE, Source.HELD)
         return Mode.OVERTAKE, Source.FALLBACK
     if q2_ok:
         return Mode.GO_BACK, Source.Q2

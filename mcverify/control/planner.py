@@ -13,6 +13,10 @@ Controllers (``params.mpc.controller``):
   (Theorem 5 is then checked exactly) and, if Q1 has a plan, the ego follows it for that step
   instead of braking blindly (``q1_rescue_steps``, a deviation from Algorithm 1, which has no
   answer for a failed Q2). The fallback brake only when neither problem solves.
+* When a failed Q1 abandons the overtake is :attr:`mcverify.model.Mpc.abandon_rule` (default: the
+  first failure, Algorithm 1 read literally); while the rule waits, the ego follows its last Q1
+  plan (``q1_held_steps``). Every Q1 failure is counted by kind (:func:`failure_kind`), and every
+  step with neither problem solved by whether both failures are certificates (Theorem 5).
 * "mpcdc", the baseline of Sec. VI-D: only the overtaking problem, with the ellipses as distance
   constraints at the nodes; no Q2 backup. "mpcdc_eps" is the same with the constraints at the
   cell's level (h >= barrier.epsilon, :func:`mcverify.ocp.layout.distance_margin`).
@@ -30,10 +34,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mcverify.control.decision import Mode, Source, TableOneInput, decide, table_one
+from mcverify.control.decision import Mode, Source, TableOneInput, abandon_overtake, decide, table_one
 from mcverify.model import ModelParams
 from mcverify.ocp.problem import OcpStructure
 from mcverify.solver.mpc import MpcSolution, MpcSolver, WarmStart
+from mcverify.solver.status import SolveOutcome
 
 Q1, Q2 = +1, -1  # the OCP's direction parameter: goal ahead of / behind the front vehicle
 
@@ -51,8 +56,20 @@ class EpisodeState:
     steps: int = 0
     opp_detected_steps: int = 0
     q1_fail_steps: int = 0
+    # q1_fail_steps split by how the solve failed (decision.FAILURE_KINDS; they sum to q1_fail_steps)
+    q1_fail_certified_steps: int = 0
+    q1_fail_presumed_steps: int = 0
+    q1_fail_iteration_limit_steps: int = 0
+    q1_fail_other_steps: int = 0
+    q1_failures_in_a_row: int = 0  # failed Q1 solves in a row while overtaking (Mpc.abandon_rule)
+    q1_held_steps: int = 0  # Q1 failed, Q2 solved, the abandonment rule waited: the last Q1 plan applied
     q2_fail_steps: int = 0
     both_infeasible_steps: int = 0
+    # both_infeasible_steps split: both problems certified infeasible this step, or not (Theorem 5)
+    both_certified_infeasible_steps: int = 0
+    both_unsolved_uncertified_steps: int = 0
+    both_infeasible_run: int = 0  # the current run of consecutive both-unsolved steps
+    both_infeasible_longest_run: int = 0
     fallback_steps: int = 0
     held_steps: int = 0
     q2_driven_steps: int = 0
@@ -61,6 +78,7 @@ class EpisodeState:
     presumed_infeasible_solves: int = 0
     switched_to_q2_at_s: float = math.nan
     went_back_reason: str = ""
+    went_back_q1_failure: str = ""  # the kind of the Q1 failure that abandoned the overtake
     first_unsafe_s: float = math.nan  # start of the control period in which the ego first left the safe set
     first_unsafe_cause: str = ""  # what drove it then (rollout.UNSAFE_CAUSES)
     table_one_rows: dict[int, int] = field(default_factory=dict)
@@ -80,6 +98,33 @@ class EpisodeState:
         self.statuses[shown] = self.statuses.get(shown, 0) + 1
         self.cold_retries += int(sol.retried_cold)
         self.presumed_infeasible_solves += int(sol.status.presumed_infeasible)
+
+    def count_q1_failure(self, sol: MpcSolution) -> None:
+        """A failed Q1 solve: ``q1_fail_steps`` and its split by :func:`failure_kind`."""
+        self.q1_fail_steps += 1
+        kind = failure_kind(sol)
+        if kind == "certified_infeasible":
+            self.q1_fail_certified_steps += 1
+        elif kind == "presumed_infeasible":
+            self.q1_fail_presumed_steps += 1
+        elif kind == "iteration_limit":
+            self.q1_fail_iteration_limit_steps += 1
+        else:
+            self.q1_fail_other_steps += 1
+
+    def count_theorem_five(self, q1: MpcSolution | None, q2: MpcSolution) -> None:
+        """Theorem 5's check of one dual-planner step: neither Q1 nor Q2 solved, split by whether
+        both failures are certificates of infeasibility, and the runs of such steps."""
+        both = (q1 is None or not q1.success) and not q2.success
+        self.both_infeasible_steps += int(both)
+        if not both:
+            self.both_infeasible_run = 0
+            return
+        certified = q1 is not None and q1.status.certified_infeasible and q2.status.certified_infeasible
+        self.both_certified_infeasible_steps += int(certified)
+        self.both_unsolved_uncertified_steps += int(not certified)
+        self.both_infeasible_run += 1
+        self.both_infeasible_longest_run = max(self.both_infeasible_longest_run, self.both_infeasible_run)
 
 
 @dataclass(frozen=True)
@@ -182,9 +227,14 @@ class Planner:
             # exactly and the ego can follow a feasible plan instead of braking blindly.
             q1 = self._solve(state, solver, ego, front_meas, Q1, lambda0, opp)
         q1_ok, q2_ok = q1 is not None and q1.success, q2.success
-        state.q1_fail_steps += int(q1 is not None and not q1_ok)
+        q1_failed = q1 is not None and not q1_ok
+        if q1_failed:
+            state.count_q1_failure(q1)
         state.q2_fail_steps += int(not q2_ok)
-        state.both_infeasible_steps += int(not q1_ok and not q2_ok)
+        state.count_theorem_five(q1, q2)
+        if state.mode is Mode.OVERTAKE:
+            state.q1_failures_in_a_row = state.q1_failures_in_a_row + 1 if q1_failed else 0
+        abandon = not q1_failed or state.mode is not Mode.OVERTAKE or self._abandons(state, q1, t_s)
 
         before, row = state.mode, -1
         if state.mode is Mode.OVERTAKE and self.committed(ego, front_meas):
@@ -197,12 +247,14 @@ class Planner:
             state.table_one_rows[row] = state.table_one_rows.get(row, 0) + 1
             if overtake:
                 mode, source = Mode.OVERTAKE, Source.Q1
+            elif row == 0 and q2_ok and not abandon:  # Q1 failed, the abandonment rule waits
+                mode, source = Mode.OVERTAKE, Source.HELD
             elif q2_ok:
                 mode, source = Mode.GO_BACK, Source.Q2
             else:  # nothing to go back with: keep the overtake's last plan (held), decide again next step
                 mode, source = Mode.OVERTAKE, Source.FALLBACK
         else:
-            mode, source = decide(state.mode, q1_ok, q2_ok)
+            mode, source = decide(state.mode, q1_ok, q2_ok, abandon)
             if source is Source.FALLBACK and mode is Mode.GO_BACK and q1_ok:
                 source = Source.Q1  # a deviation from Algorithm 1, counted: Q1 rescues the go-back
                 state.q1_rescue_steps += 1
@@ -210,12 +262,26 @@ class Planner:
         if before is Mode.OVERTAKE and mode is Mode.GO_BACK:
             state.switched_to_q2_at_s = t_s
             state.went_back_reason = f"table_one_row_{row}" if row >= 0 else "q1_not_solved"
-        if source is Source.FALLBACK:
+            state.went_back_q1_failure = failure_kind(q1) if q1_failed and row <= 0 else ""
+        if source is Source.HELD:
+            state.q1_held_steps += 1
+        if source in (Source.FALLBACK, Source.HELD):
             return self._no_plan(state, t_s, ego, front_meas, StepRecord(source, mode, detected, q1, q2, row))
         state.q2_driven_steps += int(source is Source.Q2)
         applied = q1 if source is Source.Q1 else q2
         state.held = (applied.u_plan, applied.dt_plan, t_s)
         return applied.u_plan[0], StepRecord(source, mode, detected, q1, q2, row)
+
+    def _abandons(self, state: EpisodeState, q1: MpcSolution, t_s: float) -> bool:
+        """Does this step's failed Q1 solve (overtaking) abandon the overtake? The rule of
+        :attr:`Mpc.abandon_rule`; a rule that waits still abandons when there is no Q1 plan left to
+        hold (none yet, or used up)."""
+        m = self.params.mpc
+        if m.abandon_rule == "first_failure":
+            return True
+        if held_input(state.held, t_s) is None:
+            return True
+        return abandon_overtake(m.abandon_rule, state.q1_failures_in_a_row, failure_kind(q1), m.abandon_after_failures)
 
     def _no_plan(self, state: EpisodeState, t_s: float, ego: np.ndarray, front_meas: np.ndarray, record: StepRecord):
         """No problem solved this step: the rest of the last applied plan (it was verified safe one
@@ -236,7 +302,7 @@ class Planner:
         if q1.success:
             state.held = (q1.u_plan, q1.dt_plan, t_s)
             return q1.u_plan[0], StepRecord(Source.Q1, state.mode, detected, q1, None, -1)
-        state.q1_fail_steps += 1
+        state.count_q1_failure(q1)
         record = StepRecord(Source.FALLBACK, state.mode, detected, q1, None, -1)
         return self._no_plan(state, t_s, ego, front_meas, record)
 
@@ -299,6 +365,21 @@ class Planner:
             x_goal_q2_m=float(x_goal_q2),
             ego_in_own_lane=ego_in_own_lane(ego, p),
         )
+
+
+def failure_kind(sol: MpcSolution) -> str:
+    """How a failed solve failed (:data:`mcverify.control.decision.FAILURE_KINDS`): certified
+    infeasible by IPOPT, presumed infeasible by the memo after such a certificate, out of iterations,
+    or anything else (numerical failure, exception, invalid input, a converged solve that the
+    feasibility check rejected)."""
+    status = sol.status
+    if status.certified_infeasible:
+        return "certified_infeasible"
+    if status.presumed_infeasible:
+        return "presumed_infeasible"
+    if status.outcome is SolveOutcome.ITERATION_LIMIT:
+        return "iteration_limit"
+    return "other"
 
 
 def ego_in_own_lane(ego: np.ndarray, p: ModelParams) -> bool:

@@ -139,7 +139,9 @@ def report_tables(summ: Mapping[str, Any], manifest: Mapping[str, Any]) -> list[
             out.append(paper)
     out.append(outcome_table(summ))
     out += pivot_tables(summ)
-    out += [distance_table(summ), time_table(summ), theorem_table(summ), solver_table(summ)]
+    out += [distance_table(summ), time_table(summ), theorem_table(summ)]
+    findings = findings_table(summ)
+    out += ([findings] if findings is not None else []) + [solver_table(summ)]
     return out
 
 
@@ -272,27 +274,62 @@ def theorem_table(summ: Mapping[str, Any]) -> Table:
     cells = summ["cells"]
     opp = any("opp_invariance_breaches" in c["theorem_checks"] for c in cells)
     held = any("held_steps" in c["theorem_checks"] for c in cells)
+    split = any("both_certified_infeasible_steps" in c["theorem_checks"] for c in cells)
     cause = any("first_unsafe_cause" in c.get("counts", {}) for c in cells)
     columns = ["cell", "invariance breaches (Thm 2)"] + (["h_eo breaches"] if opp else []) + [
-        "episodes with Q1 and Q2 unsolved (Thm 5)", "such steps", "episodes with fallback", "fallback steps"]
+        "episodes with Q1 and Q2 unsolved (Thm 5)", "such steps"]
+    columns += (["both certified infeasible", "budget / numerical", "longest run"] if split else [])
+    columns += ["episodes with fallback", "fallback steps"]
     columns += (["episodes holding a failed plan", "held steps"] if held else [])
     columns += (["first unsafe step driven by"] if cause else [])
     rows = []
     for c in cells:
         t = c["theorem_checks"]
         row = [c["cell"], _int(t, "invariance_breaches")] + ([_int(t, "opp_invariance_breaches")] if opp else [])
-        row += [_int(t, "episodes_with_both_infeasible"), _int(t, "both_infeasible_steps"),
-                _int(t, "episodes_with_fallback"), _int(t, "fallback_steps")]
+        row += [_int(t, "episodes_with_both_infeasible"), _int(t, "both_infeasible_steps")]
+        row += ([_int(t, "both_certified_infeasible_steps"), _int(t, "both_unsolved_uncertified_steps"),
+                 _int(t, "both_infeasible_longest_run")] if split else [])
+        row += [_int(t, "episodes_with_fallback"), _int(t, "fallback_steps")]
         row += ([_int(t, "episodes_with_held"), _int(t, "held_steps")] if held else [])
         row += ([_counted(c.get("counts", {}).get("first_unsafe_cause"))] if cause else [])
         rows.append(row)
     notes = ["Counts over the cell's episodes (steps: control steps). Fallback: neither problem solved, the ego "
              "brakes towards its lane."]
+    if split:
+        notes.append("Thm 5 steps split by evidence: both certified infeasible (IPOPT certified Q1 and Q2 "
+                     "infeasible at that step: a counter-example up to local infeasibility) or budget / numerical "
+                     "(an iteration limit, a numerical failure or a presumed infeasibility: no proof); longest run: "
+                     "the most consecutive such steps in one episode. Every such episode is listed in "
+                     "\"Theorem 5 findings\".")
     if cause:
         notes.append("First unsafe step driven by: the plan source in the control period where the ego first left "
                      "the safe set (planned: a solved plan; held: a failed problem's old plan; fallback: no plan).")
     return Table("theorem-checks", "Theorem checks per cell", columns, rows, notes,
                  align="l" + "r" * (len(columns) - 2) + ("l" if cause else "r"))
+
+
+def findings_table(summ: Mapping[str, Any]) -> Table | None:
+    """Every episode with a step where neither Q1 nor Q2 solved (Theorem 5 says there is none), with
+    the command that re-simulates it; None when the run has no such episode."""
+    rows = []
+    for c in summ["cells"]:
+        for f in c.get("theorem_findings", []):
+            eid = f.get("episode_id")
+            rows.append([c["cell"], _int(f, "episode_id"), _int(f, "both_infeasible_steps"),
+                         _int(f, "both_certified_infeasible_steps"), _int(f, "both_unsolved_uncertified_steps"),
+                         _int(f, "both_infeasible_longest_run"),
+                         f"mcverify replay RUN_DIR {eid}" if eid is not None else DASH])
+    if not rows:
+        return None
+    columns = ["cell", "episode", "steps with Q1 and Q2 unsolved", "both certified infeasible", "budget / numerical",
+               "longest run", "replay"]
+    notes = ["Each episode with a control step where neither Q1 nor Q2 solved. Both certified infeasible: IPOPT "
+             "certified both problems infeasible at that step (a counter-example to Theorem 5 up to local "
+             "infeasibility: inspect it); budget / numerical: an iteration limit, a numerical failure or a "
+             "presumed infeasibility (no proof). Replay: re-simulates the episode bit for bit and writes its "
+             "trajectory (RUN_DIR: this run's folder)."]
+    return Table("theorem-findings", "Theorem 5 findings: episodes with Q1 and Q2 unsolved", columns, rows, notes,
+                 align="llrrrrl")
 
 
 def solver_table(summ: Mapping[str, Any]) -> Table:
@@ -303,6 +340,10 @@ def solver_table(summ: Mapping[str, Any]) -> Table:
     columns = ["cell", "Q1 failed steps", "Q2 failed steps", "Q2-driven steps", "Q1 rescue steps", "solves",
                "cold retries", "mean / max iters", "mean / max solve time (ms)", "IPOPT statuses other than success"]
     columns += (["went back because"] if reasons else []) + (["Table I rows met (steps)"] if table_one else [])
+    split = any("q1_fail_certified_steps" in c["theorem_checks"] for c in cells)
+    abandoned_on = any(c.get("counts", {}).get("went_back_q1_failure") for c in cells)
+    columns += (["Q1 failures: certified / presumed / iteration limit / other", "Q1 held (rule waited)"]
+                if split else []) + (["abandoned on a Q1 failure of kind"] if abandoned_on else [])
     rows = []
     for c in cells:
         t, s, counts = c["theorem_checks"], c["solver"], c.get("counts", {})
@@ -314,9 +355,19 @@ def solver_table(summ: Mapping[str, Any]) -> Table:
         row += ([_counted(counts.get("went_back_reason"))] if reasons else [])
         rows_met = {f"row {k}:": v for k, v in counts.get("table_one_rows", {}).items()}
         row += ([_counted(rows_met)] if table_one else [])
+        if split:
+            kinds = ("q1_fail_certified_steps", "q1_fail_presumed_steps", "q1_fail_iteration_limit_steps",
+                     "q1_fail_other_steps")
+            row += [" / ".join(_int(t, k) for k in kinds), _int(t, "q1_held_steps")]
+        row += ([_counted(counts.get("went_back_q1_failure"))] if abandoned_on else [])
         rows.append(row)
     notes = ["Solve times are the only machine-dependent numbers of the report (they come from the stored "
              "episodes, so regenerating the report does not change them)."]
+    if split:
+        notes.append("Q1 failures by kind: certified infeasible by IPOPT / presumed infeasible (fast path only, after "
+                     "a certificate) / out of iterations / other (numerical). Q1 held: overtaking steps where Q1 failed, "
+                     "Q2 solved and the abandonment rule (mpc.abandon_rule) had not fired, so the ego kept its last "
+                     "Q1 plan.")
     return Table("solver", "Decisions and solver per cell", columns, rows, notes,
                  align="l" + "r" * 8 + "l" * (len(columns) - 9))
 
@@ -364,7 +415,9 @@ def definitions(summ: Mapping[str, Any]) -> list[tuple[str, str]]:
         ("Thm 2 (invariance)", "an invariance breach contradicts Theorem 2 (h ≥ ε is forward invariant under the "
                                "VL-CBF); with perception noise and sampling it can happen, which is what is measured"),
         ("Thm 5 (one-in-two feasibility)", "steps where neither applicable problem (Q1 while overtaking, Q2) solved; "
-                                           "the fallback then brakes towards the ego lane"),
+                                           "the ego then holds its last plan or brakes towards its lane; only a step "
+                                           "where IPOPT certified both infeasible contradicts the theorem (up to local "
+                                           "infeasibility), the others are solver budgets or numerical failures"),
         ("error", "the episode could not be simulated; it is counted apart and not in any safety rate"),
     ]
     return out

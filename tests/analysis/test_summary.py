@@ -178,3 +178,30 @@ def test_opposing_metrics_are_left_out_of_cells_without_an_opposing_vehicle():
     assert "opp_invariance_breaches" not in none["theorem_checks"]
     assert human["rates"]["collision_opp"]["k"] == 1 and human["values"]["min_gap_opp_m"]["min"] == 0.0
     assert human["rates"]["collision"]["k"] == 1 and none["rates"]["collision"]["k"] == 0
+
+
+def test_theorem_five_split_and_findings():
+    t = _table(
+        cell=["a"] * 4, cell_index=[0] * 4, episode_id=[7, 5, 6, 8], cell_episode=[2, 0, 1, 3],
+        outcome=["overtook", "went_back", "overtook", "error"],
+        both_infeasible_steps=[4, 0, 1, 9], both_certified_infeasible_steps=[1, 0, 0, 9],
+        both_unsolved_uncertified_steps=[3, 0, 1, 0], both_infeasible_longest_run=[3, 0, 1, 9],
+        q1_fail_certified_steps=[1, 2, 0, 0], q1_fail_presumed_steps=[0, 1, 0, 0],
+        q1_fail_iteration_limit_steps=[5, 0, 1, 0], q1_fail_other_steps=[0, 0, 2, 0], q1_held_steps=[2, 0, 3, 0],
+        went_back_q1_failure=["", "certified_infeasible", "", ""],
+    )
+    c = summary.summarise(t)["cells"][0]  # the error episode is left out
+    assert c["theorem_checks"] == {
+        "episodes_with_both_infeasible": 2, "both_infeasible_steps": 5, "episodes_with_both_certified": 1,
+        "both_certified_infeasible_steps": 1, "both_unsolved_uncertified_steps": 4, "both_infeasible_longest_run": 3,
+        "q1_fail_certified_steps": 3, "q1_fail_presumed_steps": 1, "q1_fail_iteration_limit_steps": 6,
+        "q1_fail_other_steps": 2, "q1_held_steps": 5}
+    assert c["theorem_findings"] == [  # every episode with such steps, in episode order
+        {"episode_id": 6, "cell_episode": 1, "both_infeasible_steps": 1, "both_certified_infeasible_steps": 0,
+         "both_unsolved_uncertified_steps": 1, "both_infeasible_longest_run": 1},
+        {"episode_id": 7, "cell_episode": 2, "both_infeasible_steps": 4, "both_certified_infeasible_steps": 1,
+         "both_unsolved_uncertified_steps": 3, "both_infeasible_longest_run": 3},
+    ]
+    assert c["counts"]["went_back_q1_failure"] == {"certified_infeasible": 1}
+    cells = summary.cells_table(summary.summarise(t))
+    assert cells.column("thm_both_infeasible_longest_run").to_pylist() == [3]

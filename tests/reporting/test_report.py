@@ -161,3 +161,34 @@ def test_bad_input_exits_2_with_one_line(tmp_path, capsys, argv, message):
     assert "Traceback" not in "\n".join(err)
     if message:
         assert len(err) == 1 and message in err[0]
+
+
+def test_theorem_five_findings_list_every_episode_with_the_replay_command(tmp_path):
+    raw = _small(synthetic.TABLE3, episodes=10)
+    run = synthetic.make_run(tmp_path / "run", raw, probs=lambda cell: {**synthetic.default_probs(cell), "unsafe": 0.4},
+                             opposing=True, trajectories=False)
+    run_report.write(run)
+    episodes = pq.read_table(run / "episodes.parquet").to_pylist()
+    flagged = [e for e in episodes if e["both_infeasible_steps"] > 0]
+    assert flagged and any(e["both_certified_infeasible_steps"] for e in flagged)
+    findings = (run / "tables" / "theorem-findings.md").read_text()
+    for e in flagged:
+        line = next(x for x in findings.splitlines() if f"mcverify replay RUN_DIR {e['episode_id']} " in x)
+        assert e["cell"] in line
+        assert f"| {e['both_certified_infeasible_steps']} | {e['both_unsolved_uncertified_steps']} |" in line
+    assert findings.count("mcverify replay RUN_DIR") == len(flagged)
+    assert findings in (run / "report.md").read_text()
+    thm = (run / "tables" / "theorem-checks.md").read_text()
+    assert "both certified infeasible" in thm and "longest run" in thm
+    summ = json.loads((run / "summary.json").read_text())
+    assert sum(c["theorem_checks"]["both_certified_infeasible_steps"] for c in summ["cells"]) == sum(
+        e["both_certified_infeasible_steps"] for e in flagged)
+    solver = (run / "tables" / "solver.md").read_text()
+    assert "Q1 failures: certified / presumed / iteration limit / other" in solver
+
+
+def test_no_findings_table_without_such_steps(tmp_path):
+    run = synthetic.make_run(tmp_path / "run", _small(synthetic.TABLE3, episodes=4), trajectories=False)
+    run_report.write(run)
+    assert not (run / "tables" / "theorem-findings.md").exists()
+    assert "Theorem 5 findings: episodes" not in (run / "report.md").read_text()
