@@ -207,12 +207,16 @@ class Simulation:
     ``control_period_s``: the planner's sampling period (paper: 50 Hz towards the opposing vehicle).
     ``substeps``: RK4 sub-steps per control period under zero-order hold; every safety check is
     evaluated at every sub-step. ``max_time_s``: an episode that has neither overtaken nor gone back
-    by then ends as a timeout.
+    by then ends as a timeout. ``settle_s``: after the goal test fires ("overtook" / "went_back"),
+    the plant keeps running this long (at most until ``max_time_s``) under the lane-keeping law of
+    :mod:`mcverify.control.lane_keeping`, every safety check included; the outcome and its time stay
+    those of the goal test. 0: the episode ends at the goal test.
     """
 
     control_period_s: float = 0.02
     substeps: int = 10
     max_time_s: float = 25.0
+    settle_s: float = 3.0
 
 
 @dataclass(frozen=True)

@@ -85,13 +85,32 @@ EPISODE_COLUMNS: tuple[Column, ...] = (
     _c("safe", _BOOL, "", "no collision with either vehicle and no ellipse violation"),
     _c("first_unsafe_s", _FLOAT, "s", "start of the control period in which the ego first left the safe set"),
     _c("first_unsafe_cause", _STR, "", "what drove the ego then: planned (a solved plan), held (a failed "
-       "problem's old plan) or fallback (no plan); empty if safe"),
+       "problem's old plan), fallback (no plan) or lane_keeping (the settling law after the goal test); empty if "
+       "safe"),
     _c("h0_front", _FLOAT, "", "h_ef at the start", finite=True),
     _c("epsilon", _FLOAT, "", "the cell's level epsilon of h_ef"),
     _c("lambda0", _FLOAT, "", "the cell's level parameter lambda0 (<= 0)"),
     _c("invariance_breach", _BOOL, "", "h_ef started at or above epsilon and fell below it (Theorem 2)"),
     _c("invariance_margin", _FLOAT, "", "min_h_front - epsilon"),
     _c("opp_invariance_breach", _BOOL, "", "h_eo fell below its level while the ego borrowed the opposing lane"),
+    # settling: sim.settle_s of lane keeping after the goal test (mcverify.control.lane_keeping)
+    _c("settle_end_s", _FLOAT, "s", "simulated time at which the episode's simulation stopped: end_time_s plus the "
+       "settling period (cut at the time limit); every safety column covers the episode up to it"),
+    _c("conv_heading_rad", _FLOAT, "rad", "ego heading psi at the goal test (NaN unless overtook or went_back)"),
+    _c("conv_lateral_speed_mps", _FLOAT, "m/s", "ego lateral speed y' = v sin psi + v cos psi beta at the goal test, "
+       "under the input then applied (NaN unless overtook or went_back)"),
+    _c("conv_line_excess_m", _FLOAT, "m", "how far the ego footprint reached past the ego lane's left edge (the lane "
+       "line) at the goal test, 0 inside (NaN unless overtook or went_back)"),
+    _c("end_heading_rad", _FLOAT, "rad", "ego heading psi at settle_end_s"),
+    _c("end_lateral_speed_mps", _FLOAT, "m/s", "ego lateral speed y' at settle_end_s, under the input then applied"),
+    _c("end_line_excess_m", _FLOAT, "m", "how far the ego footprint reached past the lane line at settle_end_s, 0 "
+       "inside"),
+    _c("settle_line_excess_max_m", _FLOAT, "m", "largest conv_line_excess_m over the settling period, every sub-step "
+       "from the goal test to settle_end_s (NaN unless overtook or went_back)"),
+    _c("settled_in_lane", _BOOL, "", "the goal test fired and at settle_end_s the ego footprint lay inside its lane "
+       "(between the road's outer edge and the lane line)"),
+    _c("unsafe_in_settling", _BOOL, "", "the ego first left the safe set after the goal test, in the settling "
+       "period (first_unsafe_s >= end_time_s)"),
     # decisions (Theorem 5, Algorithm 1, Table I)
     _c("steps", _INT, "", "control steps run"),
     _c("opp_detected_steps", _INT, "", "control steps with veh_o detected"),

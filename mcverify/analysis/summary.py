@@ -67,6 +67,10 @@ RATE_METRICS: tuple[Metric, ...] = (
     Metric("went_back", "went back", "the episode ended behind the front vehicle in the ego lane (Q2's goal: the "
            "overtake was abandoned)"),
     Metric("timeout", "timeout", "neither goal was reached within the episode time limit"),
+    Metric("settled_in_lane", "settled in lane", "the goal test fired and, after the settling period of lane "
+           "keeping, the ego footprint lay inside its lane"),
+    Metric("unsafe_in_settling", "unsafe in settling", "the ego first left the safe set after the goal test, while "
+           "settling"),
 )
 
 #: Continuous metrics summarised by count, min, max, quantiles and mean with a bootstrap interval.
@@ -88,6 +92,16 @@ VALUE_METRICS: tuple[Metric, ...] = (
     Metric("end_time_s", "episode length", "simulated time until the episode ended", "s"),
     Metric("first_unsafe_s", "first unsafe time", "when the ego first left the safe set (unsafe episodes only)", "s"),
     Metric("sample_front_accel_mps2", "α_f drawn", "the front vehicle's acceleration drawn for the episode", "m/s²"),
+    # end state: at the goal test (conv_) and after the settling period (end_, settle_)
+    Metric("conv_heading_rad", "heading at goal", "ego heading ψ when the goal test fired", "rad"),
+    Metric("conv_lateral_speed_mps", "lateral speed at goal", "ego lateral speed y' when the goal test fired", "m/s"),
+    Metric("conv_line_excess_m", "past lane line at goal", "how far the ego footprint reached past the lane line "
+           "when the goal test fired (0 inside)", "m"),
+    Metric("end_heading_rad", "heading at end", "ego heading ψ when the simulation stopped (after settling)", "rad"),
+    Metric("end_lateral_speed_mps", "lateral speed at end", "ego lateral speed y' when the simulation stopped",
+           "m/s"),
+    Metric("settle_line_excess_max_m", "past lane line while settling", "largest reach of the ego footprint past "
+           "the lane line from the goal test to the end of settling (0 inside)", "m"),
 )
 
 RATE_NAMES = tuple(m.name for m in RATE_METRICS)

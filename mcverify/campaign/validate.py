@@ -76,6 +76,7 @@ def validate_params(p: ModelParams, where: str) -> None:
         "scenario.front_accel_duration_s": 0.0 if sc.front_accel_duration_s == math.inf else sc.front_accel_duration_s,
         "scenario.front_speed_max_mps": sc.front_speed_max_mps,
         "ego.speed_min_mps": e.speed_min_mps,
+        "sim.settle_s": s.settle_s,
     }
     for key, v in nonneg.items():
         if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):

@@ -9,7 +9,13 @@ One control step of the chunk:
 3. ``advance`` (JAX, vmapped, ``lax.scan`` over sub-steps): the plant runs under zero-order hold
    and every safety check is evaluated at every sub-step.
 
-Episodes that finish are frozen while the rest go on. Every result is a pure function of (campaign
+Settling: once the planner's goal test fires, the episode's outcome and time are decided, but the
+plant keeps running for ``sim.settle_s`` (at most until ``sim.max_time_s``) with the input of the
+lane-keeping law (:mod:`mcverify.control.lane_keeping`, no MPC) instead of the planner's, every
+check included, so the safety columns cover how the ego ends its manoeuvre; the end state (heading,
+lateral speed, footprint past the lane line) is kept at the goal test and when settling ends.
+
+Episodes that finish (settling included) are frozen while the rest go on. Every result is a pure function of (campaign
 cell, seed, episode id): not of the chunk, its size or the other episodes in it (the plant runs in
 fixed-width lane groups, see :mod:`mcverify.sim.plant`), which ``mcverify replay`` checks bit for bit.
 """
@@ -27,10 +33,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from mcverify.cell import Cell
+from mcverify.control import lane_keeping
 from mcverify.control.decision import Source
 from mcverify.control.planner import EpisodeState, Planner, StepRecord
 from mcverify.episode.recording import EpisodeRecording
-from mcverify.episode.row import Row, episode_row
+from mcverify.episode.row import EndState, Row, episode_row
 from mcverify.sim.plant import LaneGroups, SafetyTrace, Substep, initial_plant
 
 Array = jax.Array
@@ -141,7 +148,11 @@ def run_episodes(
     recorded = set(ids) if record is True else set(record or ())
     rec = _Recorder([b for b, e in enumerate(ids) if e in recorded], cell) if recorded else None
     n_steps = int(math.ceil(p.sim.max_time_s / p.sim.control_period_s - 1e-9))
+    settle_steps = int(math.ceil(p.sim.settle_s / p.sim.control_period_s - 1e-9))
     has_opp = p.opposing.kind != "none"
+    u_last = np.zeros((len(ids), 2))  # the input each episode had applied last (lateral speed)
+    settling: dict[int, _Settling] = {}  # lane -> its settling memory, while it settles
+    ends: dict[int, EndState] = {}
 
     for step in range(n_steps):
         t_s = step * p.sim.control_period_s
@@ -152,32 +163,55 @@ def run_episodes(
         records: dict[int, StepRecord] = {}
         with phase("planner"):
             for b, st in enumerate(states):
+                if b in settling:
+                    if step >= settling[b].until_step:
+                        ends[b] = settling.pop(b).end(t_s, ego[b], u_last[b], p)
+                    else:
+                        u[b] = settling[b].input(ego[b], front_meas[b], p)
+                    continue
                 if st.done:
                     continue
                 outcome = planner.converged(st, ego[b], front_meas[b])
                 if outcome is not None:
                     _finish(st, t_s, outcome)
+                    settle = _Settling.start(step + settle_steps, ego[b], u_last[b], p)
+                    if settle_steps == 0:
+                        ends[b] = settle.end(t_s, ego[b], u_last[b], p)
+                    else:
+                        settling[b] = settle
+                        u[b] = settle.input(ego[b], front_meas[b], p)
                     continue
                 u[b], records[b] = planner.step(st, t_s, ego[b], front_meas[b], opp_meas[b] if has_opp else None,
                                                 cell.lambda0)
-        active = np.array([not st.done for st in states])
+        active = np.array([not st.done or b in settling for b, st in enumerate(states)])
         if not active.any():
             break
+        u_last[active] = u[active]
         with phase("plant"):
             subs = world.advance(u, active)
             trace = world.trace()
-        _note_first_unsafe(states, trace, records, t_s)
+            if settling:
+                sub_ego = np.concatenate([np.asarray(s.ego) for s in subs])
+                for b, settle in settling.items():
+                    settle.note(sub_ego[b], p)
+        _note_first_unsafe(states, trace, records, t_s, settling)
         if rec is not None:
             rec.add(t_s, world.substeps_of(subs), u, records, front_meas, opp_meas, active)
         if on_step is not None:
             on_step(step)
-    for st in states:
+    t_end = n_steps * p.sim.control_period_s
+    ego = world.ego()
+    for b, st in enumerate(states):
         if not st.done:
-            st.done, st.outcome, st.end_time_s = True, "timeout", n_steps * p.sim.control_period_s
+            st.done, st.outcome, st.end_time_s = True, "timeout", t_end
+            ends[b] = _end_state(t_end, ego[b], u_last[b], p)
+        elif b in settling:  # cut by the time limit
+            ends[b] = settling.pop(b).end(t_end, ego[b], u_last[b], p)
 
     trace = world.trace()
     rows = [
-        episode_row(cell, seed, st, samples[b], SafetyTrace(*(np.asarray(a)[b] for a in trace)), float(h0[b]))
+        episode_row(cell, seed, st, samples[b], SafetyTrace(*(np.asarray(a)[b] for a in trace)), float(h0[b]),
+                    ends[b])
         for b, st in enumerate(states)
     ]
     if rec is None:
@@ -190,20 +224,67 @@ def run_episodes(
 #: the ellipse held only at its nodes); "held" - no applicable problem solved, the rest of the last
 #: applied plan; "fallback" - no plan at all.
 UNSAFE_CAUSES = {Source.Q1: "planned", Source.Q2: "planned", Source.HELD: "held", Source.FALLBACK: "fallback"}
+#: ``first_unsafe_cause`` of an ego that left the safe set while settling (after the goal test).
+SETTLING_CAUSE = "lane_keeping"
 
 
-def _note_first_unsafe(states: list[EpisodeState], trace: SafetyTrace, records: dict[int, StepRecord], t_s: float):
+def _note_first_unsafe(states: list[EpisodeState], trace: SafetyTrace, records: dict[int, StepRecord], t_s: float,
+                       settling=()):
     unsafe = (np.asarray(trace.min_h_front) < 0) | np.asarray(trace.collision_front) | np.asarray(trace.collision_opp)
     for b, st in enumerate(states):
-        if unsafe[b] and not st.first_unsafe_cause and b in records:
+        if unsafe[b] and not st.first_unsafe_cause and (b in records or b in settling):
             st.first_unsafe_s = t_s
-            st.first_unsafe_cause = UNSAFE_CAUSES[records[b].source]
+            st.first_unsafe_cause = UNSAFE_CAUSES[records[b].source] if b in records else SETTLING_CAUSE
 
 
 def _finish(st: EpisodeState, t_s: float, outcome: str) -> None:
     st.done, st.end_time_s, st.outcome = True, t_s, outcome
     if outcome == "overtook":
         st.overtake_time_s = t_s
+
+
+def _end_state(t_s: float, ego: np.ndarray, u: np.ndarray, p, **conv: float) -> EndState:
+    """The ego's end state at ``t_s`` (``ego`` its state then, ``u`` the input it held)."""
+    return EndState(
+        settle_end_s=t_s,
+        end_heading_rad=float(ego[2]),
+        end_lateral_speed_mps=lane_keeping.lateral_speed_mps(ego, u),
+        end_line_excess_m=float(lane_keeping.line_excess_m(ego[1], ego[2], p)),
+        in_lane=lane_keeping.footprint_in_lane(ego, p),
+        **conv,
+    )
+
+
+@dataclass
+class _Settling:
+    """One episode's memory from its goal test until settling ends (host side)."""
+
+    until_step: int  # the control step at which settling ends
+    v_converged_mps: float
+    heading_rad: float  # at the goal test
+    lateral_speed_mps: float
+    line_excess_m: float
+    line_excess_max_m: float  # so far
+
+    @classmethod
+    def start(cls, until_step: int, ego: np.ndarray, u_last: np.ndarray, p) -> _Settling:
+        excess = float(lane_keeping.line_excess_m(ego[1], ego[2], p))
+        return cls(until_step, float(ego[3]), float(ego[2]), lane_keeping.lateral_speed_mps(ego, u_last), excess,
+                   excess)
+
+    def input(self, ego: np.ndarray, front_meas: np.ndarray, p) -> np.ndarray:
+        v_ref = lane_keeping.reference_speed(self.v_converged_mps, ego, front_meas, p)
+        return lane_keeping.lane_keeping_input(ego, v_ref, p)
+
+    def note(self, sub_ego: np.ndarray, p) -> None:
+        """Take in one control period's sub-steps (substeps, 4) of the ego."""
+        self.line_excess_max_m = max(self.line_excess_max_m,
+                                     float(lane_keeping.line_excess_m(sub_ego[:, 1], sub_ego[:, 2], p).max()))
+
+    def end(self, t_s: float, ego: np.ndarray, u: np.ndarray, p) -> EndState:
+        return _end_state(t_s, ego, u, p, conv_heading_rad=self.heading_rad,
+                          conv_lateral_speed_mps=self.lateral_speed_mps, conv_line_excess_m=self.line_excess_m,
+                          line_excess_max_m=self.line_excess_max_m)
 
 
 class _Recorder:

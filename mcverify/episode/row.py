@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -45,16 +46,53 @@ def error_row(cell: Cell, seed: int, cell_episode: int, message: str) -> Row:
     }
 
 
+@dataclass(frozen=True)
+class EndState:
+    """How the ego ended its episode (the settling columns of :mod:`mcverify.schema`), filled by the
+    rollout: at the goal test (``conv_*``, NaN for a timeout) and when the simulation stopped
+    (``end_*`` at ``settle_end_s``); ``line_excess_max_m``: the footprint's largest reach past the lane
+    line over the settling period (NaN for a timeout); ``in_lane``: the footprint inside the ego lane
+    at ``settle_end_s``."""
+
+    settle_end_s: float
+    end_heading_rad: float
+    end_lateral_speed_mps: float
+    end_line_excess_m: float
+    in_lane: bool
+    conv_heading_rad: float = math.nan
+    conv_lateral_speed_mps: float = math.nan
+    conv_line_excess_m: float = math.nan
+    line_excess_max_m: float = math.nan
+
+
+def _settling(st: EpisodeState, end: EndState) -> Row:
+    converged = st.outcome in ("overtook", "went_back")
+    return {
+        "settle_end_s": end.settle_end_s,
+        "conv_heading_rad": end.conv_heading_rad,
+        "conv_lateral_speed_mps": end.conv_lateral_speed_mps,
+        "conv_line_excess_m": end.conv_line_excess_m,
+        "end_heading_rad": end.end_heading_rad,
+        "end_lateral_speed_mps": end.end_lateral_speed_mps,
+        "end_line_excess_m": end.end_line_excess_m,
+        "settle_line_excess_max_m": end.line_excess_max_m,
+        "settled_in_lane": bool(converged and end.in_lane),
+        "unsafe_in_settling": bool(converged and st.first_unsafe_s >= st.end_time_s),
+    }
+
+
 def _finite_or_nan(x: float) -> float:
     return float(x) if math.isfinite(x) else math.nan
 
 
-def episode_row(cell: Cell, seed: int, st: EpisodeState, sample: dict[str, float], tr: SafetyTrace, h0: float) -> Row:
+def episode_row(
+    cell: Cell, seed: int, st: EpisodeState, sample: dict[str, float], tr: SafetyTrace, h0: float, end: EndState
+) -> Row:
     """The metrics of one finished episode, in the order of :data:`mcverify.schema.EPISODE_COLUMNS`.
 
     st: the episode's host-side state; sample: the scenario values drawn for it (column
     ``sample_<name>``); tr: its safety trace (one lane of :class:`~mcverify.sim.plant.SafetyTrace`);
-    h0: h_ef at the start.
+    h0: h_ef at the start; end: how the ego ended (the settling columns).
     """
     p = cell.params
     eps = cell.epsilon
@@ -95,6 +133,7 @@ def episode_row(cell: Cell, seed: int, st: EpisodeState, sample: dict[str, float
         "invariance_breach": bool(h0 >= eps and min_h < eps),
         "invariance_margin": min_h - eps,
         "opp_invariance_breach": bool(has_opp and math.isfinite(min_h_opp) and min_h_opp < p.barrier.opp_epsilon_m),
+        **_settling(st, end),
         "steps": st.steps,
         "opp_detected_steps": st.opp_detected_steps,
         "q1_fail_steps": st.q1_fail_steps,

@@ -142,6 +142,9 @@ def report_tables(summ: Mapping[str, Any], manifest: Mapping[str, Any]) -> list[
     out += [distance_table(summ), time_table(summ), theorem_table(summ)]
     findings = findings_table(summ)
     out += ([findings] if findings is not None else []) + [solver_table(summ)]
+    settle = end_state_table(summ)
+    if settle is not None:
+        out.append(settle)
     return out
 
 
@@ -258,6 +261,32 @@ def time_table(summ: Mapping[str, Any]) -> Table:
              "Lane-borrow time: while the ego footprint reaches into the opposing lane. Means carry their "
              "percentile-bootstrap interval."]
     return Table("times", "Overtaking times per cell", columns, rows, notes)
+
+
+def end_state_table(summ: Mapping[str, Any]) -> Table | None:
+    """How the ego ends its manoeuvre per cell: |heading| and lateral speed at the goal test and after
+    the settling period, the footprint past the lane line, settled and settling-unsafe rates (None
+    for a run without the settling columns)."""
+    cells = summ["cells"]
+    if not any("conv_heading_rad" in c["values"] for c in cells):
+        return None
+    columns = ["cell", "converged", "heading at goal: min / max (rad)", "lateral speed at goal: min / max (m/s)",
+               "past line at goal: max (m)", "heading at end: min / max (rad)", "lateral speed at end: min / max (m/s)",
+               "past line while settling: max (m)", "settled in lane", "unsafe in settling"]
+    rows = []
+    for c in cells:
+        h0, v0, h1, v1 = (_value(c, n) for n in ("conv_heading_rad", "conv_lateral_speed_mps", "end_heading_rad",
+                                                  "end_lateral_speed_mps"))
+        pair = lambda v, d=2: f"{_stat(v, 'min', d)} / {_stat(v, 'max', d)}"  # noqa: E731
+        rows.append([c["cell"], str(h0["count"]) if h0 else DASH, pair(h0), pair(v0),
+                     _stat(_value(c, "conv_line_excess_m"), "max"), pair(h1, 3), pair(v1, 3),
+                     _stat(_value(c, "settle_line_excess_max_m"), "max"),
+                     fmt_rate(c["rates"].get("settled_in_lane")), fmt_rate(c["rates"].get("unsafe_in_settling"))])
+    notes = ["At the goal test (overtook or went back) and at the end of the settling period (sim.settle_s of lane "
+             "keeping, every safety check running; the outcome stays the goal test's). Past line: how far the ego "
+             "footprint reached past the lane line, 0 inside. Heading and lateral speed at end cover every episode, "
+             "timeouts included; the rates are over every episode that ran.", _rate_note(summ)]
+    return Table("end-state", "End state per cell: at the goal test and after settling", columns, rows, notes)
 
 
 def _int(d: Mapping[str, Any], key: str) -> str:

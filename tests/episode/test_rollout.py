@@ -107,3 +107,55 @@ def test_mpcdc_squeezes_in_where_vlcbf_declines():
     assert dc["controller"] == "mpcdc" and not dc["safe"], dc
     assert dc["min_gap_opp_m"] < 5.0
     assert dc["first_unsafe_cause"] in ("planned", "held", "fallback") and dc["first_unsafe_s"] > 0
+
+
+SETTLE_COLUMNS = ("settle_end_s", "conv_heading_rad", "conv_lateral_speed_mps", "conv_line_excess_m",
+                  "end_heading_rad", "end_lateral_speed_mps", "end_line_excess_m", "settle_line_excess_max_m",
+                  "settled_in_lane", "unsafe_in_settling")
+
+
+@pytest.fixture(scope="module")
+def settled():
+    """Episodes 0 and 1 overtaking (goal test at about 6.7 s) with 3 s of settling, together and apart,
+    and episode 0 without settling."""
+    out = {}
+    for settle_s, ids in ((3.0, [0, 1]), (3.0, [1]), (0.0, [0])):
+        camp, cell = cell_of({"sim": {**FAST_SIM, "max_time_s": 12.0, "settle_s": settle_s}}, episodes=2)
+        rows = run_episodes(cell, ids, camp.seed, executors.solver_for(cell.params)).rows
+        out[settle_s, tuple(ids)] = {r["cell_episode"]: strip(r) for r in rows}
+    return out
+
+
+def test_settling_extends_the_checked_time_and_fills_the_end_state(settled):
+    for e, row in settled[3.0, (0, 1)].items():
+        assert row["outcome"] == "overtook", e
+        assert row["settle_end_s"] == pytest.approx(row["end_time_s"] + 3.0)  # 3 s more of every check
+        assert row["overtake_time_s"] == row["end_time_s"]  # the outcome and its time stay the goal test's
+        assert row["conv_heading_rad"] < -0.05 and row["conv_lateral_speed_mps"] < -1.0  # still swerving at the goal
+        assert abs(row["end_heading_rad"]) < 0.01 and abs(row["end_lateral_speed_mps"]) < 0.1  # settled
+        assert row["end_line_excess_m"] == 0.0 and row["settle_line_excess_max_m"] >= row["conv_line_excess_m"] >= 0
+        assert row["settled_in_lane"] and not row["unsafe_in_settling"]
+        assert all(row[c] == row[c] for c in SETTLE_COLUMNS), e  # no NaN
+
+
+def test_settling_does_not_change_the_decisions_and_settle_s_0_ends_at_the_goal_test(settled):
+    """settle_s = 0 is the loop without settling (the campaign check compares it with rows from before
+    settling existed); with settling only the safety and settling columns can differ."""
+    with_settling, without = settled[3.0, (0, 1)][0], settled[0.0, (0,)][0]
+    assert without["settle_end_s"] == without["end_time_s"]
+    assert without["end_heading_rad"] == without["conv_heading_rad"]
+    assert without["end_lateral_speed_mps"] == without["conv_lateral_speed_mps"]
+    assert without["settle_line_excess_max_m"] == without["conv_line_excess_m"] == without["end_line_excess_m"]
+    safety = {"collision_front", "collision_opp", "min_h_front", "min_dist_front_m", "min_gap_front_m",
+              "min_gap_opp_m", "min_gap_opp_any_m", "min_h_opp", "ellipse_violation", "safe", "first_unsafe_s",
+              "first_unsafe_cause", "invariance_breach", "invariance_margin", "opp_invariance_breach",
+              "lane_borrow_time_s", *SETTLE_COLUMNS}
+    for k in without.keys() - safety:
+        assert same({k: with_settling[k]}, {k: without[k]}), k
+    for k in ("conv_heading_rad", "conv_lateral_speed_mps", "conv_line_excess_m"):
+        assert with_settling[k] == without[k], k
+    assert with_settling["min_h_front"] <= without["min_h_front"]  # the minima run over a longer time
+
+
+def test_a_settling_episode_does_not_depend_on_its_chunk(settled):
+    assert same(settled[3.0, (1,)][1], settled[3.0, (0, 1)][1])
