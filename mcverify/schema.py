@@ -60,6 +60,9 @@ EPISODE_COLUMNS: tuple[Column, ...] = (
     _c("controller", _STR, "", "the controller: vlcbf (the paper's dual TO-CBF-MPC) or mpcdc (the baseline)"),
     _c("opposing_kind", _STR, "", "the opposing vehicle: none, autonomous or human"),
     _c("sample_front_accel_mps2", _FLOAT, "m/s^2", "the front vehicle's acceleration drawn for the episode"),
+    _c("sample_opp_speed_mps", _FLOAT, "m/s", "veh_o's speed drawn for the episode (NaN without veh_o)"),
+    _c("sample_opp_spawn_gap_m", _FLOAT, "m", "x_o - x_e at which veh_o appears when the ego enters the opposing "
+       "lane (opposing.spawn = lane_entry; NaN otherwise)"),
     # outcome
     _c("outcome", _STR, "", "overtook, went_back, timeout or error (an episode that could not be simulated)"),
     _c("overtook", _BOOL, "", "the paper's convergence test was met ahead of the front vehicle"),
@@ -91,6 +94,8 @@ EPISODE_COLUMNS: tuple[Column, ...] = (
     _c("invariance_breach", _BOOL, "", "h_ef started at or above epsilon and fell below it (Theorem 2)"),
     _c("invariance_margin", _FLOAT, "", "min_h_front - epsilon"),
     _c("opp_invariance_breach", _BOOL, "", "h_eo fell below its level while the ego borrowed the opposing lane"),
+    _c("opp_spawn_s", _FLOAT, "s", "when veh_o appeared: 0 with opposing.spawn = start, the ego's first entry "
+       "into the opposing lane with lane_entry (NaN if it never entered it, or without veh_o)"),
     # decisions (Theorem 5, Algorithm 1, Table I)
     _c("steps", _INT, "", "control steps run"),
     _c("opp_detected_steps", _INT, "", "control steps with veh_o detected"),
