@@ -261,6 +261,16 @@ class Opposing:
     ``detect_range_m``: the ego's sensors see veh_o (and Algorithm 1 adds eq.tompcAdd) once the
     longitudinal distance x_o - x_e is below it; ``brake_max_mps2``: the largest deceleration of
     veh_o (its CBF filter is clipped to it).
+
+    When veh_o appears (``spawn``; the paper does not say, and with a fixed start the two vehicles
+    rarely meet while the ego borrows the lane):
+    * "start": it drives from ``x_m`` at t = 0 (Tables III-IV as first reproduced);
+    * "lane_entry": it appears when the ego's footprint first crosses the lane line into the
+      opposing lane (or ``spawn_delay_s`` later, when the ego is further into its overtake),
+      ``spawn_gap_m`` ahead of the ego (x_o - x_e, m), so that every episode that starts an
+      overtake meets it mid-overtake. ``spawn_gap_range_m`` = (lo, hi), when given,
+      draws the gap per episode uniformly in (lo, hi] from the episode's key;
+      ``speed_range_mps`` = (lo, hi) likewise draws veh_o's speed (either spawn mode).
     """
 
     kind: str = "none"
@@ -274,6 +284,11 @@ class Opposing:
     lambdas_m: tuple[float, ...] = (1.0,)
     epsilon_m: float = 1.0
     detect_range_m: float = 200.0
+    spawn: str = "start"
+    spawn_gap_m: float = 150.0
+    spawn_gap_range_m: tuple[float, ...] = ()
+    spawn_delay_s: float = 0.0
+    speed_range_mps: tuple[float, ...] = ()
 
 
 @dataclass(frozen=True)

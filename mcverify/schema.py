@@ -61,6 +61,9 @@ EPISODE_COLUMNS: tuple[Column, ...] = (
        "mpcdc_eps (the baseline at the level epsilon)"),
     _c("opposing_kind", _STR, "", "the opposing vehicle: none, autonomous or human"),
     _c("sample_front_accel_mps2", _FLOAT, "m/s^2", "the front vehicle's acceleration drawn for the episode"),
+    _c("sample_opp_speed_mps", _FLOAT, "m/s", "veh_o's speed drawn for the episode (NaN without veh_o)"),
+    _c("sample_opp_spawn_gap_m", _FLOAT, "m", "x_o - x_e at which veh_o appears when the ego enters the opposing "
+       "lane (opposing.spawn = lane_entry; NaN otherwise)"),
     # outcome
     _c("outcome", _STR, "", "overtook, went_back, timeout or error (an episode that could not be simulated)"),
     _c("overtook", _BOOL, "", "the paper's convergence test was met ahead of the front vehicle"),
@@ -93,6 +96,8 @@ EPISODE_COLUMNS: tuple[Column, ...] = (
     _c("invariance_breach", _BOOL, "", "h_ef started at or above epsilon and fell below it (Theorem 2)"),
     _c("invariance_margin", _FLOAT, "", "min_h_front - epsilon"),
     _c("opp_invariance_breach", _BOOL, "", "h_eo fell below its level while the ego borrowed the opposing lane"),
+    _c("opp_spawn_s", _FLOAT, "s", "when veh_o appeared: 0 with opposing.spawn = start, the ego's first entry "
+       "into the opposing lane with lane_entry (NaN if it never entered it, or without veh_o)"),
     # settling: sim.settle_s of lane keeping after the goal test (mcverify.control.lane_keeping)
     _c("settle_end_s", _FLOAT, "s", "simulated time at which the episode's simulation stopped: end_time_s plus the "
        "settling period (cut at the time limit); every safety column covers the episode up to it"),

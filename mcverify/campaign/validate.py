@@ -16,6 +16,7 @@ from mcverify.model import ABANDON_RULES, BACKEND_NAMES, ModelParams
 
 CONTROLLERS = ("vlcbf", "mpcdc", "mpcdc_eps")
 OPPOSING_KINDS = ("none", "autonomous", "human")
+SPAWN_MODES = ("start", "lane_entry")
 #: Bounds that keep one episode computable (the kernel's size grows with the horizon; an episode
 #: runs max_time_s / control_period_s steps of ``substeps`` RK4 sub-steps each).
 MAX_HORIZON = 500
@@ -190,6 +191,26 @@ def _validate_front_and_opposing(p: ModelParams, bad) -> None:
         if o.x_m <= sc.front_x_m:
             raise bad("opposing.x_m", f"the opposing vehicle must start ahead of the front vehicle "
                       f"(x > scenario.front_x_m = {sc.front_x_m:.4g}), got {o.x_m:.4g}")
+    if o.spawn not in SPAWN_MODES:
+        raise bad("opposing.spawn", f"unknown spawn rule {_short(o.spawn)}; valid: {', '.join(SPAWN_MODES)}")
+    if not (math.isfinite(o.spawn_gap_m) and o.spawn_gap_m > p.geometry.length_m):
+        raise bad("opposing.spawn_gap_m", f"must be a finite gap > the vehicle length ({p.geometry.length_m:.4g} m), "
+                  f"got {_short(o.spawn_gap_m)}")
+    if not (math.isfinite(o.spawn_delay_s) and o.spawn_delay_s >= 0):
+        raise bad("opposing.spawn_delay_s", f"must be a finite number >= 0, got {_short(o.spawn_delay_s)}")
+    _check_range(bad, "opposing.spawn_gap_range_m", o.spawn_gap_range_m, lo_min=p.geometry.length_m)
+    _check_range(bad, "opposing.speed_range_mps", o.speed_range_mps, lo_min=0.0, hi_max=o.speed_limit_mps)
+
+
+def _check_range(bad, key: str, rng: tuple[float, ...], *, lo_min: float, hi_max: float = math.inf) -> None:
+    """An optional (lo, hi) range drawn in (lo, hi]: empty, or two finite numbers lo_min <= lo < hi <= hi_max."""
+    if not rng:
+        return
+    ok = len(rng) == 2 and all(math.isfinite(v) for v in rng) and lo_min <= rng[0] < rng[1] <= hi_max
+    if not ok:
+        limit = f" <= {hi_max:.4g}" if math.isfinite(hi_max) else ""
+        raise bad(key, f"must be [lo, hi] with {lo_min:.4g} <= lo < hi{limit} (drawn in (lo, hi]), "
+                  f"got {_short(list(rng))}")
 
 
 def _short(value: Any, limit: int = 60) -> str:

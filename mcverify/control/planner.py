@@ -81,6 +81,7 @@ class EpisodeState:
     went_back_q1_failure: str = ""  # the kind of the Q1 failure that abandoned the overtake
     first_unsafe_s: float = math.nan  # start of the control period in which the ego first left the safe set
     first_unsafe_cause: str = ""  # what drove it then (rollout.UNSAFE_CAUSES)
+    opp_spawn_s: float = math.nan  # when veh_o appeared (Opposing.spawn; set by the rollout)
     table_one_rows: dict[int, int] = field(default_factory=dict)
     iterations: list[int] = field(default_factory=list)
     solve_times_s: list[float] = field(default_factory=list)

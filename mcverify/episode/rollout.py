@@ -38,7 +38,7 @@ from mcverify.control.decision import Source
 from mcverify.control.planner import EpisodeState, Planner, StepRecord
 from mcverify.episode.recording import EpisodeRecording
 from mcverify.episode.row import EndState, Row, episode_row
-from mcverify.sim.plant import LaneGroups, SafetyTrace, Substep, initial_plant
+from mcverify.sim.plant import LaneGroups, SafetyTrace, Substep, footprint_top_y_m, initial_plant
 
 Array = jax.Array
 
@@ -91,19 +91,46 @@ def episode_key(seed: int, cell_index: int | None, episode_id: int) -> Array:
 
 
 def sample_scenario(key: Array, params) -> dict[str, float]:
-    """Per-episode scenario values drawn from the episode key.
+    """Per-episode scenario values drawn from the episode key, each from its own stream.
 
     alpha_f: ``scenario.front_accel_range_mps2`` = (lo, hi) draws it uniformly in (lo, hi] (the
-    paper's Table III ranges are left-open); otherwise the fixed ``front_accel_mps2``.
+    paper's Table III ranges are left-open); otherwise the fixed ``front_accel_mps2``. veh_o's speed
+    and spawn gap likewise from ``opposing.speed_range_mps`` and ``opposing.spawn_gap_range_m``
+    (NaN where they do not apply: no veh_o, or no spawn gap with ``spawn = "start"``).
     """
-    sc = params.scenario
-    if sc.front_accel_range_mps2:
-        lo, hi = sc.front_accel_range_mps2
-        unit = jax.random.uniform(jax.random.fold_in(key, SCENARIO_STREAM), (), dtype=float)  # [0, 1)
-        accel = hi - (hi - lo) * float(unit)  # (lo, hi]
-    else:
-        accel = sc.front_accel_mps2
-    return {"front_accel_mps2": float(accel)}
+    sc, o = params.scenario, params.opposing
+    has_opp = o.kind != "none"
+    return {
+        "front_accel_mps2": _draw(key, 0, sc.front_accel_range_mps2, sc.front_accel_mps2),
+        "opp_speed_mps": _draw(key, 1, o.speed_range_mps, o.speed_mps) if has_opp else math.nan,
+        "opp_spawn_gap_m": (_draw(key, 2, o.spawn_gap_range_m, o.spawn_gap_m)
+                            if has_opp and o.spawn == "lane_entry" else math.nan),
+    }
+
+
+def _draw(key: Array, stream: int, rng: Sequence[float], fixed: float) -> float:
+    """Uniform in (lo, hi] of ``rng`` from scenario stream ``stream`` of ``key``; ``fixed`` without a range."""
+    if not rng:
+        return float(fixed)
+    lo, hi = rng
+    unit = jax.random.uniform(jax.random.fold_in(key, SCENARIO_STREAM + stream), (), dtype=float)  # [0, 1)
+    return float(hi - (hi - lo) * float(unit))
+
+
+def _spawn_opposing(world: LaneGroups, states: list[EpisodeState], samples: list[dict[str, float]],
+                    entered_s: list[float], ego: np.ndarray, t_s: float, p) -> None:
+    """The spawn rule ``opposing.spawn = "lane_entry"``: veh_o appears ``opp_spawn_gap_m`` ahead of
+    the ego ``opposing.spawn_delay_s`` after the first control step at which the ego's footprint is
+    over the lane line (``entered_s``: that step's time per episode, NaN until then; updated here)."""
+    over = footprint_top_y_m(ego, p) > 0.5 * p.road.lane_width_m
+    for b, st in enumerate(states):
+        if st.done or not math.isnan(st.opp_spawn_s):
+            continue
+        if over[b] and math.isnan(entered_s[b]):
+            entered_s[b] = t_s
+        if not math.isnan(entered_s[b]) and t_s >= entered_s[b] + p.opposing.spawn_delay_s - 1e-9:
+            st.opp_spawn_s = t_s
+            world.place_opposing(b, float(ego[b, 0]) + samples[b]["opp_spawn_gap_m"], -samples[b]["opp_speed_mps"])
 
 
 # ------------------------------------------------------------------------------ host loop
@@ -142,9 +169,15 @@ def run_episodes(
     cell_key = None if common_random_numbers else cell.index
     keys = jnp.stack([episode_key(seed, cell_key, e) for e in ids])
     samples = [sample_scenario(k, p) for k in keys]
-    world = LaneGroups(initial_plant(p, [s["front_accel_mps2"] for s in samples]), keys, p)
+    world = LaneGroups(initial_plant(p, [s["front_accel_mps2"] for s in samples],
+                                     [s["opp_speed_mps"] for s in samples]), keys, p)
     h0 = world.trace().min_h_front.copy()
     states = [EpisodeState(e) for e in ids]
+    spawning = p.opposing.kind != "none" and p.opposing.spawn == "lane_entry"
+    entered_s = [math.nan] * len(ids)  # when each ego first had its footprint over the lane line
+    if p.opposing.kind != "none" and not spawning:
+        for st in states:
+            st.opp_spawn_s = 0.0
     recorded = set(ids) if record is True else set(record or ())
     rec = _Recorder([b for b, e in enumerate(ids) if e in recorded], cell) if recorded else None
     n_steps = int(math.ceil(p.sim.max_time_s / p.sim.control_period_s - 1e-9))
@@ -157,8 +190,10 @@ def run_episodes(
     for step in range(n_steps):
         t_s = step * p.sim.control_period_s
         with phase("plant"):
-            front_meas, opp_meas = world.observe(step)
             ego = world.ego()
+            if spawning:
+                _spawn_opposing(world, states, samples, entered_s, ego, t_s, p)
+            front_meas, opp_meas = world.observe(step)
         u = np.zeros((len(ids), 2))
         records: dict[int, StepRecord] = {}
         with phase("planner"):

@@ -133,6 +133,7 @@ def episode_row(
         "invariance_breach": bool(h0 >= eps and min_h < eps),
         "invariance_margin": min_h - eps,
         "opp_invariance_breach": bool(has_opp and math.isfinite(min_h_opp) and min_h_opp < p.barrier.opp_epsilon_m),
+        "opp_spawn_s": st.opp_spawn_s if has_opp else math.nan,
         **_settling(st, end),
         "steps": st.steps,
         "opp_detected_steps": st.opp_detected_steps,

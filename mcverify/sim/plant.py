@@ -11,7 +11,7 @@ example ``(x / a)**2`` became ``x*x * (1/a**2)`` in one shape and not in another
 episode would differ in its last bits between a chunk of 8 and a replay of 1, and the closed loop
 amplifies last bits. Hence every call runs exactly one compiled executable of fixed width
 :data:`LANES` (:class:`LaneGroups` pads and splits), with the CPU ISA capped below FMA (see
-``mcverify/__init__.py``): an episode's numbers do not depend on the chunk size, its position in
+``mcverify/sim/__init__.py``): an episode's numbers do not depend on the chunk size, its position in
 the chunk or the other episodes.
 """
 
@@ -38,6 +38,8 @@ OPP_NONE, OPP_AUTONOMOUS, OPP_HUMAN = 0, 1, 2
 _OPP_KINDS = {"none": OPP_NONE, "autonomous": OPP_AUTONOMOUS, "human": OPP_HUMAN}
 #: Where a missing opposing vehicle is parked (far ahead, at rest): its checks are masked anyway.
 _NO_OPP_X_M = 1.0e6
+#: A veh_o beyond this x is parked (absent, or not yet spawned): no check sees it.
+_PARKED_BEYOND_X_M = 0.5 * _NO_OPP_X_M
 #: Noise streams of :func:`mcverify.sim.noise.step_key` within a control step.
 STREAM_FRONT, STREAM_OPP = 0, 1
 
@@ -187,7 +189,7 @@ def checks(ego: Array, front: Array, opp: Array, u: Array, pp: PlantParams) -> _
     ego_box = geometry.footprint_corners(ego[0], ego[1], ego[2], pp.length_m, pp.width_m)
     front_box = geometry.footprint_corners(fx, 0.0, 0.0, pp.length_m, pp.width_m)
     opp_box = geometry.footprint_corners(opp[0], pp.opp_lane_y_m, 0.0, pp.length_m, pp.width_m)
-    present = pp.opp_kind != OPP_NONE
+    present = (pp.opp_kind != OPP_NONE) & (opp[0] < _PARKED_BEYOND_X_M)  # not yet spawned: absent
     borrowing = agents.ego_top_edge_m(ego, pp.length_m, pp.width_m) > pp.lane_line_y_m
     vx_e = vehicles.ego_derivative(ego, u, pp.l_r_m)[0]
     return _Checks(
@@ -301,15 +303,31 @@ def compiled(substeps: int):
     return obs, adv, ini
 
 
-def initial_plant(p: ModelParams, front_accels_mps2: Sequence[float]) -> Plant:
-    """The campaign's start (paper Sec. VI-B) for episodes with these alpha_f, batched."""
+def initial_plant(p: ModelParams, front_accels_mps2: Sequence[float],
+                  opp_speeds_mps: Sequence[float] | None = None) -> Plant:
+    """The campaign's start (paper Sec. VI-B) for episodes with these alpha_f (and veh_o speeds,
+    default ``opposing.speed_mps``), batched. veh_o is parked out of reach when there is none or
+    when it appears later (``opposing.spawn = "lane_entry"``, :meth:`LaneGroups.place_opposing`)."""
     n = len(front_accels_mps2)
     s, o = p.scenario, p.opposing
     ego = jnp.tile(jnp.array([s.ego_x_m, p.road.ego_lane_y_m, 0.0, s.ego_speed_mps]), (n, 1))
     front = jnp.tile(jnp.array([s.front_x_m, s.front_speed_mps]), (n, 1))
-    opp_xv = [_NO_OPP_X_M, 0.0] if o.kind == "none" else [o.x_m, -o.speed_mps]
-    opp = jnp.tile(jnp.array(opp_xv, dtype=float), (n, 1))
+    if o.kind == "none" or o.spawn != "start":
+        opp = jnp.tile(jnp.array([_NO_OPP_X_M, 0.0], dtype=float), (n, 1))
+    else:
+        speeds = [o.speed_mps] * n if opp_speeds_mps is None else list(opp_speeds_mps)
+        opp = jnp.array([[o.x_m, -v] for v in speeds], dtype=float)
     return Plant(ego, front, opp, jnp.asarray(front_accels_mps2, dtype=float), jnp.zeros(n))
+
+
+def footprint_top_y_m(ego: np.ndarray, p: ModelParams) -> np.ndarray:
+    """(n,) the highest y of each ego footprint (its corner nearest the opposing lane), m.
+
+    ego: (n, 4) [x, y, psi, v]. Used on the host for the spawn rule: the footprint has entered the
+    opposing lane once this exceeds the lane line (y = lane_width / 2)."""
+    g = p.geometry
+    psi = ego[:, 2]
+    return ego[:, 1] + 0.5 * g.length_m * np.abs(np.sin(psi)) + 0.5 * g.width_m * np.cos(psi)
 
 
 class LaneGroups:
@@ -365,6 +383,13 @@ class LaneGroups:
     def substeps_of(self, subs: list[Substep]) -> Substep:
         """Concatenate per-group sub-step outputs to (n, substeps, ...) numpy arrays."""
         return Substep(*(self._gather([getattr(s, f) for s in subs]) for f in Substep._fields))
+
+    def place_opposing(self, b: int, x_m: float, v_mps: float) -> None:
+        """Put veh_o of episode ``b`` at ``x_m`` with road-frame velocity ``v_mps`` (< 0: towards the
+        ego) now, between two control periods (the spawn rule of ``opposing.spawn``)."""
+        g, lane = divmod(b, LANES)
+        pl = self.plants[g]
+        self.plants[g] = pl._replace(opp=pl.opp.at[lane].set(jnp.array([x_m, v_mps], dtype=float)))
 
     def trace(self) -> SafetyTrace:
         """(n,) final safety metrics as numpy arrays."""
