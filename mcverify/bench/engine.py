@@ -45,7 +45,7 @@ from mcverify.cell import Cell
 from mcverify.episode.rollout import PhaseClock, episode_key, run_episodes
 from mcverify.sim.plant import LaneGroups, initial_plant
 
-DEFAULT_CAMPAIGN = "campaigns/table4.toml"
+DEFAULT_CAMPAIGN = "campaigns/table4_fixed_start.toml"
 DEFAULT_CELL = "scenario=B,method=VL-CBF eps=0.3"
 BENCHMARKS_MD = Path("results/BENCHMARKS.md")
 #: Columns compared between paired episodes (besides the safety verdict).
