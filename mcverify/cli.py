@@ -101,7 +101,8 @@ def _parser() -> argparse.ArgumentParser:
     rpt.set_defaults(func=_cmd_report)
 
     bench = sub.add_parser("bench", help="the engine against the naive reference loop, in one run")
-    bench.add_argument("--campaign", default="campaigns/table4_fixed_start.toml", help="campaign file (default: Table IV with veh_o from the start, as benchmarked since issue 5)")
+    bench.add_argument("--campaign", default="campaigns/table4_fixed_start.toml",
+                       help="campaign file (default: Table IV with veh_o on the road from the start)")
     bench.add_argument("--cell", default="scenario=B,method=VL-CBF eps=0.3", help="cell name of that campaign")
     bench.add_argument("--naive-episodes", type=_positive_int, default=1, help="paired episodes on the naive side")
     bench.add_argument("--engine-episodes", type=_positive_int, default=4, help="episodes on the engine side")

@@ -30,6 +30,7 @@ import pyarrow as pa
 
 from mcverify import store
 from mcverify.analysis import stats, summary
+from mcverify.analysis.cells import json_ready
 from mcverify.errors import RunError
 from mcverify.reporting.tables import DASH, Section, Table, fmt_num, fmt_p, is_missing, to_latex, to_markdown
 
@@ -347,6 +348,6 @@ def write(out_dir: Path, result: Mapping[str, Any]) -> list[Path]:
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = [out_dir / "compare.md", out_dir / "compare.json", out_dir / "compare.tex"]
     paths[0].write_text(render_markdown(result), encoding="utf-8")
-    paths[1].write_text(json.dumps(summary.json_ready(result), indent=2) + "\n", encoding="utf-8")
+    paths[1].write_text(json.dumps(json_ready(result), indent=2) + "\n", encoding="utf-8")
     paths[2].write_text("\n\n".join(to_latex(t) for t in tables(result)) + "\n", encoding="utf-8")
     return paths

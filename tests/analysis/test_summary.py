@@ -11,6 +11,7 @@ import pytest
 import synthetic
 
 from mcverify.analysis import stats, summary
+from mcverify.analysis.cells import cells_table, json_ready
 from mcverify.campaign.spec import campaign_from_dict
 
 
@@ -87,7 +88,7 @@ def test_summary_is_deterministic_and_options_apply():
     t = pa.Table.from_pylist(synthetic.episode_rows(camp.cells[0], 2, {"unsafe": 0.2, "overtook": 0.6,
                                                                        "went_back": 0.3}, opposing=True, crn=False))
     a, b = summary.summarise(t), summary.summarise(t)
-    assert json.dumps(summary.json_ready(a)) == json.dumps(summary.json_ready(b))
+    assert json.dumps(json_ready(a)) == json.dumps(json_ready(b))
     w = summary.summarise(t, level=0.9, method="wilson", bootstrap_resamples=50)
     r = w["cells"][0]["rates"]["safe"]
     assert (r["method"], r["level"]) == ("wilson", 0.9)
@@ -126,7 +127,7 @@ def test_cells_table_is_flat_and_null_for_missing():
         rows += synthetic.episode_rows(cell, 1, {"unsafe": 0.0, "overtook": 0.0, "went_back": 1.0}, opposing=False,
                                        crn=False)
     s = summary.summarise(pa.Table.from_pylist(rows), runner.manifest_for(camp, 4, {}))
-    t = summary.cells_table(s)
+    t = cells_table(s)
     assert t.num_rows == 2
     assert t.column("cell").to_pylist() == ["epsilon=0.1", "epsilon=0.3"]
     assert t.column("label_epsilon").to_pylist() == ["0.1", "0.3"]
@@ -135,7 +136,7 @@ def test_cells_table_is_flat_and_null_for_missing():
     # no overtake in either cell: the overtake-time statistics are nulls, not NaN or 0
     assert t.column("overtake_time_s_count").to_pylist() == [0, 0]
     assert t.column("overtake_time_s_mean").to_pylist() == [None, None]
-    strict = json.dumps(summary.json_ready(s), allow_nan=False)  # strict JSON: no NaN anywhere
+    strict = json.dumps(json_ready(s), allow_nan=False)  # strict JSON: no NaN anywhere
     assert "overtake_time_s" in strict
 
 
@@ -160,7 +161,7 @@ def test_theorem_checks_counts_and_solver():
     assert c["solver"]["solves"] == 60 and c["solver"]["cold_retries"] == 3
     assert c["solver"]["iterations_mean"] == pytest.approx((100 + 400 + 900) / 60)
     assert c["solver"]["statuses"] == {"Infeasible_Problem_Detected": 2, "Solve_Succeeded": 58}
-    cells = summary.cells_table(summary.summarise(t))
+    cells = cells_table(summary.summarise(t))
     assert json.loads(cells.column("count_went_back_reason")[0].as_py()) == {"q1_not_solved": 1,
                                                                              "table_one_row_3": 1}
     assert cells.column("thm_held_steps").to_pylist() == [4]
@@ -203,5 +204,5 @@ def test_theorem_five_split_and_findings():
          "both_unsolved_uncertified_steps": 3, "both_infeasible_longest_run": 3},
     ]
     assert c["counts"]["went_back_q1_failure"] == {"certified_infeasible": 1}
-    cells = summary.cells_table(summary.summarise(t))
+    cells = cells_table(summary.summarise(t))
     assert cells.column("thm_both_infeasible_longest_run").to_pylist() == [3]

@@ -1,0 +1,107 @@
+"""The per-cell summary as files: ``cells.parquet`` (one typed row per cell) and strict JSON.
+
+The statistics themselves are computed by :mod:`mcverify.analysis.summary`; this module only lays
+them out for ``cells.parquet`` and ``summary.json``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import pyarrow as pa
+
+from mcverify.analysis import stats
+from mcverify.analysis.summary import (
+    CATEGORY_COLUMNS,
+    JSON_COUNT_COLUMNS,
+    OUTCOMES,
+    QUANTILES,
+    RATE_NAMES,
+    THEOREM_CHECKS,
+    VALUE_NAMES,
+)
+
+
+def cells_table(summ: Mapping[str, Any]) -> pa.Table:
+    """``cells.parquet``: one row per cell, every statistic of :func:`summarise` as a flat column.
+
+    Columns: ``cell_index``, ``cell``, ``label_<axis>`` for every axis, ``controller``,
+    ``opposing_kind``, ``epsilon``, ``lambda0``, ``episodes_planned``, ``episodes``, ``valid``,
+    ``outcome_<o>``; per rate ``<rate>_{k,n,rate,low,high,lower_one_sided,upper_one_sided}``; per
+    value ``<value>_{count,min,max,mean,mean_low,mean_high,std,q5,q25,q50,q75,q95}``; then
+    ``thm_<check>``, ``count_<column>`` (JSON object strings) and ``solver_<field>``. Missing
+    statistics are nulls; the column order is fixed.
+    """
+    cells = summ["cells"]
+    axes = []
+    for c in cells:
+        for a in c["labels"]:
+            if a not in axes:
+                axes.append(a)
+    rate_names = [r for r in (*RATE_NAMES, "error") if any(r in c["rates"] for c in cells)]
+    value_names = [m for m in VALUE_NAMES if any(m in c["values"] for c in cells)]
+    qkeys = [stats.quantile_key(q) for q in QUANTILES if 0.0 < q < 1.0]
+    thm_keys = [k for k in THEOREM_CHECKS if any(k in c["theorem_checks"] for c in cells)]
+    solver_keys = ["solves", "cold_retries", "iterations_mean", "iterations_max", "solve_time_mean_s",
+                   "solve_time_max_s"]
+    columns: dict[str, tuple[pa.DataType, list[Any]]] = {}
+
+    def put(col: str, typ: pa.DataType, value: Any) -> None:
+        columns.setdefault(col, (typ, []))[1].append(_null(value))
+
+    for c in cells:
+        put("cell_index", pa.int64(), c["cell_index"])
+        put("cell", pa.string(), c["cell"])
+        for a in axes:
+            put(f"label_{a}", pa.string(), c["labels"].get(a))
+        put("controller", pa.string(), c["controller"])
+        put("opposing_kind", pa.string(), c["opposing_kind"])
+        put("epsilon", pa.float64(), c["epsilon"])
+        put("lambda0", pa.float64(), c["lambda0"])
+        for key in ("episodes_planned", "episodes", "valid"):
+            put(key, pa.int64(), c[key])
+        for o in OUTCOMES:
+            put(f"outcome_{o}", pa.int64(), c["outcomes"][o])
+        for r in rate_names:
+            rs = c["rates"].get(r, {})
+            for key, typ in (("k", pa.int64()), ("n", pa.int64())):
+                put(f"{r}_{key}", typ, rs.get(key))
+            for key in ("rate", "low", "high", "lower_one_sided", "upper_one_sided"):
+                put(f"{r}_{key}", pa.float64(), rs.get(key))
+        for m in value_names:
+            vs = c["values"].get(m, {})
+            put(f"{m}_count", pa.int64(), vs.get("count"))
+            for key in ("min", "max", "mean", "mean_low", "mean_high", "std"):
+                put(f"{m}_{key}", pa.float64(), vs.get(key))
+            for q in qkeys:
+                put(f"{m}_{q}", pa.float64(), vs.get("quantiles", {}).get(q))
+        for key in thm_keys:
+            put(f"thm_{key}", pa.int64(), c["theorem_checks"].get(key))
+        for key in (*CATEGORY_COLUMNS, *JSON_COUNT_COLUMNS):
+            if any(key in x.get("counts", {}) for x in cells):
+                counts = c.get("counts", {}).get(key)
+                put(f"count_{key}", pa.string(), None if counts is None else json.dumps(counts, sort_keys=True))
+        for key in solver_keys:
+            typ = pa.int64() if key in ("solves", "cold_retries", "iterations_max") else pa.float64()
+            put(f"solver_{key}", typ, c["solver"].get(key))
+    return pa.table({name: pa.array(vals, type=typ) for name, (typ, vals) in columns.items()})
+
+
+def json_ready(obj: Any) -> Any:
+    """``obj`` with every non-finite float replaced by None (strict JSON has no NaN)."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, Mapping):
+        return {k: json_ready(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [json_ready(v) for v in obj]
+    return obj
+
+
+def _null(x: Any) -> Any:
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    return x
