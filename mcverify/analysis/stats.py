@@ -1,16 +1,8 @@
 """Statistics of Monte-Carlo campaigns: rates with confidence intervals and comparisons of cells.
 
 Every function is pure and deterministic (the bootstrap takes an explicit seed). Intervals for a
-binomial proportion k/n:
-
-- ``"clopper-pearson"``: the exact equal-tailed interval from beta quantiles [CP34]; its coverage
-  is at least the nominal level for every p and n (it is conservative).
-- ``"wilson"``: the score interval [Wil27]; its coverage oscillates around the nominal level and
-  dips below it for some (n, p), most markedly when n p is small [BCD01].
-
-Exact one-sided bounds (:func:`one_sided_upper`, :func:`one_sided_lower`) are what a cell with no
-event (or only events) reports: 0 collisions in 30 episodes bounds the collision rate by 0.095 at
-95 %, and 30/30 safe bounds the safe rate below by 0.905.
+binomial proportion k/n: Clopper-Pearson (exact, conservative) or Wilson (score), and exact
+one-sided bounds for cells with no event or only events (:mod:`mcverify.analysis.intervals`).
 
 Comparisons of two cells: Newcombe's hybrid score interval for p1 - p2 (method 10 of [New98a])
 with Fisher's or Boschloo's exact test for independent cells, and for paired episodes (the same
