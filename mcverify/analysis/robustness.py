@@ -1,0 +1,155 @@
+"""Requirements and their signed robustness, computed from stored episode rows.
+
+A requirement maps an episode row to one number, **negative iff the requirement is violated** (and
+non-negative otherwise); larger means farther from a violation. The values come from the row's own
+columns (each of which is itself recomputed from the stored trajectory by the tests of
+:mod:`mcverify.episode`), so a robustness can be re-derived from ``episodes.parquet`` alone.
+
+Requirements (:data:`REQUIREMENTS`; units differ, so a minimum over a set compares raw values):
+
+- ``collision_front`` / ``collision_opp`` (m): the smallest footprint gap to veh_f / veh_o; the
+  stored gap is 0 when the footprints touched or overlapped (it does not measure penetration), so a
+  collision scores :data:`COLLISION_ROBUSTNESS_M`; +inf without veh_o.
+- ``ellipse`` (dimensionless): min h_ef along the true trajectory (the ego c.g. outside the ellipse).
+- ``invariance`` (dimensionless): min h_ef - epsilon (Theorem 2) for an episode that started at or
+  above the level; +inf for one that started below it (the theorem says nothing there).
+- ``h_eo`` (m): min h_eo while the ego borrowed the opposing lane with veh_o ahead; +inf if never.
+- ``theorem5`` (steps): "Q1 or Q2 is solvable at every control step": -(steps with neither solved)
+  if there were any, else +1 (the row holds no finer margin); ``theorem5_certified`` counts only the
+  steps where IPOPT certified both infeasible.
+- ``safe``: the minimum of ``collision_front``, ``collision_opp`` and ``ellipse`` (the row's ``safe``).
+
+An error row (an episode that could not be simulated) has NaN robustness for every requirement.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+#: Robustness of a collision (m): the stored footprint gap is 0 on contact, whatever the overlap.
+COLLISION_ROBUSTNESS_M = -1.0
+#: Robustness of "Q1 or Q2 solvable" when every step had a solvable problem (the row has no margin).
+THEOREM5_SATISFIED = 1.0
+
+Row = Mapping[str, Any]
+
+
+@dataclass(frozen=True)
+class Requirement:
+    """One requirement: its name, unit, one-line statement and robustness function of a row."""
+
+    name: str
+    unit: str
+    statement: str
+    robustness: Callable[[Row], float]
+
+
+def _num(row: Row, key: str) -> float:
+    value = row.get(key)
+    return math.nan if value is None else float(value)
+
+
+def _collision(gap_key: str, flag_key: str, needs_opp: bool) -> Callable[[Row], float]:
+    def rob(row: Row) -> float:
+        if needs_opp and row.get("opposing_kind") in (None, "none"):
+            return math.inf
+        if bool(row.get(flag_key)):
+            return COLLISION_ROBUSTNESS_M
+        gap = _num(row, gap_key)
+        return math.inf if math.isnan(gap) and needs_opp else gap
+
+    return rob
+
+
+def _ellipse(row: Row) -> float:
+    return _num(row, "min_h_front")
+
+
+def _invariance(row: Row) -> float:
+    h0, eps = _num(row, "h0_front"), _num(row, "epsilon")
+    if math.isnan(eps) or h0 < eps:
+        return math.inf
+    return _num(row, "min_h_front") - eps
+
+
+def _h_eo(row: Row) -> float:
+    value = _num(row, "min_h_opp")
+    return math.inf if math.isnan(value) else value
+
+
+def _theorem5(key: str) -> Callable[[Row], float]:
+    def rob(row: Row) -> float:
+        steps = _num(row, key)
+        if math.isnan(steps):
+            return math.nan
+        return -steps if steps > 0 else THEOREM5_SATISFIED
+
+    return rob
+
+
+_BASE: tuple[Requirement, ...] = (
+    Requirement("collision_front", "m", "the ego and veh_f footprints never touch",
+                _collision("min_gap_front_m", "collision_front", needs_opp=False)),
+    Requirement("collision_opp", "m", "the ego and veh_o footprints never touch",
+                _collision("min_gap_opp_any_m", "collision_opp", needs_opp=True)),
+    Requirement("ellipse", "", "the ego c.g. stays outside veh_f's safety ellipse (h_ef >= 0)", _ellipse),
+    Requirement("invariance", "", "h_ef stays at or above the level epsilon once there (Theorem 2)", _invariance),
+    Requirement("h_eo", "m", "h_eo >= 0 while the ego borrows the opposing lane with veh_o ahead", _h_eo),
+    Requirement("theorem5", "steps", "Q1 or Q2 is solved at every control step (Theorem 5)",
+                _theorem5("both_infeasible_steps")),
+    Requirement("theorem5_certified", "steps", "no control step where IPOPT certified both Q1 and Q2 infeasible",
+                _theorem5("both_certified_infeasible_steps")),
+)
+
+#: The requirement behind the row's ``safe`` flag.
+SAFE_SET: tuple[str, ...] = ("collision_front", "collision_opp", "ellipse")
+
+#: Every requirement by name (``safe`` is the minimum over :data:`SAFE_SET`).
+REQUIREMENTS: dict[str, Requirement] = {r.name: r for r in _BASE}
+REQUIREMENTS["safe"] = Requirement(
+    "safe", "", "no collision with veh_f or veh_o and no ellipse violation (the row's safe flag)",
+    lambda row: min_robustness(row, SAFE_SET),
+)
+
+
+def requirement(name: str) -> Requirement:
+    """The requirement ``name``; ValueError listing the known names otherwise."""
+    try:
+        return REQUIREMENTS[name]
+    except KeyError:
+        raise ValueError(f"unknown requirement {name!r}; known: {', '.join(REQUIREMENTS)}") from None
+
+
+def is_error_row(row: Row) -> bool:
+    return row.get("error_message") is not None or row.get("outcome") == "error"
+
+
+def robustness(row: Row, name: str) -> float:
+    """Signed robustness of requirement ``name`` for one episode row (NaN for an error row)."""
+    req = requirement(name)
+    return math.nan if is_error_row(row) else float(req.robustness(row))
+
+
+def min_robustness(row: Row, names: Sequence[str]) -> float:
+    """Minimum robustness over the requirements ``names`` (NaN for an error row)."""
+    if is_error_row(row):
+        return math.nan
+    return min(float(requirement(n).robustness(row)) for n in names)
+
+
+def robustness_table(rows: Sequence[Row], names: Sequence[str] | None = None) -> dict[str, np.ndarray]:
+    """Robustness of every row for each requirement in ``names`` (default: all), as float64
+    arrays of shape (len(rows),)."""
+    names = list(REQUIREMENTS) if names is None else list(names)
+    return {n: np.array([robustness(r, n) for r in rows], dtype=np.float64) for n in names}
+
+
+def violated(rows: Sequence[Row], name: str) -> np.ndarray:
+    """Boolean mask, shape (len(rows),): the rows that violate requirement ``name``."""
+    rob = np.array([robustness(r, name) for r in rows], dtype=np.float64)
+    return np.asarray(rob < 0.0, dtype=bool)
