@@ -9,6 +9,9 @@ writes, without re-simulating anything:
 - ``tables/<key>.md`` and ``tables/<key>.tex``: every table in Markdown and LaTeX (booktabs), the
   paper-style table first when the campaign's ``[reference]`` names one (``paper_tables``);
 - ``figures/*.png`` (``report_figures``);
+- ``counterexamples.parquet``: every unsafe episode, worst first, with its inputs, margins, first
+  unsafe time and cause and replay command (:mod:`mcverify.analysis.counterexamples`), also a table
+  of the report with the worst ones drawn (:mod:`~mcverify.reporting.counterexample_report`);
 - ``report.md``: the tables, the figures and the definitions; ``report.html``: the same as one
   self-contained page (figures embedded).
 
@@ -28,10 +31,10 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from mcverify import store
-from mcverify.analysis import stats, summary
+from mcverify.analysis import counterexamples, stats, summary
 from mcverify.analysis.cells import cells_table, json_ready
 from mcverify.errors import RunError
-from mcverify.reporting import html, paper_tables, run_figures
+from mcverify.reporting import counterexample_report, html, paper_tables, run_figures
 from mcverify.reporting.check_tables import (
     end_state_table,
     findings_table,
@@ -103,6 +106,11 @@ def write(
     summ = build_summary(manifest, table, opts)
     tables = report_tables(summ, manifest)
     figs = run_figures.write_figures(run_dir, summ, table, manifest)
+    # Counterexamples (issue 19.4): every unsafe episode, worst first, with its replay command.
+    cx_records = counterexamples.counterexamples(table, manifest, str(run_dir))
+    tables.append(counterexample_report.table(cx_records, "safe", table.num_rows))
+    figs = [*figs, *counterexample_report.figures(run_dir, cx_records, manifest)]
+    _write_parquet(run_dir / counterexample_report.FILE, counterexamples.to_arrow(cx_records))
 
     store.write_json_atomic(run_dir / SUMMARY, json_ready(summ))
     _write_parquet(run_dir / CELLS, cells_table(summ))
