@@ -134,6 +134,22 @@ def _parser() -> argparse.ArgumentParser:
                      help="Markdown file whose generated section is replaced (default: results/BENCHMARKS.md)")
     ben.set_defaults(func=_cmd_bench_solver)
 
+    fal = sub.add_parser("falsify", help="search for counterexamples (robustness-guided; mcverify.falsify)")
+    fal.add_argument("campaign", nargs="?", type=Path, help="campaign TOML file with a [falsify] table")
+    fal.add_argument("--method", choices=("cma", "cross-entropy", "random"), help="search method (default cma)")
+    fal.add_argument("--budget", type=_positive_int, help="episodes the search may spend")
+    fal.add_argument("--requirement", help="requirement to falsify (default: the file's, else safe)")
+    fal.add_argument("--seed", type=_nonneg_int, help="search seed (default: the campaign's seed)")
+    fal.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", dest="settings",
+                     help="override a model parameter of the file (repeatable)")
+    fal.add_argument("--out", type=Path, help="search folder (default: results/falsify-<name>-<method>-<time>)")
+    fal.add_argument("--executor", choices=("local", "ray", "serial"), default="local")
+    fal.add_argument("--address", metavar="ADDR", help="Ray cluster to join (with --executor ray)")
+    fal.add_argument("--workers", type=_positive_int, default=None, help="worker processes / tasks in flight")
+    fal.add_argument("--resume", type=Path, metavar="OUT", help="finish an interrupted search")
+    fal.add_argument("--no-progress", action="store_true", help="no per-generation lines")
+    fal.set_defaults(func=_cmd_falsify)
+
     ker = sub.add_parser("kernels", help="the compiled-solver cache")
     ksub = ker.add_subparsers(metavar="ACTION")
     kl = ksub.add_parser("list", help="list cached kernels")
@@ -188,6 +204,12 @@ def _cmd_run(args) -> int:
     print(path.read_text())
     print(f"report: {path}", file=sys.stderr)
     return 0
+
+
+def _cmd_falsify(args) -> int:
+    from mcverify.falsify.command import falsify
+
+    return falsify(args)
 
 
 def _cmd_replay(args) -> int:

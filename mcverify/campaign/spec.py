@@ -40,6 +40,7 @@ from typing import Any
 
 import tomllib
 
+from mcverify.campaign.search_space import SearchSpace, read_search_space
 from mcverify.campaign.validate import _short, level_epsilon, level_lambda0, validate_params
 from mcverify.cell import Cell
 from mcverify.errors import CampaignError
@@ -59,7 +60,7 @@ MAX_EPISODES_PER_CELL = 10_000_000
 MAX_SEED = 2**63 - 1
 
 _CAMPAIGN_KEYS = {"name", "description", "seed", "episodes", "common_random_numbers"}
-_TOP_KEYS = {"campaign", "model", "grid", "axes", "reference"}
+_TOP_KEYS = {"campaign", "model", "grid", "axes", "reference", "falsify"}
 
 
 @dataclass(frozen=True)
@@ -76,6 +77,8 @@ class Campaign:
     reference: dict[str, Any] = field(default_factory=dict)
     source: str = "<memory>"
     raw: dict[str, Any] = field(default_factory=dict)
+    #: The ``[falsify]`` table (what ``mcverify falsify`` searches), None if the file has none.
+    falsify: SearchSpace | None = None
 
     @property
     def total_episodes(self) -> int:
@@ -177,6 +180,7 @@ def campaign_from_dict(
     grid = _read_grid(raw.get("grid", {}), where)
     axes = _read_axes(raw.get("axes", {}), where)
     cells = tuple(_expand_cells(base, axes, grid, n_ep, where, episodes_forced=episodes is not None))
+    falsify = read_search_space(raw["falsify"], where, model_fields()) if "falsify" in raw else None
     reference = raw.get("reference", {})
     if not isinstance(reference, Mapping):
         raise CampaignError(f"{where} [reference]: must be a table")
@@ -193,6 +197,7 @@ def campaign_from_dict(
         reference=dict(reference),
         source=source,
         raw=dict(raw),
+        falsify=falsify,
     )
 
 

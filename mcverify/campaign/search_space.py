@@ -1,0 +1,113 @@
+"""The ``[falsify]`` table of a campaign file: what ``mcverify falsify`` searches over, validated at load.
+
+::
+
+    [falsify]
+    requirement = "safe"          # a requirement of mcverify.analysis.robustness (default "safe")
+    population = 8                # candidates per generation (one batch), >= 2 (default 8)
+    stop_at_first = true          # stop after the generation that found a counterexample (default true)
+
+    [falsify.bounds]              # one numeric model field per entry: [low, high], low < high
+    "scenario.front_speed_mps" = [5.0, 9.0]
+    "opposing.speed_mps" = [8.0, 19.4]
+
+Every candidate is one episode of a one-episode cell whose overrides are the candidate's values (so
+its episode is an ordinary row and ``mcverify replay`` re-simulates it bit for bit); the per-step
+perception noise still acts as in any run. A campaign with a ``[falsify]`` table must define one
+target: no ``[grid]`` and no ``[axes]`` (checked by :func:`check_single_target`).
+Every problem is a :class:`CampaignError` of one line.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from mcverify.campaign.validate import _short
+from mcverify.errors import CampaignError
+
+_KEYS = {"requirement", "population", "stop_at_first", "bounds"}
+#: Requirement names known to the robustness module (kept here so the campaign layer need not
+#: import the analysis layer at load time; tests/falsify checks the two lists agree).
+REQUIREMENT_NAMES: tuple[str, ...] = (
+    "collision_front", "collision_opp", "ellipse", "invariance", "h_eo", "theorem5", "theorem5_certified", "safe",
+)
+MAX_POPULATION = 1024
+
+
+@dataclass(frozen=True)
+class SearchSpace:
+    """A validated ``[falsify]`` table: ``bounds`` maps a model field to (low, high) in its unit,
+    in file order."""
+
+    requirement: str
+    population: int
+    stop_at_first: bool
+    bounds: tuple[tuple[str, float, float], ...]
+
+    @property
+    def fields(self) -> tuple[str, ...]:
+        return tuple(b[0] for b in self.bounds)
+
+    @property
+    def dimension(self) -> int:
+        return len(self.bounds)
+
+    def values(self, unit_point: list[float]) -> dict[str, float]:
+        """The model values of a point of the unit cube [0, 1]^dimension (clipped into it)."""
+        if len(unit_point) != self.dimension:
+            raise ValueError(f"expected {self.dimension} coordinates, got {len(unit_point)}")
+        out = {}
+        for (name, lo, hi), u in zip(self.bounds, unit_point, strict=True):
+            u = min(1.0, max(0.0, float(u)))
+            out[name] = float(lo + u * (hi - lo))
+        return out
+
+
+def read_search_space(table: Any, where: str, known_fields: Mapping[str, type]) -> SearchSpace:
+    """Validate a ``[falsify]`` table; ``known_fields`` is every settable ``section.field`` with its type."""
+    here = f"{where} [falsify]"
+    if not isinstance(table, Mapping):
+        raise CampaignError(f"{here}: must be a table (requirement, population, stop_at_first, [falsify.bounds])")
+    for key in table:
+        if key not in _KEYS:
+            raise CampaignError(f"{here}: unknown key {_short(key)} (known: {', '.join(sorted(_KEYS))})")
+    requirement = table.get("requirement", "safe")
+    if requirement not in REQUIREMENT_NAMES:
+        raise CampaignError(f"{here}.requirement: unknown requirement {_short(requirement)}; known: "
+                            f"{', '.join(REQUIREMENT_NAMES)}")
+    population = table.get("population", 8)
+    if isinstance(population, bool) or not isinstance(population, int) or not 2 <= population <= MAX_POPULATION:
+        raise CampaignError(f"{here}.population: must be an integer from 2 to {MAX_POPULATION}, got {_short(population)}")
+    stop = table.get("stop_at_first", True)
+    if not isinstance(stop, bool):
+        raise CampaignError(f"{here}.stop_at_first: must be true or false, got {_short(stop)}")
+    bounds = table.get("bounds")
+    if not isinstance(bounds, Mapping) or not bounds:
+        raise CampaignError(f"{here}: needs a non-empty [falsify.bounds] table of 'section.field' = [low, high]")
+    out = []
+    for name, pair in bounds.items():
+        at = f"{here}.bounds.{name}"
+        if name not in known_fields:
+            raise CampaignError(f"{here}.bounds: unknown model field {_short(name)}")
+        if known_fields[name] is not float:
+            raise CampaignError(f"{at}: only numeric (float) fields can be searched, this one is "
+                                f"{known_fields[name].__name__}")
+        if (not isinstance(pair, list) or len(pair) != 2
+                or any(isinstance(v, bool) or not isinstance(v, int | float) for v in pair)):
+            raise CampaignError(f"{at}: expected [low, high] (two numbers), got {_short(pair)}")
+        lo, hi = float(pair[0]), float(pair[1])
+        if not (math.isfinite(lo) and math.isfinite(hi)) or not lo < hi:
+            raise CampaignError(f"{at}: expected finite low < high, got [{lo:g}, {hi:g}]")
+        out.append((str(name), lo, hi))
+    return SearchSpace(requirement, population, stop, tuple(out))
+
+
+def check_single_target(raw: Mapping[str, Any], where: str) -> None:
+    """A falsification campaign searches around one target cell: no [grid], no [axes]."""
+    for key in ("grid", "axes"):
+        if raw.get(key):
+            raise CampaignError(f"{where}: a campaign searched by `mcverify falsify` defines one target; remove "
+                                f"[{key}] (set its values in [model] or with --set)")

@@ -1,0 +1,78 @@
+"""``mcverify falsify`` and ``mcverify bench-falsify``: argument handling (the CLI only parses)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any
+
+from mcverify.errors import RunError
+
+
+def falsify(args: Any) -> int:
+    """Start a search (``CAMPAIGN.toml``) or resume one (``--resume OUT``); prints the report."""
+    from mcverify.campaign import executors  # noqa: PLC0415 - keep `mcverify --help` fast
+    from mcverify.campaign.spec import apply_settings, load_campaign  # noqa: PLC0415
+    from mcverify.falsify import methods, search  # noqa: PLC0415
+
+    if args.address is not None and args.executor != "ray":
+        raise RunError("--address is for the Ray executor: add --executor ray")
+
+    def make_executor():
+        return executors.make_executor(args.executor, workers=args.workers, address=args.address)
+
+    def say(line: str) -> None:
+        if not args.no_progress:
+            print(line, file=sys.stderr)
+
+    if args.resume is not None:
+        if args.campaign is not None or args.out is not None or args.settings or args.budget is not None \
+                or args.method is not None or args.seed is not None or args.requirement is not None:
+            raise RunError("--resume keeps the search's campaign, method, budget, seed and requirement: give only "
+                           "--resume OUT (and --executor/--workers)")
+        args.run_dir = args.resume
+        result = search.resume(args.resume, make_executor=make_executor, progress=say)
+    else:
+        if args.campaign is None:
+            raise RunError("missing campaign file, e.g. `mcverify falsify campaigns/falsify_mpcdc_table4b.toml`")
+        if args.budget is None:
+            raise RunError("missing --budget N (episodes the search may spend)")
+        campaign = load_campaign(args.campaign, settings=args.settings)
+        if campaign.falsify is None:
+            raise RunError(f"{args.campaign}: no [falsify] table (bounds of the search space); see "
+                           "docs or campaigns/falsify_*.toml")
+        method = args.method or "cma"
+        if method not in methods.METHODS:
+            raise RunError(f"unknown --method {method!r}; choose one of {', '.join(methods.METHODS)}")
+        import tomllib  # noqa: PLC0415
+
+        raw = apply_settings(tomllib.loads(Path(args.campaign).read_text(encoding="utf-8")), args.settings)
+        if args.requirement is not None:
+            raw["falsify"] = {**raw["falsify"], "requirement": args.requirement}
+        config = search.SearchConfig(
+            raw=raw, source=str(args.campaign), method=method, budget=args.budget,
+            seed=campaign.seed if args.seed is None else args.seed,
+            requirement=args.requirement or campaign.falsify.requirement,
+        )
+        out = args.run_dir = args.out or _default_out(campaign.name, method)
+        say(f"falsify {args.campaign}: {method}, budget {args.budget} episodes, requirement "
+            f"{config.requirement}, into {out}")
+        result = search.start(config, out, make_executor=make_executor, progress=say)
+    print((result.out_dir / "report.md").read_text())
+    first = result.first_counterexample
+    print(f"report: {result.out_dir / 'report.md'}; " + (f"first counterexample at episode {first}" if first else
+          f"no counterexample in {result.episodes} episodes, minimum robustness {result.min_robustness:.4g}"),
+          file=sys.stderr)
+    return 0
+
+
+def _default_out(name: str, method: str) -> Path:
+    from datetime import datetime  # noqa: PLC0415
+
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    base = Path("results") / f"falsify-{name}-{method}-{stamp}"
+    path, n = base, 1
+    while path.exists():
+        n += 1
+        path = base.with_name(f"{base.name}-{n}")
+    return path

@@ -1,0 +1,106 @@
+"""The report of a falsification search: ``OUT/report.md`` and ``OUT/figures/``.
+
+Facts (method, requirement, budget and effort, the minimum robustness reached, when the first
+counterexample came), robustness against episodes (each episode and the running minimum), the
+counterexample table (:mod:`mcverify.reporting.counterexample_report`) and road snapshots of the
+worst counterexamples (every candidate's trajectory is stored in its generation folder).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from mcverify import store  # noqa: E402
+from mcverify.analysis import robustness as rb  # noqa: E402
+from mcverify.reporting import counterexample_report  # noqa: E402
+from mcverify.reporting.tables import fmt_num, to_markdown  # noqa: E402
+
+if TYPE_CHECKING:
+    from mcverify.falsify.search import SearchResult
+
+REPORT = "report.md"
+FIGURES = "figures"
+
+
+def robustness_curves(curves: Mapping[str, Sequence[float]], path: Path, requirement: str) -> None:
+    """Robustness against episodes: one marker per episode and the running minimum, per method.
+    The vertical axis is symmetric-log so that margins of metres and of hundredths both show."""
+    fig, ax = plt.subplots(figsize=(7.0, 3.6), dpi=150)
+    for k, (label, values) in enumerate(curves.items()):
+        y = np.asarray(values, dtype=float)
+        x = np.arange(1, y.size + 1)
+        colour = f"C{k}"
+        ax.plot(x, y, ".", color=colour, alpha=0.35, ms=4)
+        ax.step(x, np.fmin.accumulate(np.where(np.isnan(y), np.inf, y)), where="post", color=colour, label=label)
+    ax.axhline(0.0, color="k", lw=0.8, ls="--")
+    ax.set_yscale("symlog", linthresh=0.05)
+    ax.set_xlabel("episodes")
+    ax.set_ylabel(f"robustness ({requirement})")
+    ax.legend(loc="upper right", fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, metadata={"Software": None})
+    plt.close(fig)
+
+
+def facts(result: SearchResult, records: Sequence[Mapping[str, Any]]) -> list[tuple[str, str]]:
+    req = rb.requirement(result.config.requirement)
+    first = result.first_counterexample
+    space = ", ".join(f"{n} in [{lo:g}, {hi:g}]" for n, lo, hi in result.space.bounds)
+    generations = len({e.generation for e in result.evaluations})
+    return [
+        ("campaign", f"`{result.config.source}`"),
+        ("requirement", f"`{req.name}`: {req.statement} (robustness in {req.unit or 'its own unit'}, "
+                        "negative iff violated)"),
+        ("method", f"{result.config.method}, seed {result.config.seed}, population {result.space.population}"),
+        ("search space", space),
+        ("effort", f"{result.episodes} of {result.config.budget} episodes in {generations} generation(s)"),
+        ("minimum robustness reached", fmt_num(result.min_robustness, 4, signed=True)),
+        ("first counterexample", f"episode {first} of the search" if first else
+         f"none found within {result.episodes} episodes"),
+        ("counterexamples", f"{len(records)} (see `counterexamples.parquet`)"),
+    ]
+
+
+def write(result: SearchResult, records: Sequence[Mapping[str, Any]]) -> Path:
+    out = result.out_dir
+    (out / FIGURES).mkdir(exist_ok=True)
+    robustness_curves({result.config.method: [e.robustness for e in result.evaluations]},
+                      out / FIGURES / "robustness.png", result.config.requirement)
+    lines = [f"# Falsification: {Path(result.config.source).name}", ""]
+    lines += [f"- **{k}**: {v}" for k, v in facts(result, records)]
+    lines += ["", "## Robustness against episodes", "", f"![robustness]({FIGURES}/robustness.png)", "",
+              "Each episode's robustness (dots) and the smallest so far (line); below the dashed line the "
+              "requirement is violated. Per episode in `search.parquet`.", ""]
+    table = counterexample_report.table(records, result.config.requirement, result.episodes)
+    lines += ["## Counterexamples", "", to_markdown(table), ""]
+    drawn = _draw_worst(out, records)
+    if drawn:
+        lines += ["## Worst counterexamples", ""]
+        for path, caption in drawn:
+            lines += [f"![{caption}]({path})", "", caption, ""]
+    elif records:
+        lines += ["No counterexample could be drawn (no stored trajectory).", ""]
+    text = "\n".join(lines)
+    store.atomic_write(out / REPORT, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
+    return out / REPORT
+
+
+def _draw_worst(out: Path, records: Sequence[Mapping[str, Any]]) -> list[tuple[str, str]]:
+    drawn = []
+    for rec in records[: counterexample_report.MAX_DRAWN]:
+        gen_dir = out / "generations" / f"g{int(rec['generation']):03d}"
+        manifest = store.read_json(gen_dir / store.MANIFEST)
+        for fig in counterexample_report.figures(gen_dir, [rec], manifest):
+            if fig.file:
+                drawn.append((str((gen_dir / fig.file).relative_to(out)), fig.caption))
+    return drawn
+

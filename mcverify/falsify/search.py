@@ -1,0 +1,272 @@
+"""A falsification search: generations of candidates, each run as an ordinary run folder.
+
+Layout of a search folder ``OUT``::
+
+    OUT/falsify.json              what defines the search (campaign content, method, budget, seeds)
+    OUT/generations/g000/ ...     generation 0: an ordinary run folder (manifest, chunks, episodes)
+    OUT/search.parquet            one row per evaluated candidate, in evaluation order
+    OUT/counterexamples.parquet   every violating episode, worst first, with its replay command
+    OUT/report.md                 robustness against episodes, the counterexamples, the worst drawn
+
+Generation ``g`` is a campaign with one axis ``candidate`` whose labels ``c00``, ``c01``, ... are
+one-episode cells with the candidate's model values as overrides, run through the campaign layer
+(executors, chunk store, ledger); its episode seed is :func:`generation_seed`. So every evaluated
+episode is a row ``mcverify replay OUT/generations/gNNN EPISODE_ID`` re-simulates bit for bit, and a
+killed search resumes (``resume``): the searcher is rebuilt from its seed and told the stored
+robustness of every finished generation, which gives exactly the points the uninterrupted search
+asked, then the unfinished generation is resumed chunk by chunk and the search goes on.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import shutil
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from mcverify import store
+from mcverify.analysis import counterexamples as cx
+from mcverify.analysis import robustness as rb
+from mcverify.campaign import executors, runner
+from mcverify.campaign.executors import EpisodeFn, Executor
+from mcverify.campaign.search_space import SearchSpace, check_single_target
+from mcverify.campaign.spec import Campaign, campaign_from_dict
+from mcverify.errors import CampaignError, RunError
+from mcverify.falsify import methods
+
+CONFIG = "falsify.json"
+GENERATIONS = "generations"
+SEARCH = "search.parquet"
+COUNTEREXAMPLES = "counterexamples.parquet"
+FORMAT = 1
+
+
+@dataclass(frozen=True)
+class SearchConfig:
+    """What defines a search: the campaign file's content (``raw``, with ``--set`` applied), the
+    method, the episode budget, the search seed, and the requirement it minimises."""
+
+    raw: dict[str, Any]
+    source: str
+    method: str
+    budget: int
+    seed: int
+    requirement: str
+
+    def to_json(self) -> dict[str, Any]:
+        return {"format": FORMAT, "raw": self.raw, "source": self.source, "method": self.method,
+                "budget": self.budget, "seed": self.seed, "requirement": self.requirement}
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> SearchConfig:
+        if data.get("format") != FORMAT:
+            raise RunError(f"falsify folder format {data.get('format')!r}, this mcverify reads {FORMAT}")
+        return cls(data["raw"], data["source"], data["method"], int(data["budget"]), int(data["seed"]),
+                   data["requirement"])
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """One evaluated candidate: its generation and index, unit-cube point, model values, row."""
+
+    generation: int
+    candidate: int
+    point: tuple[float, ...]
+    values: dict[str, float]
+    row: dict[str, Any]
+    robustness: float
+
+
+@dataclass(frozen=True)
+class SearchResult:
+    out_dir: Path
+    config: SearchConfig
+    space: SearchSpace
+    evaluations: tuple[Evaluation, ...]
+
+    @property
+    def episodes(self) -> int:
+        return len(self.evaluations)
+
+    @property
+    def min_robustness(self) -> float:
+        finite = [e.robustness for e in self.evaluations if not math.isnan(e.robustness)]
+        return min(finite) if finite else math.nan
+
+    @property
+    def first_counterexample(self) -> int | None:
+        """1-based count of episodes evaluated up to and including the first violating one."""
+        return next((i + 1 for i, e in enumerate(self.evaluations) if e.robustness < 0.0), None)
+
+
+def target(config: SearchConfig) -> tuple[Campaign, SearchSpace]:
+    """The campaign (one target cell) and its validated ``[falsify]`` table."""
+    campaign = campaign_from_dict(config.raw, source=config.source)
+    if campaign.falsify is None:
+        raise CampaignError(f"{config.source}: no [falsify] table; `mcverify falsify` needs one "
+                            "(see mcverify.campaign.search_space)")
+    check_single_target(config.raw, config.source)
+    return campaign, campaign.falsify
+
+
+def generation_seed(campaign_seed: int, generation: int) -> int:
+    """The episode seed of generation ``generation``: distinct per generation, so candidates of
+    different generations see independent per-step noise."""
+    return (campaign_seed * 1_000_003 + 7_919 * (generation + 1)) % (2**63 - 1)
+
+
+def generation_campaign(config: SearchConfig, values: list[dict[str, float]], generation: int) -> Campaign:
+    """Generation ``generation`` as a campaign: one one-episode cell per candidate."""
+    raw = copy.deepcopy(config.raw)
+    raw.pop("falsify", None)
+    head = raw["campaign"]
+    head["name"] = f"{head['name']}-g{generation:03d}"
+    head["seed"] = generation_seed(int(head.get("seed", 0)), generation)
+    head["episodes"] = 1
+    head["common_random_numbers"] = False
+    raw["axes"] = {"candidate": {f"c{k:02d}": dict(v) for k, v in enumerate(values)}}
+    return campaign_from_dict(raw, source=f"{config.source} (generation {generation})")
+
+
+def start(config: SearchConfig, out_dir: Path, **kw: Any) -> SearchResult:
+    """A new search into the new folder ``out_dir`` (see :func:`_search` for the keywords)."""
+    out_dir = Path(out_dir)
+    target(config)  # validates before anything is written
+    methods.searcher(config.method, 1, 2, 0)  # a bad method name fails here, with one line
+    if out_dir.exists() and any(out_dir.iterdir()):
+        raise RunError(f"{out_dir} exists and is not empty; choose another --out or use --resume {out_dir}")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    store.write_json_atomic(out_dir / CONFIG, config.to_json())
+    return _search(config, out_dir, **kw)
+
+
+def resume(out_dir: Path, **kw: Any) -> SearchResult:
+    """Finish (or re-read) the search in ``out_dir``."""
+    out_dir = Path(out_dir)
+    if not (out_dir / CONFIG).is_file():
+        raise RunError(f"{out_dir} is not a falsification folder (no {CONFIG})")
+    return _search(SearchConfig.from_json(store.read_json(out_dir / CONFIG)), out_dir, **kw)
+
+
+def _search(
+    config: SearchConfig,
+    out_dir: Path,
+    *,
+    make_executor: Callable[[], Executor] = executors.LocalExecutor,
+    episode_fn: EpisodeFn = executors.simulate,
+    progress: Callable[[str], None] | None = None,
+    stop_after_generations: int | None = None,
+) -> SearchResult:
+    """The search loop. make_executor: a fresh executor per generation; episode_fn: the episode
+    simulation (tests inject cheap ones); progress: called with one line per generation;
+    stop_after_generations: stop (as if killed) after running that many generations in this call."""
+    campaign, space = target(config)
+    search = methods.searcher(config.method, space.dimension, space.population, config.seed)
+    evaluations: list[Evaluation] = []
+    ran = 0
+    generation = 0
+    while len(evaluations) < config.budget:
+        points = search.ask()
+        n = min(space.population, config.budget - len(evaluations))
+        values = [space.values(list(p)) for p in points[:n]]
+        gen_campaign = generation_campaign(config, values, generation)
+        gen_dir = out_dir / GENERATIONS / f"g{generation:03d}"
+        finished = _finished(gen_dir)
+        if not finished:
+            if stop_after_generations is not None and ran >= stop_after_generations:
+                raise RunError(f"search stopped after {ran} generation(s) (test hook); resume {out_dir}")
+            _run_generation(gen_campaign, gen_dir, make_executor, episode_fn)
+            ran += 1
+        else:
+            _check_same(gen_dir, gen_campaign)
+        rows = {int(r["cell_index"]): r for r in store.read_episodes(gen_dir).to_pylist()}
+        robs = np.array([rb.robustness(rows[k], config.requirement) for k in range(n)])
+        evaluations += [Evaluation(generation, k, tuple(float(x) for x in points[k]), values[k], rows[k],
+                                   float(robs[k])) for k in range(n)]
+        if progress is not None:
+            best = np.nanmin(robs) if np.isfinite(robs).any() else math.nan
+            progress(f"generation {generation}: {n} episodes, best robustness {best:.4g}, "
+                     f"{len(evaluations)}/{config.budget} episodes")
+        if n == space.population:
+            search.tell(points, robs)
+        generation += 1
+        if space.stop_at_first and (robs < 0.0).any():
+            break
+    result = SearchResult(out_dir, config, space, tuple(evaluations))
+    write_outputs(result)
+    return result
+
+
+def _finished(gen_dir: Path) -> bool:
+    manifest = gen_dir / store.MANIFEST
+    return manifest.is_file() and bool(store.read_json(manifest).get("finished_utc"))
+
+
+def _check_same(gen_dir: Path, campaign: Campaign) -> None:
+    recorded = store.read_json(gen_dir / store.MANIFEST)["cells"]
+    diff = runner.first_difference(recorded, runner.campaign_record(campaign)["cells"])
+    if diff:
+        raise RunError(f"{gen_dir}: the search asks other candidates than this generation ran ({diff}); "
+                       "was the folder made by other code or edited?")
+
+
+def _run_generation(campaign: Campaign, gen_dir: Path, make_executor: Callable[[], Executor],
+                    episode_fn: EpisodeFn) -> None:
+    if (gen_dir / store.MANIFEST).is_file():
+        runner.resume(gen_dir, executor=make_executor(), progress=False, campaign=campaign, episode_fn=episode_fn)
+        return
+    if gen_dir.exists():  # killed before its manifest was written: nothing of it is usable
+        shutil.rmtree(gen_dir)
+    gen_dir.parent.mkdir(parents=True, exist_ok=True)
+    runner.run(campaign, gen_dir, executor=make_executor(), progress=False, episode_fn=episode_fn)
+
+
+# -------------------------------------------------------------------------------------- outputs
+
+
+def search_table(result: SearchResult) -> pa.Table:
+    """``search.parquet``: one row per evaluated candidate, in evaluation order."""
+    ev = result.evaluations
+    cols: dict[str, Any] = {
+        "evaluation": list(range(1, len(ev) + 1)),
+        "generation": [e.generation for e in ev],
+        "candidate": [e.candidate for e in ev],
+        "run_dir": [f"{GENERATIONS}/g{e.generation:03d}" for e in ev],
+        "episode_id": [int(e.row["episode_id"]) for e in ev],
+    }
+    for i, name in enumerate(result.space.fields):
+        cols[f"u:{name}"] = [e.point[i] for e in ev]
+        cols[name] = [e.values[name] for e in ev]
+    cols["robustness"] = [e.robustness for e in ev]
+    cols["violated"] = [bool(e.robustness < 0.0) for e in ev]
+    cols["best_so_far"] = list(np.fmin.accumulate([e.robustness for e in ev])) if ev else []
+    return pa.table(cols)
+
+
+def counterexample_records(result: SearchResult) -> list[dict[str, Any]]:
+    """Every violating episode of the search, worst first, with its generation's replay command."""
+    records: list[dict[str, Any]] = []
+    for generation in sorted({e.generation for e in result.evaluations}):
+        gen_dir = result.out_dir / GENERATIONS / f"g{generation:03d}"
+        manifest = store.read_json(gen_dir / store.MANIFEST)
+        for rec in cx.counterexamples(store.read_episodes(gen_dir), manifest, str(gen_dir),
+                                      result.config.requirement):
+            records.append({"generation": generation, **rec})
+    records.sort(key=lambda r: (r["robustness"], r["generation"], r["episode_id"]))
+    return records
+
+
+def write_outputs(result: SearchResult) -> None:
+    from mcverify.falsify import report  # noqa: PLC0415 - matplotlib only when writing
+
+    store.atomic_write(result.out_dir / SEARCH, lambda tmp: pq.write_table(search_table(result), tmp))
+    records = counterexample_records(result)
+    store.atomic_write(result.out_dir / COUNTEREXAMPLES, lambda tmp: pq.write_table(cx.to_arrow(records), tmp))
+    report.write(result, records)

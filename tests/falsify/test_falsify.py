@@ -1,0 +1,134 @@
+"""mcverify falsify: [falsify] validation, methods, resume equals an uninterrupted search."""
+
+from __future__ import annotations
+
+import copy
+import subprocess
+import sys
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from mcverify.analysis import robustness as rb
+from mcverify.campaign import executors
+from mcverify.campaign.search_space import REQUIREMENT_NAMES
+from mcverify.campaign.spec import campaign_from_dict
+from mcverify.errors import CampaignError, RunError
+from mcverify.falsify import methods, search
+from tests.falsify import fake_episodes
+
+RAW = {
+    "campaign": {"name": "fz", "seed": 11, "episodes": 1},
+    "falsify": {
+        "requirement": "ellipse", "population": 4, "stop_at_first": False,
+        "bounds": {"scenario.front_speed_mps": [5.0, 9.0], "opposing.speed_mps": [8.0, 19.0]},
+    },
+}
+
+
+def _config(method="cma", budget=12, raw=RAW):
+    return search.SearchConfig(raw=copy.deepcopy(raw), source="<test>", method=method, budget=budget, seed=3,
+                               requirement=raw["falsify"]["requirement"])
+
+
+def _kw():
+    return {"make_executor": executors.SerialExecutor, "episode_fn": fake_episodes.episodes}
+
+
+def test_requirement_lists_agree():
+    assert set(REQUIREMENT_NAMES) == set(rb.REQUIREMENTS)
+
+
+@pytest.mark.parametrize(
+    ("falsify", "message"),
+    [
+        ({"bounds": {}}, "non-empty [falsify.bounds]"),
+        ({"bounds": {"scenario.nope": [0, 1]}}, "unknown model field"),
+        ({"bounds": {"scenario.front_speed_mps": [3, 1]}}, "low < high"),
+        ({"bounds": {"scenario.front_speed_mps": [1]}}, "[low, high]"),
+        ({"bounds": {"mpc.horizon": [10, 20]}}, "only numeric (float)"),
+        ({"bounds": {"scenario.front_speed_mps": [1, 2]}, "population": 1}, "population"),
+        ({"bounds": {"scenario.front_speed_mps": [1, 2]}, "requirement": "fast"}, "unknown requirement"),
+        ({"bounds": {"scenario.front_speed_mps": [1, 2]}, "stop_at_first": "yes"}, "stop_at_first"),
+        ({"bounds": {"scenario.front_speed_mps": [1, 2]}, "budget": 3}, "unknown key"),
+        ("x", "must be a table"),
+    ],
+)
+def test_bad_falsify_tables_are_one_line(falsify, message):
+    raw = {"campaign": {"name": "x", "seed": 1, "episodes": 1}, "falsify": falsify}
+    with pytest.raises(CampaignError) as err:
+        campaign_from_dict(raw, source="f.toml")
+    text = str(err.value)
+    assert message in text and "\n" not in text and text.startswith("f.toml [falsify]")
+
+
+def test_a_grid_is_refused(tmp_path):
+    raw = {**copy.deepcopy(RAW), "grid": {"scenario.front_speed_mps": [5.0, 6.0]}}
+    with pytest.raises(CampaignError, match="defines one target"):
+        search.start(_config(raw=raw), tmp_path / "s", **_kw())
+
+
+def test_cli_bad_falsify_table_exits_2_with_one_line(tmp_path):
+    f = tmp_path / "bad.toml"
+    f.write_text('[campaign]\nname = "b"\nseed = 1\nepisodes = 1\n[falsify.bounds]\n"scenario.front_speed_mps" = [2, 1]\n')
+    proc = subprocess.run([sys.executable, "-m", "mcverify.cli", "falsify", str(f), "--budget", "4"],
+                          capture_output=True, text=True, check=False)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.count("\n") == 1 and "low < high" in proc.stderr
+
+
+@pytest.mark.parametrize("method", methods.METHODS)
+def test_methods_are_deterministic_for_a_seed(method):
+    def run(seed):
+        s = methods.searcher(method, 3, 6, seed)
+        out = []
+        for _ in range(4):
+            x = s.ask()
+            s.tell(x, np.sum((x - 0.7) ** 2, axis=1))
+            out.append(x)
+        return np.concatenate(out)
+
+    a, b = run(5), run(5)
+    assert np.array_equal(a, b) and a.shape == (24, 3)
+    assert ((a >= 0) & (a <= 1)).all()
+    assert not np.array_equal(a, run(6))
+
+
+@pytest.mark.parametrize("method", ["cma", "cross-entropy"])
+def test_resume_mid_search_equals_an_uninterrupted_search(tmp_path, method):
+    whole = search.start(_config(method), tmp_path / "whole", **_kw())
+    with pytest.raises(RunError, match="test hook"):
+        search.start(_config(method), tmp_path / "cut", stop_after_generations=1, **_kw())
+    # a generation killed half-way: its folder exists without a finished manifest
+    resumed = search.resume(tmp_path / "cut", **_kw())
+    assert whole.episodes == resumed.episodes == 12
+    a = pq.read_table(tmp_path / "whole" / search.SEARCH)
+    b = pq.read_table(tmp_path / "cut" / search.SEARCH)
+    assert a.equals(b)
+    # every candidate is an ordinary row of its generation, with the candidate's values as overrides
+    ev = whole.evaluations[5]
+    gen = tmp_path / "whole" / search.GENERATIONS / f"g{ev.generation:03d}"
+    manifest = search.store.read_json(gen / search.store.MANIFEST)
+    assert manifest["cells"][ev.candidate]["overrides"] == ev.values
+
+
+def test_search_finds_the_counterexample_and_reports_it(tmp_path):
+    raw = copy.deepcopy(RAW)
+    raw["falsify"]["stop_at_first"] = True
+    res = search.start(_config("cma", budget=60, raw=raw), tmp_path / "s", **_kw())
+    cex = pq.read_table(tmp_path / "s" / search.COUNTEREXAMPLES).to_pylist()
+    assert res.first_counterexample is not None and res.episodes <= 60
+    assert cex and all(r["robustness"] < 0 for r in cex)
+    assert cex[0]["replay"].startswith(f"mcverify replay {tmp_path / 's' / search.GENERATIONS}")
+    report = (tmp_path / "s" / "report.md").read_text()
+    assert "first counterexample" in report and "Counterexamples (ellipse)" in report
+
+
+def test_a_search_that_finds_nothing_reports_its_minimum(tmp_path):
+    raw = copy.deepcopy(RAW)
+    raw["falsify"]["bounds"] = {"scenario.front_speed_mps": [5.0, 6.0], "opposing.speed_mps": [8.0, 9.0]}
+    res = search.start(_config("random", budget=8, raw=raw), tmp_path / "s", **_kw())
+    assert res.first_counterexample is None and res.min_robustness > 0
+    report = (tmp_path / "s" / "report.md").read_text()
+    assert "none found within 8 episodes" in report and "minimum robustness reached" in report
