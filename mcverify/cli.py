@@ -150,6 +150,21 @@ def _parser() -> argparse.ArgumentParser:
     fal.add_argument("--no-progress", action="store_true", help="no per-generation lines")
     fal.set_defaults(func=_cmd_falsify)
 
+    bf = sub.add_parser("bench-falsify", help="success rate and median episodes to the first counterexample per "
+                        "search method and target (written into results/BENCHMARKS.md)")
+    bf.add_argument("targets", nargs="*", type=Path, help="campaign files with [falsify] (default: campaigns/falsify_*)")
+    bf.add_argument("--methods", default="cma,cross-entropy,random", help="comma-separated methods")
+    bf.add_argument("--trials", type=_positive_int, default=10, help="independent trials per method and target")
+    bf.add_argument("--budget", type=_positive_int, default=100, help="episodes per trial")
+    bf.add_argument("--seed", type=_nonneg_int, default=0, help="seed of the first trial (then seed+1, ...)")
+    bf.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", dest="settings",
+                    help="override a model parameter of every target (repeatable)")
+    bf.add_argument("--out-dir", type=Path, default=Path("results/bench-falsify"), help="search folders")
+    bf.add_argument("--workers", type=_positive_int, default=None, help="worker processes")
+    bf.add_argument("--write", type=Path, default=Path("results/BENCHMARKS.md"), help="Markdown file to update")
+    bf.add_argument("--no-write", action="store_true", help="print the section only")
+    bf.set_defaults(func=_cmd_bench_falsify)
+
     ker = sub.add_parser("kernels", help="the compiled-solver cache")
     ksub = ker.add_subparsers(metavar="ACTION")
     kl = ksub.add_parser("list", help="list cached kernels")
@@ -210,6 +225,12 @@ def _cmd_falsify(args) -> int:
     from mcverify.falsify.command import falsify
 
     return falsify(args)
+
+
+def _cmd_bench_falsify(args) -> int:
+    from mcverify.falsify.command import bench_falsify
+
+    return bench_falsify(args, argv=sys.argv[1:])
 
 
 def _cmd_replay(args) -> int:

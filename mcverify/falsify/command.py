@@ -76,3 +76,30 @@ def _default_out(name: str, method: str) -> Path:
         n += 1
         path = base.with_name(f"{base.name}-{n}")
     return path
+
+
+def bench_falsify(args: Any, argv: list[str]) -> int:
+    """Run the benchmark trials and write (or print) the generated section."""
+    import shlex  # noqa: PLC0415
+
+    from mcverify.campaign import executors  # noqa: PLC0415
+    from mcverify.falsify import bench, methods  # noqa: PLC0415
+
+    chosen = [m.strip() for m in args.methods.split(",") if m.strip()]
+    bad = [m for m in chosen if m not in methods.METHODS]
+    if bad or not chosen:
+        raise RunError(f"--methods: unknown {', '.join(bad) or '(none given)'}; choose from {', '.join(methods.METHODS)}")
+    targets = args.targets or [Path(t) for t in bench.DEFAULT_TARGETS]
+    for t in targets:
+        if not Path(t).is_file():
+            raise RunError(f"campaign file not found: {t}")
+    trials = bench.run_trials(
+        targets, chosen, args.trials, args.budget, args.seed, args.out_dir, settings=args.settings,
+        progress=lambda line: print(line, file=sys.stderr),
+        make_executor=lambda: executors.make_executor("local", workers=args.workers),
+    )
+    text = bench.section(trials, budget=args.budget, command="mcverify " + shlex.join(argv))
+    print(text)
+    if not args.no_write:
+        bench.write_section(args.write, text)
+    return 0

@@ -86,7 +86,7 @@ def write(result: SearchResult, records: Sequence[Mapping[str, Any]]) -> Path:
     if drawn:
         lines += ["## Worst counterexamples", ""]
         for path, caption in drawn:
-            lines += [f"![{caption}]({path})", "", caption, ""]
+            lines += [f"![worst counterexample]({path})", "", caption, ""]
     elif records:
         lines += ["No counterexample could be drawn (no stored trajectory).", ""]
     text = "\n".join(lines)

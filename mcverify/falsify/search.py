@@ -20,6 +20,7 @@ asked, then the unfinished generation is resumed chunk by chunk and the search g
 from __future__ import annotations
 
 import copy
+import hashlib
 import math
 import shutil
 from collections.abc import Callable
@@ -116,10 +117,11 @@ def target(config: SearchConfig) -> tuple[Campaign, SearchSpace]:
     return campaign, campaign.falsify
 
 
-def generation_seed(campaign_seed: int, generation: int) -> int:
-    """The episode seed of generation ``generation``: distinct per generation, so candidates of
-    different generations see independent per-step noise."""
-    return (campaign_seed * 1_000_003 + 7_919 * (generation + 1)) % (2**63 - 1)
+def generation_seed(campaign_seed: int, search_seed: int, generation: int) -> int:
+    """The episode seed of generation ``generation``: distinct per generation and search seed, so
+    candidates of different generations (and independent trials) see independent per-step noise."""
+    digest = hashlib.sha256(f"{campaign_seed}:{search_seed}:{generation}".encode()).digest()
+    return int.from_bytes(digest[:8], "big") % (2**63 - 1)
 
 
 def generation_campaign(config: SearchConfig, values: list[dict[str, float]], generation: int) -> Campaign:
@@ -128,7 +130,7 @@ def generation_campaign(config: SearchConfig, values: list[dict[str, float]], ge
     raw.pop("falsify", None)
     head = raw["campaign"]
     head["name"] = f"{head['name']}-g{generation:03d}"
-    head["seed"] = generation_seed(int(head.get("seed", 0)), generation)
+    head["seed"] = generation_seed(int(head.get("seed", 0)), config.seed, generation)
     head["episodes"] = 1
     head["common_random_numbers"] = False
     raw["axes"] = {"candidate": {f"c{k:02d}": dict(v) for k, v in enumerate(values)}}
