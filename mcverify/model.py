@@ -190,6 +190,15 @@ class Noise:
     +-``speed_rel`` of the true speed. ``scale`` multiplies all three half-widths (a stronger noise
     for sweeps). The ego's own state is measured exactly (odometry); the paper's noise is on "the
     measured objects".
+
+    Structured, bounded disturbances (what ``mcverify falsify`` searches over; all 0 by default,
+    which leaves the paper's noise bit for bit as it was): each measured error is
+    ``half_width * ((1 - structured_share) * u + structured_share * s(t))`` with ``u`` the uniform
+    draw in [-1, 1] and ``s(t) = clip(bias + drift_per_s * t, -1, 1)`` per vehicle (front/opp) and
+    quantity (x position, speed), t the episode time (s). So the error stays inside the declared
+    bounds (the half-widths above) whatever the disturbance: a per-episode bias, a slow drift and the
+    random part share the same budget. Biases in [-1, 1] (fractions of the half-width), drifts in
+    1/s, the share in [0, 1].
     """
 
     kind: str = "paper"
@@ -198,6 +207,15 @@ class Noise:
     near_threshold_m: float = 2.0
     speed_rel: float = 0.1
     scale: float = 1.0
+    structured_share: float = 0.0
+    front_x_bias: float = 0.0
+    front_x_drift_per_s: float = 0.0
+    front_v_bias: float = 0.0
+    front_v_drift_per_s: float = 0.0
+    opp_x_bias: float = 0.0
+    opp_x_drift_per_s: float = 0.0
+    opp_v_bias: float = 0.0
+    opp_v_drift_per_s: float = 0.0
 
 
 @dataclass(frozen=True)

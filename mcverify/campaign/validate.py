@@ -63,6 +63,12 @@ def validate_params(p: ModelParams, where: str) -> None:
     for key, v in positive.items():
         if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
             raise bad(key, f"must be a finite number > 0, got {_short(v)}")
+    unit_interval = {"noise.structured_share": (n.structured_share, 0.0)}
+    unit_interval |= {f"noise.{k}": (getattr(n, k), -1.0) for k in ("front_x_bias", "front_v_bias", "opp_x_bias",
+                                                                   "opp_v_bias")}
+    for key, (v, low) in unit_interval.items():
+        if not low <= v <= 1.0:
+            raise bad(key, f"must be in [{low:g}, 1] (a fraction of the noise bound), got {_short(v)}")
     nonneg = {
         "mpc.phi_s": m.phi_s,
         "mpc.smooth_weight": m.smooth_weight,

@@ -121,7 +121,7 @@ def generation_seed(campaign_seed: int, search_seed: int, generation: int) -> in
     """The episode seed of generation ``generation``: distinct per generation and search seed, so
     candidates of different generations (and independent trials) see independent per-step noise."""
     digest = hashlib.sha256(f"{campaign_seed}:{search_seed}:{generation}".encode()).digest()
-    return int.from_bytes(digest[:8], "big") % (2**63 - 1)
+    return int.from_bytes(digest[:8], "big") % 2**31  # the summary reads seeds as float64: stay exact
 
 
 def generation_campaign(config: SearchConfig, values: list[dict[str, float]], generation: int) -> Campaign:

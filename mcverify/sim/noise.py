@@ -82,6 +82,23 @@ def noise_arrays(noise: Noise) -> dict[str, float]:
     }
 
 
+def disturbance_arrays(noise: Noise) -> dict[str, list[float]]:
+    """The structured disturbance per vehicle as [x bias, x drift (1/s), v bias, v drift (1/s)]."""
+    return {
+        "front": [noise.front_x_bias, noise.front_x_drift_per_s, noise.front_v_bias, noise.front_v_drift_per_s],
+        "opp": [noise.opp_x_bias, noise.opp_x_drift_per_s, noise.opp_v_bias, noise.opp_v_drift_per_s],
+    }
+
+
+def structured_offsets(disturbance: ArrayLike, t_s: ArrayLike) -> tuple[Array, Array]:
+    """s(t) for x and speed: ``clip(bias + drift * t, -1, 1)``; disturbance (4,) as in
+    :func:`disturbance_arrays`, t_s the episode time (s)."""
+    d = jnp.asarray(disturbance, dtype=float)
+    sx = jnp.clip(d[0] + d[1] * t_s, -1.0, 1.0)
+    sv = jnp.clip(d[2] + d[3] * t_s, -1.0, 1.0)
+    return sx, sv
+
+
 def measure(
     key: Array,
     true_x_m: ArrayLike,
@@ -94,11 +111,17 @@ def measure(
     near_threshold_m: ArrayLike,
     speed_rel: ArrayLike,
     scale: ArrayLike,
+    share: ArrayLike = 0.0,
+    x_offset: ArrayLike = 0.0,
+    v_offset: ArrayLike = 0.0,
 ) -> tuple[Array, Array, Array]:
     """The paper's noise model with every number a runtime argument (traced, not compiled in).
 
     Same draws as :func:`measure_vehicle` with kind "paper"; ``scale`` 0 returns the true values
     exactly (x + 0.0). One compiled plant then serves every noise level of a campaign.
+    ``share`` of the x and speed errors is taken by the structured offsets ``x_offset``,
+    ``v_offset`` in [-1, 1] (:func:`structured_offsets`); with share 0 the draws are used as before,
+    bit for bit ((1 - 0) * u + 0 * s == u).
     """
     x = jnp.asarray(true_x_m, dtype=float)
     y = jnp.asarray(true_y_m, dtype=float)
@@ -106,4 +129,6 @@ def measure(
     unit = jax.random.uniform(key, (3,), dtype=float, minval=-1.0, maxval=1.0)
     pos_half_m = scale * jnp.where(gap_m > near_threshold_m, pos_far_m, pos_near_m)
     speed_half_mps = scale * speed_rel * jnp.abs(v)
-    return x + pos_half_m * unit[0], y + pos_half_m * unit[1], v + speed_half_mps * unit[2]
+    wx = (1.0 - share) * unit[0] + share * x_offset
+    wv = (1.0 - share) * unit[2] + share * v_offset
+    return x + pos_half_m * wx, y + pos_half_m * unit[1], v + speed_half_mps * wv

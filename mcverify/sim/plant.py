@@ -74,6 +74,9 @@ class PlantParams(NamedTuple):
     near_threshold_m: Array
     speed_rel: Array
     noise_scale: Array
+    noise_share: Array
+    front_disturbance: Array
+    opp_disturbance: Array
 
 
 def plant_params(p: ModelParams) -> PlantParams:
@@ -108,6 +111,9 @@ def plant_params(p: ModelParams) -> PlantParams:
         near_threshold_m=f(nz["near_threshold_m"]),
         speed_rel=f(nz["speed_rel"]),
         noise_scale=f(nz["scale"]),
+        noise_share=f(p.noise.structured_share),
+        front_disturbance=f(noise.disturbance_arrays(p.noise)["front"]),
+        opp_disturbance=f(noise.disturbance_arrays(p.noise)["opp"]),
     )
 
 
@@ -222,10 +228,12 @@ def observe(plant: Plant, key: Array, step: Array, pp: PlantParams) -> tuple[Arr
     c = checks(plant.ego, plant.front, plant.opp, jnp.zeros(2), pp)
     nz = {"pos_far_m": pp.pos_far_m, "pos_near_m": pp.pos_near_m, "near_threshold_m": pp.near_threshold_m,
           "speed_rel": pp.speed_rel, "scale": pp.noise_scale}
+    fsx, fsv = noise.structured_offsets(pp.front_disturbance, plant.t_s)
+    osx, osv = noise.structured_offsets(pp.opp_disturbance, plant.t_s)
     fx, fy, fv = noise.measure(noise.step_key(key, step, STREAM_FRONT), plant.front[0], 0.0, plant.front[1],
-                               c.gap_front_m, **nz)
+                               c.gap_front_m, **nz, share=pp.noise_share, x_offset=fsx, v_offset=fsv)
     ox, _, ov = noise.measure(noise.step_key(key, step, STREAM_OPP), plant.opp[0], pp.opp_lane_y_m, plant.opp[1],
-                              c.gap_opp_m, **nz)
+                              c.gap_opp_m, **nz, share=pp.noise_share, x_offset=osx, v_offset=osv)
     return jnp.stack([fx, fy, fv]), jnp.stack([ox, ov])
 
 

@@ -115,3 +115,64 @@ def test_vmap_batch_does_not_change_episode_draws(assert_batch_equals_loop) -> N
         assert_batch_equals_loop(batched[i], alone)
         eager = np.asarray(measure(key_i, steps[i], truth[i]))
         np.testing.assert_allclose(eager, alone, rtol=1e-15, atol=1e-15)
+
+
+# --- structured, bounded disturbances (mcverify falsify) --------------------------------------
+
+
+def _measure_args():
+    return {"pos_far_m": 0.5, "pos_near_m": 0.1, "near_threshold_m": 2.0, "speed_rel": 0.1, "scale": 1.0}
+
+
+def test_no_disturbance_is_bit_identical_to_the_plain_draw():
+    import jax  # noqa: PLC0415
+
+    from mcverify.sim import noise as nz  # noqa: PLC0415
+
+    for i in range(20):
+        key = jax.random.PRNGKey(i)
+        plain = nz.measure(key, 30.0 + i, 0.1, 7.0, 5.0, **_measure_args())
+        with_zero = nz.measure(key, 30.0 + i, 0.1, 7.0, 5.0, **_measure_args(), share=0.0,
+                               x_offset=0.0, v_offset=0.0)
+        unit = jax.random.uniform(key, (3,), dtype=float, minval=-1.0, maxval=1.0)
+        expected = (30.0 + i + 0.5 * unit[0], 0.1 + 0.5 * unit[1], 7.0 + (1.0 * 0.1 * 7.0) * unit[2])
+        for a, b, c in zip(plain, with_zero, expected, strict=True):
+            assert float(a) == float(b) == float(c)
+
+
+def test_structured_errors_stay_inside_the_declared_bounds():
+    import jax  # noqa: PLC0415
+    import numpy as np  # noqa: PLC0415
+
+    from mcverify.sim import noise as nz  # noqa: PLC0415
+
+    rng = np.random.default_rng(0)
+    for i in range(50):
+        d = [rng.uniform(-1, 1), rng.uniform(-0.5, 0.5), rng.uniform(-1, 1), rng.uniform(-0.5, 0.5)]
+        t = rng.uniform(0, 20)
+        sx, sv = nz.structured_offsets(d, t)
+        share = rng.uniform(0, 1)
+        x, _, v = nz.measure(jax.random.PRNGKey(i), 30.0, 0.0, 7.0, 5.0, **_measure_args(), share=share,
+                             x_offset=sx, v_offset=sv)
+        assert abs(float(x) - 30.0) <= 0.5 + 1e-12 and abs(float(v) - 7.0) <= 0.7 + 1e-12
+    # the whole budget as a bias: the error sits on the bound
+    sx, sv = nz.structured_offsets([1.0, 0.0, -1.0, 0.0], 3.0)
+    x, _, v = nz.measure(jax.random.PRNGKey(0), 30.0, 0.0, 7.0, 5.0, **_measure_args(), share=1.0,
+                         x_offset=sx, v_offset=sv)
+    assert float(x) == 30.5 and float(v) == 6.3
+    # a drift grows with time until it reaches the bound
+    assert float(nz.structured_offsets([0.0, 0.1, 0.0, 0.0], 5.0)[0]) == 0.5
+    assert float(nz.structured_offsets([0.0, 0.1, 0.0, 0.0], 50.0)[0]) == 1.0
+
+
+def test_disturbance_fields_are_validated_with_one_line():
+    import pytest  # noqa: PLC0415
+
+    from mcverify.campaign.spec import campaign_from_dict  # noqa: PLC0415
+    from mcverify.errors import CampaignError  # noqa: PLC0415
+
+    for field, value in (("structured_share", 1.5), ("front_x_bias", -2.0)):
+        raw = {"campaign": {"name": "x", "seed": 1, "episodes": 1}, "model": {"noise": {field: value}}}
+        with pytest.raises(CampaignError, match=f"noise.{field}") as err:
+            campaign_from_dict(raw)
+        assert "\n" not in str(err.value)
