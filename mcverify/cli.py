@@ -37,7 +37,9 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_USAGE
     except KeyboardInterrupt:
         run_dir = getattr(args, "run_dir", None) or "RUN_DIR"
-        print(f"mcverify: interrupted; finished chunks are kept (mcverify run --resume {run_dir})", file=sys.stderr)
+        command = "falsify" if getattr(args, "func", None) is _cmd_falsify else "run"
+        print(f"mcverify: interrupted; finished chunks are kept (mcverify {command} --resume {run_dir})",
+              file=sys.stderr)
         return 130
 
 

@@ -34,6 +34,7 @@ class Trial:
     episodes: int
     first_counterexample: int | None
     min_robustness: float
+    curve: tuple[float, ...] = ()
 
 
 def run_trials(
@@ -57,12 +58,31 @@ def run_trials(
                 else:
                     res = search.start(config, where, **search_kw)
                 out.append(Trial(campaign.name, method, seed + t, res.episodes, res.first_counterexample,
-                                 res.min_robustness))
+                                 res.min_robustness, tuple(e.robustness for e in res.evaluations)))
                 if progress is not None:
                     progress(f"{campaign.name} {method} trial {t}: "
                              + (f"counterexample at episode {res.first_counterexample}" if res.first_counterexample
                                 else f"none in {res.episodes}, min robustness {res.min_robustness:.4g}"))
     return out
+
+
+def draw_curves(trials: Sequence[Trial], out_dir: Path) -> list[Path]:
+    """Per target, robustness against episodes of every method's first trial:
+    ``out_dir/<target>/robustness.png``."""
+    from mcverify.falsify import report  # noqa: PLC0415 - matplotlib only here
+
+    paths = []
+    for target in dict.fromkeys(t.target for t in trials):
+        firsts = {}
+        for t in trials:
+            if t.target == target and t.method not in firsts:
+                firsts[t.method] = t.curve
+        path = out_dir / target / "robustness.png"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        report.robustness_curves({f"{m} (seed {min(t.seed for t in trials)})": c for m, c in firsts.items()}, path,
+                                 "target requirement")
+        paths.append(path)
+    return paths
 
 
 def section(trials: Sequence[Trial], *, budget: int, command: str) -> str:

@@ -98,6 +98,8 @@ def bench_falsify(args: Any, argv: list[str]) -> int:
         progress=lambda line: print(line, file=sys.stderr),
         make_executor=lambda: executors.make_executor("local", workers=args.workers),
     )
+    for path in bench.draw_curves(trials, args.out_dir):
+        print(f"figure: {path}", file=sys.stderr)
     text = bench.section(trials, budget=args.budget, command="mcverify " + shlex.join(argv))
     print(text)
     if not args.no_write:

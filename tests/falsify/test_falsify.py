@@ -132,3 +132,24 @@ def test_a_search_that_finds_nothing_reports_its_minimum(tmp_path):
     assert res.first_counterexample is None and res.min_robustness > 0
     report = (tmp_path / "s" / "report.md").read_text()
     assert "none found within 8 episodes" in report and "minimum robustness reached" in report
+
+
+def test_bench_trials_and_section(tmp_path):
+    from mcverify.falsify import bench  # noqa: PLC0415
+
+    f = tmp_path / "t.toml"
+    f.write_text('[campaign]\nname = "t"\nseed = 5\nepisodes = 1\n[falsify]\nrequirement = "ellipse"\npopulation = 4\n'
+                 '[falsify.bounds]\n"scenario.front_speed_mps" = [5.0, 9.0]\n"opposing.speed_mps" = [8.0, 19.0]\n')
+    trials = bench.run_trials([f], ["cma", "random"], 2, 12, 0, tmp_path / "b", **_kw())
+    assert [(t.method, t.seed) for t in trials] == [("cma", 0), ("cma", 1), ("random", 0), ("random", 1)]
+    assert all(t.first_counterexample is None or t.first_counterexample <= t.episodes <= 12 for t in trials)
+    again = bench.run_trials([f], ["cma", "random"], 2, 12, 0, tmp_path / "b", **_kw())  # re-read, not re-run
+    assert again == trials
+    text = bench.section(trials, budget=12, command="mcverify bench-falsify t.toml")
+    assert text.count("| t | ") == 2 and bench.BEGIN_MARK in text
+    md = tmp_path / "B.md"
+    md.write_text("# Benchmarks\n\nintro\n")
+    bench.write_section(md, text)
+    bench.write_section(md, text)
+    assert md.read_text().count(bench.BEGIN_MARK) == 1 and "intro" in md.read_text()
+    assert bench.draw_curves(trials, tmp_path / "b")[0].is_file()
