@@ -34,7 +34,7 @@ def table(records: Sequence[Mapping[str, Any]], requirement: str, total_episodes
         rows.append([str(r["episode_id"]), str(r["cell"]), *[_value(r.get(p)) for p in params],
                      fmt_num(r["robustness"], 3, signed=True), fmt_num(r.get("first_unsafe_s"), 2),
                      r["failure_mode"], fmt_num(r.get("min_gap_front_m"), 2), fmt_num(r.get("min_h_front"), 3),
-                     fmt_num(r.get("min_gap_opp_any_m"), 2), fmt_num(r.get("min_h_opp"), 2), f"`{r['replay']}`"])
+                     fmt_num(r.get("min_gap_opp_any_m"), 2), fmt_num(r.get("min_h_opp"), 2), r["replay"]])
     notes = [f"Episodes violating `{requirement}` (robustness < 0), worst first: {len(records)} of "
              f"{total_episodes}; all of them, with the robustness of every requirement, in `{FILE}`."]
     if len(records) > MAX_ROWS:

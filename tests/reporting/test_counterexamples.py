@@ -41,7 +41,7 @@ def test_report_lists_every_unsafe_episode_worst_first(tmp_path):
         assert any(k.startswith("param:") for k in r)
     report = (run / run_report.REPORT).read_text()
     assert "Counterexamples (safe)" in report
-    assert f"`mcverify replay {run} {cex[0]['episode_id']}`" in report
+    assert f"mcverify replay {run} {cex[0]['episode_id']}" in report
     assert "Failure modes" in report
 
 
