@@ -154,7 +154,8 @@ def _parser() -> argparse.ArgumentParser:
 
     bf = sub.add_parser("bench-falsify", help="success rate and median episodes to the first counterexample per "
                         "search method and target (written into results/BENCHMARKS.md)")
-    bf.add_argument("targets", nargs="*", type=Path, help="campaign files with [falsify] (default: campaigns/falsify_*)")
+    bf.add_argument("targets", nargs="*", type=Path,
+                    help="campaign files with [falsify] (default: campaigns/falsify_*)")
     bf.add_argument("--methods", default="cma,cross-entropy,random", help="comma-separated methods")
     bf.add_argument("--trials", type=_positive_int, default=10, help="independent trials per method and target")
     bf.add_argument("--budget", type=_positive_int, default=100, help="episodes per trial")

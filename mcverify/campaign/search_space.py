@@ -80,7 +80,9 @@ def read_search_space(table: Any, where: str, known_fields: Mapping[str, type]) 
                             f"{', '.join(REQUIREMENT_NAMES)}")
     population = table.get("population", 8)
     if isinstance(population, bool) or not isinstance(population, int) or not 2 <= population <= MAX_POPULATION:
-        raise CampaignError(f"{here}.population: must be an integer from 2 to {MAX_POPULATION}, got {_short(population)}")
+        raise CampaignError(
+            f"{here}.population: must be an integer from 2 to {MAX_POPULATION}, got {_short(population)}"
+        )
     stop = table.get("stop_at_first", True)
     if not isinstance(stop, bool):
         raise CampaignError(f"{here}.stop_at_first: must be true or false, got {_short(stop)}")

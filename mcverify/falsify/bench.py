@@ -12,11 +12,12 @@ from __future__ import annotations
 
 import copy
 import statistics
-import tomllib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+import tomllib
 
 from mcverify.analysis import stats
 from mcverify.campaign.spec import apply_settings, load_campaign

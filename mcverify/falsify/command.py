@@ -88,7 +88,8 @@ def bench_falsify(args: Any, argv: list[str]) -> int:
     chosen = [m.strip() for m in args.methods.split(",") if m.strip()]
     bad = [m for m in chosen if m not in methods.METHODS]
     if bad or not chosen:
-        raise RunError(f"--methods: unknown {', '.join(bad) or '(none given)'}; choose from {', '.join(methods.METHODS)}")
+        raise RunError(f"--methods: unknown {', '.join(bad) or '(none given)'}; "
+                       f"choose from {', '.join(methods.METHODS)}")
     targets = args.targets or [Path(t) for t in bench.DEFAULT_TARGETS]
     for t in targets:
         if not Path(t).is_file():

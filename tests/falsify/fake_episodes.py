@@ -19,5 +19,6 @@ def episodes(cell, episode_ids, seed, common_random_numbers, record):
         min_h = 0.6 * abs(v - 8.6) + 0.05 * abs(o - 17.0) - 0.15 + 0.01 * noise
         r.update({"min_h_front": min_h, "collision_front": False, "ellipse_violation": min_h < 0,
                   "min_gap_front_m": 1.0, "safe": min_h >= 0, "opposing_kind": "none",
-                  "first_unsafe_s": 3.0 if min_h < 0 else math.nan, "first_unsafe_cause": "planned" if min_h < 0 else ""})
+                  "first_unsafe_s": 3.0 if min_h < 0 else math.nan,
+                  "first_unsafe_cause": "planned" if min_h < 0 else ""})
     return out

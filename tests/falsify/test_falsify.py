@@ -71,7 +71,8 @@ def test_a_grid_is_refused(tmp_path):
 
 def test_cli_bad_falsify_table_exits_2_with_one_line(tmp_path):
     f = tmp_path / "bad.toml"
-    f.write_text('[campaign]\nname = "b"\nseed = 1\nepisodes = 1\n[falsify.bounds]\n"scenario.front_speed_mps" = [2, 1]\n')
+    f.write_text('[campaign]\nname = "b"\nseed = 1\nepisodes = 1\n'
+                 '[falsify.bounds]\n"scenario.front_speed_mps" = [2, 1]\n')
     proc = subprocess.run([sys.executable, "-m", "mcverify.cli", "falsify", str(f), "--budget", "4"],
                           capture_output=True, text=True, check=False)
     assert proc.returncode == 2, proc.stderr

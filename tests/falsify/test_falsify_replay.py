@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import copy
-import tomllib
 from pathlib import Path
 
 import pytest
+import tomllib
 
 from mcverify.campaign import executors
 from mcverify.campaign.replay import replay
