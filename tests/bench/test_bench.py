@@ -11,8 +11,8 @@ from mcverify.bench.solve_classes import SolveClass
 
 
 def row(e, safe=True, outcome="overtook", d=0.8, g=40.0, t=6.5, solves=100):
-    return {"cell_episode": e, "episode_id": e, "safe": safe, "outcome": outcome, "min_dist_front_m": d, "min_gap_opp_m": g,
-            "overtake_time_s": t, "solves": solves}
+    return {"cell_episode": e, "episode_id": e, "safe": safe, "outcome": outcome, "min_dist_front_m": d,
+            "min_gap_opp_m": g, "overtake_time_s": t, "solves": solves}
 
 
 def test_agreement_pairs_by_episode_and_lists_disagreements():
