@@ -170,13 +170,16 @@ def _planners(params, tallies: dict[str, ClassTally], sides: list[str]) -> dict[
     return {s: make[s]() for s in sides}
 
 
-def ipm_outcomes(planner: Planner) -> Counter:
-    """The IPM attempt outcomes (``warm1:Converged``, ...) counted by the engine planner's backends."""
-    out: Counter = Counter()
+def ipm_attempts(planner: Planner) -> tuple[Counter, Counter]:
+    """The IPM attempt outcomes (``warm1:Converged``, ...) counted by the engine planner's backends,
+    and their CPU seconds (empty for a backend without IPM)."""
+    count: Counter = Counter()
+    cpu_s: Counter = Counter()
     for s in (planner.plain, getattr(planner, "with_opp", None)):
         backend = getattr(getattr(s, "solver", s), "backend", None)
-        out.update(getattr(backend, "ipm_outcomes", {}))
-    return out
+        count.update(getattr(backend, "ipm_outcomes", {}))
+        cpu_s.update(getattr(backend, "ipm_cpu_s", {}))
+    return count, cpu_s
 
 
 def _run_side(side: str, cell: Cell, ids: list[int], seed: int, planner: Planner, crn: bool,
@@ -216,7 +219,7 @@ def run(
              f"compiled IPOPT loop {baseline_episodes}, naive {naive_episodes} (paired: the first ones)")
     sides = {s: SideResult(s, [], 0.0, 0.0) for s in SIDES}
     tallies = {s: sides[s].classes for s in SIDES}
-    clock, outcomes, setup_cpu_s = PhaseClock(), Counter(), 0.0
+    clock, outcomes, attempt_cpu, setup_cpu_s = PhaseClock(), Counter(), Counter(), 0.0
     active = [s for s in SIDES if counts[s]]
     for cell in cells:
         # One-off costs, outside every clock: building/loading the solvers (kernel load, nlpsol set-up)
@@ -229,14 +232,16 @@ def run(
         for s in active:
             run_episodes(warm_cell, [0], seed, planners[s], common_random_numbers=crn)
         setup_cpu_s += time.process_time() - cpu0
+        warm_attempts = ipm_attempts(planners["engine"])
         for s, (count, cpu) in saved.items():  # the warm-up's solves are not counted either
             tallies[s].count, tallies[s].cpu_s = count, cpu
         progress(f"  cell {cell.name}")
         for s in active:
             ids = list(range(counts[s]))
             r = _run_side(s, cell, ids, seed, planners[s], crn, clock)
-            if s == "engine":
-                outcomes.update(ipm_outcomes(planners[s]))
+            if s == "engine":  # the backends' counters include the warm-up step: subtract it
+                count, cpu = ipm_attempts(planners[s])
+                outcomes.update(count - warm_attempts[0]), attempt_cpu.update(cpu - warm_attempts[1])
             sides[s].add(cell.name, r.rows, r.cpu_s, r.wall_s)
             progress(f"    {s}: {r.cpu_s / len(r.rows):.1f} CPU-s per episode")
     engine = sides["engine"]
@@ -253,7 +258,7 @@ def run(
         "plant_transfer": plant_transfer_ms(cells[0], engine_episodes, seed),
         "agreement": {s: agreement(sides[s].rows, engine.rows, key="episode_id", values=PAIRED_VALUES)
                       for s in ("baseline", "naive") if counts[s]},
-        "ipm_outcomes": dict(outcomes.most_common()),
+        "ipm_attempts": {k: {"attempts": n, "cpu_s": attempt_cpu[k]} for k, n in outcomes.most_common()},
         "machine": machine(),
         "load_average": _load(),
         "command": "mcverify " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["bench"]

@@ -72,9 +72,20 @@ def render(result: dict[str, Any]) -> str:
     lines += ["  " + ln for ln in phase_lines(sides["engine"], result.get("plant_transfer"))]
     lines += ["  " + ln for ln in class_table(sides)] + ["  " + ln for ln in cell_table(sides)]
     lines += ["  " + agreement_line(s, ag) for s, ag in result["agreement"].items()]
-    if result.get("ipm_outcomes"):
-        lines.append("  IPM attempts (engine): " + ", ".join(f"{k} {v}" for k, v in result["ipm_outcomes"].items()))
+    lines += ["  " + ln for ln in attempt_lines(result.get("ipm_attempts", {}))]
     return "\n".join(lines)
+
+
+def attempt_lines(attempts: dict[str, dict[str, float]]) -> list[str]:
+    """The engine's IPM attempts (``warm1:Converged``: the first warm attempt converged) with their
+    CPU, and the share spent in attempts that did not converge."""
+    if not attempts:
+        return []
+    total = sum(a["cpu_s"] for a in attempts.values())
+    failed = sum(a["cpu_s"] for k, a in attempts.items() if not k.endswith(":Converged"))
+    parts = ", ".join(f"{k} {a['attempts']} ({a['cpu_s']:.1f} s)" for k, a in attempts.items())
+    return [f"IPM attempts (engine, all episodes): {parts}; {failed:.1f} of {total:.1f} CPU-s in attempts "
+            "that did not converge"]
 
 
 def phase_lines(engine: SideResult, transfer: dict[str, float] | None) -> list[str]:
@@ -116,6 +127,8 @@ def append_markdown(result: dict[str, Any], path: Path = BENCHMARKS_MD) -> None:
         *cell_table(sides),
         "",
         *[agreement_line(s, ag) + "." for s, ag in result["agreement"].items()],
+        "",
+        *[ln + "." for ln in attempt_lines(result.get("ipm_attempts", {}))],
         "",
     ]
     path.parent.mkdir(parents=True, exist_ok=True)

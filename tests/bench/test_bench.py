@@ -97,8 +97,19 @@ def test_solve_classes_account_for_every_solve_of_every_side():
         assert side.classes.total_cpu_s <= side.cpu_s
         assert sum(n for n, _ in side.per_cell.values()) == len(side.rows)
     assert len(result["sides"]["engine"].rows) == 4 and len(result["sides"]["baseline"].rows) == 2
+    converged = sum(a["attempts"] for k, a in result["ipm_attempts"].items() if k.endswith(":Converged"))
+    assert converged >= result["sides"]["engine"].classes.count[SolveClass.CONVERGED] > 0  # warm-up not counted
+    assert all(a["cpu_s"] >= 0 for a in result["ipm_attempts"].values())
     ag = result["agreement"]["baseline"]
     assert ag["paired"] == 2 and ag["safe_agree"] == 2 and set(result["ratios"]) == {"baseline"}
+
+
+def test_attempt_lines_count_the_cpu_of_attempts_that_did_not_converge():
+    lines = engine_report.attempt_lines({"warm1:Converged": {"attempts": 3, "cpu_s": 1.0},
+                                         "warm1:Line_Search_Failed": {"attempts": 1, "cpu_s": 0.5}})
+    assert lines == ["IPM attempts (engine, all episodes): warm1:Converged 3 (1.0 s), warm1:Line_Search_Failed 1 "
+                     "(0.5 s); 0.5 of 1.5 CPU-s in attempts that did not converge"]
+    assert engine_report.attempt_lines({}) == []
 
 
 def test_naive_planner_wraps_its_solvers():
