@@ -83,6 +83,32 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     run.set_defaults(func=_cmd_run)
 
+    est = sub.add_parser("estimate", help="estimate a target event's rate per cell, with sequential stopping")
+    est.add_argument("campaign", nargs="?", type=Path, help="campaign TOML file")
+    est.add_argument("--method", choices=("mc",), default="mc",
+                     help="mc: crude Monte Carlo stopped on an anytime-valid interval (default)")
+    est.add_argument("--target", default="collision",
+                     help="event whose rate is estimated: collision (default), ellipse, unsafe, invariance, "
+                          "opp_invariance")
+    est.add_argument("--until-halfwidth", type=_halfwidth, default=None, metavar="H",
+                     help="stop a cell when the interval's half-width is <= H (absolute, e.g. 0.01) or <= H "
+                          "of the estimate (relative, e.g. 30%%)")
+    est.add_argument("--budget", type=_positive_int, default=1000, help="most episodes per cell (default 1000)")
+    est.add_argument("--level", type=_level, default=0.95, help="confidence level of the interval (default 0.95)")
+    est.add_argument("--seed", type=_nonneg_int, help="campaign seed (overrides the file)")
+    est.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", dest="settings",
+                     help="override a model parameter of the file (repeatable)")
+    est.add_argument("--out", type=Path, help="run folder (default: results/<name>-<timestamp>)")
+    est.add_argument("--executor", choices=("local", "ray", "serial"), default="local",
+                     help="local worker processes (default), tasks on a Ray cluster, or this process")
+    est.add_argument("--address", metavar="ADDR", help="Ray cluster to join (with --executor ray)")
+    est.add_argument("--workers", type=_positive_int, default=None, help="worker processes or Ray tasks in flight")
+    est.add_argument("--chunk-size", type=_positive_int, default=None, metavar="K",
+                     help="episodes per chunk, the unit of work and of the stopping checks (default 8)")
+    est.add_argument("--resume", type=Path, metavar="RUN_DIR", help="finish an interrupted estimate")
+    est.add_argument("--no-progress", action="store_true", help="no progress bar")
+    est.set_defaults(func=_cmd_estimate)
+
     rep = sub.add_parser("replay", help="re-simulate one stored episode and write its trajectory")
     rep.add_argument("run_dir", type=Path)
     rep.add_argument("episode_id", type=_nonneg_int)
@@ -185,6 +211,38 @@ def _cmd_run(args) -> int:
             campaign, out, executor=executor, chunk_size=args.chunk_size or runner.DEFAULT_CHUNK_SIZE,
             progress=progress, on_start=starting,
         )
+    print(path.read_text())
+    print(f"report: {path}", file=sys.stderr)
+    return 0
+
+
+def _cmd_estimate(args) -> int:
+    from mcverify.analysis.estimates import EstimateSpec
+    from mcverify.campaign import executors, runner
+    from mcverify.campaign.spec import load_campaign
+    from mcverify.errors import RunError
+    from mcverify.estimate import mc
+
+    executor = executors.make_executor(args.executor, workers=args.workers, address=args.address)
+    if args.resume:
+        if args.campaign or args.out or args.seed is not None or args.settings or args.until_halfwidth:
+            raise RunError("--resume keeps the estimate's campaign and rule: give only RUN_DIR (and the executor)")
+        args.run_dir = args.resume
+        path = mc.resume(args.resume, executor=executor, progress=not args.no_progress)
+    else:
+        if args.campaign is None:
+            raise RunError("missing campaign file, e.g. `mcverify estimate campaigns/eps_sweep_rare.toml`")
+        halfwidth, relative = args.until_halfwidth or (None, False)
+        try:
+            spec = EstimateSpec(args.method, args.target, halfwidth, relative, args.budget, args.level)
+        except ValueError as err:
+            raise RunError(str(err)) from None
+        campaign = load_campaign(args.campaign, episodes=args.budget, seed=args.seed, settings=args.settings)
+        out = args.run_dir = args.out or runner.default_run_dir(campaign)
+        print(runner.describe(campaign), file=sys.stderr)
+        print(f"estimate folder: {out}", file=sys.stderr)
+        path = mc.run(campaign, spec, out, executor=executor,
+                      chunk_size=args.chunk_size or runner.DEFAULT_CHUNK_SIZE, progress=not args.no_progress)
     print(path.read_text())
     print(f"report: {path}", file=sys.stderr)
     return 0
@@ -301,6 +359,19 @@ def _nonneg_int(text: str) -> int:
     if value < 0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
     return value
+
+
+def _halfwidth(text: str) -> tuple[float, bool]:
+    """``0.01`` (absolute) or ``30%`` (relative to the estimate) -> (value, relative)."""
+    relative = text.strip().endswith("%")
+    try:
+        value = float(text.strip().rstrip("%"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number or a percentage, e.g. 0.01 or 30%, got {text!r}") from None
+    value = value / 100.0 if relative else value
+    if not 0.0 < value < (1.0 if not relative else float("inf")):
+        raise argparse.ArgumentTypeError(f"must be > 0 (and < 1 when absolute), got {text}")
+    return value, relative
 
 
 def _level(text: str) -> float:
