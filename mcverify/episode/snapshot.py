@@ -65,14 +65,14 @@ class EpisodeSnapshot:
 class Branching:
     """Controls of a one-episode run: ``start`` (restore this snapshot, continue after its step),
     ``branch_id`` (continue with this branch's noise; None: the snapshot's key, i.e. the same noise),
-    ``keep(step, trace)`` (take a snapshot after this step?). Filled by the run: ``scores`` (the
-    running min h_ef after every step it simulated, as (step, value)), ``snapshots`` (step -> snapshot)
-    and ``steps`` (control steps simulated)."""
+    ``keep(step, trace)`` (take a snapshot after this step?). Filled by the run: ``traces`` (the
+    episode's running safety trace after every step it simulated, as (step, trace)), ``snapshots``
+    (step -> snapshot) and ``steps`` (control steps simulated)."""
 
     start: EpisodeSnapshot | None = None
     branch_id: int | None = None
     keep: Callable[[int, SafetyTrace], bool] | None = None
-    scores: list[tuple[int, float]] = field(default_factory=list)
+    traces: list[tuple[int, SafetyTrace]] = field(default_factory=list)
     snapshots: dict[int, EpisodeSnapshot] = field(default_factory=dict)
     steps: int = 0
 
@@ -89,7 +89,7 @@ class Branching:
                    entered_s: float, u_last: np.ndarray, settling: Any, end: Any) -> None:
         self.steps += 1
         trace = world.lane_state(0)[1]
-        self.scores.append((step, float(trace.min_h_front)))
+        self.traces.append((step, trace))
         if self.keep is not None and self.keep(step, trace):
             self.snapshots[step] = self.capture(step, world, episode_key, state, entered_s, u_last, settling, end)
 

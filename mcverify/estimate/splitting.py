@@ -86,6 +86,7 @@ class AMSRun:
     extinct: bool
     reached: int  # particles at the failure level at the end
     killed: tuple[int, ...] = ()  # particles killed at each iteration (> k with ties)
+    capped: bool = False  # stopped by max_iterations before the level reached the failure set: not an estimate
 
 
 def ams(process: BranchingProcess, *, n: int, k: int = 1, failure_level: float, seed: int,
@@ -124,8 +125,9 @@ def ams(process: BranchingProcess, *, n: int, k: int = 1, failure_level: float, 
             particles[int(i)] = child
         iterations += 1
     reached = int(sum(float(p.scores[-1]) >= failure_level for p in particles))
+    capped = iterations >= max_iterations and float(np.sort([p.scores[-1] for p in particles])[k - 1]) < failure_level
     return AMSRun(math.exp(log_weight) * reached / n, iterations, levels, n, k, steps, False, reached,
-                  tuple(killed_counts))
+                  tuple(killed_counts), capped)
 
 
 @dataclass(frozen=True)
@@ -144,6 +146,7 @@ class SplittingEstimate:
     steps: int
     runs: list[float] = field(default_factory=list)
     interval: str = "asymptotic: Student t on independent AMS replicates (each unbiased)"
+    warnings: list[str] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -153,22 +156,32 @@ class SplittingEstimate:
 
 
 def estimate(process: BranchingProcess, *, n: int, k: int = 1, failure_level: float, replicates: int = 10,
-             level: float = 0.95, seed: int = 0) -> SplittingEstimate:
+             level: float = 0.95, seed: int = 0, max_iterations: int = 100_000) -> SplittingEstimate:
     """``replicates`` independent AMS runs (seeds ``seed * replicates + r``) and their t interval."""
     if replicates < 2:
         raise ValueError(f"an interval needs at least 2 replicates, got {replicates}")
-    runs = [ams(process, n=n, k=k, failure_level=failure_level, seed=seed * replicates + r) for r in range(replicates)]
+    runs = [ams(process, n=n, k=k, failure_level=failure_level, seed=seed * replicates + r,
+                max_iterations=max_iterations) for r in range(replicates)]
+    return from_runs(runs, level)
+
+
+def from_runs(runs: list[AMSRun], level: float = 0.95) -> SplittingEstimate:
+    """The t interval of independent AMS runs, with warnings when it should not be trusted."""
     values = np.array([r.estimate for r in runs])
-    return _t_interval(values, level, n, k, sum(r.steps for r in runs))
-
-
-def _t_interval(values: np.ndarray, level: float, n: int, k: int, steps: int) -> SplittingEstimate:
     mean = float(values.mean())
     se = float(values.std(ddof=1) / math.sqrt(values.size))
     half = float(sps.t.ppf(0.5 + level / 2, values.size - 1)) * se
     rel = half / mean if mean > 0 else math.inf
-    return SplittingEstimate(mean, max(0.0, mean - half), mean + half, level, rel, int(values.size), n, k, steps,
-                             [float(v) for v in values])
+    warnings = []
+    capped = sum(r.capped for r in runs)
+    if capped:
+        warnings.append(f"{capped} run(s) hit the iteration cap before the failure level: not an estimate")
+    zero = int(np.sum(values == 0))
+    if zero > values.size // 2:
+        warnings.append(f"{zero} of {values.size} runs estimate 0 (extinction or no particle at the failure level): "
+                        "the t interval is unreliable; use more particles")
+    return SplittingEstimate(mean, max(0.0, mean - half), mean + half, level, rel, int(values.size), runs[0].n,
+                             runs[0].k, sum(r.steps for r in runs), [float(v) for v in values], warnings=warnings)
 
 
 def crude_steps_for(p: float, relative_halfwidth: float, steps_per_episode: float, level: float = 0.95) -> float:

@@ -52,8 +52,8 @@ def test_branching_without_a_start_leaves_the_episode_unchanged(whole):
     _, _, _, plain, row, br = whole
     assert_same(plain, row)
     # control steps simulated: the planner's steps (row["steps"]) and the settling steps after the goal
-    assert sorted(br.snapshots) == [3, 12] and br.steps == len(br.scores) >= row["steps"]
-    mins = [s for _, s in br.scores]
+    assert sorted(br.snapshots) == [3, 12] and br.steps == len(br.traces) >= row["steps"]
+    mins = [float(t.min_h_front) for _, t in br.traces]
     assert mins == sorted(mins, reverse=True) and mins[-1] == row["min_h_front"]
 
 
