@@ -85,8 +85,9 @@ def _parser() -> argparse.ArgumentParser:
 
     est = sub.add_parser("estimate", help="estimate a target event's rate per cell, with sequential stopping")
     est.add_argument("campaign", nargs="?", type=Path, help="campaign TOML file")
-    est.add_argument("--method", choices=("mc",), default="mc",
-                     help="mc: crude Monte Carlo stopped on an anytime-valid interval (default)")
+    est.add_argument("--method", choices=("mc", "splitting"), default="mc",
+                     help="mc: crude Monte Carlo stopped on an anytime-valid interval (default); splitting: "
+                          "adaptive multilevel splitting on the per-step noise (in this process)")
     est.add_argument("--target", default="collision",
                      help="event whose rate is estimated: collision (default), ellipse, unsafe, invariance, "
                           "opp_invariance")
@@ -105,6 +106,13 @@ def _parser() -> argparse.ArgumentParser:
     est.add_argument("--workers", type=_positive_int, default=None, help="worker processes or Ray tasks in flight")
     est.add_argument("--chunk-size", type=_positive_int, default=None, metavar="K",
                      help="episodes per chunk, the unit of work and of the stopping checks (default 8)")
+    est.add_argument("--score", choices=("gap", "h_ef"), default=None,
+                     help="splitting: footprint gap (target collision, the default) or h_ef (target ellipse)")
+    est.add_argument("--particles", type=_positive_int, default=20, help="splitting: particles per run (default 20)")
+    est.add_argument("--replicates", type=_positive_int, default=5,
+                     help="splitting: independent runs whose spread gives the interval (default 5)")
+    est.add_argument("--max-iterations", type=_positive_int, default=2000,
+                     help="splitting: iteration cap per run (a capped run is flagged, not an estimate)")
     est.add_argument("--resume", type=Path, metavar="RUN_DIR", help="finish an interrupted estimate")
     est.add_argument("--no-progress", action="store_true", help="no progress bar")
     est.set_defaults(func=_cmd_estimate)
@@ -223,6 +231,8 @@ def _cmd_estimate(args) -> int:
     from mcverify.errors import RunError
     from mcverify.estimate import mc
 
+    if args.method == "splitting" or (args.resume and _is_splitting(args.resume)):
+        return _cmd_estimate_splitting(args)
     executor = executors.make_executor(args.executor, workers=args.workers, address=args.address)
     if args.resume:
         if args.campaign or args.out or args.seed is not None or args.settings or args.until_halfwidth:
@@ -243,6 +253,54 @@ def _cmd_estimate(args) -> int:
         print(f"estimate folder: {out}", file=sys.stderr)
         path = mc.run(campaign, spec, out, executor=executor,
                       chunk_size=args.chunk_size or runner.DEFAULT_CHUNK_SIZE, progress=not args.no_progress)
+    print(path.read_text())
+    print(f"report: {path}", file=sys.stderr)
+    return 0
+
+
+def _is_splitting(run_dir: Path) -> bool:
+    import json
+
+    try:
+        return json.loads((run_dir / "manifest.json").read_text()).get("estimate", {}).get("method") == "splitting"
+    except (OSError, ValueError):
+        return False
+
+
+def _cmd_estimate_splitting(args) -> int:
+    from mcverify.campaign import runner
+    from mcverify.campaign.spec import campaign_from_dict, load_campaign
+    from mcverify.errors import RunError
+    from mcverify.estimate import splitting_run
+
+    log = lambda msg: print(msg, file=sys.stderr)  # noqa: E731
+    if args.resume:
+        from mcverify import store
+
+        manifest = store.read_manifest(args.resume)
+        camp = manifest["campaign"]
+        campaign = campaign_from_dict(camp["raw"], source=camp["source"], seed=camp["seed"])
+        path = splitting_run.resume(args.resume, campaign, progress=log)
+    else:
+        if args.campaign is None:
+            raise RunError("missing campaign file, e.g. `mcverify estimate campaigns/eps_sweep_rare.toml`")
+        if args.until_halfwidth is not None:
+            raise RunError("--until-halfwidth is for --method mc; splitting runs --replicates runs of --particles")
+        if args.target not in ("collision", "ellipse"):
+            raise RunError("splitting estimates --target collision (score gap) or ellipse (score h_ef)")
+        score = args.score or ("gap" if args.target == "collision" else "h_ef")
+        try:
+            spec = splitting_run.SplittingSpec(score, args.particles, 1, args.replicates, args.level,
+                                               args.max_iterations)
+        except ValueError as err:
+            raise RunError(str(err)) from None
+        if spec.target != args.target:
+            raise RunError(f"--score {score} estimates {spec.target}, not --target {args.target}")
+        campaign = load_campaign(args.campaign, seed=args.seed, settings=args.settings)
+        out = args.run_dir = args.out or runner.default_run_dir(campaign)
+        log(runner.describe(campaign))
+        log(f"estimate folder: {out}")
+        path = splitting_run.run(campaign, spec, out, progress=log)
     print(path.read_text())
     print(f"report: {path}", file=sys.stderr)
     return 0

@@ -18,7 +18,7 @@ Cost: control steps simulated (settling steps included) and the CPU seconds of t
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -77,6 +77,7 @@ class ClosedLoopProcess:
     score: str = "h_ef"
     cpu_s: float = 0.0
     steps: int = 0
+    fresh_steps: list[int] = field(default_factory=list)  # control steps of each fresh (unbranched) episode
 
     def __post_init__(self) -> None:
         if self.score not in SCORES:
@@ -99,6 +100,8 @@ class ClosedLoopProcess:
         snaps.update(branching.snapshots)
         self.cpu_s += cpu
         self.steps += branching.steps
+        if start is None:
+            self.fresh_steps.append(branching.steps)
         return ClosedLoopPath(episode, scores, snaps, branching.steps, cpu)
 
     @staticmethod

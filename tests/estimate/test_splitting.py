@@ -79,12 +79,12 @@ def test_coverage_small():
 @pytest.mark.slow
 def test_coverage_large_rare():
     """p about 1.8e-3 (reference: 1e7 crude episodes), 60 repetitions of 10 x 50-particle AMS.
-    Measured when written: coverage 0.92, bias -0.3 %, relative error 0.13, ~2e5 steps per estimate
-    against ~1.4e7 for crude Monte Carlo at the same width (about 100x)."""
+    Measured when written: coverage 0.92, bias -0.3 %, relative error 0.13, ~1.2e5 steps per estimate
+    against ~1.5e6 for crude Monte Carlo at the same relative half-width (about 12x at this p)."""
     p, coverage, bias, rel_err, results = _coverage(4.5, 10_000_000, reps=60, n=50, replicates=10)
     assert 1e-3 < p < 3e-3
     assert coverage >= 0.90, coverage
     assert abs(bias) < 0.05 and rel_err < 0.2
     mean_rel = float(np.mean([r.relative_halfwidth for r in results]))
     crude = splitting.crude_steps_for(p, mean_rel, WALK.horizon)
-    assert crude / np.mean([r.steps for r in results]) > 20
+    assert crude / np.mean([r.steps for r in results]) > 5
