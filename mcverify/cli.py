@@ -111,6 +111,8 @@ def _parser() -> argparse.ArgumentParser:
     est.add_argument("--particles", type=_positive_int, default=20, help="splitting: particles per run (default 20)")
     est.add_argument("--replicates", type=_positive_int, default=5,
                      help="splitting: independent runs whose spread gives the interval (default 5)")
+    est.add_argument("--cell", action="append", default=[], metavar="NAME",
+                     help="splitting: only this cell of the campaign (repeatable; default: every cell)")
     est.add_argument("--max-iterations", type=_positive_int, default=2000,
                      help="splitting: iteration cap per run (a capped run is flagged, not an estimate)")
     est.add_argument("--resume", type=Path, metavar="RUN_DIR", help="finish an interrupted estimate")
@@ -300,7 +302,7 @@ def _cmd_estimate_splitting(args) -> int:
         out = args.run_dir = args.out or runner.default_run_dir(campaign)
         log(runner.describe(campaign))
         log(f"estimate folder: {out}")
-        path = splitting_run.run(campaign, spec, out, progress=log)
+        path = splitting_run.run(campaign, spec, out, progress=log, cells=args.cell or None)
     print(path.read_text())
     print(f"report: {path}", file=sys.stderr)
     return 0

@@ -54,9 +54,16 @@ class SplittingSpec:
         return SCORES[self.score]
 
 
-def run(campaign: Campaign, spec: SplittingSpec, out: Path, *, progress=print) -> Path:
-    """Estimate every cell of ``campaign`` into the new folder ``out``; returns the report path."""
+def run(campaign: Campaign, spec: SplittingSpec, out: Path, *, progress=print,
+        cells: list[str] | None = None) -> Path:
+    """Estimate every cell of ``campaign`` (or those named in ``cells``) into the new folder ``out``;
+    returns the report path."""
     out = Path(out)
+    if cells:
+        known = [c.name for c in campaign.cells]
+        missing = [c for c in cells if c not in known]
+        if missing:
+            raise RunError(f"no cell {missing[0]!r} in {campaign.name}; cells: {', '.join(known)}")
     if out.exists() and any(out.iterdir()):
         raise RunError(f"{out} exists and is not empty; choose another --out or use --resume {out}")
     out.mkdir(parents=True, exist_ok=True)
@@ -65,10 +72,10 @@ def run(campaign: Campaign, spec: SplittingSpec, out: Path, *, progress=print) -
                 "campaign": {**{k: v for k, v in record.items() if k != "cells"}, "raw": campaign.raw,
                              "source": str(campaign.source)},
                 "cells": record["cells"],
-                "estimate": {"method": "splitting", **asdict(spec)},
+                "estimate": {"method": "splitting", **asdict(spec)}, "only_cells": cells or None,
                 "code": provenance.code_version(), "environment": provenance.environment_info()}
     store.write_json_atomic(out / store.MANIFEST, manifest)
-    return _cells(campaign, spec, out, {}, progress)
+    return _cells(campaign, spec, out, {}, progress, cells)
 
 
 def resume(out: Path, campaign: Campaign, *, progress=print) -> Path:
@@ -83,13 +90,14 @@ def resume(out: Path, campaign: Campaign, *, progress=print) -> Path:
         raise RunError(f"cannot resume {out}: it was started with other code ({'; '.join(diffs)})")
     spec = SplittingSpec(**{k: v for k, v in raw.items() if k != "method"})
     done = {c["cell_index"]: c for c in (store.read_json(out / ESTIMATE)["cells"] if (out / ESTIMATE).exists() else [])}
-    return _cells(campaign, spec, out, done, progress)
+    return _cells(campaign, spec, out, done, progress, manifest.get("only_cells"))
 
 
-def _cells(campaign: Campaign, spec: SplittingSpec, out: Path, done: dict[int, dict], progress) -> Path:
+def _cells(campaign: Campaign, spec: SplittingSpec, out: Path, done: dict[int, dict], progress,
+           only: list[str] | None = None) -> Path:
     results = dict(done)
     for cell in campaign.cells:
-        if cell.index in results:
+        if cell.index in results or (only and cell.name not in only):
             continue
         progress(f"cell {cell.name}: {spec.replicates} AMS runs of {spec.particles} particles")
         process = ClosedLoopProcess(cell, campaign.seed, executors.solver_for(cell.params), spec.score)
