@@ -133,3 +133,13 @@ def test_cli_bad_input_is_one_line(argv, message, capsys):
 
 def test_stop_rule_on_budget_only_is_allowed():
     assert StopRule(None, False, 10).halfwidth is None
+
+
+def test_the_report_draws_the_estimates_against_epsilon(tmp_path: Path):
+    raw = {"campaign": {"name": "eps", "seed": 5, "episodes": 3}, "grid": {"barrier.epsilon": [0.1, 0.3, 0.5]}}
+    camp = campaign_from_dict(raw, episodes=200)
+    spec = EstimateSpec("mc", "collision", 0.1, False, 200)
+    report = mc.run(camp, spec, tmp_path / "run", executor=executors.SerialExecutor(), chunk_size=25,
+                    progress=False, episode_fn=_fn(0.1))
+    assert (tmp_path / "run" / "figures" / "estimate-vs-epsilon.png").stat().st_size > 1000
+    assert "figures/estimate-vs-epsilon.png" in report.read_text()
