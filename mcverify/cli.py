@@ -85,9 +85,10 @@ def _parser() -> argparse.ArgumentParser:
 
     est = sub.add_parser("estimate", help="estimate a target event's rate per cell, with sequential stopping")
     est.add_argument("campaign", nargs="?", type=Path, help="campaign TOML file")
-    est.add_argument("--method", choices=("mc", "splitting"), default="mc",
+    est.add_argument("--method", choices=("mc", "splitting", "importance"), default="mc",
                      help="mc: crude Monte Carlo stopped on an anytime-valid interval (default); splitting: "
-                          "adaptive multilevel splitting on the per-step noise (in this process)")
+                          "adaptive multilevel splitting on the per-step noise; importance: cross-entropy "
+                          "importance sampling over the scenario ranges (both in this process)")
     est.add_argument("--target", default="collision",
                      help="event whose rate is estimated: collision (default), ellipse, unsafe, invariance, "
                           "opp_invariance")
@@ -112,7 +113,13 @@ def _parser() -> argparse.ArgumentParser:
     est.add_argument("--replicates", type=_positive_int, default=5,
                      help="splitting: independent runs whose spread gives the interval (default 5)")
     est.add_argument("--cell", action="append", default=[], metavar="NAME",
-                     help="splitting: only this cell of the campaign (repeatable; default: every cell)")
+                     help="splitting, importance: only this cell (repeatable; default: every cell)")
+    est.add_argument("--samples", type=_positive_int, default=400,
+                     help="importance: episodes drawn from the defensive mixture (default 400)")
+    est.add_argument("--ce-samples", type=_positive_int, default=100,
+                     help="importance: episodes per cross-entropy iteration (default 100)")
+    est.add_argument("--ce-iterations", type=_positive_int, default=10,
+                     help="importance: most cross-entropy iterations (default 10)")
     est.add_argument("--max-iterations", type=_positive_int, default=2000,
                      help="splitting: iteration cap per run (a capped run is flagged, not an estimate)")
     est.add_argument("--resume", type=Path, metavar="RUN_DIR", help="finish an interrupted estimate")
@@ -233,8 +240,9 @@ def _cmd_estimate(args) -> int:
     from mcverify.errors import RunError
     from mcverify.estimate import mc
 
-    if args.method == "splitting" or (args.resume and _is_splitting(args.resume)):
-        return _cmd_estimate_splitting(args)
+    method = _folder_method(args.resume) if args.resume else args.method
+    if method in ("splitting", "importance"):
+        return _cmd_estimate_in_process(args, method)
     executor = executors.make_executor(args.executor, workers=args.workers, address=args.address)
     if args.resume:
         if args.campaign or args.out or args.seed is not None or args.settings or args.until_halfwidth:
@@ -260,21 +268,23 @@ def _cmd_estimate(args) -> int:
     return 0
 
 
-def _is_splitting(run_dir: Path) -> bool:
+def _folder_method(run_dir: Path) -> str | None:
+    """The method recorded in an estimate folder's manifest (None if unreadable or absent)."""
     import json
 
     try:
-        return json.loads((run_dir / "manifest.json").read_text()).get("estimate", {}).get("method") == "splitting"
-    except (OSError, ValueError):
-        return False
+        return json.loads((run_dir / "manifest.json").read_text()).get("estimate", {}).get("method")
+    except (OSError, ValueError, AttributeError):
+        return None
 
 
-def _cmd_estimate_splitting(args) -> int:
+def _cmd_estimate_in_process(args, method: str) -> int:
     from mcverify.campaign import runner
     from mcverify.campaign.spec import campaign_from_dict, load_campaign
     from mcverify.errors import RunError
-    from mcverify.estimate import splitting_run
+    from mcverify.estimate import importance_run, splitting_run
 
+    module = splitting_run if method == "splitting" else importance_run
     log = lambda msg: print(msg, file=sys.stderr)  # noqa: E731
     if args.resume:
         from mcverify import store
@@ -282,27 +292,31 @@ def _cmd_estimate_splitting(args) -> int:
         manifest = store.read_manifest(args.resume)
         camp = manifest["campaign"]
         campaign = campaign_from_dict(camp["raw"], source=camp["source"], seed=camp["seed"])
-        path = splitting_run.resume(args.resume, campaign, progress=log)
+        path = module.resume(args.resume, campaign, progress=log)
     else:
         if args.campaign is None:
             raise RunError("missing campaign file, e.g. `mcverify estimate campaigns/eps_sweep_rare.toml`")
         if args.until_halfwidth is not None:
-            raise RunError("--until-halfwidth is for --method mc; splitting runs --replicates runs of --particles")
+            raise RunError(f"--until-halfwidth is for --method mc, not {method}")
         if args.target not in ("collision", "ellipse"):
-            raise RunError("splitting estimates --target collision (score gap) or ellipse (score h_ef)")
-        score = args.score or ("gap" if args.target == "collision" else "h_ef")
+            raise RunError(f"{method} estimates --target collision or ellipse")
         try:
-            spec = splitting_run.SplittingSpec(score, args.particles, 1, args.replicates, args.level,
-                                               args.max_iterations)
+            if method == "splitting":
+                score = args.score or ("gap" if args.target == "collision" else "h_ef")
+                spec = splitting_run.SplittingSpec(score, args.particles, 1, args.replicates, args.level,
+                                                   args.max_iterations)
+                if spec.target != args.target:
+                    raise RunError(f"--score {score} estimates {spec.target}, not --target {args.target}")
+            else:
+                spec = importance_run.ImportanceSpec(args.target, args.samples, args.ce_samples, level=args.level,
+                                                     max_ce_iterations=args.ce_iterations)
         except ValueError as err:
             raise RunError(str(err)) from None
-        if spec.target != args.target:
-            raise RunError(f"--score {score} estimates {spec.target}, not --target {args.target}")
         campaign = load_campaign(args.campaign, seed=args.seed, settings=args.settings)
         out = args.run_dir = args.out or runner.default_run_dir(campaign)
         log(runner.describe(campaign))
         log(f"estimate folder: {out}")
-        path = splitting_run.run(campaign, spec, out, progress=log, cells=args.cell or None)
+        path = module.run(campaign, spec, out, progress=log, cells=args.cell or None)
     print(path.read_text())
     print(f"report: {path}", file=sys.stderr)
     return 0

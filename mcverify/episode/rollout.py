@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
@@ -157,6 +157,7 @@ def run_episodes(
     on_step: Callable[[int], None] | None = None,
     clock: PhaseClock | None = None,
     branching: Branching | None = None,
+    scenarios: Mapping[int, Mapping[str, float]] | None = None,
 ) -> ChunkResult:
     """Simulate ``episode_ids`` (ids within the cell) of ``cell`` as one batch; one row per episode.
 
@@ -166,6 +167,8 @@ def run_episodes(
     their host-device transfers; "planner": the host controllers, solver included), for ``bench``.
     branching: for one episode only: start from a snapshot (with a branch's noise), take snapshots,
     report the running score (:mod:`mcverify.episode.snapshot`); None leaves the loop as it is.
+    scenarios: episode id -> scenario values (keys of :func:`sample_scenario`) that replace the
+    episode's own draws (importance sampling over the scenario); the noise is unchanged.
     """
     phase = clock.phase if clock is not None else _untimed
     p = cell.params
@@ -173,6 +176,8 @@ def run_episodes(
     cell_key = None if common_random_numbers else cell.index
     keys = jnp.stack([episode_key(seed, cell_key, e) for e in ids])
     samples = [sample_scenario(k, p) for k in keys]
+    for b, e in enumerate(ids):
+        samples[b].update((scenarios or {}).get(e, {}))
     world = LaneGroups(initial_plant(p, [s["front_accel_mps2"] for s in samples],
                                      [s["opp_speed_mps"] for s in samples]), keys, p)
     h0 = world.trace().min_h_front.copy()

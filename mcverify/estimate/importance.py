@@ -127,13 +127,15 @@ def cross_entropy(score: ScoreFn, nominal: Proposal, rng: np.random.Generator, *
 
 
 def estimate(score: ScoreFn, bounds: Sequence[tuple[float, float]], *, samples: int = 2000, alpha: float = 0.1,
-             level: float = 0.95, seed: int = 0, per_iteration: int = 200, rho: float = 0.1) -> ISEstimate:
+             level: float = 0.95, seed: int = 0, per_iteration: int = 200, rho: float = 0.1,
+             max_iterations: int = 20) -> ISEstimate:
     """Cross-entropy fit, then ``samples`` draws from the defensive mixture; see the module docstring."""
     if not 0.0 < alpha < 1.0:
         raise ValueError(f"the defensive share alpha must be in (0, 1), got {alpha}")
     rng = np.random.default_rng([seed, 0xCE])
     nominal = Proposal.nominal(bounds)
-    g, levels, evaluations = cross_entropy(score, nominal, rng, per_iteration=per_iteration, rho=rho)
+    g, levels, evaluations = cross_entropy(score, nominal, rng, per_iteration=per_iteration, rho=rho,
+                                           max_iterations=max_iterations)
     from_nominal = rng.random(samples) < alpha
     theta = np.where(from_nominal[:, None], nominal.sample(rng, samples), g.sample(rng, samples))
     log_p = nominal.logpdf(theta)
@@ -148,6 +150,8 @@ def estimate(score: ScoreFn, bounds: Sequence[tuple[float, float]], *, samples: 
     ess = total**2 / float(np.sum(x**2)) if total > 0 else 0.0
     share = float(x.max() / total) if total > 0 else math.nan
     warnings = []
+    if levels[-1] < 0.0:
+        warnings.append(f"the cross-entropy levels stopped at {levels[-1]:.3g} < 0: the proposal may miss failures")
     if fail.sum() < 10:
         warnings.append(f"only {int(fail.sum())} failing samples: the interval is unreliable")
     if total > 0 and ess < 50:

@@ -18,15 +18,11 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from mcverify import provenance, store
-from mcverify.campaign import executors, runner
+from mcverify.campaign import executors
 from mcverify.campaign.spec import Campaign
-from mcverify.errors import RunError
-from mcverify.estimate import splitting
+from mcverify.estimate import folder, splitting
 from mcverify.estimate.closed_loop import SCORES, ClosedLoopProcess
-
-ESTIMATE = "estimate.json"
-REPORT = "report.md"
+from mcverify.estimate.folder import num
 
 
 @dataclass(frozen=True)
@@ -58,39 +54,15 @@ def run(campaign: Campaign, spec: SplittingSpec, out: Path, *, progress=print,
         cells: list[str] | None = None) -> Path:
     """Estimate every cell of ``campaign`` (or those named in ``cells``) into the new folder ``out``;
     returns the report path."""
-    out = Path(out)
-    if cells:
-        known = [c.name for c in campaign.cells]
-        missing = [c for c in cells if c not in known]
-        if missing:
-            raise RunError(f"no cell {missing[0]!r} in {campaign.name}; cells: {', '.join(known)}")
-    if out.exists() and any(out.iterdir()):
-        raise RunError(f"{out} exists and is not empty; choose another --out or use --resume {out}")
-    out.mkdir(parents=True, exist_ok=True)
-    record = runner.campaign_record(campaign)
-    manifest = {"format": store.FORMAT,
-                "campaign": {**{k: v for k, v in record.items() if k != "cells"}, "raw": campaign.raw,
-                             "source": str(campaign.source)},
-                "cells": record["cells"],
-                "estimate": {"method": "splitting", **asdict(spec)}, "only_cells": cells or None,
-                "code": provenance.code_version(), "environment": provenance.environment_info()}
-    store.write_json_atomic(out / store.MANIFEST, manifest)
-    return _cells(campaign, spec, out, {}, progress, cells)
+    folder.create(out, campaign, {"method": "splitting", **asdict(spec)}, cells)
+    return _cells(campaign, spec, Path(out), {}, progress, cells)
 
 
 def resume(out: Path, campaign: Campaign, *, progress=print) -> Path:
     """Finish an interrupted splitting estimate: the cells already in ``estimate.json`` are kept."""
-    out = Path(out)
-    manifest = store.read_manifest(out)
-    raw = manifest.get("estimate") or {}
-    if raw.get("method") != "splitting":
-        raise RunError(f"{out} is not a splitting estimate")
-    diffs = provenance.code_differences(manifest.get("code", {}), provenance.code_version())
-    if diffs:
-        raise RunError(f"cannot resume {out}: it was started with other code ({'; '.join(diffs)})")
-    spec = SplittingSpec(**{k: v for k, v in raw.items() if k != "method"})
-    done = {c["cell_index"]: c for c in (store.read_json(out / ESTIMATE)["cells"] if (out / ESTIMATE).exists() else [])}
-    return _cells(campaign, spec, out, done, progress, manifest.get("only_cells"))
+    manifest, done = folder.load(out, "splitting")
+    spec = SplittingSpec(**{k: v for k, v in manifest["estimate"].items() if k != "method"})
+    return _cells(campaign, spec, Path(out), done, progress, manifest.get("only_cells"))
 
 
 def _cells(campaign: Campaign, spec: SplittingSpec, out: Path, done: dict[int, dict], progress,
@@ -106,8 +78,7 @@ def _cells(campaign: Campaign, spec: SplittingSpec, out: Path, done: dict[int, d
         results[cell.index] = cell_result(cell.index, cell.name, spec, splitting.from_runs(runs, spec.level), runs,
                                           process)
         _write(out, spec, campaign, results)
-    _write(out, spec, campaign, results)
-    return out / REPORT
+    return _write(out, spec, campaign, results)
 
 
 def cell_result(index: int, name: str, spec: SplittingSpec, est: splitting.SplittingEstimate,
@@ -123,26 +94,19 @@ def cell_result(index: int, name: str, spec: SplittingSpec, est: splitting.Split
     }
 
 
-def _write(out: Path, spec: SplittingSpec, campaign: Campaign, results: dict[int, dict]) -> None:
-    from mcverify.analysis.cells import json_ready
+COLUMNS: list[folder.Column] = [
+    ("cell", lambda c: c["cell"]), ("estimate", lambda c: num(c["estimate"])),
+    ("interval", lambda c: f"[{num(c['low'])}, {num(c['high'])}]"),
+    ("rel. half-width", lambda c: num(c["relative_halfwidth"], ".2f")), ("control steps", lambda c: str(c["steps"])),
+    ("CPU (s)", lambda c: num(c["cpu_s"], ".0f")),
+    ("crude MC steps, same width", lambda c: num(c["crude_steps_same_width"])),
+    ("ratio", lambda c: num(c["steps_ratio_vs_crude"], ".2f")), ("warnings", lambda c: "; ".join(c["warnings"]) or "-"),
+]
 
-    cells = [results[i] for i in sorted(results)]
-    store.write_json_atomic(out / ESTIMATE, json_ready({"spec": {"method": "splitting", **asdict(spec)},
-                                                        "cells": cells}))
-    lines = [f"# mcverify splitting estimate: {campaign.name}", "",
-             f"Target: {spec.target} (score {spec.score} reaching 0). Adaptive multilevel splitting, "
+
+def _write(out: Path, spec: SplittingSpec, campaign: Campaign, results: dict[int, dict]) -> Path:
+    intro = (f"Target: {spec.target} (score {spec.score} reaching 0). Adaptive multilevel splitting, "
              f"{spec.replicates} independent runs of {spec.particles} particles (k = {spec.k}); the interval is "
-             f"asymptotic ({spec.level:.0%} Student t on the runs' estimates).", "",
-             "| cell | estimate | interval | rel. half-width | control steps | CPU (s) | crude MC steps, same width "
-             "| ratio | warnings |", "|---|---|---|---|---|---|---|---|---|"]
-    for c in cells:
-        lines.append(f"| {c['cell']} | {_g(c['estimate'])} | [{_g(c['low'])}, {_g(c['high'])}] | "
-                     f"{_g(c['relative_halfwidth'], '.2f')} | {c['steps']} | {_g(c['cpu_s'], '.0f')} | "
-                     f"{_g(c['crude_steps_same_width'])} | {_g(c['steps_ratio_vs_crude'], '.2f')} | "
-                     f"{'; '.join(c['warnings']) or '-'} |")
-    store.atomic_write(out / REPORT, lambda tmp: Path(tmp).write_text("\n".join(lines) + "\n", encoding="utf-8"))
-
-
-def _g(x: float | None, fmt: str = ".3g") -> str:
-    """A number for the report; "-" where it does not exist (None in JSON, NaN or inf)."""
-    return "-" if x is None or not math.isfinite(float(x)) else format(float(x), fmt)
+             f"asymptotic ({spec.level:.0%} Student t on the runs' estimates).")
+    return folder.write(out, f"mcverify splitting estimate: {campaign.name}", intro,
+                        {"method": "splitting", **asdict(spec)}, results, COLUMNS)

@@ -31,7 +31,7 @@ def test_splitting_cli_writes_its_estimate_and_resumes(tmp_path: Path, capsys):
 def test_splitting_bad_input_is_one_line(capsys):
     for argv, message in (
         (["estimate", str(FIXTURE), "--method", "splitting", "--until-halfwidth", "0.1"], "--until-halfwidth is for"),
-        (["estimate", str(FIXTURE), "--method", "splitting", "--target", "unsafe"], "splitting estimates"),
+        (["estimate", str(FIXTURE), "--method", "splitting", "--target", "unsafe"], "estimates --target collision or"),
         (["estimate", str(FIXTURE), "--method", "splitting", "--replicates", "1"], "at least 2 replicates"),
         (["estimate", str(FIXTURE), "--method", "splitting", "--score", "h_ef"], "not --target collision"),
     ):
