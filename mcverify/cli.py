@@ -177,6 +177,18 @@ def _parser() -> argparse.ArgumentParser:
                      help="Markdown file whose generated section is replaced (default: results/BENCHMARKS.md)")
     ben.set_defaults(func=_cmd_bench_solver)
 
+    rare = sub.add_parser("bench-rare", help="splitting against crude Monte Carlo on the calibration walk "
+                          "(p about 1e-4; section written into results/BENCHMARKS.md)")
+    rare.add_argument("--barrier", type=float, default=6.2, help="event level of the walk (default 6.2: p ~ 1e-4)")
+    rare.add_argument("--particles", type=_positive_int, default=100, help="particles per AMS run (default 100)")
+    rare.add_argument("--replicates", type=_positive_int, default=25,
+                      help="AMS runs per estimate (default 25: about +-30 %% at p ~ 1e-4)")
+    rare.add_argument("--repetitions", type=_positive_int, default=20, help="independent estimates (default 20)")
+    rare.add_argument("--reference-episodes", type=_positive_int, default=30_000_000,
+                      help="crude reference walks (default 3e7)")
+    rare.add_argument("--no-write", action="store_true", help="do not write into results/BENCHMARKS.md")
+    rare.set_defaults(func=_cmd_bench_rare)
+
     ker = sub.add_parser("kernels", help="the compiled-solver cache")
     ksub = ker.add_subparsers(metavar="ACTION")
     kl = ksub.add_parser("list", help="list cached kernels")
@@ -400,6 +412,24 @@ def _cmd_bench_solver(args) -> int:
     json_path.write_text(solver_bench_report.to_json(results))
     print(section)
     print(f"written: {args.out} (section), {json_path}", file=sys.stderr)
+    return 0
+
+
+def _cmd_bench_rare(args) -> int:
+    from mcverify.bench import rare
+
+    if args.replicates < 2:
+        from mcverify.errors import UserError
+
+        raise UserError("--replicates must be at least 2 (the interval comes from their spread)")
+    res = rare.run(barrier=args.barrier, particles=args.particles, replicates=args.replicates,
+                   repetitions=args.repetitions, reference_episodes=args.reference_episodes)
+    command = "mcverify " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["bench-rare"] else "mcverify bench-rare"
+    text = rare.markdown(res, command)
+    print(text)
+    if not args.no_write:
+        rare.write(res, command, Path("results/BENCHMARKS.md"))
+        print("written: results/BENCHMARKS.md (section)", file=sys.stderr)
     return 0
 
 
