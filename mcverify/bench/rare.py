@@ -73,7 +73,7 @@ def markdown(res: dict[str, Any], command: str) -> str:
              f"crude Monte Carlo for the same relative half-width at this p: {res['crude_steps_same_width']:,.0f} "
              f"steps, **{res['steps_ratio']:.0f}x more** (vectorised crude walks would take "
              f"{res['crude_cpu_same_width_s']:.0f} CPU-s: the CPU ratio of this toy says nothing about the "
-             "closed loop, where a step costs about 0.1 CPU-s on either side)", "", END_MARK, ""]
+             "closed loop, where a control step costs 0.01-0.03 CPU-s on either side)", "", END_MARK, ""]
     return "\n".join(lines)
 
 
