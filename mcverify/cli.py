@@ -113,7 +113,8 @@ def _parser() -> argparse.ArgumentParser:
     est.add_argument("--replicates", type=_positive_int, default=5,
                      help="splitting: independent runs whose spread gives the interval (default 5)")
     est.add_argument("--cell", action="append", default=[], metavar="NAME",
-                     help="splitting, importance: only this cell (repeatable; default: every cell)")
+                     help="splitting, importance: only this cell (repeatable; default: every cell); splitting runs its "
+                          "AMS runs in this process unless --workers (local) or --executor ray is given")
     est.add_argument("--samples", type=_positive_int, default=400,
                      help="importance: episodes drawn from the defensive mixture (default 400)")
     est.add_argument("--ce-samples", type=_positive_int, default=100,
@@ -280,6 +281,16 @@ def _cmd_estimate(args) -> int:
     return 0
 
 
+def _executor_for(args, method: str) -> dict:
+    """splitting: its AMS runs go to the executor named on the command line (default this process)."""
+    from mcverify.campaign import executors
+
+    if method != "splitting":
+        return {}
+    kind = "serial" if args.executor == "local" and args.workers is None else args.executor
+    return {"executor": executors.make_executor(kind, workers=args.workers, address=args.address)}
+
+
 def _folder_method(run_dir: Path) -> str | None:
     """The method recorded in an estimate folder's manifest (None if unreadable or absent)."""
     import json
@@ -304,7 +315,7 @@ def _cmd_estimate_in_process(args, method: str) -> int:
         manifest = store.read_manifest(args.resume)
         camp = manifest["campaign"]
         campaign = campaign_from_dict(camp["raw"], source=camp["source"], seed=camp["seed"])
-        path = module.resume(args.resume, campaign, progress=log)
+        path = module.resume(args.resume, campaign, progress=log, **_executor_for(args, method))
     else:
         if args.campaign is None:
             raise RunError("missing campaign file, e.g. `mcverify estimate campaigns/eps_sweep_rare.toml`")
@@ -328,7 +339,7 @@ def _cmd_estimate_in_process(args, method: str) -> int:
         out = args.run_dir = args.out or runner.default_run_dir(campaign)
         log(runner.describe(campaign))
         log(f"estimate folder: {out}")
-        path = module.run(campaign, spec, out, progress=log, cells=args.cell or None)
+        path = module.run(campaign, spec, out, progress=log, cells=args.cell or None, **_executor_for(args, method))
     print(path.read_text())
     print(f"report: {path}", file=sys.stderr)
     return 0

@@ -38,3 +38,14 @@ def test_splitting_bad_input_is_one_line(capsys):
         assert main(argv) == 2, argv
         err = capsys.readouterr().err.strip()
         assert message in err and len(err.splitlines()) == 1, err
+
+
+def test_splitting_runs_on_local_workers_give_the_same_estimate(tmp_path: Path):
+    base = ["estimate", str(FIXTURE), "--method", "splitting", "--particles", "2", "--replicates", "2",
+            "--max-iterations", "2", "--cell", "front_speed_kmh=36"]
+    assert main([*base, "--out", str(tmp_path / "serial")]) == 0
+    assert main([*base, "--out", str(tmp_path / "workers"), "--workers", "2"]) == 0
+    a, b = (json.loads((tmp_path / d / "estimate.json").read_text())["cells"] for d in ("serial", "workers"))
+    assert len(a) == len(b) == 1
+    drop = lambda c: {k: v for k, v in c.items() if k != "cpu_s"}  # noqa: E731 - CPU time is the machine's
+    assert drop(a[0]) == drop(b[0]) and len(a[0]["iterations"]) == 2
