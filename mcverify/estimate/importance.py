@@ -11,6 +11,10 @@ weight w = p / q is at most 1 / alpha, and
 
     p_hat = mean(w_i 1{score_i >= 0}),  interval p_hat +- z sd(w 1) / sqrt(M)   (asymptotic).
 
+A lower bound valid at any sample count (``anytime_lower``) comes from betting on alpha w 1{event},
+which lies in [0, 1] (:mod:`mcverify.analysis.betting`); unlike the normal interval it does not
+rely on the sample being large. It is one-sided and at the same ``level``.
+
 Diagnostics: the effective sample size of the failing samples, (sum w)^2 / sum w^2, and the largest
 weight's share of the estimate; :func:`estimate` warns when there are few failing samples, the ESS is
 small or one weight dominates, since the normal interval then means little.
@@ -31,6 +35,8 @@ from typing import Any
 
 import numpy as np
 from scipy import stats as sps
+
+from mcverify.analysis import betting
 
 #: score(theta) for an (m, d) array of parameter vectors: (m,) scores, failure where >= 0.
 ScoreFn = Callable[[np.ndarray], np.ndarray]
@@ -98,6 +104,7 @@ class ISEstimate:
     evaluations: int
     proposal_a: list[float]
     proposal_b: list[float]
+    anytime_lower: float  # lower bound valid at any sample count (betting on alpha w 1{event} in [0, 1])
     interval: str = "asymptotic (normal) on the weighted sample; defensive mixture bounds every weight"
     warnings: list[str] = field(default_factory=list)
 
@@ -158,6 +165,8 @@ def estimate(score: ScoreFn, bounds: Sequence[tuple[float, float]], *, samples: 
         warnings.append(f"effective sample size of the failing samples is {ess:.0f} (< 50)")
     if total > 0 and share > 0.2:
         warnings.append(f"one weight carries {share:.0%} of the estimate")
+    # alpha * w <= 1 under the defensive mixture, so alpha * x lies in [0, 1]: the betting bound applies
+    anytime = betting.lower_bound(np.clip(alpha * x, 0.0, 1.0), level) / alpha
     return ISEstimate(p_hat, max(0.0, p_hat - z * se), p_hat + z * se, level, samples, int(fail.sum()), ess, share,
                       len(levels), levels, evaluations + samples, [float(v) for v in g.a], [float(v) for v in g.b],
-                      warnings=warnings)
+                      anytime, warnings=warnings)

@@ -133,6 +133,7 @@ def _cells(campaign: Campaign, spec: ImportanceSpec, out: Path, done: dict[int, 
     columns: list[folder.Column] = [
         ("cell", lambda c: c["cell"]), ("parameters", lambda c: ", ".join(c["parameters"])),
         ("estimate", lambda c: num(c["estimate"])), ("interval", lambda c: f"[{num(c['low'])}, {num(c['high'])}]"),
+        ("anytime lower bound", lambda c: num(c["anytime_lower"])),
         ("failing samples", lambda c: str(c["failures"])), ("ESS", lambda c: num(c["ess"], ".0f")),
         ("largest weight share", lambda c: num(c["max_weight_share"], ".2f")),
         ("episodes", lambda c: str(c["episodes"])), ("CPU (s)", lambda c: num(c["cpu_s"], ".0f")),
@@ -141,7 +142,8 @@ def _cells(campaign: Campaign, spec: ImportanceSpec, out: Path, done: dict[int, 
     intro = (f"Target: {spec.target}. Cross-entropy importance sampling over the cell's scenario ranges "
              f"({spec.ce_samples} episodes per CE iteration, elite share {spec.rho:g}), then {spec.samples} episodes "
              f"from the defensive mixture ({spec.alpha:g} nominal); the noise stays nominal. The interval is "
-             f"asymptotic ({spec.level:.0%} normal); read it with the ESS and the largest weight's share.")
+             f"asymptotic ({spec.level:.0%} normal); read it with the ESS and the largest weight's share. The "
+             "anytime lower bound (one-sided, same level, betting on the bounded weights) holds at any sample count.")
 
     def write():
         return folder.write(out, f"mcverify importance-sampling estimate: {campaign.name}", intro,

@@ -51,3 +51,10 @@ def test_coverage(reps, floor):
     values = np.array([e.estimate for e in ests])
     assert coverage >= floor
     assert abs(values.mean() / P - 1) < 0.05
+
+
+def test_the_anytime_lower_bound_holds():
+    ests = [importance.estimate(score, BOUNDS, samples=1000, seed=300 + r) for r in range(20)]
+    assert all(e.anytime_lower <= e.estimate for e in ests)
+    assert np.mean([e.anytime_lower > P for e in ests]) <= 0.1
+    assert np.mean([e.anytime_lower for e in ests]) > 0.3 * P  # informative, not just 0
