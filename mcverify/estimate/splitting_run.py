@@ -139,7 +139,9 @@ def cell_result(index: int, name: str, spec: SplittingSpec, est: splitting.Split
              if est.estimate > 0 and math.isfinite(est.relative_halfwidth) else math.nan)
     return {
         "cell_index": index, "cell": name, "method": "splitting", "target": spec.target, **est.as_dict(),
-        "iterations": [r.iterations for r in runs], "cpu_s": process.cpu_s, "steps": process.steps,
+        "iterations": [r.iterations for r in runs], "extinct": [r.extinct for r in runs],
+        "last_level": [r.levels[-1] if r.levels else None for r in runs],  # how close each run got (score)
+        "cpu_s": process.cpu_s, "steps": process.steps,
         "mean_episode_steps": episode_steps, "crude_steps_same_width": crude,
         "steps_ratio_vs_crude": crude / process.steps if process.steps and math.isfinite(crude) else math.nan,
     }
