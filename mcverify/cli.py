@@ -83,6 +83,50 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     run.set_defaults(func=_cmd_run)
 
+    est = sub.add_parser("estimate", help="estimate a target event's rate per cell, with sequential stopping")
+    est.add_argument("campaign", nargs="?", type=Path, help="campaign TOML file")
+    est.add_argument("--method", choices=("mc", "splitting", "importance"), default="mc",
+                     help="mc: crude Monte Carlo stopped on an anytime-valid interval (default); splitting: "
+                          "adaptive multilevel splitting on the per-step noise; importance: cross-entropy "
+                          "importance sampling over the scenario ranges (both in this process)")
+    est.add_argument("--target", default="collision",
+                     help="event whose rate is estimated: collision (default), ellipse, unsafe, invariance, "
+                          "opp_invariance")
+    est.add_argument("--until-halfwidth", type=_halfwidth, default=None, metavar="H",
+                     help="stop a cell when the interval's half-width is <= H (absolute, e.g. 0.01) or <= H "
+                          "of the estimate (relative, e.g. 30%%)")
+    est.add_argument("--budget", type=_positive_int, default=1000, help="most episodes per cell (default 1000)")
+    est.add_argument("--level", type=_level, default=0.95, help="confidence level of the interval (default 0.95)")
+    est.add_argument("--seed", type=_nonneg_int, help="campaign seed (overrides the file)")
+    est.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", dest="settings",
+                     help="override a model parameter of the file (repeatable)")
+    est.add_argument("--out", type=Path, help="run folder (default: results/<name>-<timestamp>)")
+    est.add_argument("--executor", choices=("local", "ray", "serial"), default="local",
+                     help="local worker processes (default), tasks on a Ray cluster, or this process")
+    est.add_argument("--address", metavar="ADDR", help="Ray cluster to join (with --executor ray)")
+    est.add_argument("--workers", type=_positive_int, default=None, help="worker processes or Ray tasks in flight")
+    est.add_argument("--chunk-size", type=_positive_int, default=None, metavar="K",
+                     help="episodes per chunk, the unit of work and of the stopping checks (default 8)")
+    est.add_argument("--score", choices=("gap", "h_ef"), default=None,
+                     help="splitting: footprint gap (target collision, the default) or h_ef (target ellipse)")
+    est.add_argument("--particles", type=_positive_int, default=20, help="splitting: particles per run (default 20)")
+    est.add_argument("--replicates", type=_positive_int, default=5,
+                     help="splitting: independent runs whose spread gives the interval (default 5)")
+    est.add_argument("--cell", action="append", default=[], metavar="NAME",
+                     help="splitting, importance: only this cell (repeatable; default: every cell); splitting runs its "
+                          "AMS runs in this process unless --workers (local) or --executor ray is given")
+    est.add_argument("--samples", type=_positive_int, default=400,
+                     help="importance: episodes drawn from the defensive mixture (default 400)")
+    est.add_argument("--ce-samples", type=_positive_int, default=100,
+                     help="importance: episodes per cross-entropy iteration (default 100)")
+    est.add_argument("--ce-iterations", type=_positive_int, default=10,
+                     help="importance: most cross-entropy iterations (default 10)")
+    est.add_argument("--max-iterations", type=_positive_int, default=2000,
+                     help="splitting: iteration cap per run (a capped run is flagged, not an estimate)")
+    est.add_argument("--resume", type=Path, metavar="RUN_DIR", help="finish an interrupted estimate")
+    est.add_argument("--no-progress", action="store_true", help="no progress bar")
+    est.set_defaults(func=_cmd_estimate)
+
     rep = sub.add_parser("replay", help="re-simulate one stored episode and write its trajectory")
     rep.add_argument("run_dir", type=Path)
     rep.add_argument("episode_id", type=_nonneg_int)
@@ -137,6 +181,18 @@ def _parser() -> argparse.ArgumentParser:
                      help="Markdown file whose generated section is replaced (default: results/BENCHMARKS.md)")
     ben.set_defaults(func=_cmd_bench_solver)
 
+    rare = sub.add_parser("bench-rare", help="splitting against crude Monte Carlo on the calibration walk "
+                          "(p about 1e-4; section written into results/BENCHMARKS.md)")
+    rare.add_argument("--barrier", type=float, default=6.2, help="event level of the walk (default 6.2: p ~ 1e-4)")
+    rare.add_argument("--particles", type=_positive_int, default=100, help="particles per AMS run (default 100)")
+    rare.add_argument("--replicates", type=_positive_int, default=25,
+                      help="AMS runs per estimate (default 25: about +-30 %% at p ~ 1e-4)")
+    rare.add_argument("--repetitions", type=_positive_int, default=20, help="independent estimates (default 20)")
+    rare.add_argument("--reference-episodes", type=_positive_int, default=30_000_000,
+                      help="crude reference walks (default 3e7)")
+    rare.add_argument("--no-write", action="store_true", help="do not write into results/BENCHMARKS.md")
+    rare.set_defaults(func=_cmd_bench_rare)
+
     ker = sub.add_parser("kernels", help="the compiled-solver cache")
     ksub = ker.add_subparsers(metavar="ACTION")
     kl = ksub.add_parser("list", help="list cached kernels")
@@ -188,6 +244,105 @@ def _cmd_run(args) -> int:
             campaign, out, executor=executor, chunk_size=args.chunk_size or runner.DEFAULT_CHUNK_SIZE,
             progress=progress, on_start=starting,
         )
+    print(path.read_text())
+    print(f"report: {path}", file=sys.stderr)
+    return 0
+
+
+def _cmd_estimate(args) -> int:
+    from mcverify.analysis.estimates import EstimateSpec
+    from mcverify.campaign import executors, runner
+    from mcverify.campaign.spec import load_campaign
+    from mcverify.errors import RunError
+    from mcverify.estimate import mc
+
+    method = _folder_method(args.resume) if args.resume else args.method
+    if method in ("splitting", "importance"):
+        return _cmd_estimate_in_process(args, method)
+    executor = executors.make_executor(args.executor, workers=args.workers, address=args.address)
+    if args.resume:
+        if args.campaign or args.out or args.seed is not None or args.settings or args.until_halfwidth:
+            raise RunError("--resume keeps the estimate's campaign and rule: give only RUN_DIR (and the executor)")
+        args.run_dir = args.resume
+        path = mc.resume(args.resume, executor=executor, progress=not args.no_progress)
+    else:
+        if args.campaign is None:
+            raise RunError("missing campaign file, e.g. `mcverify estimate campaigns/eps_sweep_rare.toml`")
+        halfwidth, relative = args.until_halfwidth or (None, False)
+        try:
+            spec = EstimateSpec(args.method, args.target, halfwidth, relative, args.budget, args.level)
+        except ValueError as err:
+            raise RunError(str(err)) from None
+        campaign = load_campaign(args.campaign, episodes=args.budget, seed=args.seed, settings=args.settings)
+        out = args.run_dir = args.out or runner.default_run_dir(campaign)
+        print(runner.describe(campaign), file=sys.stderr)
+        print(f"estimate folder: {out}", file=sys.stderr)
+        path = mc.run(campaign, spec, out, executor=executor,
+                      chunk_size=args.chunk_size or runner.DEFAULT_CHUNK_SIZE, progress=not args.no_progress)
+    print(path.read_text())
+    print(f"report: {path}", file=sys.stderr)
+    return 0
+
+
+def _executor_for(args, method: str) -> dict:
+    """splitting: its AMS runs go to the executor named on the command line (default this process)."""
+    from mcverify.campaign import executors
+
+    if method != "splitting":
+        return {}
+    kind = "serial" if args.executor == "local" and args.workers is None else args.executor
+    return {"executor": executors.make_executor(kind, workers=args.workers, address=args.address)}
+
+
+def _folder_method(run_dir: Path) -> str | None:
+    """The method recorded in an estimate folder's manifest (None if unreadable or absent)."""
+    import json
+
+    try:
+        return json.loads((run_dir / "manifest.json").read_text()).get("estimate", {}).get("method")
+    except (OSError, ValueError, AttributeError):
+        return None
+
+
+def _cmd_estimate_in_process(args, method: str) -> int:
+    from mcverify.campaign import runner
+    from mcverify.campaign.spec import campaign_from_dict, load_campaign
+    from mcverify.errors import RunError
+    from mcverify.estimate import importance_run, splitting_run
+
+    module = splitting_run if method == "splitting" else importance_run
+    log = lambda msg: print(msg, file=sys.stderr)  # noqa: E731
+    if args.resume:
+        from mcverify import store
+
+        manifest = store.read_manifest(args.resume)
+        camp = manifest["campaign"]
+        campaign = campaign_from_dict(camp["raw"], source=camp["source"], seed=camp["seed"])
+        path = module.resume(args.resume, campaign, progress=log, **_executor_for(args, method))
+    else:
+        if args.campaign is None:
+            raise RunError("missing campaign file, e.g. `mcverify estimate campaigns/eps_sweep_rare.toml`")
+        if args.until_halfwidth is not None:
+            raise RunError(f"--until-halfwidth is for --method mc, not {method}")
+        if args.target not in ("collision", "ellipse"):
+            raise RunError(f"{method} estimates --target collision or ellipse")
+        try:
+            if method == "splitting":
+                score = args.score or ("gap" if args.target == "collision" else "h_ef")
+                spec = splitting_run.SplittingSpec(score, args.particles, 1, args.replicates, args.level,
+                                                   args.max_iterations)
+                if spec.target != args.target:
+                    raise RunError(f"--score {score} estimates {spec.target}, not --target {args.target}")
+            else:
+                spec = importance_run.ImportanceSpec(args.target, args.samples, args.ce_samples, level=args.level,
+                                                     max_ce_iterations=args.ce_iterations)
+        except ValueError as err:
+            raise RunError(str(err)) from None
+        campaign = load_campaign(args.campaign, seed=args.seed, settings=args.settings)
+        out = args.run_dir = args.out or runner.default_run_dir(campaign)
+        log(runner.describe(campaign))
+        log(f"estimate folder: {out}")
+        path = module.run(campaign, spec, out, progress=log, cells=args.cell or None, **_executor_for(args, method))
     print(path.read_text())
     print(f"report: {path}", file=sys.stderr)
     return 0
@@ -275,6 +430,24 @@ def _cmd_bench_solver(args) -> int:
     return 0
 
 
+def _cmd_bench_rare(args) -> int:
+    from mcverify.bench import rare
+
+    if args.replicates < 2:
+        from mcverify.errors import UserError
+
+        raise UserError("--replicates must be at least 2 (the interval comes from their spread)")
+    res = rare.run(barrier=args.barrier, particles=args.particles, replicates=args.replicates,
+                   repetitions=args.repetitions, reference_episodes=args.reference_episodes)
+    command = "mcverify " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["bench-rare"] else "mcverify bench-rare"
+    text = rare.markdown(res, command)
+    print(text)
+    if not args.no_write:
+        rare.write(res, command, Path("results/BENCHMARKS.md"))
+        print("written: results/BENCHMARKS.md (section)", file=sys.stderr)
+    return 0
+
+
 def _cmd_kernels_list(args) -> int:
     from mcverify.solver import kernels
 
@@ -305,6 +478,19 @@ def _nonneg_int(text: str) -> int:
     if value < 0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
     return value
+
+
+def _halfwidth(text: str) -> tuple[float, bool]:
+    """``0.01`` (absolute) or ``30%`` (relative to the estimate) -> (value, relative)."""
+    relative = text.strip().endswith("%")
+    try:
+        value = float(text.strip().rstrip("%"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number or a percentage, e.g. 0.01 or 30%, got {text!r}") from None
+    value = value / 100.0 if relative else value
+    if not 0.0 < value < (1.0 if not relative else float("inf")):
+        raise argparse.ArgumentTypeError(f"must be > 0 (and < 1 when absolute), got {text}")
+    return value, relative
 
 
 def _level(text: str) -> float:

@@ -27,7 +27,7 @@ PACKAGE_DIR = Path(__file__).resolve().parent
 #: the run layer (cell expansion, error rows).
 SIMULATION_PARTS = (
     "model.py", "levels.py", "cell.py", "schema.py",
-    "sim", "ocp", "solver", "control", "episode", "campaign",
+    "sim", "ocp", "solver", "control", "episode", "campaign", "estimate",
 )
 #: Parts that only read, present or measure stored rows; editing them never refuses a resume.
 PRESENTATION_PARTS = (

@@ -87,6 +87,16 @@ def cells_table(summ: Mapping[str, Any]) -> pa.Table:
         for key in solver_keys:
             typ = pa.int64() if key in ("solves", "cold_retries", "iterations_max") else pa.float64()
             put(f"solver_{key}", typ, c["solver"].get(key))
+    est = {e["cell_index"]: e for e in (summ.get("estimates") or {}).get("cells", [])}
+    if est:  # a run of `mcverify estimate`: the estimate per cell as estimate_<field>
+        for c in cells:
+            e = est.get(c["cell_index"], {})
+            for key in ("method", "target", "status", "interval_method"):
+                put(f"estimate_{key}", pa.string(), e.get(key))
+            for key in ("n", "k", "episodes_used", "episodes_run"):
+                put(f"estimate_{key}", pa.int64(), e.get(key))
+            for key in ("estimate", "low", "high", "halfwidth", "level", "steps_used", "steps_run", "solver_time_s"):
+                put(f"estimate_{key}", pa.float64(), e.get(key))
     return pa.table({name: pa.array(vals, type=typ) for name, (typ, vals) in columns.items()})
 
 

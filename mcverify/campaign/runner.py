@@ -15,7 +15,7 @@ import json
 from collections.abc import Callable
 from datetime import datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from tqdm.auto import tqdm
 
@@ -146,6 +146,15 @@ def first_difference(a: Any, b: Any, path: str = "") -> str | None:
 # ---------------------------------------------------------------------------------- run/resume
 
 
+class Stopper(Protocol):
+    """Sequential stopping of a run (``mcverify estimate``): told every finished chunk's rows (those
+    already on disk first, when resuming), asked before a chunk starts whether it is still needed."""
+
+    def observe(self, chunk: store.Chunk, rows: list[dict[str, Any]]) -> None: ...
+
+    def skip(self, chunk: store.Chunk) -> bool: ...
+
+
 def run(
     campaign: Campaign,
     run_dir: Path,
@@ -157,6 +166,8 @@ def run(
     record_first: bool = True,
     on_chunk: Callable[[store.ChunkRecord], None] | None = None,
     on_start: Callable[[int, int], None] | None = None,
+    stopper: Stopper | None = None,
+    manifest_extra: dict[str, Any] | None = None,
 ) -> Path:
     """Run ``campaign`` into a new folder ``run_dir``; returns the report path.
 
@@ -164,7 +175,9 @@ def run(
     episode simulation (tests inject cheap ones); record_first: write the trajectory of every
     cell's first episode to ``trajectories/``; on_chunk: called with each ledger record, after the
     chunk is safely on disk; on_start: called with (chunks planned, chunks already done) once every
-    check has passed and the executor is up, just before the first chunk runs.
+    check has passed and the executor is up, just before the first chunk runs; stopper: skips the
+    chunks of cells already decided (only the chunks that ran are merged); manifest_extra: entries
+    added to the manifest (the estimate's specification).
     """
     run_dir = Path(run_dir)
     if chunk_size < 1:
@@ -178,11 +191,12 @@ def run(
         kernels = _prepare_kernels(campaign, episode_fn)
         run_dir.mkdir(parents=True, exist_ok=True)
         with store.run_lock(run_dir):
-            manifest = manifest_for(campaign, chunk_size, kernels)
+            manifest = {**manifest_for(campaign, chunk_size, kernels), **(manifest_extra or {})}
             manifest["sessions"].append(_session(executor, resumed=False))
             store.write_json_atomic(run_dir / store.MANIFEST, manifest)
             return _execute(
-                campaign, run_dir, chunk_size, executor, progress, episode_fn, record_first, on_chunk, on_start
+                campaign, run_dir, chunk_size, executor, progress, episode_fn, record_first, on_chunk, on_start,
+                stopper,
             )
 
 
@@ -197,6 +211,7 @@ def resume(
     record_first: bool = True,
     on_chunk: Callable[[store.ChunkRecord], None] | None = None,
     on_start: Callable[[int, int], None] | None = None,
+    stopper: Stopper | None = None,
 ) -> Path:
     """Finish an interrupted run in ``run_dir``: only chunks that are not done are run.
 
@@ -255,7 +270,8 @@ def resume(
             manifest["sessions"] = [*manifest.get("sessions", []), _session(executor, resumed=True)]
             store.write_json_atomic(run_dir / store.MANIFEST, manifest)
             return _execute(
-                rebuilt, run_dir, planned, executor, progress, episode_fn, record_first, on_chunk, on_start
+                rebuilt, run_dir, planned, executor, progress, episode_fn, record_first, on_chunk, on_start,
+                stopper,
             )
 
 
@@ -269,9 +285,15 @@ def _execute(
     record_first: bool,
     on_chunk: Callable[[store.ChunkRecord], None] | None,
     on_start: Callable[[int, int], None] | None = None,
+    stopper: Stopper | None = None,
 ) -> Path:
     chunks = store.plan_chunks([c.episodes for c in campaign.cells], chunk_size)
     done = store.done_chunks(run_dir, chunks)
+    if stopper is not None:  # resume from the stored rows, in plan order
+        for c in chunks:
+            if c.name in done:
+                table = store.read_chunk(run_dir, c)
+                stopper.observe(c, table.to_pylist() if table is not None else [])
     todo = [c for c in chunks if c.name not in done]
     if on_start is not None:
         on_start(len(chunks), len(done))
@@ -302,9 +324,15 @@ def _execute(
             bar.set_postfix_str(f"unsafe in last chunk: {unsafe}, error episodes: {errors}")
         if on_chunk is not None:
             on_chunk(rec)
+        if stopper is not None:
+            stopper.observe(chunk, output.rows)
 
     with bar:
-        executors.execute(campaign, todo, on_done, executor=executor, episode_fn=episode_fn, record=record)
+        executors.execute(campaign, todo, on_done, executor=executor, episode_fn=episode_fn, record=record,
+                          skip=stopper.skip if stopper is not None else None)
+    if stopper is not None:  # the chunks of decided cells never ran: merge those that did
+        ran = store.done_chunks(run_dir, chunks)
+        chunks = [c for c in chunks if c.name in ran]
     store.merge_chunks(run_dir, chunks)
     path = run_report.write(run_dir)
     manifest = store.read_json(run_dir / store.MANIFEST)

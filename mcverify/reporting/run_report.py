@@ -28,7 +28,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from mcverify import store
-from mcverify.analysis import stats, summary
+from mcverify.analysis import estimates, stats, summary
 from mcverify.analysis.cells import cells_table, json_ready
 from mcverify.errors import RunError
 from mcverify.reporting import html, paper_tables, run_figures
@@ -129,7 +129,11 @@ def build_summary(manifest: Mapping[str, Any], table: pa.Table, opts: Options = 
         bootstrap_resamples=opts.bootstrap_resamples,
         bootstrap_seed=opts.bootstrap_seed,
     )
-    return {"campaign": manifest["campaign"]["name"], **summ}
+    out = {"campaign": manifest["campaign"]["name"], **summ}
+    est = estimates.estimate_summary(table, manifest)
+    if est is not None:  # a run of `mcverify estimate`
+        out["estimates"] = est
+    return out
 
 
 # ----------------------------------------------------------------------------------------- tables
@@ -140,6 +144,8 @@ def report_tables(summ: Mapping[str, Any], manifest: Mapping[str, Any]) -> list[
     outcomes, the pivot tables of a two-axis grid, distances, times, theorem checks, decisions and
     solver."""
     out: list[Table] = []
+    if summ.get("estimates"):
+        out.append(estimate_table(summ["estimates"]))
     ref = manifest["campaign"].get("reference") or {}
     if ref:
         paper = paper_tables.paper_table(summ, ref)
@@ -154,6 +160,34 @@ def report_tables(summ: Mapping[str, Any], manifest: Mapping[str, Any]) -> list[
     if settle is not None:
         out.append(settle)
     return out
+
+
+def estimate_table(est: Mapping[str, Any]) -> Table:
+    """The estimate of the target's rate per cell (``mcverify estimate``): estimate, anytime-valid
+    interval, episodes used and run, and the cost in control steps and solver time."""
+    spec = est["spec"]
+    level = float(spec["level"])
+    columns = ["cell", "status", "k / n", "estimate", f"{level:.0%} interval", "half-width", "episodes run",
+               "control steps run", "solver time (s)"]
+    rows = []
+    for c in est["cells"]:
+        rows.append([c["cell"], c["status"], f"{c['k']} / {c['n']}",
+                     DASH if c["n"] == 0 else f"{c['estimate']:.4g}", f"[{c['low']:.4g}, {c['high']:.4g}]",
+                     f"{c['halfwidth']:.3g}", str(c["episodes_run"]), f"{c['steps_run']:.0f}",
+                     f"{c['solver_time_s']:.1f}"])
+    width = DASH if spec.get("halfwidth") is None else (
+        f"{spec['halfwidth']:g}" + (" x estimate" if spec.get("relative") else ""))
+    notes = [
+        f"Target: {spec['target']}: {est['target_definition']}. Method: {est['method_description']}; "
+        f"stop at half-width <= {width} or after {spec['budget']} episodes per cell.",
+        "The interval is a confidence sequence (prior Beta"
+        f"({spec['prior'][0]:g}, {spec['prior'][1]:g})): it keeps its coverage at the data-dependent stopping "
+        "episode, unlike the per-cell Clopper-Pearson rates of the other tables, which assume a fixed episode "
+        "count and must not be read as intervals for this run. Episodes are taken in their pre-assigned order; "
+        "episodes run after the stopping episode count as cost only. Solver time: solves x mean solve time, "
+        "machine-dependent.",
+    ]
+    return Table("estimates", f"Estimated {spec['target']} rate per cell", columns, rows, notes)
 
 
 def outcome_table(summ: Mapping[str, Any]) -> Table:
