@@ -7,11 +7,21 @@ exit status 2; a replay that does not reproduce exits with status 1.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import signal
 import sys
 from pathlib import Path
 
 EXIT_USAGE = 2
 EXIT_MISMATCH = 1
+#: Exit status after Ctrl-C (128 + SIGINT) and after SIGTERM (128 + SIGTERM), as a shell reports them.
+EXIT_INTERRUPTED = 130
+EXIT_TERMINATED = 143
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (what a cluster scheduler or ``kill`` sends), handled like Ctrl-C: finished chunks are
+    on disk, the workers are stopped, and the resume hint is printed."""
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -21,13 +31,16 @@ def main(argv: list[str] | None = None) -> int:
     except _UsageError as err:
         print(f"mcverify: error: {err}", file=sys.stderr)
         return EXIT_USAGE
+    except SystemExit as done:  # --help, --version: printed, nothing to run
+        return done.code if isinstance(done.code, int) else 0
     if not hasattr(args, "func"):
-        parser.print_help()
+        (getattr(args, "help_parser", None) or parser).print_help()
         return EXIT_USAGE
     from mcverify.errors import UserError
 
     try:
-        return args.func(args) or 0
+        with _sigterm_as_interrupt():
+            return args.func(args) or 0
     except UserError as err:
         print(f"mcverify: error: {err}", file=sys.stderr)
         return EXIT_USAGE
@@ -35,10 +48,35 @@ def main(argv: list[str] | None = None) -> int:
         where = f": {err.filename}" if err.filename else ""
         print(f"mcverify: error: {err.strerror or err}{where}", file=sys.stderr)
         return EXIT_USAGE
-    except KeyboardInterrupt:
-        run_dir = getattr(args, "run_dir", None) or "RUN_DIR"
-        print(f"mcverify: interrupted; finished chunks are kept (mcverify run --resume {run_dir})", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as err:
+        terminated = isinstance(err, Terminated)
+        run_dir = getattr(args, "run_dir", None)
+        if run_dir is not None and not (Path(run_dir) / "manifest.json").is_file():
+            run_dir = None  # stopped before the run folder was written: nothing to resume
+        what = "terminated (SIGTERM)" if terminated else "interrupted"
+        if run_dir is not None:
+            print(f"mcverify: {what}; finished chunks are kept (mcverify run --resume {run_dir})", file=sys.stderr)
+        else:
+            print(f"mcverify: {what}", file=sys.stderr)
+        return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt():
+    """While a command runs, SIGTERM raises :class:`Terminated` (a KeyboardInterrupt) in the main
+    thread, so it takes the same path as Ctrl-C. Only installed from the main thread."""
+    def handler(signum, frame):
+        raise Terminated()
+
+    try:
+        previous = signal.signal(signal.SIGTERM, handler)
+    except ValueError:  # not the main thread (e.g. called from a worker thread): leave signals alone
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 class _UsageError(Exception):
@@ -52,6 +90,7 @@ class _Parser(argparse.ArgumentParser):
 
 def _parser() -> argparse.ArgumentParser:
     p = _Parser(prog="mcverify", description=__doc__.splitlines()[0])
+    p.add_argument("--version", action=_VersionAction, help="print the version (and git commit) and exit")
     sub = p.add_subparsers(metavar="COMMAND")
 
     run = sub.add_parser("run", help="run a campaign into a run folder")
@@ -62,7 +101,13 @@ def _parser() -> argparse.ArgumentParser:
         "--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", dest="settings",
         help="override a model parameter of the file, e.g. --set mpc.backend=ipopt (repeatable)",
     )
-    run.add_argument("--out", type=Path, help="run folder (default: results/<name>-<timestamp>)")
+    run.add_argument(
+        "--out", type=Path, metavar="DIR",
+        help="parent folder of the new run folder DIR/<name>-<timestamp> (default: $MCVERIFY_RESULTS, "
+             "else ./results)",
+    )
+    run.add_argument("--run-dir", type=Path, dest="new_run_dir", metavar="RUN_DIR",
+                     help="the exact (new or empty) folder for this run, instead of a fresh one under --out")
     run.add_argument(
         "--executor", choices=("local", "ray"), default="local",
         help="local worker processes (default) or tasks on a Ray cluster",
@@ -135,6 +180,7 @@ def _parser() -> argparse.ArgumentParser:
     ben.set_defaults(func=_cmd_bench_solver)
 
     ker = sub.add_parser("kernels", help="the compiled-solver cache")
+    ker.set_defaults(help_parser=ker)  # `mcverify kernels` alone prints this help, not the top-level one
     ksub = ker.add_subparsers(metavar="ACTION")
     kl = ksub.add_parser("list", help="list cached kernels")
     kl.set_defaults(func=_cmd_kernels_list)
@@ -155,8 +201,8 @@ def _cmd_run(args) -> int:
         if args.episodes is not None or args.seed is not None or args.settings:
             raise RunError("--resume keeps the run's episodes, seed and settings: leave out --episodes, --seed "
                            "and --set")
-        if args.out is not None:
-            raise RunError("--resume writes into RUN_DIR: leave out --out")
+        if args.out is not None or args.new_run_dir is not None:
+            raise RunError("--resume writes into RUN_DIR: leave out --out and --run-dir")
         # A campaign file given with --resume is a check: it must be the one the run started with.
         campaign = load_campaign(args.campaign) if args.campaign else None
         executor = executors.make_executor(args.executor, workers=args.workers, address=args.address)
@@ -173,7 +219,9 @@ def _cmd_run(args) -> int:
         if args.campaign is None:
             raise RunError("missing campaign file, e.g. `mcverify run campaigns/smoke.toml`")
         campaign = load_campaign(args.campaign, episodes=args.episodes, seed=args.seed, settings=args.settings)
-        out = args.run_dir = args.out or runner.default_run_dir(campaign)
+        if args.out is not None and args.new_run_dir is not None:
+            raise RunError("give --out (a parent folder for new runs) or --run-dir (the run folder), not both")
+        out = args.run_dir = args.new_run_dir or runner.default_run_dir(campaign, args.out)
         executor = executors.make_executor(args.executor, workers=args.workers, address=args.address)
 
         def starting(planned: int, done: int) -> None:  # after every check: errors stay one line
@@ -224,6 +272,14 @@ def _cmd_compare(args) -> int:
         test=args.test,
         pairs=[tuple(p) for p in args.pair] if args.pair else None,
     )
+    if not result["comparisons"]:
+        from mcverify.errors import RunError
+
+        raise RunError(
+            f"no cell of {args.run_a} matches a cell of {args.run_b} by name "
+            f"(A: {'; '.join(result['only_in_a']) or 'none'}; B: {'; '.join(result['only_in_b']) or 'none'}); "
+            "give pairs with --pair CELL_A CELL_B"
+        )
     print(compare.render_markdown(result))
     if args.out:
         for path in compare.write(args.out, result):
@@ -287,6 +343,21 @@ def _cmd_kernels_clear(args) -> int:
 
     print(f"removed {kernels.clear_kernels()} kernel(s)")
     return 0
+
+
+class _VersionAction(argparse.Action):
+    """``--version``: ``mcverify X.Y.Z`` and, in a git checkout, the commit it runs from (asked of git
+    only when the option is given)."""
+
+    def __init__(self, option_strings, dest, **kwargs):
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        from mcverify import __version__, provenance
+
+        commit = provenance.git_commit(short=True)
+        print(f"mcverify {__version__}" + (f" (git {commit})" if commit else ""))
+        parser.exit(0)
 
 
 def _positive_int(text: str) -> int:

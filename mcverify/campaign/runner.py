@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
+import re
 from collections.abc import Callable
 from datetime import datetime
 from pathlib import Path
@@ -31,15 +33,44 @@ from mcverify.reporting import run_report
 DEFAULT_CHUNK_SIZE = 8
 
 
-def default_run_dir(campaign: Campaign, results_dir: Path = Path("results")) -> Path:
+#: Environment variable naming the folder new runs go to when neither --out nor --run-dir is given.
+ENV_RESULTS_DIR = "MCVERIFY_RESULTS"
+#: Longest run-folder name taken from a campaign name (characters, before the timestamp).
+MAX_FOLDER_NAME = 80
+_UNSAFE_CHARS = re.compile(r"[^A-Za-z0-9._=,+-]+")
+
+
+def default_results_dir() -> Path:
+    """Where new run folders go by default: ``$MCVERIFY_RESULTS`` if set, else ``results`` under the
+    current working directory."""
+    env = os.environ.get(ENV_RESULTS_DIR, "").strip()
+    return Path(env) if env else Path("results")
+
+
+def folder_name(name: str) -> str:
+    """A campaign name made safe as one folder name: every run of characters other than letters,
+    digits and ``. _ = , + -`` (path separators included) becomes ``_``, leading dots and
+    underscores are dropped (no ``..``, no hidden folder), and the result is at most
+    :data:`MAX_FOLDER_NAME` characters (``campaign`` if nothing is left)."""
+    slug = _UNSAFE_CHARS.sub("_", name).lstrip("._")[:MAX_FOLDER_NAME].rstrip("._")
+    return slug or "campaign"
+
+
+def default_run_dir(campaign: Campaign, results_dir: Path | None = None) -> Path:
     """A new folder ``results_dir/<name>-<timestamp>`` that does not exist yet (``-2``, ``-3``, ...
-    are appended when runs start within the same second, or a failed try left its folder)."""
+    are appended when runs start within the same second, or a failed try left its folder).
+
+    ``results_dir`` defaults to :func:`default_results_dir`; the campaign name goes through
+    :func:`folder_name`, so the folder is always a direct child of ``results_dir``."""
+    results_dir = Path(results_dir) if results_dir is not None else default_results_dir()
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-    base = results_dir / f"{campaign.name}-{stamp}"
+    base = results_dir / f"{folder_name(campaign.name)}-{stamp}"
     path, n = base, 1
     while path.exists():
         n += 1
         path = base.with_name(f"{base.name}-{n}")
+    if path.parent != results_dir:  # cannot happen with folder_name; a guard, not a feature
+        raise RunError(f"campaign name {campaign.name!r} does not give a folder inside {results_dir}")
     return path
 
 
