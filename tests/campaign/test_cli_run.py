@@ -99,7 +99,8 @@ def test_resume_errors(tmp_path, capsys, finished_run):
     ledger = (finished_run / store.LEDGER).read_bytes()
     code, err = run_cli(capsys, "run", "--resume", str(finished_run))
     assert code == 2 and "is already finished (2 episodes); nothing to resume" in one_line(err)
-    for extra, fragment in [(["--episodes", "3"], "leave out --episodes"), (["--out", "x"], "leave out --out"), (["--run-dir", "x"], "and --run-dir"),
+    for extra, fragment in [(["--episodes", "3"], "leave out --episodes"), (["--out", "x"], "leave out --out"),
+                            (["--run-dir", "x"], "and --run-dir"),
                             (["--set", "mpc.backend=ipopt"], "and --set")]:
         code, err = run_cli(capsys, "run", "--resume", str(finished_run), *extra)
         assert code == 2 and fragment in one_line(err)
