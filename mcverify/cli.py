@@ -8,9 +8,12 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import logging
 import signal
 import sys
 from pathlib import Path
+
+_log = logging.getLogger("mcverify.cli")
 
 EXIT_USAGE = 2
 EXIT_MISMATCH = 1
@@ -38,6 +41,9 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_USAGE
     from mcverify.errors import UserError
 
+    _configure_logging(getattr(args, "verbose", 0) - getattr(args, "quiet", 0))
+    if getattr(args, "quiet", 0) and hasattr(args, "no_progress"):
+        args.no_progress = True
     try:
         with _sigterm_as_interrupt():
             return args.func(args) or 0
@@ -59,6 +65,21 @@ def main(argv: list[str] | None = None) -> int:
         else:
             print(f"mcverify: {what}", file=sys.stderr)
         return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
+
+
+def _configure_logging(verbosity: int) -> None:
+    """Lines of the ``mcverify`` loggers on stderr as ``mcverify: ...``: notices before long phases
+    (kernel compilation, worker start-up) by default, only warnings with ``-q``, debug detail with
+    ``-v``. Configured here, not on import: a library user's logging stays theirs."""
+    level = logging.DEBUG if verbosity > 0 else logging.WARNING if verbosity < 0 else logging.INFO
+    logger = logging.getLogger("mcverify")
+    for handler in [h for h in logger.handlers if getattr(h, "_mcverify_cli", False)]:
+        logger.removeHandler(handler)
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("mcverify: %(message)s"))
+    handler._mcverify_cli = True  # type: ignore[attr-defined]
+    logger.addHandler(handler)
+    logger.setLevel(level)
 
 
 @contextlib.contextmanager
@@ -91,7 +112,13 @@ class _Parser(argparse.ArgumentParser):
 def _parser() -> argparse.ArgumentParser:
     p = _Parser(prog="mcverify", description=__doc__.splitlines()[0])
     p.add_argument("--version", action=_VersionAction, help="print the version (and git commit) and exit")
-    sub = p.add_subparsers(metavar="COMMAND")
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("-v", "--verbose", action="count", default=0, help="more detail on stderr")
+    common.add_argument("-q", "--quiet", action="count", default=0,
+                        help="only warnings and errors on stderr (no progress bar, no notices)")
+    sub = p.add_subparsers(metavar="COMMAND", parser_class=_Parser)
+    _add = sub.add_parser
+    sub.add_parser = lambda *a, **k: _add(*a, parents=[common], **k)  # every command takes -v / -q
 
     run = sub.add_parser("run", help="run a campaign into a run folder")
     run.add_argument("campaign", nargs="?", type=Path, help="campaign TOML file")
@@ -126,6 +153,9 @@ def _parser() -> argparse.ArgumentParser:
     )
     run.add_argument("--resume", type=Path, metavar="RUN_DIR", help="finish an interrupted run")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
+    run.add_argument("--dry-run", action="store_true",
+                     help="check the campaign and print its cells, episodes, chunks, warnings and an estimate of "
+                          "the CPU time; run nothing")
     run.set_defaults(func=_cmd_run)
 
     rep = sub.add_parser("replay", help="re-simulate one stored episode and write its trajectory")
@@ -182,9 +212,9 @@ def _parser() -> argparse.ArgumentParser:
     ker = sub.add_parser("kernels", help="the compiled-solver cache")
     ker.set_defaults(help_parser=ker)  # `mcverify kernels` alone prints this help, not the top-level one
     ksub = ker.add_subparsers(metavar="ACTION")
-    kl = ksub.add_parser("list", help="list cached kernels")
+    kl = ksub.add_parser("list", help="list cached kernels", parents=[common])
     kl.set_defaults(func=_cmd_kernels_list)
-    kc = ksub.add_parser("clear", help="delete cached kernels")
+    kc = ksub.add_parser("clear", help="delete cached kernels", parents=[common])
     kc.set_defaults(func=_cmd_kernels_clear)
     return p
 
@@ -197,6 +227,8 @@ def _cmd_run(args) -> int:
     if args.address is not None and args.executor != "ray":
         raise RunError("--address is for the Ray executor: add --executor ray")
     progress = not args.no_progress
+    if args.resume and args.dry_run:
+        raise RunError("--dry-run checks a campaign file; it does not apply to --resume")
     if args.resume:
         if args.episodes is not None or args.seed is not None or args.settings:
             raise RunError("--resume keeps the run's episodes, seed and settings: leave out --episodes, --seed "
@@ -209,7 +241,7 @@ def _cmd_run(args) -> int:
         args.run_dir = args.resume
 
         def resuming(planned: int, done: int) -> None:
-            print(f"resuming {args.resume}: {done} of {planned} chunks already done", file=sys.stderr)
+            _log.info("resuming %s: %d of %d chunks already done", args.resume, done, planned)
 
         path = runner.resume(
             args.resume, executor=executor, progress=progress, campaign=campaign, chunk_size=args.chunk_size,
@@ -219,15 +251,23 @@ def _cmd_run(args) -> int:
         if args.campaign is None:
             raise RunError("missing campaign file, e.g. `mcverify run campaigns/smoke.toml`")
         campaign = load_campaign(args.campaign, episodes=args.episodes, seed=args.seed, settings=args.settings)
+        if args.dry_run:
+            from mcverify.campaign import cost, lint
+
+            for warning in lint.warnings(campaign):
+                _log.warning("warning: %s", warning)
+            print(cost.render(campaign, args.chunk_size or runner.DEFAULT_CHUNK_SIZE,
+                              args.workers or executors.default_workers()))
+            return 0
         if args.out is not None and args.new_run_dir is not None:
             raise RunError("give --out (a parent folder for new runs) or --run-dir (the run folder), not both")
         out = args.run_dir = args.new_run_dir or runner.default_run_dir(campaign, args.out)
         executor = executors.make_executor(args.executor, workers=args.workers, address=args.address)
 
         def starting(planned: int, done: int) -> None:  # after every check: errors stay one line
-            print(runner.describe(campaign), file=sys.stderr)
+            _log.info("%s", runner.describe(campaign))
             how = ", ".join(f"{k} {v}" for k, v in executor.describe().items() if v is not None)
-            print(f"run folder: {out} ({planned} chunks; {how})", file=sys.stderr)
+            _log.info("run folder: %s (%d chunks; %s)", out, planned, how)
 
         path = runner.run(
             campaign, out, executor=executor, chunk_size=args.chunk_size or runner.DEFAULT_CHUNK_SIZE,

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import os
 import re
 from collections.abc import Callable
@@ -22,12 +23,14 @@ from typing import Any
 from tqdm.auto import tqdm
 
 from mcverify import provenance, store
-from mcverify.campaign import executors
+from mcverify.campaign import executors, lint
 from mcverify.campaign.executors import ChunkOutput, EpisodeFn, Executor
 from mcverify.campaign.spec import Campaign, CampaignError, campaign_from_dict
 from mcverify.episode.recording import EpisodeRecording
 from mcverify.errors import RunError
 from mcverify.reporting import run_report
+
+log = logging.getLogger(__name__)
 
 #: Episodes per chunk when the command line does not say.
 DEFAULT_CHUNK_SIZE = 8
@@ -204,6 +207,8 @@ def run(
         raise RunError(f"{run_dir} already holds a run; choose another --out or use --resume {run_dir}")
     if run_dir.exists() and (not run_dir.is_dir() or any(p.name != store.LOCK for p in run_dir.iterdir())):
         raise RunError(f"{run_dir} exists and is not an empty folder; choose another --out")
+    for warning in lint.warnings(campaign):
+        log.warning("warning: %s", warning)
     executor = executor or executors.LocalExecutor()
     with executor:  # a Ray cluster is reached before anything is written
         kernels = _prepare_kernels(campaign, episode_fn)
@@ -317,9 +322,14 @@ def _execute(
         dynamic_ncols=True,
     )
     errors = 0
+    unsafe = _unsafe_in(run_dir, [c for c in chunks if c.name in done])
+    if todo and episode_fn is executors.simulate:
+        log.info("starting %s: each worker imports JAX and CasADi, loads the solver and compiles the plant once "
+                 "(tens of seconds) before its first chunk; the bar moves as chunks of up to %d episodes finish",
+                 ", ".join(f"{k} {v}" for k, v in executor.describe().items() if v is not None), chunk_size)
 
     def on_done(chunk: store.Chunk, output: ChunkOutput) -> None:
-        nonlocal errors
+        nonlocal errors, unsafe
         cell = campaign.cells[chunk.cell_index]
         # Recordings first: a chunk in the ledger implies its trajectories are on disk.
         for episode, recording in output.recordings.items():
@@ -328,20 +338,30 @@ def _execute(
         store.append_record(run_dir, rec)
         errors += rec.errors
         bar.update(rec.rows)
-        unsafe = sum(r.get("safe") is False for r in output.rows)
-        if unsafe or errors:
-            bar.set_postfix_str(f"unsafe in last chunk: {unsafe}, error episodes: {errors}")
+        unsafe += sum(r.get("safe") is False for r in output.rows)
+        bar.set_postfix_str(f"unsafe {unsafe}" + (f", error episodes {errors}" if errors else ""))
         if on_chunk is not None:
             on_chunk(rec)
 
     with bar:
         executors.execute(campaign, todo, on_done, executor=executor, episode_fn=episode_fn, record=record)
+    log.info("merging %d chunks into %s and writing the report", len(chunks), store.EPISODES)
     store.merge_chunks(run_dir, chunks)
     path = run_report.write(run_dir)
     manifest = store.read_json(run_dir / store.MANIFEST)
     manifest["finished_utc"] = provenance.now_utc()
     store.write_json_atomic(run_dir / store.MANIFEST, manifest)
     return path
+
+
+def _unsafe_in(run_dir: Path, chunks: list[store.Chunk]) -> int:
+    """Unsafe episodes in chunks already on disk (a resumed run's count starts from them)."""
+    count = 0
+    for chunk in chunks:
+        table = store.read_chunk(run_dir, chunk, columns=["cell_episode", "cell_index", "safe"])
+        if table is not None:
+            count += sum(v is False for v in table.column("safe").to_pylist())
+    return count
 
 
 def _write_recording(run_dir: Path, episode_id: int, recording: EpisodeRecording) -> None:
