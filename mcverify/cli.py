@@ -209,6 +209,10 @@ def _parser() -> argparse.ArgumentParser:
                      help="Markdown file whose generated section is replaced (default: results/BENCHMARKS.md)")
     ben.set_defaults(func=_cmd_bench_solver)
 
+    fld = sub.add_parser("fields", help="every model field a campaign can set: type, unit, default, meaning")
+    fld.add_argument("pattern", nargs="?", default="", help="only fields whose name contains this text")
+    fld.set_defaults(func=_cmd_fields)
+
     ker = sub.add_parser("kernels", help="the compiled-solver cache")
     ker.set_defaults(help_parser=ker)  # `mcverify kernels` alone prints this help, not the top-level one
     ksub = ker.add_subparsers(metavar="ACTION")
@@ -364,6 +368,19 @@ def _cmd_bench_solver(args) -> int:
     json_path.write_text(solver_bench_report.to_json(results))
     print(section)
     print(f"written: {args.out} (section), {json_path}", file=sys.stderr)
+    return 0
+
+
+def _cmd_fields(args) -> int:
+    from mcverify import fields
+
+    table = fields.markdown_table().splitlines()
+    rows = [row for row in table[2:] if args.pattern in row.split("|")[1]]
+    if not rows:
+        from mcverify.errors import CampaignError
+
+        raise CampaignError(f"no model field contains {args.pattern!r} (`mcverify fields` lists them all)")
+    print("\n".join(table[:2] + rows))
     return 0
 
 

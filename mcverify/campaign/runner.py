@@ -313,6 +313,10 @@ def _execute(
         on_start(len(chunks), len(done))
     done_episodes = sum(len(c.episode_ids) for c in chunks if c.name in done)
     record = [(c.index, 0) for c in campaign.cells if c.episodes > 0] if record_first else []
+    if todo and episode_fn is executors.simulate:
+        log.info("starting %s: each worker imports JAX and CasADi, loads the solver and compiles the plant once "
+                 "(tens of seconds) before its first chunk; the bar moves as chunks of up to %d episodes finish",
+                 ", ".join(f"{k} {v}" for k, v in executor.describe().items() if v is not None), chunk_size)
     bar = tqdm(
         total=campaign.total_episodes,
         initial=done_episodes,
@@ -323,10 +327,6 @@ def _execute(
     )
     errors = 0
     unsafe = _unsafe_in(run_dir, [c for c in chunks if c.name in done])
-    if todo and episode_fn is executors.simulate:
-        log.info("starting %s: each worker imports JAX and CasADi, loads the solver and compiles the plant once "
-                 "(tens of seconds) before its first chunk; the bar moves as chunks of up to %d episodes finish",
-                 ", ".join(f"{k} {v}" for k, v in executor.describe().items() if v is not None), chunk_size)
 
     def on_done(chunk: store.Chunk, output: ChunkOutput) -> None:
         nonlocal errors, unsafe
