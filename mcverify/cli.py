@@ -173,6 +173,10 @@ def _parser() -> argparse.ArgumentParser:
                      help="two-sided interval for rates (default: exact Clopper-Pearson)")
     rpt.add_argument("--bootstrap-resamples", type=_positive_int, default=2000,
                      help="resamples of the (seeded) bootstrap interval of every mean (default 2000)")
+    rpt.add_argument("--format", action="append", choices=("png", "svg", "pdf"), dest="formats", default=[],
+                     help="also write every figure in this format beside the report's PNG (repeatable)")
+    rpt.add_argument("--dpi", type=_positive_int, default=None,
+                     help="resolution of the --format files (default 300; the report's own PNGs stay at 100)")
     rpt.set_defaults(func=_cmd_report)
 
     bench = sub.add_parser("bench", help="the engine against the naive reference loop, in one run")
@@ -299,8 +303,13 @@ def _cmd_replay(args) -> int:
 def _cmd_report(args) -> int:
     from mcverify.reporting import run_report
 
+    if args.dpi is not None and not args.formats:
+        from mcverify.errors import RunError
+
+        raise RunError("--dpi sets the resolution of the --format files: add --format png, svg or pdf")
     path = run_report.write(
-        args.run_dir, level=args.level, method=args.method, bootstrap_resamples=args.bootstrap_resamples
+        args.run_dir, level=args.level, method=args.method, bootstrap_resamples=args.bootstrap_resamples,
+        figure_formats=args.formats, figure_dpi=args.dpi or 300,
     )
     print(f"report: {path} (also report.html, summary.json, cells.parquet, tables/, figures/)")
     return 0

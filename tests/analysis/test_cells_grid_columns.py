@@ -31,7 +31,8 @@ def test_grid_and_axis_fields_are_typed_columns(tmp_path):
     assert (first["mpc.controller"], first["barrier.epsilon"], first["scenario.front_speed_kmh"],
             first["scenario.front_accel_range_mps2"]) == ("vlcbf", 0.0, 25, "[1.0, 3.0]")
     for r in rows:  # the typed values agree with the cell's name
-        assert f"epsilon={r['barrier.epsilon']:g}" in r["cell"] and f"front_speed_kmh={r['scenario.front_speed_kmh']}" in r["cell"]
+        assert f"epsilon={r['barrier.epsilon']:g}" in r["cell"]
+        assert f"front_speed_kmh={r['scenario.front_speed_kmh']}" in r["cell"]
 
 
 def test_a_field_set_in_some_cells_only_is_varied_with_nulls():

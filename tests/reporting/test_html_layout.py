@@ -70,3 +70,22 @@ def test_no_table_overflows_at_1400_px_in_a_real_browser(page: Path, tmp_path: P
     results = found.group(1).split()
     assert len(results) > 3
     assert [r for r in results if "OVERFLOW" in r] == []
+
+
+def test_report_writes_publication_formats_byte_stable(tmp_path: Path, capsys):
+    from mcverify import cli
+
+    run = synthetic.make_run(tmp_path / "run", {"campaign": {"name": "f", "seed": 1, "episodes": 6},
+                                                "grid": {"barrier.epsilon": [0.1, 0.3]}}, trajectories=False)
+    assert cli.main(["report", str(run), "--format", "svg", "--format", "pdf", "--format", "png", "--dpi", "200"]) == 0
+    figs = run / "figures"
+    pngs = sorted(p.stem for p in figs.glob("*.png") if not p.stem.endswith("-200dpi"))
+    assert pngs and sorted(p.stem for p in figs.glob("*.svg")) == pngs == sorted(p.stem for p in figs.glob("*.pdf"))
+    assert sorted(p.stem for p in figs.glob("*-200dpi.png")) == [f"{s}-200dpi" for s in pngs]
+    first = {p.name: p.read_bytes() for p in figs.iterdir()}
+    assert cli.main(["report", str(run), "--format", "svg", "--format", "pdf", "--format", "png", "--dpi", "200"]) == 0
+    assert {p.name: p.read_bytes() for p in figs.iterdir()} == first, "the same data give the same bytes"
+    assert cli.main(["report", str(run)]) == 0
+    assert sorted(p.stem for p in figs.iterdir()) == pngs, "a plain report removes the extra files"
+    assert cli.main(["report", str(run), "--dpi", "300"]) == 2
+    capsys.readouterr()
