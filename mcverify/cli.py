@@ -39,11 +39,18 @@ def main(argv: list[str] | None = None) -> int:
     if not hasattr(args, "func"):
         (getattr(args, "help_parser", None) or parser).print_help()
         return EXIT_USAGE
-    from mcverify.errors import UserError
-
-    _configure_logging(getattr(args, "verbose", 0) - getattr(args, "quiet", 0))
+    restore_logging = _configure_logging(getattr(args, "verbose", 0) - getattr(args, "quiet", 0))
     if getattr(args, "quiet", 0) and hasattr(args, "no_progress"):
         args.no_progress = True
+    try:
+        return _dispatch(args)
+    finally:
+        restore_logging()
+
+
+def _dispatch(args) -> int:
+    from mcverify.errors import UserError
+
     try:
         with _sigterm_as_interrupt():
             return args.func(args) or 0
@@ -67,19 +74,39 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
 
 
-def _configure_logging(verbosity: int) -> None:
+class _StderrHandler(logging.StreamHandler):
+    """Writes to whatever ``sys.stderr`` is when a line is emitted (not when the handler was made), so a
+    replaced or captured stderr never receives a line meant for a closed one."""
+
+    def __init__(self) -> None:
+        super().__init__(sys.stderr)
+
+    @property
+    def stream(self):  # type: ignore[override]
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value) -> None:  # StreamHandler.__init__ assigns it
+        pass
+
+
+def _configure_logging(verbosity: int):
     """Lines of the ``mcverify`` loggers on stderr as ``mcverify: ...``: notices before long phases
     (kernel compilation, worker start-up) by default, only warnings with ``-q``, debug detail with
     ``-v``. Configured here, not on import: a library user's logging stays theirs."""
     level = logging.DEBUG if verbosity > 0 else logging.WARNING if verbosity < 0 else logging.INFO
     logger = logging.getLogger("mcverify")
-    for handler in [h for h in logger.handlers if getattr(h, "_mcverify_cli", False)]:
-        logger.removeHandler(handler)
-    handler = logging.StreamHandler(sys.stderr)
+    handler = _StderrHandler()
     handler.setFormatter(logging.Formatter("mcverify: %(message)s"))
-    handler._mcverify_cli = True  # type: ignore[attr-defined]
+    previous = logger.level
     logger.addHandler(handler)
     logger.setLevel(level)
+
+    def restore() -> None:  # main() may be called from Python (tests, scripts): leave logging as it was
+        logger.removeHandler(handler)
+        logger.setLevel(previous)
+
+    return restore
 
 
 @contextlib.contextmanager

@@ -207,8 +207,6 @@ def run(
         raise RunError(f"{run_dir} already holds a run; choose another --out or use --resume {run_dir}")
     if run_dir.exists() and (not run_dir.is_dir() or any(p.name != store.LOCK for p in run_dir.iterdir())):
         raise RunError(f"{run_dir} exists and is not an empty folder; choose another --out")
-    for warning in lint.warnings(campaign):
-        log.warning("warning: %s", warning)
     executor = executor or executors.LocalExecutor()
     with executor:  # a Ray cluster is reached before anything is written
         kernels = _prepare_kernels(campaign, episode_fn)
@@ -311,6 +309,9 @@ def _execute(
     todo = [c for c in chunks if c.name not in done]
     if on_start is not None:
         on_start(len(chunks), len(done))
+    if todo:  # after every check: an error stays one line
+        for warning in lint.warnings(campaign):
+            log.warning("warning: %s", warning)
     done_episodes = sum(len(c.episode_ids) for c in chunks if c.name in done)
     record = [(c.index, 0) for c in campaign.cells if c.episodes > 0] if record_first else []
     if todo and episode_fn is executors.simulate:

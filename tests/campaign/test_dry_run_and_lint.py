@@ -101,6 +101,9 @@ def test_kernel_compilation_is_announced_with_its_expected_duration(tmp_path: Pa
 
 @pytest.mark.parametrize("flags, level", [([], logging.INFO), (["-q"], logging.WARNING), (["-v"], logging.DEBUG)])
 def test_verbosity_flags_set_the_notice_level(flags, level, monkeypatch):
-    monkeypatch.setattr(cli, "_cmd_kernels_list", lambda args: 0)
+    seen = []
+    monkeypatch.setattr(cli, "_cmd_kernels_list", lambda args: seen.append(logging.getLogger("mcverify").level))
+    before = logging.getLogger("mcverify").level
     assert cli.main(["kernels", "list", *flags]) == 0
-    assert logging.getLogger("mcverify").level == level
+    assert seen == [level]
+    assert logging.getLogger("mcverify").level == before, "main() leaves logging as it found it"
