@@ -7,11 +7,24 @@ exit status 2; a replay that does not reproduce exits with status 1.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import logging
+import signal
 import sys
 from pathlib import Path
 
+_log = logging.getLogger("mcverify.cli")
+
 EXIT_USAGE = 2
 EXIT_MISMATCH = 1
+#: Exit status after Ctrl-C (128 + SIGINT) and after SIGTERM (128 + SIGTERM), as a shell reports them.
+EXIT_INTERRUPTED = 130
+EXIT_TERMINATED = 143
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (what a cluster scheduler or ``kill`` sends), handled like Ctrl-C: finished chunks are
+    on disk, the workers are stopped, and the resume hint is printed."""
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -21,13 +34,26 @@ def main(argv: list[str] | None = None) -> int:
     except _UsageError as err:
         print(f"mcverify: error: {err}", file=sys.stderr)
         return EXIT_USAGE
+    except SystemExit as done:  # --help, --version: printed, nothing to run
+        return done.code if isinstance(done.code, int) else 0
     if not hasattr(args, "func"):
-        parser.print_help()
+        (getattr(args, "help_parser", None) or parser).print_help()
         return EXIT_USAGE
+    restore_logging = _configure_logging(getattr(args, "verbose", 0) - getattr(args, "quiet", 0))
+    if getattr(args, "quiet", 0) and hasattr(args, "no_progress"):
+        args.no_progress = True
+    try:
+        return _dispatch(args)
+    finally:
+        restore_logging()
+
+
+def _dispatch(args) -> int:
     from mcverify.errors import UserError
 
     try:
-        return args.func(args) or 0
+        with _sigterm_as_interrupt():
+            return args.func(args) or 0
     except UserError as err:
         print(f"mcverify: error: {err}", file=sys.stderr)
         return EXIT_USAGE
@@ -35,10 +61,70 @@ def main(argv: list[str] | None = None) -> int:
         where = f": {err.filename}" if err.filename else ""
         print(f"mcverify: error: {err.strerror or err}{where}", file=sys.stderr)
         return EXIT_USAGE
-    except KeyboardInterrupt:
-        run_dir = getattr(args, "run_dir", None) or "RUN_DIR"
-        print(f"mcverify: interrupted; finished chunks are kept (mcverify run --resume {run_dir})", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as err:
+        terminated = isinstance(err, Terminated)
+        run_dir = getattr(args, "run_dir", None)
+        if run_dir is not None and not (Path(run_dir) / "manifest.json").is_file():
+            run_dir = None  # stopped before the run folder was written: nothing to resume
+        what = "terminated (SIGTERM)" if terminated else "interrupted"
+        if run_dir is not None:
+            print(f"mcverify: {what}; finished chunks are kept (mcverify run --resume {run_dir})", file=sys.stderr)
+        else:
+            print(f"mcverify: {what}", file=sys.stderr)
+        return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
+
+
+class _StderrHandler(logging.StreamHandler):
+    """Writes to whatever ``sys.stderr`` is when a line is emitted (not when the handler was made), so a
+    replaced or captured stderr never receives a line meant for a closed one."""
+
+    def __init__(self) -> None:
+        super().__init__(sys.stderr)
+
+    @property
+    def stream(self):  # type: ignore[override]
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value) -> None:  # StreamHandler.__init__ assigns it
+        pass
+
+
+def _configure_logging(verbosity: int):
+    """Lines of the ``mcverify`` loggers on stderr as ``mcverify: ...``: notices before long phases
+    (kernel compilation, worker start-up) by default, only warnings with ``-q``, debug detail with
+    ``-v``. Configured here, not on import: a library user's logging stays theirs."""
+    level = logging.DEBUG if verbosity > 0 else logging.WARNING if verbosity < 0 else logging.INFO
+    logger = logging.getLogger("mcverify")
+    handler = _StderrHandler()
+    handler.setFormatter(logging.Formatter("mcverify: %(message)s"))
+    previous = logger.level
+    logger.addHandler(handler)
+    logger.setLevel(level)
+
+    def restore() -> None:  # main() may be called from Python (tests, scripts): leave logging as it was
+        logger.removeHandler(handler)
+        logger.setLevel(previous)
+
+    return restore
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt():
+    """While a command runs, SIGTERM raises :class:`Terminated` (a KeyboardInterrupt) in the main
+    thread, so it takes the same path as Ctrl-C. Only installed from the main thread."""
+    def handler(signum, frame):
+        raise Terminated()
+
+    try:
+        previous = signal.signal(signal.SIGTERM, handler)
+    except ValueError:  # not the main thread (e.g. called from a worker thread): leave signals alone
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 class _UsageError(Exception):
@@ -52,7 +138,14 @@ class _Parser(argparse.ArgumentParser):
 
 def _parser() -> argparse.ArgumentParser:
     p = _Parser(prog="mcverify", description=__doc__.splitlines()[0])
-    sub = p.add_subparsers(metavar="COMMAND")
+    p.add_argument("--version", action=_VersionAction, help="print the version (and git commit) and exit")
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("-v", "--verbose", action="count", default=0, help="more detail on stderr")
+    common.add_argument("-q", "--quiet", action="count", default=0,
+                        help="only warnings and errors on stderr (no progress bar, no notices)")
+    sub = p.add_subparsers(metavar="COMMAND", parser_class=_Parser)
+    _add = sub.add_parser
+    sub.add_parser = lambda *a, **k: _add(*a, parents=[common], **k)  # every command takes -v / -q
 
     run = sub.add_parser("run", help="run a campaign into a run folder")
     run.add_argument("campaign", nargs="?", type=Path, help="campaign TOML file")
@@ -62,7 +155,13 @@ def _parser() -> argparse.ArgumentParser:
         "--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", dest="settings",
         help="override a model parameter of the file, e.g. --set mpc.backend=ipopt (repeatable)",
     )
-    run.add_argument("--out", type=Path, help="run folder (default: results/<name>-<timestamp>)")
+    run.add_argument(
+        "--out", type=Path, metavar="DIR",
+        help="parent folder of the new run folder DIR/<name>-<timestamp> (default: $MCVERIFY_RESULTS, "
+             "else ./results)",
+    )
+    run.add_argument("--run-dir", type=Path, dest="new_run_dir", metavar="RUN_DIR",
+                     help="the exact (new or empty) folder for this run, instead of a fresh one under --out")
     run.add_argument(
         "--executor", choices=("local", "ray"), default="local",
         help="local worker processes (default) or tasks on a Ray cluster",
@@ -81,6 +180,9 @@ def _parser() -> argparse.ArgumentParser:
     )
     run.add_argument("--resume", type=Path, metavar="RUN_DIR", help="finish an interrupted run")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
+    run.add_argument("--dry-run", action="store_true",
+                     help="check the campaign and print its cells, episodes, chunks, warnings and an estimate of "
+                          "the CPU time; run nothing")
     run.set_defaults(func=_cmd_run)
 
     est = sub.add_parser("estimate", help="estimate a target event's rate per cell, with sequential stopping")
@@ -142,6 +244,10 @@ def _parser() -> argparse.ArgumentParser:
                      help="two-sided interval for rates (default: exact Clopper-Pearson)")
     rpt.add_argument("--bootstrap-resamples", type=_positive_int, default=2000,
                      help="resamples of the (seeded) bootstrap interval of every mean (default 2000)")
+    rpt.add_argument("--format", action="append", choices=("png", "svg", "pdf"), dest="formats", default=[],
+                     help="also write every figure in this format beside the report's PNG (repeatable)")
+    rpt.add_argument("--dpi", type=_positive_int, default=None,
+                     help="resolution of the --format files (default 300; the report's own PNGs stay at 100)")
     rpt.set_defaults(func=_cmd_report)
 
     bench = sub.add_parser("bench", help="the engine against the compiled IPOPT loop (and the naive loop), in one run")
@@ -193,11 +299,16 @@ def _parser() -> argparse.ArgumentParser:
     rare.add_argument("--no-write", action="store_true", help="do not write into results/BENCHMARKS.md")
     rare.set_defaults(func=_cmd_bench_rare)
 
+    fld = sub.add_parser("fields", help="every model field a campaign can set: type, unit, default, meaning")
+    fld.add_argument("pattern", nargs="?", default="", help="only fields whose name contains this text")
+    fld.set_defaults(func=_cmd_fields)
+
     ker = sub.add_parser("kernels", help="the compiled-solver cache")
+    ker.set_defaults(help_parser=ker)  # `mcverify kernels` alone prints this help, not the top-level one
     ksub = ker.add_subparsers(metavar="ACTION")
-    kl = ksub.add_parser("list", help="list cached kernels")
+    kl = ksub.add_parser("list", help="list cached kernels", parents=[common])
     kl.set_defaults(func=_cmd_kernels_list)
-    kc = ksub.add_parser("clear", help="delete cached kernels")
+    kc = ksub.add_parser("clear", help="delete cached kernels", parents=[common])
     kc.set_defaults(func=_cmd_kernels_clear)
     return p
 
@@ -210,19 +321,21 @@ def _cmd_run(args) -> int:
     if args.address is not None and args.executor != "ray":
         raise RunError("--address is for the Ray executor: add --executor ray")
     progress = not args.no_progress
+    if args.resume and args.dry_run:
+        raise RunError("--dry-run checks a campaign file; it does not apply to --resume")
     if args.resume:
         if args.episodes is not None or args.seed is not None or args.settings:
             raise RunError("--resume keeps the run's episodes, seed and settings: leave out --episodes, --seed "
                            "and --set")
-        if args.out is not None:
-            raise RunError("--resume writes into RUN_DIR: leave out --out")
+        if args.out is not None or args.new_run_dir is not None:
+            raise RunError("--resume writes into RUN_DIR: leave out --out and --run-dir")
         # A campaign file given with --resume is a check: it must be the one the run started with.
         campaign = load_campaign(args.campaign) if args.campaign else None
         executor = executors.make_executor(args.executor, workers=args.workers, address=args.address)
         args.run_dir = args.resume
 
         def resuming(planned: int, done: int) -> None:
-            print(f"resuming {args.resume}: {done} of {planned} chunks already done", file=sys.stderr)
+            _log.info("resuming %s: %d of %d chunks already done", args.resume, done, planned)
 
         path = runner.resume(
             args.resume, executor=executor, progress=progress, campaign=campaign, chunk_size=args.chunk_size,
@@ -232,13 +345,23 @@ def _cmd_run(args) -> int:
         if args.campaign is None:
             raise RunError("missing campaign file, e.g. `mcverify run campaigns/smoke.toml`")
         campaign = load_campaign(args.campaign, episodes=args.episodes, seed=args.seed, settings=args.settings)
-        out = args.run_dir = args.out or runner.default_run_dir(campaign)
+        if args.dry_run:
+            from mcverify.campaign import cost, lint
+
+            for warning in lint.warnings(campaign):
+                _log.warning("warning: %s", warning)
+            print(cost.render(campaign, args.chunk_size or runner.DEFAULT_CHUNK_SIZE,
+                              args.workers or executors.default_workers()))
+            return 0
+        if args.out is not None and args.new_run_dir is not None:
+            raise RunError("give --out (a parent folder for new runs) or --run-dir (the run folder), not both")
+        out = args.run_dir = args.new_run_dir or runner.default_run_dir(campaign, args.out)
         executor = executors.make_executor(args.executor, workers=args.workers, address=args.address)
 
         def starting(planned: int, done: int) -> None:  # after every check: errors stay one line
-            print(runner.describe(campaign), file=sys.stderr)
+            _log.info("%s", runner.describe(campaign))
             how = ", ".join(f"{k} {v}" for k, v in executor.describe().items() if v is not None)
-            print(f"run folder: {out} ({planned} chunks; {how})", file=sys.stderr)
+            _log.info("run folder: %s (%d chunks; %s)", out, planned, how)
 
         path = runner.run(
             campaign, out, executor=executor, chunk_size=args.chunk_size or runner.DEFAULT_CHUNK_SIZE,
@@ -365,8 +488,13 @@ def _cmd_replay(args) -> int:
 def _cmd_report(args) -> int:
     from mcverify.reporting import run_report
 
+    if args.dpi is not None and not args.formats:
+        from mcverify.errors import RunError
+
+        raise RunError("--dpi sets the resolution of the --format files: add --format png, svg or pdf")
     path = run_report.write(
-        args.run_dir, level=args.level, method=args.method, bootstrap_resamples=args.bootstrap_resamples
+        args.run_dir, level=args.level, method=args.method, bootstrap_resamples=args.bootstrap_resamples,
+        figure_formats=args.formats, figure_dpi=args.dpi or 300,
     )
     print(f"report: {path} (also report.html, summary.json, cells.parquet, tables/, figures/)")
     return 0
@@ -382,6 +510,14 @@ def _cmd_compare(args) -> int:
         test=args.test,
         pairs=[tuple(p) for p in args.pair] if args.pair else None,
     )
+    if not result["comparisons"]:
+        from mcverify.errors import RunError
+
+        raise RunError(
+            f"no cell of {args.run_a} matches a cell of {args.run_b} by name "
+            f"(A: {'; '.join(result['only_in_a']) or 'none'}; B: {'; '.join(result['only_in_b']) or 'none'}); "
+            "give pairs with --pair CELL_A CELL_B"
+        )
     print(compare.render_markdown(result))
     if args.out:
         for path in compare.write(args.out, result):
@@ -448,6 +584,19 @@ def _cmd_bench_rare(args) -> int:
     return 0
 
 
+def _cmd_fields(args) -> int:
+    from mcverify import fields
+
+    table = fields.markdown_table().splitlines()
+    rows = [row for row in table[2:] if args.pattern in row.split("|")[1]]
+    if not rows:
+        from mcverify.errors import CampaignError
+
+        raise CampaignError(f"no model field contains {args.pattern!r} (`mcverify fields` lists them all)")
+    print("\n".join(table[:2] + rows))
+    return 0
+
+
 def _cmd_kernels_list(args) -> int:
     from mcverify.solver import kernels
 
@@ -464,6 +613,21 @@ def _cmd_kernels_clear(args) -> int:
 
     print(f"removed {kernels.clear_kernels()} kernel(s)")
     return 0
+
+
+class _VersionAction(argparse.Action):
+    """``--version``: ``mcverify X.Y.Z`` and, in a git checkout, the commit it runs from (asked of git
+    only when the option is given)."""
+
+    def __init__(self, option_strings, dest, **kwargs):
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        from mcverify import __version__, provenance
+
+        commit = provenance.git_commit(short=True)
+        print(f"mcverify {__version__}" + (f" (git {commit})" if commit else ""))
+        parser.exit(0)
 
 
 def _positive_int(text: str) -> int:

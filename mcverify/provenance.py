@@ -31,7 +31,7 @@ SIMULATION_PARTS = (
 )
 #: Parts that only read, present or measure stored rows; editing them never refuses a resume.
 PRESENTATION_PARTS = (
-    "__init__.py", "api.py", "cli.py", "errors.py", "provenance.py", "store.py",
+    "__init__.py", "api.py", "cli.py", "errors.py", "fields.py", "provenance.py", "store.py",
     "analysis", "reporting", "bench",
 )
 #: Source files that enter the hash.

@@ -102,7 +102,7 @@ def write_figures(
     run_dir = Path(run_dir)
     out = run_dir / FIGURES_DIR
     out.mkdir(parents=True, exist_ok=True)
-    for old in sorted(out.glob("*.png")):
+    for old in sorted(out.glob("*.png")) + sorted(out.glob("*.svg")) + sorted(out.glob("*.pdf")):
         old.unlink()
     cells = summ["cells"]
     axes = summ["axes"]

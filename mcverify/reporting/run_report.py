@@ -31,7 +31,7 @@ from mcverify import store
 from mcverify.analysis import estimates, stats, summary
 from mcverify.analysis.cells import cells_table, json_ready
 from mcverify.errors import RunError
-from mcverify.reporting import html, paper_tables, run_figures
+from mcverify.reporting import figure_common, html, paper_tables, run_figures
 from mcverify.reporting.check_tables import (
     end_state_table,
     findings_table,
@@ -89,8 +89,13 @@ def write(
     method: str = "clopper-pearson",
     bootstrap_resamples: int = 2000,
     bootstrap_seed: int = 0,
+    figure_formats: Sequence[str] = (),
+    figure_dpi: int = figure_common.DPI,
 ) -> Path:
     """Regenerate every report file of a finished run folder; returns the path of ``report.md``.
+
+    figure_formats / figure_dpi: also write every figure as png, svg or pdf at that dpi, for papers
+    (:func:`mcverify.reporting.figure_common.exporting`); the PNGs the report embeds do not change.
 
     Raises :class:`RunError` (one line for the user) when the folder is not a run folder or
     an option is out of range."""
@@ -102,7 +107,10 @@ def write(
     table = store.read_episodes(run_dir)
     summ = build_summary(manifest, table, opts)
     tables = report_tables(summ, manifest)
-    figs = run_figures.write_figures(run_dir, summ, table, manifest)
+    if not 10 <= figure_dpi <= 1200:
+        raise RunError(f"--dpi must be between 10 and 1200, got {figure_dpi}")
+    with figure_common.exporting(figure_formats, figure_dpi):
+        figs = run_figures.write_figures(run_dir, summ, table, manifest)
 
     store.write_json_atomic(run_dir / SUMMARY, json_ready(summ))
     _write_parquet(run_dir / CELLS, cells_table(summ))
