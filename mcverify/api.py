@@ -92,7 +92,9 @@ def run(campaign: Campaign | PathLike, out: PathLike | None = None, *, episodes:
         progress: bool = True) -> Run:
     """Run a campaign (a :class:`Campaign` or a campaign file) into a new run folder and report it.
 
-    ``out`` is the new run folder; by default a fresh ``results/<name>-<timestamp>`` folder.
+    ``out`` is the new run folder itself (as ``mcverify run --run-dir``); by default a fresh
+    ``<results>/<name>-<timestamp>`` folder, where ``<results>`` is ``$MCVERIFY_RESULTS`` or else
+    ``results`` under the current directory (as ``mcverify run`` without ``--out``).
     """
     from mcverify.campaign import executors, runner
 

@@ -7,11 +7,24 @@ exit status 2; a replay that does not reproduce exits with status 1.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import logging
+import signal
 import sys
 from pathlib import Path
 
+_log = logging.getLogger("mcverify.cli")
+
 EXIT_USAGE = 2
 EXIT_MISMATCH = 1
+#: Exit status after Ctrl-C (128 + SIGINT) and after SIGTERM (128 + SIGTERM), as a shell reports them.
+EXIT_INTERRUPTED = 130
+EXIT_TERMINATED = 143
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (what a cluster scheduler or ``kill`` sends), handled like Ctrl-C: finished chunks are
+    on disk, the workers are stopped, and the resume hint is printed."""
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -21,13 +34,26 @@ def main(argv: list[str] | None = None) -> int:
     except _UsageError as err:
         print(f"mcverify: error: {err}", file=sys.stderr)
         return EXIT_USAGE
+    except SystemExit as done:  # --help, --version: printed, nothing to run
+        return done.code if isinstance(done.code, int) else 0
     if not hasattr(args, "func"):
-        parser.print_help()
+        (getattr(args, "help_parser", None) or parser).print_help()
         return EXIT_USAGE
+    restore_logging = _configure_logging(getattr(args, "verbose", 0) - getattr(args, "quiet", 0))
+    if getattr(args, "quiet", 0) and hasattr(args, "no_progress"):
+        args.no_progress = True
+    try:
+        return _dispatch(args)
+    finally:
+        restore_logging()
+
+
+def _dispatch(args) -> int:
     from mcverify.errors import UserError
 
     try:
-        return args.func(args) or 0
+        with _sigterm_as_interrupt():
+            return args.func(args) or 0
     except UserError as err:
         print(f"mcverify: error: {err}", file=sys.stderr)
         return EXIT_USAGE
@@ -35,12 +61,70 @@ def main(argv: list[str] | None = None) -> int:
         where = f": {err.filename}" if err.filename else ""
         print(f"mcverify: error: {err.strerror or err}{where}", file=sys.stderr)
         return EXIT_USAGE
-    except KeyboardInterrupt:
-        run_dir = getattr(args, "run_dir", None) or "RUN_DIR"
-        command = "falsify" if getattr(args, "func", None) is _cmd_falsify else "run"
-        print(f"mcverify: interrupted; finished chunks are kept (mcverify {command} --resume {run_dir})",
-              file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as err:
+        terminated = isinstance(err, Terminated)
+        run_dir = getattr(args, "run_dir", None)
+        if run_dir is not None and not (Path(run_dir) / "manifest.json").is_file():
+            run_dir = None  # stopped before the run folder was written: nothing to resume
+        what = "terminated (SIGTERM)" if terminated else "interrupted"
+        if run_dir is not None:
+            print(f"mcverify: {what}; finished chunks are kept (mcverify run --resume {run_dir})", file=sys.stderr)
+        else:
+            print(f"mcverify: {what}", file=sys.stderr)
+        return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
+
+
+class _StderrHandler(logging.StreamHandler):
+    """Writes to whatever ``sys.stderr`` is when a line is emitted (not when the handler was made), so a
+    replaced or captured stderr never receives a line meant for a closed one."""
+
+    def __init__(self) -> None:
+        super().__init__(sys.stderr)
+
+    @property
+    def stream(self):  # type: ignore[override]
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value) -> None:  # StreamHandler.__init__ assigns it
+        pass
+
+
+def _configure_logging(verbosity: int):
+    """Lines of the ``mcverify`` loggers on stderr as ``mcverify: ...``: notices before long phases
+    (kernel compilation, worker start-up) by default, only warnings with ``-q``, debug detail with
+    ``-v``. Configured here, not on import: a library user's logging stays theirs."""
+    level = logging.DEBUG if verbosity > 0 else logging.WARNING if verbosity < 0 else logging.INFO
+    logger = logging.getLogger("mcverify")
+    handler = _StderrHandler()
+    handler.setFormatter(logging.Formatter("mcverify: %(message)s"))
+    previous = logger.level
+    logger.addHandler(handler)
+    logger.setLevel(level)
+
+    def restore() -> None:  # main() may be called from Python (tests, scripts): leave logging as it was
+        logger.removeHandler(handler)
+        logger.setLevel(previous)
+
+    return restore
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt():
+    """While a command runs, SIGTERM raises :class:`Terminated` (a KeyboardInterrupt) in the main
+    thread, so it takes the same path as Ctrl-C. Only installed from the main thread."""
+    def handler(signum, frame):
+        raise Terminated()
+
+    try:
+        previous = signal.signal(signal.SIGTERM, handler)
+    except ValueError:  # not the main thread (e.g. called from a worker thread): leave signals alone
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 class _UsageError(Exception):
@@ -54,7 +138,14 @@ class _Parser(argparse.ArgumentParser):
 
 def _parser() -> argparse.ArgumentParser:
     p = _Parser(prog="mcverify", description=__doc__.splitlines()[0])
-    sub = p.add_subparsers(metavar="COMMAND")
+    p.add_argument("--version", action=_VersionAction, help="print the version (and git commit) and exit")
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("-v", "--verbose", action="count", default=0, help="more detail on stderr")
+    common.add_argument("-q", "--quiet", action="count", default=0,
+                        help="only warnings and errors on stderr (no progress bar, no notices)")
+    sub = p.add_subparsers(metavar="COMMAND", parser_class=_Parser)
+    _add = sub.add_parser
+    sub.add_parser = lambda *a, **k: _add(*a, parents=[common], **k)  # every command takes -v / -q
 
     run = sub.add_parser("run", help="run a campaign into a run folder")
     run.add_argument("campaign", nargs="?", type=Path, help="campaign TOML file")
@@ -64,7 +155,13 @@ def _parser() -> argparse.ArgumentParser:
         "--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", dest="settings",
         help="override a model parameter of the file, e.g. --set mpc.backend=ipopt (repeatable)",
     )
-    run.add_argument("--out", type=Path, help="run folder (default: results/<name>-<timestamp>)")
+    run.add_argument(
+        "--out", type=Path, metavar="DIR",
+        help="parent folder of the new run folder DIR/<name>-<timestamp> (default: $MCVERIFY_RESULTS, "
+             "else ./results)",
+    )
+    run.add_argument("--run-dir", type=Path, dest="new_run_dir", metavar="RUN_DIR",
+                     help="the exact (new or empty) folder for this run, instead of a fresh one under --out")
     run.add_argument(
         "--executor", choices=("local", "ray"), default="local",
         help="local worker processes (default) or tasks on a Ray cluster",
@@ -83,7 +180,54 @@ def _parser() -> argparse.ArgumentParser:
     )
     run.add_argument("--resume", type=Path, metavar="RUN_DIR", help="finish an interrupted run")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
+    run.add_argument("--dry-run", action="store_true",
+                     help="check the campaign and print its cells, episodes, chunks, warnings and an estimate of "
+                          "the CPU time; run nothing")
     run.set_defaults(func=_cmd_run)
+
+    est = sub.add_parser("estimate", help="estimate a target event's rate per cell, with sequential stopping")
+    est.add_argument("campaign", nargs="?", type=Path, help="campaign TOML file")
+    est.add_argument("--method", choices=("mc", "splitting", "importance"), default="mc",
+                     help="mc: crude Monte Carlo stopped on an anytime-valid interval (default); splitting: "
+                          "adaptive multilevel splitting on the per-step noise; importance: cross-entropy "
+                          "importance sampling over the scenario ranges (both in this process)")
+    est.add_argument("--target", default="collision",
+                     help="event whose rate is estimated: collision (default), ellipse, unsafe, invariance, "
+                          "opp_invariance")
+    est.add_argument("--until-halfwidth", type=_halfwidth, default=None, metavar="H",
+                     help="stop a cell when the interval's half-width is <= H (absolute, e.g. 0.01) or <= H "
+                          "of the estimate (relative, e.g. 30%%)")
+    est.add_argument("--budget", type=_positive_int, default=1000, help="most episodes per cell (default 1000)")
+    est.add_argument("--level", type=_level, default=0.95, help="confidence level of the interval (default 0.95)")
+    est.add_argument("--seed", type=_nonneg_int, help="campaign seed (overrides the file)")
+    est.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", dest="settings",
+                     help="override a model parameter of the file (repeatable)")
+    est.add_argument("--out", type=Path, help="run folder (default: results/<name>-<timestamp>)")
+    est.add_argument("--executor", choices=("local", "ray", "serial"), default="local",
+                     help="local worker processes (default), tasks on a Ray cluster, or this process")
+    est.add_argument("--address", metavar="ADDR", help="Ray cluster to join (with --executor ray)")
+    est.add_argument("--workers", type=_positive_int, default=None, help="worker processes or Ray tasks in flight")
+    est.add_argument("--chunk-size", type=_positive_int, default=None, metavar="K",
+                     help="episodes per chunk, the unit of work and of the stopping checks (default 8)")
+    est.add_argument("--score", choices=("gap", "h_ef"), default=None,
+                     help="splitting: footprint gap (target collision, the default) or h_ef (target ellipse)")
+    est.add_argument("--particles", type=_positive_int, default=20, help="splitting: particles per run (default 20)")
+    est.add_argument("--replicates", type=_positive_int, default=5,
+                     help="splitting: independent runs whose spread gives the interval (default 5)")
+    est.add_argument("--cell", action="append", default=[], metavar="NAME",
+                     help="splitting, importance: only this cell (repeatable; default: every cell); splitting runs its "
+                          "AMS runs in this process unless --workers (local) or --executor ray is given")
+    est.add_argument("--samples", type=_positive_int, default=400,
+                     help="importance: episodes drawn from the defensive mixture (default 400)")
+    est.add_argument("--ce-samples", type=_positive_int, default=100,
+                     help="importance: episodes per cross-entropy iteration (default 100)")
+    est.add_argument("--ce-iterations", type=_positive_int, default=10,
+                     help="importance: most cross-entropy iterations (default 10)")
+    est.add_argument("--max-iterations", type=_positive_int, default=2000,
+                     help="splitting: iteration cap per run (a capped run is flagged, not an estimate)")
+    est.add_argument("--resume", type=Path, metavar="RUN_DIR", help="finish an interrupted estimate")
+    est.add_argument("--no-progress", action="store_true", help="no progress bar")
+    est.set_defaults(func=_cmd_estimate)
 
     rep = sub.add_parser("replay", help="re-simulate one stored episode and write its trajectory")
     rep.add_argument("run_dir", type=Path)
@@ -100,14 +244,21 @@ def _parser() -> argparse.ArgumentParser:
                      help="two-sided interval for rates (default: exact Clopper-Pearson)")
     rpt.add_argument("--bootstrap-resamples", type=_positive_int, default=2000,
                      help="resamples of the (seeded) bootstrap interval of every mean (default 2000)")
+    rpt.add_argument("--format", action="append", choices=("png", "svg", "pdf"), dest="formats", default=[],
+                     help="also write every figure in this format beside the report's PNG (repeatable)")
+    rpt.add_argument("--dpi", type=_positive_int, default=None,
+                     help="resolution of the --format files (default 300; the report's own PNGs stay at 100)")
     rpt.set_defaults(func=_cmd_report)
 
-    bench = sub.add_parser("bench", help="the engine against the naive reference loop, in one run")
+    bench = sub.add_parser("bench", help="the engine against the compiled IPOPT loop (and the naive loop), in one run")
     bench.add_argument("--campaign", default="campaigns/table4_fixed_start.toml",
                        help="campaign file (default: Table IV with veh_o on the road from the start)")
-    bench.add_argument("--cell", default="scenario=B,method=VL-CBF eps=0.3", help="cell name of that campaign")
-    bench.add_argument("--naive-episodes", type=_positive_int, default=1, help="paired episodes on the naive side")
-    bench.add_argument("--engine-episodes", type=_positive_int, default=4, help="episodes on the engine side")
+    bench.add_argument("--cell", default="all", help="cell name of that campaign, or 'all' (default: the mix)")
+    bench.add_argument("--engine-episodes", type=_positive_int, default=2, help="episodes per cell, engine")
+    bench.add_argument("--baseline-episodes", type=_nonneg_int, default=2,
+                       help="paired episodes per cell, compiled warm-started IPOPT loop (0: skip)")
+    bench.add_argument("--naive-episodes", type=_nonneg_int, default=0,
+                       help="paired episodes per cell, the paper-style Opti loop (0: skip, the default)")
     bench.add_argument("--backend", help="the engine's solver backend (default: the cell's)")
     bench.add_argument("--no-write", action="store_true", help="do not append to results/BENCHMARKS.md")
     bench.set_defaults(func=_cmd_bench)
@@ -168,11 +319,28 @@ def _parser() -> argparse.ArgumentParser:
     bf.add_argument("--no-write", action="store_true", help="print the section only")
     bf.set_defaults(func=_cmd_bench_falsify)
 
+    rare = sub.add_parser("bench-rare", help="splitting against crude Monte Carlo on the calibration walk "
+                          "(p about 1e-4; section written into results/BENCHMARKS.md)")
+    rare.add_argument("--barrier", type=float, default=6.2, help="event level of the walk (default 6.2: p ~ 1e-4)")
+    rare.add_argument("--particles", type=_positive_int, default=100, help="particles per AMS run (default 100)")
+    rare.add_argument("--replicates", type=_positive_int, default=25,
+                      help="AMS runs per estimate (default 25: about +-30 %% at p ~ 1e-4)")
+    rare.add_argument("--repetitions", type=_positive_int, default=20, help="independent estimates (default 20)")
+    rare.add_argument("--reference-episodes", type=_positive_int, default=30_000_000,
+                      help="crude reference walks (default 3e7)")
+    rare.add_argument("--no-write", action="store_true", help="do not write into results/BENCHMARKS.md")
+    rare.set_defaults(func=_cmd_bench_rare)
+
+    fld = sub.add_parser("fields", help="every model field a campaign can set: type, unit, default, meaning")
+    fld.add_argument("pattern", nargs="?", default="", help="only fields whose name contains this text")
+    fld.set_defaults(func=_cmd_fields)
+
     ker = sub.add_parser("kernels", help="the compiled-solver cache")
+    ker.set_defaults(help_parser=ker)  # `mcverify kernels` alone prints this help, not the top-level one
     ksub = ker.add_subparsers(metavar="ACTION")
-    kl = ksub.add_parser("list", help="list cached kernels")
+    kl = ksub.add_parser("list", help="list cached kernels", parents=[common])
     kl.set_defaults(func=_cmd_kernels_list)
-    kc = ksub.add_parser("clear", help="delete cached kernels")
+    kc = ksub.add_parser("clear", help="delete cached kernels", parents=[common])
     kc.set_defaults(func=_cmd_kernels_clear)
     return p
 
@@ -185,19 +353,21 @@ def _cmd_run(args) -> int:
     if args.address is not None and args.executor != "ray":
         raise RunError("--address is for the Ray executor: add --executor ray")
     progress = not args.no_progress
+    if args.resume and args.dry_run:
+        raise RunError("--dry-run checks a campaign file; it does not apply to --resume")
     if args.resume:
         if args.episodes is not None or args.seed is not None or args.settings:
             raise RunError("--resume keeps the run's episodes, seed and settings: leave out --episodes, --seed "
                            "and --set")
-        if args.out is not None:
-            raise RunError("--resume writes into RUN_DIR: leave out --out")
+        if args.out is not None or args.new_run_dir is not None:
+            raise RunError("--resume writes into RUN_DIR: leave out --out and --run-dir")
         # A campaign file given with --resume is a check: it must be the one the run started with.
         campaign = load_campaign(args.campaign) if args.campaign else None
         executor = executors.make_executor(args.executor, workers=args.workers, address=args.address)
         args.run_dir = args.resume
 
         def resuming(planned: int, done: int) -> None:
-            print(f"resuming {args.resume}: {done} of {planned} chunks already done", file=sys.stderr)
+            _log.info("resuming %s: %d of %d chunks already done", args.resume, done, planned)
 
         path = runner.resume(
             args.resume, executor=executor, progress=progress, campaign=campaign, chunk_size=args.chunk_size,
@@ -207,13 +377,23 @@ def _cmd_run(args) -> int:
         if args.campaign is None:
             raise RunError("missing campaign file, e.g. `mcverify run campaigns/smoke.toml`")
         campaign = load_campaign(args.campaign, episodes=args.episodes, seed=args.seed, settings=args.settings)
-        out = args.run_dir = args.out or runner.default_run_dir(campaign)
+        if args.dry_run:
+            from mcverify.campaign import cost, lint
+
+            for warning in lint.warnings(campaign):
+                _log.warning("warning: %s", warning)
+            print(cost.render(campaign, args.chunk_size or runner.DEFAULT_CHUNK_SIZE,
+                              args.workers or executors.default_workers()))
+            return 0
+        if args.out is not None and args.new_run_dir is not None:
+            raise RunError("give --out (a parent folder for new runs) or --run-dir (the run folder), not both")
+        out = args.run_dir = args.new_run_dir or runner.default_run_dir(campaign, args.out)
         executor = executors.make_executor(args.executor, workers=args.workers, address=args.address)
 
         def starting(planned: int, done: int) -> None:  # after every check: errors stay one line
-            print(runner.describe(campaign), file=sys.stderr)
+            _log.info("%s", runner.describe(campaign))
             how = ", ".join(f"{k} {v}" for k, v in executor.describe().items() if v is not None)
-            print(f"run folder: {out} ({planned} chunks; {how})", file=sys.stderr)
+            _log.info("run folder: %s (%d chunks; %s)", out, planned, how)
 
         path = runner.run(
             campaign, out, executor=executor, chunk_size=args.chunk_size or runner.DEFAULT_CHUNK_SIZE,
@@ -235,6 +415,104 @@ def _cmd_bench_falsify(args) -> int:
 
     return bench_falsify(args, argv=sys.argv[1:])
 
+def _cmd_estimate(args) -> int:
+    from mcverify.analysis.estimates import EstimateSpec
+    from mcverify.campaign import executors, runner
+    from mcverify.campaign.spec import load_campaign
+    from mcverify.errors import RunError
+    from mcverify.estimate import mc
+
+    method = _folder_method(args.resume) if args.resume else args.method
+    if method in ("splitting", "importance"):
+        return _cmd_estimate_in_process(args, method)
+    executor = executors.make_executor(args.executor, workers=args.workers, address=args.address)
+    if args.resume:
+        if args.campaign or args.out or args.seed is not None or args.settings or args.until_halfwidth:
+            raise RunError("--resume keeps the estimate's campaign and rule: give only RUN_DIR (and the executor)")
+        args.run_dir = args.resume
+        path = mc.resume(args.resume, executor=executor, progress=not args.no_progress)
+    else:
+        if args.campaign is None:
+            raise RunError("missing campaign file, e.g. `mcverify estimate campaigns/eps_sweep_rare.toml`")
+        halfwidth, relative = args.until_halfwidth or (None, False)
+        try:
+            spec = EstimateSpec(args.method, args.target, halfwidth, relative, args.budget, args.level)
+        except ValueError as err:
+            raise RunError(str(err)) from None
+        campaign = load_campaign(args.campaign, episodes=args.budget, seed=args.seed, settings=args.settings)
+        out = args.run_dir = args.out or runner.default_run_dir(campaign)
+        print(runner.describe(campaign), file=sys.stderr)
+        print(f"estimate folder: {out}", file=sys.stderr)
+        path = mc.run(campaign, spec, out, executor=executor,
+                      chunk_size=args.chunk_size or runner.DEFAULT_CHUNK_SIZE, progress=not args.no_progress)
+    print(path.read_text())
+    print(f"report: {path}", file=sys.stderr)
+    return 0
+
+
+def _executor_for(args, method: str) -> dict:
+    """splitting: its AMS runs go to the executor named on the command line (default this process)."""
+    from mcverify.campaign import executors
+
+    if method != "splitting":
+        return {}
+    kind = "serial" if args.executor == "local" and args.workers is None else args.executor
+    return {"executor": executors.make_executor(kind, workers=args.workers, address=args.address)}
+
+
+def _folder_method(run_dir: Path) -> str | None:
+    """The method recorded in an estimate folder's manifest (None if unreadable or absent)."""
+    import json
+
+    try:
+        return json.loads((run_dir / "manifest.json").read_text()).get("estimate", {}).get("method")
+    except (OSError, ValueError, AttributeError):
+        return None
+
+
+def _cmd_estimate_in_process(args, method: str) -> int:
+    from mcverify.campaign import runner
+    from mcverify.campaign.spec import campaign_from_dict, load_campaign
+    from mcverify.errors import RunError
+    from mcverify.estimate import importance_run, splitting_run
+
+    module = splitting_run if method == "splitting" else importance_run
+    log = lambda msg: print(msg, file=sys.stderr)  # noqa: E731
+    if args.resume:
+        from mcverify import store
+
+        manifest = store.read_manifest(args.resume)
+        camp = manifest["campaign"]
+        campaign = campaign_from_dict(camp["raw"], source=camp["source"], seed=camp["seed"])
+        path = module.resume(args.resume, campaign, progress=log, **_executor_for(args, method))
+    else:
+        if args.campaign is None:
+            raise RunError("missing campaign file, e.g. `mcverify estimate campaigns/eps_sweep_rare.toml`")
+        if args.until_halfwidth is not None:
+            raise RunError(f"--until-halfwidth is for --method mc, not {method}")
+        if args.target not in ("collision", "ellipse"):
+            raise RunError(f"{method} estimates --target collision or ellipse")
+        try:
+            if method == "splitting":
+                score = args.score or ("gap" if args.target == "collision" else "h_ef")
+                spec = splitting_run.SplittingSpec(score, args.particles, 1, args.replicates, args.level,
+                                                   args.max_iterations)
+                if spec.target != args.target:
+                    raise RunError(f"--score {score} estimates {spec.target}, not --target {args.target}")
+            else:
+                spec = importance_run.ImportanceSpec(args.target, args.samples, args.ce_samples, level=args.level,
+                                                     max_ce_iterations=args.ce_iterations)
+        except ValueError as err:
+            raise RunError(str(err)) from None
+        campaign = load_campaign(args.campaign, seed=args.seed, settings=args.settings)
+        out = args.run_dir = args.out or runner.default_run_dir(campaign)
+        log(runner.describe(campaign))
+        log(f"estimate folder: {out}")
+        path = module.run(campaign, spec, out, progress=log, cells=args.cell or None, **_executor_for(args, method))
+    print(path.read_text())
+    print(f"report: {path}", file=sys.stderr)
+    return 0
+
 
 def _cmd_replay(args) -> int:
     from mcverify.campaign.replay import ReplayMismatch, replay
@@ -253,8 +531,13 @@ def _cmd_replay(args) -> int:
 def _cmd_report(args) -> int:
     from mcverify.reporting import run_report
 
+    if args.dpi is not None and not args.formats:
+        from mcverify.errors import RunError
+
+        raise RunError("--dpi sets the resolution of the --format files: add --format png, svg or pdf")
     path = run_report.write(
-        args.run_dir, level=args.level, method=args.method, bootstrap_resamples=args.bootstrap_resamples
+        args.run_dir, level=args.level, method=args.method, bootstrap_resamples=args.bootstrap_resamples,
+        figure_formats=args.formats, figure_dpi=args.dpi or 300,
     )
     print(f"report: {path} (also report.html, summary.json, cells.parquet, tables/, figures/)")
     return 0
@@ -270,6 +553,14 @@ def _cmd_compare(args) -> int:
         test=args.test,
         pairs=[tuple(p) for p in args.pair] if args.pair else None,
     )
+    if not result["comparisons"]:
+        from mcverify.errors import RunError
+
+        raise RunError(
+            f"no cell of {args.run_a} matches a cell of {args.run_b} by name "
+            f"(A: {'; '.join(result['only_in_a']) or 'none'}; B: {'; '.join(result['only_in_b']) or 'none'}); "
+            "give pairs with --pair CELL_A CELL_B"
+        )
     print(compare.render_markdown(result))
     if args.out:
         for path in compare.write(args.out, result):
@@ -278,19 +569,20 @@ def _cmd_compare(args) -> int:
 
 
 def _cmd_bench(args) -> int:
-    from mcverify.bench import engine
+    from mcverify.bench import engine, engine_report
     from mcverify.campaign.spec import CampaignError
 
-    if args.engine_episodes < args.naive_episodes:
-        raise CampaignError("--engine-episodes must be at least --naive-episodes (the naive episodes are paired)")
+    if max(args.naive_episodes, args.baseline_episodes) > args.engine_episodes:
+        raise CampaignError("--baseline-episodes and --naive-episodes must be at most --engine-episodes "
+                            "(their episodes are paired with the engine's)")
     result = engine.run(
-        campaign=args.campaign, cell_name=args.cell, naive_episodes=args.naive_episodes,
-        engine_episodes=args.engine_episodes, backend=args.backend, write=not args.no_write,
-        progress=lambda msg: print(msg, file=sys.stderr),
+        campaign=args.campaign, cell_name=args.cell, engine_episodes=args.engine_episodes,
+        baseline_episodes=args.baseline_episodes, naive_episodes=args.naive_episodes, backend=args.backend,
+        write=not args.no_write, progress=lambda msg: print(msg, file=sys.stderr),
     )
-    print(engine.render(result))
+    print(engine_report.render(result))
     if not args.no_write:
-        print(f"appended to {engine.BENCHMARKS_MD}", file=sys.stderr)
+        print(f"appended to {engine_report.BENCHMARKS_MD}", file=sys.stderr)
     return 0
 
 
@@ -317,6 +609,37 @@ def _cmd_bench_solver(args) -> int:
     return 0
 
 
+def _cmd_bench_rare(args) -> int:
+    from mcverify.bench import rare
+
+    if args.replicates < 2:
+        from mcverify.errors import UserError
+
+        raise UserError("--replicates must be at least 2 (the interval comes from their spread)")
+    res = rare.run(barrier=args.barrier, particles=args.particles, replicates=args.replicates,
+                   repetitions=args.repetitions, reference_episodes=args.reference_episodes)
+    command = "mcverify " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["bench-rare"] else "mcverify bench-rare"
+    text = rare.markdown(res, command)
+    print(text)
+    if not args.no_write:
+        rare.write(res, command, Path("results/BENCHMARKS.md"))
+        print("written: results/BENCHMARKS.md (section)", file=sys.stderr)
+    return 0
+
+
+def _cmd_fields(args) -> int:
+    from mcverify import fields
+
+    table = fields.markdown_table().splitlines()
+    rows = [row for row in table[2:] if args.pattern in row.split("|")[1]]
+    if not rows:
+        from mcverify.errors import CampaignError
+
+        raise CampaignError(f"no model field contains {args.pattern!r} (`mcverify fields` lists them all)")
+    print("\n".join(table[:2] + rows))
+    return 0
+
+
 def _cmd_kernels_list(args) -> int:
     from mcverify.solver import kernels
 
@@ -335,6 +658,21 @@ def _cmd_kernels_clear(args) -> int:
     return 0
 
 
+class _VersionAction(argparse.Action):
+    """``--version``: ``mcverify X.Y.Z`` and, in a git checkout, the commit it runs from (asked of git
+    only when the option is given)."""
+
+    def __init__(self, option_strings, dest, **kwargs):
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        from mcverify import __version__, provenance
+
+        commit = provenance.git_commit(short=True)
+        print(f"mcverify {__version__}" + (f" (git {commit})" if commit else ""))
+        parser.exit(0)
+
+
 def _positive_int(text: str) -> int:
     value = _int(text)
     if value < 1:
@@ -347,6 +685,19 @@ def _nonneg_int(text: str) -> int:
     if value < 0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
     return value
+
+
+def _halfwidth(text: str) -> tuple[float, bool]:
+    """``0.01`` (absolute) or ``30%`` (relative to the estimate) -> (value, relative)."""
+    relative = text.strip().endswith("%")
+    try:
+        value = float(text.strip().rstrip("%"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number or a percentage, e.g. 0.01 or 30%, got {text!r}") from None
+    value = value / 100.0 if relative else value
+    if not 0.0 < value < (1.0 if not relative else float("inf")):
+        raise argparse.ArgumentTypeError(f"must be > 0 (and < 1 when absolute), got {text}")
+    return value, relative
 
 
 def _level(text: str) -> float:

@@ -19,7 +19,9 @@ class VehicleGeometry:
     """Footprint of every vehicle (paper Sec. VI-A: Toyota Camry)."""
 
     length_m: float = 4.885
+    """Footprint length of every vehicle. Valid: > 0. Paper: 4.885 (Toyota Camry)."""
     width_m: float = 1.840
+    """Footprint width of every vehicle. Valid: > 0. Paper: 1.840."""
 
 
 @dataclass(frozen=True)
@@ -27,6 +29,7 @@ class Road:
     """Two-lane, two-way road (paper Sec. VI-A: lane width 3.5 m)."""
 
     lane_width_m: float = 3.5
+    """Width of each of the two lanes. Valid: > 0. Paper: 3.5."""
 
     @property
     def ego_lane_y_m(self) -> float:
@@ -49,14 +52,23 @@ class EgoLimits:
     """
 
     accel_min_mps2: float = -6.0
+    """Ego's strongest braking (a negative acceleration). Valid: < 0. Paper: not given."""
     accel_max_mps2: float = 3.0
+    """Ego's largest acceleration. Valid: > 0. Paper: not given."""
     slip_max_rad: float = 0.15
+    """Bound on the bicycle's slip angle beta. Valid: > 0. Paper: not given."""
     speed_min_mps: float = 0.0
+    """Lowest ego speed. Valid: >= 0, below speed_max_mps."""
     speed_max_mps: float = 19.4
+    """Ego speed limit (also set as ego.speed_max_kmh). Valid: > 0. Paper: 19.4 (70 km/h)."""
     heading_max_rad: float = 0.35
+    """Bound on the ego heading psi. Valid: > 0. Paper: not given."""
     y_min_m: float = -0.83
+    """Lowest lateral position of the ego c.g. (road edge minus half a width). Paper: not given."""
     y_max_m: float = 4.33
+    """Highest lateral position of the ego c.g. Valid: > y_min_m. Paper: not given."""
     l_r_m: float = 1.4
+    """Rear axle to c.g. distance of the bicycle model. Valid: > 0. Paper: not given."""
 
 
 @dataclass(frozen=True)
@@ -82,13 +94,21 @@ class Barrier:
     """
 
     ellipse_a_m: float = math.sqrt(2.0) * 4.885
+    """Longitudinal semi-axis of the safety ellipse h_ef. Valid: > 0. Paper: not given (beta_1)."""
     ellipse_b_m: float = math.sqrt(2.0) * 1.840
+    """Lateral semi-axis of the safety ellipse. Valid: > 0. Paper: not given (beta_2)."""
     lambdas_m: tuple[float, ...] = (1.0, 0.5)
+    """(lambda_1, ..., lambda_m) of kappa~(h) = sum lambda_i h^(2i-1). Valid: all > 0, 1-3 of them. Paper: order 2."""
     epsilon: float | None = 0.3
+    """The level epsilon of the VL-CBF (lambda_0 = -kappa~(epsilon)); set this or lambda0. Valid: >= 0. Paper: 0.3."""
     lambda0: float | None = None
+    """The level parameter lambda_0 directly; set this or epsilon. Valid: <= 0."""
     decel_max_mps2: float = 6.0
+    """a_l of h_eo, the ego's assumed braking when meeting veh_o. Valid: > 0. Paper: not given."""
     opp_lambdas_m: tuple[float, ...] = (1.0,)
+    """lambda_i of the ego's kappa~_eo on h_eo (h in metres, lambda_1 in 1/s). Valid: all > 0."""
     opp_epsilon_m: float = 1.0
+    """Level of h_eo (metres of stopping margin). Valid: >= 0. Paper: not given."""
 
     @property
     def order_m(self) -> int:
@@ -160,20 +180,37 @@ class Mpc:
     """
 
     controller: str = "vlcbf"
+    """vlcbf (the paper's dual TO-CBF-MPC), mpcdc (the Sec. VI-D baseline) or mpcdc_eps (the baseline at the level
+    epsilon)."""
     backend: str = "ipm"
+    """NLP solver: ipm (the fast path, IPOPT as fallback) or ipopt (the reference)."""
     horizon: int = 50
+    """Number of MPC stages N. Valid: 1-500. Paper: 50."""
     dt_max_s: float = 0.3
+    """Upper bound of every stage interval (eq.tompc_t). Valid: > dt_min_s. Paper: not given."""
     dt_min_s: float = 1e-4
+    """Lower bound of every stage interval. Valid: > 0. Paper: 1e-4 (its time resolution)."""
     phi_s: float = 1.8
+    """Goal reaction time phi: x_g = x_f + v_f T +- phi v_f. Valid: >= 0. Paper: 1.8."""
     eps_y_m: float = 0.25
+    """Lateral goal tolerance epsilon_y (eq.tompc_y). Valid: > 0. Paper: not given."""
     smooth_weight: float = 1e-3
+    """Weight of the input-smoothing term. Valid: >= 0. Paper: allowed by its Remark, no value."""
     max_iter: int = 150
+    """Solver iterations of a warm-started solve. Valid: >= 1."""
     max_iter_cold: int = 400
+    """Solver iterations of a cold solve. Valid: >= 1."""
     infeasible_recheck_steps: int = 10
+    """After IPOPT certifies a problem infeasible, steps before it tries it in full again (1: every step). Valid: >=
+    1."""
     infeasible_recheck_max_steps: int = 50
+    """Largest wait of the doubling recheck period. Valid: >= infeasible_recheck_steps."""
     abandon_rule: str = "first_failure"
+    """What abandons the overtake: first_failure (Algorithm 1 literally), consecutive or certified."""
     abandon_after_failures: int = 3
+    """Failed Q1 solves in a row that abandon with abandon_rule = consecutive. Valid: >= 1."""
     tol: float = 1e-6
+    """Solver tolerance on the scaled KKT error. Valid: > 0."""
 
     @property
     def is_mpcdc(self) -> bool:
@@ -202,20 +239,36 @@ class Noise:
     """
 
     kind: str = "paper"
+    """paper (the Sec. VI-A perception noise) or none."""
     pos_far_m: float = 0.5
+    """Half-width of the uniform position noise when the footprint gap exceeds near_threshold_m. Valid: >= 0. Paper:
+    0.5."""
     pos_near_m: float = 0.1
+    """Half-width of the position noise when the gap is below near_threshold_m. Valid: >= 0. Paper: 0.1."""
     near_threshold_m: float = 2.0
+    """Footprint gap that switches between the far and near noise. Valid: >= 0. Paper: 2."""
     speed_rel: float = 0.1
+    """Half-width of the uniform speed noise, relative to the true speed. Valid: >= 0. Paper: 0.1 (10 %)."""
     scale: float = 1.0
+    """Multiplies all three half-widths (sweeps of a stronger noise). Valid: >= 0. Paper: 1."""
     structured_share: float = 0.0
+    """Share of each x-position and speed error taken by the structured disturbance. Valid: [0, 1]. Paper: 0 (none)."""
     front_x_bias: float = 0.0
+    """Structured bias of veh_f's measured x, as a fraction of its half-width. Valid: [-1, 1]. Paper: 0."""
     front_x_drift_per_s: float = 0.0
+    """Drift of veh_f's x disturbance (1/s; clipped to [-1, 1] with the bias). Valid: finite. Paper: 0."""
     front_v_bias: float = 0.0
+    """Structured bias of veh_f's measured speed, as a fraction of its half-width. Valid: [-1, 1]. Paper: 0."""
     front_v_drift_per_s: float = 0.0
+    """Drift of veh_f's speed disturbance (1/s). Valid: finite. Paper: 0."""
     opp_x_bias: float = 0.0
+    """Structured bias of veh_o's measured x, as a fraction of its half-width. Valid: [-1, 1]. Paper: 0."""
     opp_x_drift_per_s: float = 0.0
+    """Drift of veh_o's x disturbance (1/s). Valid: finite. Paper: 0."""
     opp_v_bias: float = 0.0
+    """Structured bias of veh_o's measured speed, as a fraction of its half-width. Valid: [-1, 1]. Paper: 0."""
     opp_v_drift_per_s: float = 0.0
+    """Drift of veh_o's speed disturbance (1/s). Valid: finite. Paper: 0."""
 
 
 @dataclass(frozen=True)
@@ -232,9 +285,14 @@ class Simulation:
     """
 
     control_period_s: float = 0.02
+    """Planner sampling period. Valid: > 0. Paper: 0.02 (50 Hz)."""
     substeps: int = 10
+    """RK4 sub-steps per control period; every safety check runs at every sub-step. Valid: 1-1000."""
     max_time_s: float = 25.0
+    """Time limit of an episode; then it ends as a timeout. Valid: > 0."""
     settle_s: float = 3.0
+    """After the goal test, how long the plant keeps running under the lane-keeping law (0: stop at once). Valid: >=
+    0."""
 
 
 @dataclass(frozen=True)
@@ -250,14 +308,25 @@ class Scenario:
     """
 
     ego_x_m: float = 10.0
+    """Ego's initial c.g. position. Paper: 10."""
     ego_speed_mps: float = 10.0
+    """Ego's initial speed (also as scenario.ego_speed_kmh). Valid: within the ego speed range. Paper: 10."""
     front_x_m: float = 64.0
+    """veh_f's initial c.g. position. Paper: 64."""
     front_speed_mps: float = 25.0 / 3.6
+    """veh_f's initial speed (also as scenario.front_speed_kmh). Valid: >= 0. Paper: Table II 25-36 km/h."""
     front_accel_mps2: float = 0.0
+    """veh_f's acceleration from front_accel_onset_s on (it never decelerates). Valid: >= 0."""
     front_accel_range_mps2: tuple[float, ...] = ()
+    """(lo, hi): each episode draws veh_f's acceleration uniformly in (lo, hi]; replaces front_accel_mps2. Paper:
+    Table III (1,3], (3,5], (5,7]."""
     front_accel_onset_s: float = 0.0
+    """When veh_f starts accelerating. Valid: >= 0."""
     front_accel_duration_s: float = math.inf
+    """How long veh_f's acceleration lasts (inf: until front_speed_max_mps, so no overtake once it is faster than the
+    ego can go). Valid: >= 0."""
     front_speed_max_mps: float = 30.0
+    """veh_f's speed cap while it accelerates. Valid: >= 0."""
 
 
 @dataclass(frozen=True)
@@ -292,21 +361,38 @@ class Opposing:
     """
 
     kind: str = "none"
+    """none, autonomous (cruise law filtered by its own VL-CBF, known to the ego) or human (unknown law, worst case
+    predicted)."""
     x_m: float = 250.0
+    """veh_o's initial c.g. position (spawn = start)."""
     speed_mps: float = 15.0
+    """veh_o's initial (and cruise) speed magnitude; it drives towards -x. Valid: >= 0."""
     accel_mps2: float = 0.0
+    """A human veh_o's acceleration towards speed_limit_mps (0: constant speed). Paper: 1.6 in Case 2, 0 in Table IV."""
     speed_limit_mps: float = 19.4
+    """veh_o's speed limit. Paper: 19.4."""
     accel_max_mps2: float = 3.0
+    """The worst-case acceleration the ego predicts for a human veh_o. Valid: >= 0."""
     brake_max_mps2: float = 6.0
+    """veh_o's largest deceleration (its CBF filter is clipped to it). Valid: > 0."""
     cruise_gain_per_s: float = 1.0
+    """Gain of an autonomous veh_o's cruise law alpha = k (speed_mps - speed). Valid: >= 0."""
     lambdas_m: tuple[float, ...] = (1.0,)
+    """lambda_i of veh_o's own kappa~_o on h_oe. Valid: all > 0."""
     epsilon_m: float = 1.0
+    """Level of veh_o's barrier h_oe (metres). Valid: >= 0."""
     detect_range_m: float = 200.0
+    """The ego sees veh_o (and adds eq.tompcAdd) once x_o - x_e is below this. Valid: > 0."""
     spawn: str = "start"
+    """When veh_o appears: start (at x_m at t = 0) or lane_entry (when the ego first enters the opposing lane)."""
     spawn_gap_m: float = 150.0
+    """x_o - x_e at which veh_o appears with spawn = lane_entry. Valid: > 0."""
     spawn_gap_range_m: tuple[float, ...] = ()
+    """(lo, hi): draws the spawn gap per episode uniformly in (lo, hi]; replaces spawn_gap_m."""
     spawn_delay_s: float = 0.0
+    """With lane_entry, how long after the lane entry veh_o appears. Valid: >= 0."""
     speed_range_mps: tuple[float, ...] = ()
+    """(lo, hi): draws veh_o's speed per episode uniformly in (lo, hi]; replaces speed_mps."""
 
 
 @dataclass(frozen=True)

@@ -27,11 +27,11 @@ PACKAGE_DIR = Path(__file__).resolve().parent
 #: the run layer (cell expansion, error rows).
 SIMULATION_PARTS = (
     "model.py", "levels.py", "cell.py", "schema.py",
-    "sim", "ocp", "solver", "control", "episode", "campaign",
+    "sim", "ocp", "solver", "control", "episode", "campaign", "estimate",
 )
 #: Parts that only read, present or measure stored rows; editing them never refuses a resume.
 PRESENTATION_PARTS = (
-    "__init__.py", "api.py", "cli.py", "errors.py", "provenance.py", "store.py",
+    "__init__.py", "api.py", "cli.py", "errors.py", "fields.py", "provenance.py", "store.py",
     "analysis", "reporting", "bench",
     # falsify chooses candidates but simulates nothing itself; a resumed search re-checks that the
     # candidates it asks equal those its generation folders recorded (falsify.search._check_same).

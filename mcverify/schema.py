@@ -3,7 +3,7 @@
 :data:`EPISODE_COLUMNS` lists, in file order, each column's name, Arrow type, unit and one-line
 definition. The rollout's rows (:mod:`mcverify.episode.row`) carry exactly these names, the
 executors' error rows a subset of them, the store writes and merges chunks with these types
-(:func:`arrow_schema`), the summary reads them by these names, and the README's metric table is
+(:func:`arrow_schema`), the summary reads them by these names, and the metric table of docs/metrics.md is
 rendered from them (:func:`markdown_table`; a test keeps the two equal).
 
 Units: ``m``, ``s``, ``m/s^2``; an empty unit means dimensionless, a count, a flag or text. The
@@ -195,7 +195,7 @@ def arrow_schema(names: Iterable[str] | None = None) -> pa.Schema:
 
 
 def markdown_table() -> str:
-    """The README's metric table: one line per column (name, type, unit, definition), file order."""
+    """The metric table of docs/metrics.md: one line per column (name, type, unit, definition), file order."""
     lines = ["| column | type | unit | definition |", "|---|---|---|---|"]
     for c in EPISODE_COLUMNS:
         lines.append(f"| `{c.name}` | {c.type} | {c.unit} | {c.definition} |")

@@ -260,6 +260,10 @@ def merge_chunks(run_dir: Path, chunks: Sequence[Chunk]) -> int:
             if held:
                 writer.write_table(pa.concat_tables(pending))
         os.replace(tmp, run_dir / EPISODES)
+    except OSError as err:
+        if err.filename is None:  # pyarrow says "No space left on device" without naming the file
+            raise _named(err, run_dir / EPISODES) from err
+        raise
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
@@ -426,9 +430,19 @@ def atomic_write(path: Path, write: Callable[[str], None]) -> None:
         os.chmod(tmp, _FILE_MODE)
         write(tmp)
         os.replace(tmp, path)
+    except OSError as err:
+        if err.filename is None:  # pyarrow says "No space left on device" without naming the file
+            raise _named(err, path) from err
+        raise
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
+
+
+def _named(err: OSError, path: Path) -> OSError:
+    """``err`` naming the file it was writing: the one line the user sees must say which file
+    could not be written."""
+    return OSError(err.errno, err.strerror or str(err), str(path))
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:

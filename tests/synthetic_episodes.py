@@ -120,3 +120,14 @@ def faulty(
         if r["episode_id"] in nan_on:
             r["min_h_front"] = float("nan")
     return result
+
+
+def bernoulli(cell, episode_ids, seed, common_random_numbers, record, *, p: float = 0.2) -> Result:
+    """Synthetic episodes whose ``collision_front`` is a Bernoulli(p) draw from (seed, cell, episode)
+    alone (the other columns as in :func:`row`); for the estimators' tests."""
+    result = episodes(cell, episode_ids, seed, common_random_numbers, record)
+    for r in result.rows:
+        u = np.random.default_rng([seed, 7919, cell.index, int(r["cell_episode"])]).random()
+        r["collision_front"] = bool(u < p)
+        r["safe"] = r["safe"] and not r["collision_front"]
+    return result

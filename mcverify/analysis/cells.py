@@ -28,7 +28,9 @@ from mcverify.analysis.summary import (
 def cells_table(summ: Mapping[str, Any]) -> pa.Table:
     """``cells.parquet``: one row per cell, every statistic of :func:`summarise` as a flat column.
 
-    Columns: ``cell_index``, ``cell``, ``label_<axis>`` for every axis, ``controller``,
+    Columns: ``cell_index``, ``cell``, ``label_<axis>`` for every axis, then every model field that
+    differs between cells (the grid's and the axes' fields) under its campaign name, e.g.
+    ``barrier.epsilon`` or ``scenario.front_speed_kmh``, typed (:func:`varied_fields`), ``controller``,
     ``opposing_kind``, ``epsilon``, ``lambda0``, ``episodes_planned``, ``episodes``, ``valid``,
     ``outcome_<o>``; per rate ``<rate>_{k,n,rate,low,high,lower_one_sided,upper_one_sided}``; per
     value ``<value>_{count,min,max,mean,mean_low,mean_high,std,q5,q25,q50,q75,q95}``; then
@@ -48,6 +50,7 @@ def cells_table(summ: Mapping[str, Any]) -> pa.Table:
     solver_keys = ["solves", "cold_retries", "iterations_mean", "iterations_max", "solve_time_mean_s",
                    "solve_time_max_s"]
     columns: dict[str, tuple[pa.DataType, list[Any]]] = {}
+    varied = varied_fields(cells)
 
     def put(col: str, typ: pa.DataType, value: Any) -> None:
         columns.setdefault(col, (typ, []))[1].append(_null(value))
@@ -57,6 +60,8 @@ def cells_table(summ: Mapping[str, Any]) -> pa.Table:
         put("cell", pa.string(), c["cell"])
         for a in axes:
             put(f"label_{a}", pa.string(), c["labels"].get(a))
+        for key, typ in varied.items():
+            put(key, typ, typed_value(c.get("overrides", {}).get(key), typ))
         put("controller", pa.string(), c["controller"])
         put("opposing_kind", pa.string(), c["opposing_kind"])
         put("epsilon", pa.float64(), c["epsilon"])
@@ -87,7 +92,56 @@ def cells_table(summ: Mapping[str, Any]) -> pa.Table:
         for key in solver_keys:
             typ = pa.int64() if key in ("solves", "cold_retries", "iterations_max") else pa.float64()
             put(f"solver_{key}", typ, c["solver"].get(key))
+    est = {e["cell_index"]: e for e in (summ.get("estimates") or {}).get("cells", [])}
+    if est:  # a run of `mcverify estimate`: the estimate per cell as estimate_<field>
+        for c in cells:
+            e = est.get(c["cell_index"], {})
+            for key in ("method", "target", "status", "interval_method"):
+                put(f"estimate_{key}", pa.string(), e.get(key))
+            for key in ("n", "k", "episodes_used", "episodes_run"):
+                put(f"estimate_{key}", pa.int64(), e.get(key))
+            for key in ("estimate", "low", "high", "halfwidth", "level", "steps_used", "steps_run", "solver_time_s"):
+                put(f"estimate_{key}", pa.float64(), e.get(key))
     return pa.table({name: pa.array(vals, type=typ) for name, (typ, vals) in columns.items()})
+
+
+def varied_fields(cells: list[Mapping[str, Any]]) -> dict[str, pa.DataType]:
+    """The model fields whose value differs between cells (or is set in some cells only), in the
+    order they first appear, each with the Arrow type of its values: int64 for integers, float64
+    when any value is a float, bool, string; a list (a range such as ``front_accel_range_mps2``)
+    becomes its JSON text."""
+    keys: list[str] = []
+    for c in cells:
+        keys += [k for k in c.get("overrides", {}) if k not in keys]
+    out: dict[str, pa.DataType] = {}
+    for key in keys:
+        values = [c.get("overrides", {}).get(key) for c in cells]
+        present = [v for v in values if v is not None]
+        if len(present) == len(values) and all(v == present[0] for v in present):
+            continue  # the same in every cell: not a varied field
+        out[key] = _arrow_type(present)
+    return out
+
+
+def typed_value(value: Any, typ: pa.DataType) -> Any:
+    """``value`` as a cell of a column of type ``typ`` (see :func:`varied_fields`)."""
+    if value is None:
+        return None
+    if pa.types.is_string(typ):
+        return value if isinstance(value, str) else json.dumps(value)
+    if pa.types.is_floating(typ):
+        return float(value)
+    return value
+
+
+def _arrow_type(values: list[Any]) -> pa.DataType:
+    if values and all(isinstance(v, bool) for v in values):
+        return pa.bool_()
+    if values and all(isinstance(v, int) and not isinstance(v, bool) for v in values):
+        return pa.int64()
+    if values and all(isinstance(v, int | float) and not isinstance(v, bool) for v in values):
+        return pa.float64()
+    return pa.string()
 
 
 def json_ready(obj: Any) -> Any:

@@ -1,22 +1,22 @@
-"""``mcverify bench``: the engine against the naive reference loop, measured in one run.
+"""``mcverify bench``: the engine against a fair IPOPT baseline (and the naive loop), in one run.
 
-Both sides run the same paired episodes of one campaign cell (default: the paper's Table IV,
-Scenario B, VL-CBF eps = 0.3 - a human-driven opposing vehicle, both problems every step, noise on)
-with the same control period, horizon and integration:
+All sides run the same paired episodes of every cell of one campaign (default: the paper's Table IV
+mix, ``campaigns/table4_fixed_start.toml``, all six cells) with the same control period, horizon and
+integration:
 
-* naive: :mod:`mcverify.bench.naive` - a Python loop over episodes and steps, CasADi Opti + IPOPT;
-* engine: :func:`mcverify.episode.rollout.run_episodes` with the cell's solver backend (or ``--backend``).
+* engine: :func:`mcverify.episode.rollout.run_episodes` with the cell's solver backend (or ``--backend``);
+* compiled IPOPT loop (the baseline a careful user writes, :mod:`mcverify.bench.ipopt_loop`):
+  ``nlpsol`` with ``expand=True``, primal-dual warm start with ``mu_init`` 1e-7, the engine's
+  infeasibility policy;
+* naive (optional, ``naive_episodes`` > 0): :mod:`mcverify.bench.naive`, the paper's Opti loop.
 
-Reported: episodes per CPU-minute of each side (``time.process_time`` of this process, so worker
-counts flatter neither side) and their ratio, peak resident memory, and the agreement of the paired
-episodes (safety verdict, outcome, minimum distances, overtaking time;
-:func:`mcverify.bench.agreement.agreement`). The row is appended to
-``results/BENCHMARKS.md`` with the command and the machine.
-
-The engine's CPU is split by phase (:class:`mcverify.episode.rollout.PhaseClock`): the solver (summed from
-the episodes' solve times), the rest of the host controller, and the JAX plant; the plant's
-host-device transfers are timed apart by :func:`plant_transfer_ms` on the same batch. There are no
-host callbacks: the solver runs on the host between two jitted calls, not inside XLA.
+Reported: episodes per CPU-minute of each side over the mix (``time.process_time`` of this process,
+so worker counts flatter no side; every cell has the same number of episodes on a side, so this is
+the mix's mean) and the ratios, the CPU per episode split by solve class
+(:mod:`mcverify.bench.solve_classes`) and by cell, the peak resident memory, and the agreement of the
+paired episodes (:func:`mcverify.bench.agreement.agreement`). The engine's CPU is also split by phase
+(:class:`mcverify.episode.rollout.PhaseClock`): the host controllers, the JAX plant, the rest. The
+figures are appended to ``results/BENCHMARKS.md`` (:mod:`mcverify.bench.engine_report`).
 """
 
 from __future__ import annotations
@@ -29,8 +29,9 @@ import resource
 import shlex
 import sys
 import time
+from collections import Counter
+from collections.abc import Callable
 from datetime import datetime, timezone
-from pathlib import Path
 from typing import Any
 
 import jax
@@ -38,31 +39,44 @@ import numpy as np
 
 from mcverify import provenance
 from mcverify.bench.agreement import agreement
-from mcverify.bench.naive import run_naive
-from mcverify.campaign import executors
-from mcverify.campaign.spec import load_campaign
+from mcverify.bench.ipopt_loop import ipopt_loop_planner
+from mcverify.bench.naive import naive_planner
+from mcverify.bench.solve_classes import ClassTally, TimedSolver
+from mcverify.campaign.spec import apply_overrides, load_campaign
 from mcverify.cell import Cell
+from mcverify.control.planner import Planner
 from mcverify.episode.rollout import PhaseClock, episode_key, run_episodes
 from mcverify.sim.plant import LaneGroups, initial_plant
+from mcverify.solver.mpc import MpcSolver
 
 DEFAULT_CAMPAIGN = "campaigns/table4_fixed_start.toml"
-DEFAULT_CELL = "scenario=B,method=VL-CBF eps=0.3"
-BENCHMARKS_MD = Path("results/BENCHMARKS.md")
-#: Columns compared between paired episodes (besides the safety verdict).
+ALL_CELLS = "all"
+#: Columns compared between paired episodes (besides the safety verdict and the outcome).
 PAIRED_VALUES = ("min_dist_front_m", "min_gap_opp_m", "overtake_time_s")
+#: Side names, in report order: the engine, the fair baseline, the paper-style loop.
+SIDES = ("engine", "baseline", "naive")
 
 
 @dataclasses.dataclass
 class SideResult:
+    """One side's episodes over the mix: rows, CPU and wall seconds, engine phases, solve classes,
+    and per cell ``[episodes, cpu_s]``."""
+
     name: str
     rows: list[dict]
     cpu_s: float
     wall_s: float
     phases: dict[str, float] = dataclasses.field(default_factory=dict)
+    classes: ClassTally = dataclasses.field(default_factory=ClassTally)
+    per_cell: dict[str, list[float]] = dataclasses.field(default_factory=dict)
 
     @property
     def episodes_per_cpu_min(self) -> float:
         return 60.0 * len(self.rows) / self.cpu_s if self.cpu_s > 0 else math.nan
+
+    @property
+    def cpu_s_per_episode(self) -> float:
+        return self.cpu_s / len(self.rows) if self.rows else math.nan
 
     @property
     def solves(self) -> int:
@@ -71,6 +85,13 @@ class SideResult:
     @property
     def cpu_ms_per_solve(self) -> float:
         return 1e3 * self.cpu_s / self.solves if self.solves else math.nan
+
+    def add(self, cell: str, rows: list[dict], cpu_s: float, wall_s: float) -> None:
+        self.rows.extend(rows)
+        self.cpu_s += cpu_s
+        self.wall_s += wall_s
+        n, c = self.per_cell.get(cell, [0, 0.0])
+        self.per_cell[cell] = [n + len(rows), c + cpu_s]
 
 
 def _timed(name: str, fn) -> SideResult:
@@ -121,14 +142,14 @@ def plant_transfer_ms(cell: Cell, batch: int, seed: int, reps: int = 200) -> dic
     return {"compute_ms": 1e3 * compute / reps, "transfer_ms": 1e3 * transfer / reps, "batch": float(batch)}
 
 
-def pick_cell(campaign_path: str, cell_name: str, backend: str | None) -> tuple[Cell, int, bool]:
+def pick_cells(campaign_path: str, cell_name: str, backend: str | None) -> tuple[list[Cell], int, bool]:
+    """The cells to run (``cell_name`` or every cell for ``"all"``), with ``backend`` applied."""
     camp = load_campaign(campaign_path)
-    cell = camp.cell(cell_name)
+    cells = list(camp.cells) if cell_name == ALL_CELLS else [camp.cell(cell_name)]
     if backend is not None:
-        from mcverify.campaign.spec import apply_overrides
-
-        cell = dataclasses.replace(cell, params=apply_overrides(cell.params, {"mpc.backend": backend}, "--backend"))
-    return cell, camp.seed, camp.common_random_numbers
+        cells = [dataclasses.replace(c, params=apply_overrides(c.params, {"mpc.backend": backend}, "--backend"))
+                 for c in cells]
+    return cells, camp.seed, camp.common_random_numbers
 
 
 def machine() -> str:
@@ -136,124 +157,123 @@ def machine() -> str:
     return f"{provenance.cpu_model()}, {os.cpu_count()} logical cores, Python {platform.python_version()}"
 
 
+def _planners(params, tallies: dict[str, ClassTally], sides: list[str]) -> dict[str, Planner]:
+    """The planners of ``sides`` for one cell, every solver timed into its side's tally."""
+    def timed(side: str) -> Callable:
+        return lambda s: TimedSolver(s, tallies[side])
+
+    make = {
+        "engine": lambda: Planner(params, solver_factory=lambda p, st: timed("engine")(MpcSolver(p, st))),
+        "baseline": lambda: ipopt_loop_planner(params, wrap=timed("baseline")),
+        "naive": lambda: naive_planner(params, wrap=timed("naive")),
+    }
+    return {s: make[s]() for s in sides}
+
+
+def ipm_attempts(planner: Planner) -> tuple[Counter, Counter]:
+    """The IPM attempt outcomes (``warm1:Converged``, ...) counted by the engine planner's backends,
+    and their CPU seconds (empty for a backend without IPM)."""
+    count: Counter = Counter()
+    cpu_s: Counter = Counter()
+    for s in (planner.plain, getattr(planner, "with_opp", None)):
+        backend = getattr(getattr(s, "solver", s), "backend", None)
+        count.update(getattr(backend, "ipm_outcomes", {}))
+        cpu_s.update(getattr(backend, "ipm_cpu_s", {}))
+    return count, cpu_s
+
+
+def _run_side(side: str, cell: Cell, ids: list[int], seed: int, planner: Planner, crn: bool,
+              clock: PhaseClock) -> SideResult:
+    """One side's episodes of one cell, timed: the engine as one batch (its phases into ``clock``),
+    the loops one episode after the other, as their users would run them."""
+    if side == "engine":
+        return _timed(side, lambda: run_episodes(cell, ids, seed, planner, common_random_numbers=crn,
+                                                 clock=clock).rows)
+    return _timed(side, lambda: [row for e in ids for row in run_episodes(
+        cell, [e], seed, planner, common_random_numbers=crn).rows])
+
+
 def run(
     *,
     campaign: str = DEFAULT_CAMPAIGN,
-    cell_name: str = DEFAULT_CELL,
-    naive_episodes: int = 1,
-    engine_episodes: int = 4,
+    cell_name: str = ALL_CELLS,
+    engine_episodes: int = 2,
+    baseline_episodes: int = 2,
+    naive_episodes: int = 0,
     backend: str | None = None,
     write: bool = True,
     progress=print,
 ) -> dict[str, Any]:
-    """Run both sides and return the figures (and append them to results/BENCHMARKS.md)."""
-    if naive_episodes < 1 or engine_episodes < naive_episodes:
-        raise ValueError("need naive_episodes >= 1 and engine_episodes >= naive_episodes (the naive ones are paired)")
-    cell, seed, crn = pick_cell(campaign, cell_name, backend)
-    ids = list(range(engine_episodes))
-    progress(f"bench: {campaign} [{cell.name}], backend {cell.params.mpc.backend}; "
-             f"engine {engine_episodes} episodes, naive {naive_episodes} (paired: the first {naive_episodes})")
-    # One-off costs, outside both clocks and reported apart: loading (or compiling) the solver kernels
-    # and XLA's compilation of the plant - a one-step episode triggers both, once per process.
-    cpu0 = time.process_time()
-    planner = executors.solver_for(cell.params)
-    sim = dataclasses.replace(cell.params.sim, max_time_s=cell.params.sim.control_period_s)
-    warm_cell = dataclasses.replace(cell, params=dataclasses.replace(cell.params, sim=sim))
-    run_episodes(warm_cell, [0], seed, executors.solver_for(warm_cell.params), common_random_numbers=crn)
-    setup_cpu_s = time.process_time() - cpu0
-    progress(f"  one-off set-up (kernel load, XLA compile of the plant): {setup_cpu_s:.1f} CPU-s, not counted")
-    clock = PhaseClock()
-    engine = _timed("engine", lambda: run_episodes(cell, ids, seed, planner, common_random_numbers=crn,
-                                                   clock=clock).rows)
+    """Run the sides on every chosen cell and return the figures (and append them to results/BENCHMARKS.md).
+
+    Per cell, the engine runs episodes 0 .. engine_episodes - 1, the baseline and the naive loop the
+    first ``baseline_episodes`` / ``naive_episodes`` of them (paired; 0 skips a side's episodes).
+    """
+    if engine_episodes < 1 or not 0 <= min(baseline_episodes, naive_episodes) <= max(
+            baseline_episodes, naive_episodes) <= engine_episodes:
+        raise ValueError("need engine_episodes >= 1 and 0 <= baseline_episodes, naive_episodes <= engine_episodes "
+                         "(their episodes are paired with the engine's)")
+    cells, seed, crn = pick_cells(campaign, cell_name, backend)
+    counts = {"engine": engine_episodes, "baseline": baseline_episodes, "naive": naive_episodes}
+    progress(f"bench: {campaign}, {len(cells)} cell(s); episodes per cell: engine {engine_episodes}, "
+             f"compiled IPOPT loop {baseline_episodes}, naive {naive_episodes} (paired: the first ones)")
+    sides = {s: SideResult(s, [], 0.0, 0.0) for s in SIDES}
+    tallies = {s: sides[s].classes for s in SIDES}
+    clock, outcomes, attempt_cpu, setup_cpu_s = PhaseClock(), Counter(), Counter(), 0.0
+    active = [s for s in SIDES if counts[s]]
+    for cell in cells:
+        # One-off costs, outside every clock: building/loading the solvers (kernel load, nlpsol set-up)
+        # and XLA's compilation of the plant - a one-step episode of each side triggers them.
+        saved = {s: (Counter(t.count), Counter(t.cpu_s)) for s, t in tallies.items()}
+        cpu0 = time.process_time()
+        planners = _planners(cell.params, tallies, active)
+        sim = dataclasses.replace(cell.params.sim, max_time_s=cell.params.sim.control_period_s)
+        warm_cell = dataclasses.replace(cell, params=dataclasses.replace(cell.params, sim=sim))
+        for s in active:
+            run_episodes(warm_cell, [0], seed, planners[s], common_random_numbers=crn)
+        setup_cpu_s += time.process_time() - cpu0
+        warm_attempts = ipm_attempts(planners["engine"])
+        for s, (count, cpu) in saved.items():  # the warm-up's solves are not counted either
+            tallies[s].count, tallies[s].cpu_s = count, cpu
+        progress(f"  cell {cell.name}")
+        for s in active:
+            ids = list(range(counts[s]))
+            r = _run_side(s, cell, ids, seed, planners[s], crn, clock)
+            if s == "engine":  # the backends' counters include the warm-up step: subtract it
+                count, cpu = ipm_attempts(planners[s])
+                outcomes.update(count - warm_attempts[0]), attempt_cpu.update(cpu - warm_attempts[1])
+            sides[s].add(cell.name, r.rows, r.cpu_s, r.wall_s)
+            progress(f"    {s}: {r.cpu_s / len(r.rows):.1f} CPU-s per episode")
+    engine = sides["engine"]
     engine.phases = engine_phases(engine.rows, clock, engine.cpu_s)
-    progress(f"  engine: {engine.cpu_s:.1f} CPU-s, {engine.episodes_per_cpu_min:.3g} episodes per CPU-minute")
-    transfer = plant_transfer_ms(cell, engine_episodes, seed)
-    naive = _timed("naive", lambda: run_naive(cell, ids[:naive_episodes], seed, common_random_numbers=crn))
-    progress(f"  naive:  {naive.cpu_s:.1f} CPU-s, {naive.episodes_per_cpu_min:.3g} episodes per CPU-minute")
-    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     result = {
         "campaign": campaign,
-        "cell": cell.name,
-        "backend": cell.params.mpc.backend,
-        "engine": engine,
-        "naive": naive,
-        "ratio": engine.episodes_per_cpu_min / naive.episodes_per_cpu_min,
-        "peak_rss_mb": peak_mb,
+        "cells": [c.name for c in cells],
+        "backend": ",".join(sorted({c.params.mpc.backend for c in cells})),
+        "sides": {s: sides[s] for s in active},
+        "ratios": {s: engine.episodes_per_cpu_min / sides[s].episodes_per_cpu_min
+                   for s in ("baseline", "naive") if counts[s]},
+        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
         "setup_cpu_s": setup_cpu_s,
-        "plant_transfer": transfer,
-        "agreement": agreement(naive.rows, engine.rows, key="cell_episode", values=PAIRED_VALUES),
+        "plant_transfer": plant_transfer_ms(cells[0], engine_episodes, seed),
+        "agreement": {s: agreement(sides[s].rows, engine.rows, key="episode_id", values=PAIRED_VALUES)
+                      for s in ("baseline", "naive") if counts[s]},
+        "ipm_attempts": {k: {"attempts": n, "cpu_s": attempt_cpu[k]} for k, n in outcomes.most_common()},
         "machine": machine(),
+        "load_average": _load(),
         "command": "mcverify " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["bench"]
         else "mcverify bench",
         "date": datetime.now(timezone.utc).strftime("%Y-%m-%d"),
     }
     if write:
+        from mcverify.bench.engine_report import append_markdown
+
         append_markdown(result)
     return result
 
 
-def render(result: dict[str, Any]) -> str:
-    e, n, ag = result["engine"], result["naive"], result["agreement"]
-    lines = [
-        f"bench on {result['machine']}",
-        f"  cell: {result['campaign']} [{result['cell']}], engine backend {result['backend']}",
-        f"  naive : {len(n.rows)} episodes, {n.cpu_s:.1f} CPU-s, {n.cpu_ms_per_solve:.1f} CPU-ms per solve, "
-        f"{n.episodes_per_cpu_min:.3g} episodes per CPU-minute",
-        f"  engine: {len(e.rows)} episodes, {e.cpu_s:.1f} CPU-s, {e.cpu_ms_per_solve:.1f} CPU-ms per solve, "
-        f"{e.episodes_per_cpu_min:.3g} episodes per CPU-minute",
-        f"  engine / naive: {result['ratio']:.1f}x episodes per CPU-minute",
-        f"  peak memory: {result['peak_rss_mb']:.0f} MB; one-off set-up {result['setup_cpu_s']:.1f} CPU-s "
-        "(kernel load, XLA compile; counted on neither side)",
-        *phase_lines(e, result.get("plant_transfer")),
-        f"  agreement on {ag['paired']} paired episodes: safety verdict {ag['safe_agree']}/{ag['paired']}, outcome "
-        f"{ag['outcome_agree']}/{ag['paired']}; largest differences: "
-        + ", ".join(f"{c} {ag[f'{c}_absdiff_max']:.3g}" for c in PAIRED_VALUES),
-    ]
-    unsafe = [d["cell_episode"] for d in ag["disagreements"] if d["safe_ref"] != d["safe_new"]]
-    if unsafe:
-        lines.append(f"  safety verdicts differ for episodes {unsafe}")
-    return "\n".join(lines)
-
-
-def phase_lines(engine: SideResult, transfer: dict[str, float] | None) -> list[str]:
-    """Where the engine's CPU went, per episode and per control step of the batch."""
-    ph = engine.phases
-    if not ph or not engine.rows:
-        return []
-    n, steps = len(engine.rows), max(ph["control_steps"], 1.0)
-    parts = ", ".join(f"{k} {ph[k] / n:.2f} s ({100 * ph[k] / engine.cpu_s:.0f}%)"
-                      for k in ("planner", "plant", "other"))
-    lines = [f"  engine CPU per episode: {parts}; the solves' own clock: {ph['solver_wall'] / n:.2f} s wall "
-             "(the solver's share of the planner on an idle machine)",
-             f"  JAX plant: {1e3 * ph['plant'] / steps:.2f} CPU-ms per control step of the {n}-episode batch "
-             "(observe + advance, transfers included); no host callbacks (the solver runs between jitted calls)"]
-    if transfer:
-        lines.append(f"  of which device-to-host copies: {transfer['transfer_ms']:.3f} ms against "
-                     f"{transfer['compute_ms']:.3f} ms of dispatch and XLA compute per control step "
-                     f"(isolated, {int(transfer['batch'])} episodes, 200 steps)")
-    return lines
-
-
-def append_markdown(result: dict[str, Any], path: Path = BENCHMARKS_MD) -> None:
-    e, n, ag = result["engine"], result["naive"], result["agreement"]
-    header = (
-        "| date | command | machine | cell | backend | naive ep/CPU-min | engine ep/CPU-min | ratio | "
-        "naive CPU-ms/solve | engine CPU-ms/solve | peak MB | paired safety agreement |\n"
-        "|---|---|---|---|---|---|---|---|---|---|---|---|\n"
-    )
-    row = (
-        f"| {result['date']} | `{result['command']}` | {result['machine']} | {result['cell']} | {result['backend']} | "
-        f"{n.episodes_per_cpu_min:.3g} | {e.episodes_per_cpu_min:.3g} | {result['ratio']:.1f}x | "
-        f"{n.cpu_ms_per_solve:.1f} | {e.cpu_ms_per_solve:.1f} | {result['peak_rss_mb']:.0f} | "
-        f"{ag['safe_agree']}/{ag['paired']} |\n"
-    )
-    path.parent.mkdir(parents=True, exist_ok=True)
-    text = path.read_text() if path.exists() else "# Benchmarks\n"
-    marker = "## mcverify bench (engine vs naive reference)\n\n"
-    if marker not in text:
-        text = text.rstrip("\n") + "\n\n" + marker + header
-    # insert after the last row of this section's table (other sections may follow it)
-    start = text.index(marker) + len(marker)
-    end = text.find("\n\n", start)
-    end = len(text) if end < 0 else end + 1
-    path.write_text(text[:end] + row + text[end:])
+def _load() -> list[float] | None:
+    try:
+        return [round(v, 2) for v in os.getloadavg()]
+    except OSError:
+        return None

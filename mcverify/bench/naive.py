@@ -98,8 +98,9 @@ class NaiveOptiSolver:
         return self.layout.pack(plan.x_plan, plan.u_plan, plan.dt_plan, xo)
 
 
-def naive_planner(params: ModelParams) -> Planner:
-    return Planner(params, solver_factory=NaiveOptiSolver)
+def naive_planner(params: ModelParams, wrap=None) -> Planner:
+    """A planner on :class:`NaiveOptiSolver`; ``wrap(solver)`` (e.g. a per-solve timer) is applied to each."""
+    return Planner(params, solver_factory=lambda p, st: (wrap or (lambda s: s))(NaiveOptiSolver(p, st)))
 
 
 def run_naive(cell: Cell, episode_ids: Sequence[int], seed: int, *, common_random_numbers: bool = False) -> list[dict]:

@@ -12,34 +12,68 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
+import os
+import re
 from collections.abc import Callable
 from datetime import datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from tqdm.auto import tqdm
 
 from mcverify import provenance, store
-from mcverify.campaign import executors
+from mcverify.campaign import executors, lint
 from mcverify.campaign.executors import ChunkOutput, EpisodeFn, Executor
 from mcverify.campaign.spec import Campaign, CampaignError, campaign_from_dict
 from mcverify.episode.recording import EpisodeRecording
 from mcverify.errors import RunError
 from mcverify.reporting import run_report
 
+log = logging.getLogger(__name__)
+
 #: Episodes per chunk when the command line does not say.
 DEFAULT_CHUNK_SIZE = 8
 
 
-def default_run_dir(campaign: Campaign, results_dir: Path = Path("results")) -> Path:
+#: Environment variable naming the folder new runs go to when neither --out nor --run-dir is given.
+ENV_RESULTS_DIR = "MCVERIFY_RESULTS"
+#: Longest run-folder name taken from a campaign name (characters, before the timestamp).
+MAX_FOLDER_NAME = 80
+_UNSAFE_CHARS = re.compile(r"[^A-Za-z0-9._=,+-]+")
+
+
+def default_results_dir() -> Path:
+    """Where new run folders go by default: ``$MCVERIFY_RESULTS`` if set, else ``results`` under the
+    current working directory."""
+    env = os.environ.get(ENV_RESULTS_DIR, "").strip()
+    return Path(env) if env else Path("results")
+
+
+def folder_name(name: str) -> str:
+    """A campaign name made safe as one folder name: every run of characters other than letters,
+    digits and ``. _ = , + -`` (path separators included) becomes ``_``, leading dots and
+    underscores are dropped (no ``..``, no hidden folder), and the result is at most
+    :data:`MAX_FOLDER_NAME` characters (``campaign`` if nothing is left)."""
+    slug = _UNSAFE_CHARS.sub("_", name).lstrip("._")[:MAX_FOLDER_NAME].rstrip("._")
+    return slug or "campaign"
+
+
+def default_run_dir(campaign: Campaign, results_dir: Path | None = None) -> Path:
     """A new folder ``results_dir/<name>-<timestamp>`` that does not exist yet (``-2``, ``-3``, ...
-    are appended when runs start within the same second, or a failed try left its folder)."""
+    are appended when runs start within the same second, or a failed try left its folder).
+
+    ``results_dir`` defaults to :func:`default_results_dir`; the campaign name goes through
+    :func:`folder_name`, so the folder is always a direct child of ``results_dir``."""
+    results_dir = Path(results_dir) if results_dir is not None else default_results_dir()
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-    base = results_dir / f"{campaign.name}-{stamp}"
+    base = results_dir / f"{folder_name(campaign.name)}-{stamp}"
     path, n = base, 1
     while path.exists():
         n += 1
         path = base.with_name(f"{base.name}-{n}")
+    if path.parent != results_dir:  # cannot happen with folder_name; a guard, not a feature
+        raise RunError(f"campaign name {campaign.name!r} does not give a folder inside {results_dir}")
     return path
 
 
@@ -146,6 +180,15 @@ def first_difference(a: Any, b: Any, path: str = "") -> str | None:
 # ---------------------------------------------------------------------------------- run/resume
 
 
+class Stopper(Protocol):
+    """Sequential stopping of a run (``mcverify estimate``): told every finished chunk's rows (those
+    already on disk first, when resuming), asked before a chunk starts whether it is still needed."""
+
+    def observe(self, chunk: store.Chunk, rows: list[dict[str, Any]]) -> None: ...
+
+    def skip(self, chunk: store.Chunk) -> bool: ...
+
+
 def run(
     campaign: Campaign,
     run_dir: Path,
@@ -157,6 +200,8 @@ def run(
     record_first: bool = True,
     on_chunk: Callable[[store.ChunkRecord], None] | None = None,
     on_start: Callable[[int, int], None] | None = None,
+    stopper: Stopper | None = None,
+    manifest_extra: dict[str, Any] | None = None,
 ) -> Path:
     """Run ``campaign`` into a new folder ``run_dir``; returns the report path.
 
@@ -164,7 +209,9 @@ def run(
     episode simulation (tests inject cheap ones); record_first: write the trajectory of every
     cell's first episode to ``trajectories/``; on_chunk: called with each ledger record, after the
     chunk is safely on disk; on_start: called with (chunks planned, chunks already done) once every
-    check has passed and the executor is up, just before the first chunk runs.
+    check has passed and the executor is up, just before the first chunk runs; stopper: skips the
+    chunks of cells already decided (only the chunks that ran are merged); manifest_extra: entries
+    added to the manifest (the estimate's specification).
     """
     run_dir = Path(run_dir)
     if chunk_size < 1:
@@ -178,11 +225,12 @@ def run(
         kernels = _prepare_kernels(campaign, episode_fn)
         run_dir.mkdir(parents=True, exist_ok=True)
         with store.run_lock(run_dir):
-            manifest = manifest_for(campaign, chunk_size, kernels)
+            manifest = {**manifest_for(campaign, chunk_size, kernels), **(manifest_extra or {})}
             manifest["sessions"].append(_session(executor, resumed=False))
             store.write_json_atomic(run_dir / store.MANIFEST, manifest)
             return _execute(
-                campaign, run_dir, chunk_size, executor, progress, episode_fn, record_first, on_chunk, on_start
+                campaign, run_dir, chunk_size, executor, progress, episode_fn, record_first, on_chunk, on_start,
+                stopper,
             )
 
 
@@ -197,6 +245,7 @@ def resume(
     record_first: bool = True,
     on_chunk: Callable[[store.ChunkRecord], None] | None = None,
     on_start: Callable[[int, int], None] | None = None,
+    stopper: Stopper | None = None,
 ) -> Path:
     """Finish an interrupted run in ``run_dir``: only chunks that are not done are run.
 
@@ -255,7 +304,8 @@ def resume(
             manifest["sessions"] = [*manifest.get("sessions", []), _session(executor, resumed=True)]
             store.write_json_atomic(run_dir / store.MANIFEST, manifest)
             return _execute(
-                rebuilt, run_dir, planned, executor, progress, episode_fn, record_first, on_chunk, on_start
+                rebuilt, run_dir, planned, executor, progress, episode_fn, record_first, on_chunk, on_start,
+                stopper,
             )
 
 
@@ -269,14 +319,27 @@ def _execute(
     record_first: bool,
     on_chunk: Callable[[store.ChunkRecord], None] | None,
     on_start: Callable[[int, int], None] | None = None,
+    stopper: Stopper | None = None,
 ) -> Path:
     chunks = store.plan_chunks([c.episodes for c in campaign.cells], chunk_size)
     done = store.done_chunks(run_dir, chunks)
+    if stopper is not None:  # resume from the stored rows, in plan order
+        for c in chunks:
+            if c.name in done:
+                table = store.read_chunk(run_dir, c)
+                stopper.observe(c, table.to_pylist() if table is not None else [])
     todo = [c for c in chunks if c.name not in done]
     if on_start is not None:
         on_start(len(chunks), len(done))
+    if todo:  # after every check: an error stays one line
+        for warning in lint.warnings(campaign):
+            log.warning("warning: %s", warning)
     done_episodes = sum(len(c.episode_ids) for c in chunks if c.name in done)
     record = [(c.index, 0) for c in campaign.cells if c.episodes > 0] if record_first else []
+    if todo and episode_fn is executors.simulate:
+        log.info("starting %s: each worker imports JAX and CasADi, loads the solver and compiles the plant once "
+                 "(tens of seconds) before its first chunk; the bar moves as chunks of up to %d episodes finish",
+                 ", ".join(f"{k} {v}" for k, v in executor.describe().items() if v is not None), chunk_size)
     bar = tqdm(
         total=campaign.total_episodes,
         initial=done_episodes,
@@ -286,9 +349,10 @@ def _execute(
         dynamic_ncols=True,
     )
     errors = 0
+    unsafe = _unsafe_in(run_dir, [c for c in chunks if c.name in done])
 
     def on_done(chunk: store.Chunk, output: ChunkOutput) -> None:
-        nonlocal errors
+        nonlocal errors, unsafe
         cell = campaign.cells[chunk.cell_index]
         # Recordings first: a chunk in the ledger implies its trajectories are on disk.
         for episode, recording in output.recordings.items():
@@ -297,20 +361,36 @@ def _execute(
         store.append_record(run_dir, rec)
         errors += rec.errors
         bar.update(rec.rows)
-        unsafe = sum(r.get("safe") is False for r in output.rows)
-        if unsafe or errors:
-            bar.set_postfix_str(f"unsafe in last chunk: {unsafe}, error episodes: {errors}")
+        unsafe += sum(r.get("safe") is False for r in output.rows)
+        bar.set_postfix_str(f"unsafe {unsafe}" + (f", error episodes {errors}" if errors else ""))
         if on_chunk is not None:
             on_chunk(rec)
+        if stopper is not None:
+            stopper.observe(chunk, output.rows)
 
     with bar:
-        executors.execute(campaign, todo, on_done, executor=executor, episode_fn=episode_fn, record=record)
+        executors.execute(campaign, todo, on_done, executor=executor, episode_fn=episode_fn, record=record,
+                          skip=stopper.skip if stopper is not None else None)
+    if stopper is not None:  # the chunks of decided cells never ran: merge those that did
+        ran = store.done_chunks(run_dir, chunks)
+        chunks = [c for c in chunks if c.name in ran]
+    log.info("merging %d chunks into %s and writing the report", len(chunks), store.EPISODES)
     store.merge_chunks(run_dir, chunks)
     path = run_report.write(run_dir)
     manifest = store.read_json(run_dir / store.MANIFEST)
     manifest["finished_utc"] = provenance.now_utc()
     store.write_json_atomic(run_dir / store.MANIFEST, manifest)
     return path
+
+
+def _unsafe_in(run_dir: Path, chunks: list[store.Chunk]) -> int:
+    """Unsafe episodes in chunks already on disk (a resumed run's count starts from them)."""
+    count = 0
+    for chunk in chunks:
+        table = store.read_chunk(run_dir, chunk, columns=["cell_episode", "cell_index", "safe"])
+        if table is not None:
+            count += sum(v is False for v in table.column("safe").to_pylist())
+    return count
 
 
 def _write_recording(run_dir: Path, episode_id: int, recording: EpisodeRecording) -> None:

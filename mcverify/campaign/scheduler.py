@@ -112,13 +112,15 @@ def execute(
     episode_fn: EpisodeFn = simulate,
     record: Iterable[tuple[int, int]] = (),
     max_attempts: int = MAX_ATTEMPTS,
+    skip: Callable[[Chunk], bool] | None = None,
 ) -> None:
     """Run ``chunks`` on ``executor`` (default: in this process) and hand each finished one to
     ``on_done`` in this process, as soon as it is complete (results are streamed, never gathered).
 
     The caller enters and leaves ``executor`` (``with executor: execute(...)``), so that a Ray
     cluster is reached before anything is written. record: (cell_index, cell-local episode id)
-    pairs whose recordings are returned.
+    pairs whose recordings are returned. skip: asked for each chunk just before it is first
+    submitted; a chunk it accepts is dropped (sequential stopping: its cell is already decided).
     """
     if max_attempts < 1:
         raise ValueError(f"max_attempts must be >= 1, got {max_attempts}")
@@ -134,6 +136,9 @@ def execute(
             task = scheduler.next()
             if task is None:
                 break
+            if skip is not None and task.attempt == 1 and task.episode_ids == task.chunk.episode_ids \
+                    and skip(task.chunk):
+                continue
             rec = tuple(sorted(wanted.get(task.chunk.cell_index, set()) & set(task.episode_ids)))
             work = Work(
                 campaign.cells[task.chunk.cell_index], task.episode_ids, campaign.seed,

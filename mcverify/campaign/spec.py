@@ -109,7 +109,7 @@ def load_campaign(
     if not path.is_file():
         raise CampaignError(f"campaign file not found: {path}")
     try:
-        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+        raw = tomllib.loads(path.read_text(encoding="utf-8-sig"))  # -sig: a byte-order mark is not TOML
     except tomllib.TOMLDecodeError as err:
         raise CampaignError(f"{path}: malformed TOML: {err}") from None
     except UnicodeDecodeError:
@@ -123,7 +123,7 @@ def apply_settings(raw: Mapping[str, Any], settings: Sequence[str]) -> dict[str,
     """``raw`` (a campaign file's content) with ``"SECTION.FIELD=VALUE"`` settings written into its
     ``[model.SECTION]`` table; VALUE is read as a TOML value (``3``, ``0.5``, ``true``, ``[1, 2]``), else
     as a string (``ipopt``). The result is what a run records, so ``--resume`` rebuilds the same cells;
-    a setting overrides the file's common model but not a grid or axis value of the same field.
+    a setting of a field that the grid or an axis varies is refused (the cell's value would win).
     Unknown sections and fields are rejected by the validation that follows, like the file's own.
     """
     model = raw.get("model", {})
@@ -141,11 +141,31 @@ def apply_settings(raw: Mapping[str, Any], settings: Sequence[str]) -> dict[str,
             value = tomllib.loads(f"v = {text.strip()}")["v"]
         except tomllib.TOMLDecodeError:
             value = text.strip()
+        _refuse_varied_field(raw, f"{section}.{name}", item)
         table = out["model"].setdefault(section, {})
         if not isinstance(table, dict):
             raise CampaignError(f"--set {item!r}: model.{section} is not a table in the campaign file")
         table[name] = value
     return out
+
+
+def _refuse_varied_field(raw: Mapping[str, Any], key: str, item: str) -> None:
+    """A ``--set`` of a field that the file's grid or an axis varies would be silently overridden per
+    cell (a cell's own value wins); refuse it with one line instead. Unit aliases count as their field."""
+    def field_of(k: str) -> str:
+        return UNIT_ALIASES[k][0] if k in UNIT_ALIASES else k
+
+    target = field_of(key)
+    grid = raw.get("grid", {})
+    if isinstance(grid, Mapping) and any(field_of(str(k)) == target for k in grid):
+        raise CampaignError(f"--set {item!r}: {key} is a grid axis of the campaign ([grid]), so every cell sets it "
+                            "itself; change the [grid] list in the file instead")
+    axes = raw.get("axes", {})
+    for axis, labels in (axes.items() if isinstance(axes, Mapping) else ()):
+        for label, bundle in (labels.items() if isinstance(labels, Mapping) else ()):
+            if isinstance(bundle, Mapping) and any(field_of(str(k)) == target for k in bundle):
+                raise CampaignError(f"--set {item!r}: {key} is set by the campaign's axis {axis!r} "
+                                    f"([axes.{axis}.{label}]), which wins in its cells; change the axis in the file")
 
 
 def campaign_from_dict(

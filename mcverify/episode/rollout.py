@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
@@ -38,6 +38,7 @@ from mcverify.control.decision import Source
 from mcverify.control.planner import EpisodeState, Planner, StepRecord
 from mcverify.episode.recording import EpisodeRecording
 from mcverify.episode.row import EndState, Row, episode_row
+from mcverify.episode.snapshot import Branching
 from mcverify.sim.plant import LaneGroups, SafetyTrace, Substep, footprint_top_y_m, initial_plant
 
 Array = jax.Array
@@ -155,6 +156,8 @@ def run_episodes(
     record: bool | Sequence[int] = False,
     on_step: Callable[[int], None] | None = None,
     clock: PhaseClock | None = None,
+    branching: Branching | None = None,
+    scenarios: Mapping[int, Mapping[str, float]] | None = None,
 ) -> ChunkResult:
     """Simulate ``episode_ids`` (ids within the cell) of ``cell`` as one batch; one row per episode.
 
@@ -162,6 +165,10 @@ def run_episodes(
     step decisions and plan snapshots are returned as well.
     clock: where to add the CPU time of the loop's phases ("plant": JAX observe and advance with
     their host-device transfers; "planner": the host controllers, solver included), for ``bench``.
+    branching: for one episode only: start from a snapshot (with a branch's noise), take snapshots,
+    report the running score (:mod:`mcverify.episode.snapshot`); None leaves the loop as it is.
+    scenarios: episode id -> scenario values (keys of :func:`sample_scenario`) that replace the
+    episode's own draws (importance sampling over the scenario); the noise is unchanged.
     """
     phase = clock.phase if clock is not None else _untimed
     p = cell.params
@@ -169,6 +176,8 @@ def run_episodes(
     cell_key = None if common_random_numbers else cell.index
     keys = jnp.stack([episode_key(seed, cell_key, e) for e in ids])
     samples = [sample_scenario(k, p) for k in keys]
+    for b, e in enumerate(ids):
+        samples[b].update((scenarios or {}).get(e, {}))
     world = LaneGroups(initial_plant(p, [s["front_accel_mps2"] for s in samples],
                                      [s["opp_speed_mps"] for s in samples]), keys, p)
     h0 = world.trace().min_h_front.copy()
@@ -186,8 +195,19 @@ def run_episodes(
     u_last = np.zeros((len(ids), 2))  # the input each episode had applied last (lateral speed)
     settling: dict[int, _Settling] = {}  # lane -> its settling memory, while it settles
     ends: dict[int, EndState] = {}
+    first_step = 0
+    if branching is not None:
+        if len(ids) != 1:
+            raise ValueError(f"branching runs one episode at a time, got {len(ids)}")
+        if branching.start is not None:
+            if branching.start.episode_id != ids[0]:
+                raise ValueError(f"snapshot of episode {branching.start.episode_id} given for episode {ids[0]}")
+            states[0], entered_s[0], u_last[0], settle, end = branching.restore(world)
+            settling.update({0: settle} if settle is not None else {})
+            ends.update({0: end} if end is not None else {})
+        first_step = branching.first_step()
 
-    for step in range(n_steps):
+    for step in range(first_step, n_steps):
         t_s = step * p.sim.control_period_s
         with phase("plant"):
             ego = world.ego()
@@ -234,6 +254,8 @@ def run_episodes(
             rec.add(t_s, world.substeps_of(subs), u, records, front_meas, opp_meas, active)
         if on_step is not None:
             on_step(step)
+        if branching is not None:
+            branching.after_step(step, world, keys[0], states[0], entered_s[0], u_last[0], settling.get(0), ends.get(0))
     t_end = n_steps * p.sim.control_period_s
     ego = world.ego()
     for b, st in enumerate(states):

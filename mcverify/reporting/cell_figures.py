@@ -112,6 +112,54 @@ def rate_vs_axis(
     return save(fig, path)
 
 
+def estimate_vs_axis(
+    estimates: Sequence[Mapping[str, Any]],
+    x_values: Sequence[float],
+    groups: Sequence[str],
+    path: Path,
+    *,
+    level: float,
+    target: str,
+    x_label: str,
+) -> dict[str, int]:
+    """The estimated rate of ``target`` per cell (``summary.json`` ``estimates``, one per cell, in
+    cell order) against ``x_values``, one line per group, with its interval as error bars on a log
+    scale; a cell whose estimate is 0 shows its upper end as ▼ (a bound, not an estimate)."""
+    fig, ax = plt.subplots(figsize=inches(7, 4.4))
+    xs, gs = np.asarray(x_values, dtype=float), list(groups)
+    colours = plt.get_cmap("tab10")
+    lowest = 1.0
+    for gi, group in enumerate(dict.fromkeys(gs)):
+        idx = sorted((i for i, g in enumerate(gs) if g == group and estimates[i].get("n")), key=lambda i: xs[i])
+        if not idx:
+            continue
+        colour = colours(gi % 10)
+        pos = [i for i in idx if estimates[i]["k"] > 0]
+        if pos:
+            est = np.array([estimates[i]["estimate"] for i in pos])
+            low = np.array([max(estimates[i]["low"], 1e-12) for i in pos])
+            high = np.array([estimates[i]["high"] for i in pos])
+            ax.errorbar(xs[pos], est, yerr=[est - low, high - est], fmt="o-", color=colour, ms=4, lw=1.2,
+                        capsize=3, label=group or "all cells")
+            lowest = min(lowest, float(low.min()))
+        zero = [i for i in idx if estimates[i]["k"] == 0]
+        if zero:
+            ax.plot(xs[zero], [estimates[i]["high"] for i in zero], "v", color=colour, ms=6,
+                    label=None if pos else (group or "all cells"))
+            lowest = min(lowest, min(estimates[i]["high"] for i in zero))
+    if lowest >= 1.0:
+        raise ValueError("no cell has an estimate")
+    ax.set_yscale("log")
+    ax.set_ylim(bottom=lowest / 3)
+    ax.set_xlabel(x_label)
+    ax.set_ylabel(f"P({target}) with {level:.0%} interval")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8, loc="best")
+    ax.set_title(f"estimated P({target}); ▼: upper end where no event occurred", fontsize=9)
+    fig.tight_layout()
+    return save(fig, path)
+
+
 def rate_heatmap(
     cells: Sequence[Mapping[str, Any]],
     row_axis: str,

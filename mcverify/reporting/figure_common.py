@@ -11,9 +11,11 @@ The figure families: :mod:`mcverify.reporting.cell_figures` (campaign level, fro
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import dataclasses
 import math
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +33,16 @@ from mcverify.model import ModelParams  # noqa: E402
 DPI = 100
 #: PNG text chunks: none (matplotlib would write its version; Agg writes no date).
 PNG_METADATA: dict[str, Any] = {"Software": None}
+#: Extra file formats a report can write beside each PNG (``mcverify report --format``).
+EXPORT_FORMATS = ("png", "svg", "pdf")
+#: Metadata that keeps each format's bytes stable (no date, no software version).
+_EXPORT_METADATA: dict[str, dict[str, Any]] = {
+    "png": PNG_METADATA, "svg": {"Date": None, "Creator": None}, "pdf": {"CreationDate": None, "Creator": None,
+                                                                       "Producer": None},
+}
+#: The extra formats and their dpi for the figures drawn now (set by :func:`exporting`).
+_EXPORT: contextvars.ContextVar[tuple[tuple[str, ...], int]] = contextvars.ContextVar("export", default=((), DPI))
+
 #: Most panels in a small-multiples figure (one per cell); more cells skip the figure.
 MAX_PANELS = 48
 
@@ -103,14 +115,49 @@ def inches(width_in: float, height_in: float) -> tuple[float, float]:
     return tuple((round(x * DPI) + 0.5) / DPI for x in (width_in, height_in))  # type: ignore[return-value]
 
 
+@contextlib.contextmanager
+def exporting(formats: Sequence[str] = (), dpi: int = DPI) -> Iterator[None]:
+    """While active, :func:`save` also writes every figure in ``formats`` (png, svg, pdf) at ``dpi``,
+    beside the report's PNG: ``<key>.svg``, ``<key>.pdf``, or ``<key>-<dpi>dpi.png`` for a PNG at
+    another resolution. The report's own PNG stays at :data:`DPI` (what report.html embeds)."""
+    unknown = [f for f in formats if f not in EXPORT_FORMATS]
+    if unknown:
+        raise ValueError(f"unknown figure format {unknown[0]!r}; valid: {', '.join(EXPORT_FORMATS)}")
+    token = _EXPORT.set((tuple(dict.fromkeys(formats)), int(dpi)))
+    try:
+        yield
+    finally:
+        _EXPORT.reset(token)
+
+
+def export_paths(path: Path, formats: Sequence[str], dpi: int) -> list[Path]:
+    """The extra files :func:`save` writes for the PNG ``path`` (see :func:`exporting`)."""
+    path = Path(path)
+    out = []
+    for fmt in formats:
+        if fmt == "png":
+            if dpi != DPI:
+                out.append(path.with_name(f"{path.stem}-{dpi}dpi.png"))
+        else:
+            out.append(path.with_suffix(f".{fmt}"))
+    return out
+
+
 def save(fig: plt.Figure, path: Path) -> dict[str, int]:
-    """Write ``fig`` as PNG at :data:`DPI` with fixed metadata, close it, return its artist counts
-    and its size in pixels (``width_px``, ``height_px``, as the PNG has them)."""
+    """Write ``fig`` as PNG at :data:`DPI` with fixed metadata (and the formats of :func:`exporting`),
+    close it, return its artist counts and its size in pixels (``width_px``, ``height_px``, as the PNG
+    has them)."""
     counts = artist_counts(fig)
     counts["width_px"], counts["height_px"] = (int(x * DPI) for x in fig.get_size_inches())  # Agg truncates
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=DPI, format="png", metadata=PNG_METADATA)
+    formats, dpi = _EXPORT.get()
+    for extra in export_paths(path, formats, dpi):
+        fmt = extra.suffix[1:]
+        if fmt == "svg":
+            plt.rcParams["svg.hashsalt"] = "mcverify"  # fixed element ids: the same bytes every time
+        fig.savefig(extra, dpi=dpi, format=fmt, metadata=_EXPORT_METADATA[fmt])
     plt.close(fig)
     return counts
 

@@ -15,18 +15,22 @@ from mcverify.reporting.run_figures import FigureResult
 from mcverify.reporting.tables import Table, to_html
 
 _CSS = """
-body { font-family: system-ui, -apple-system, "Segoe UI", Roboto, sans-serif; margin: 2em auto; max-width: 1250px;
+body { font-family: system-ui, -apple-system, "Segoe UI", Roboto, sans-serif; margin: 2em auto; max-width: 1360px;
        padding: 0 1em; color: #222; line-height: 1.4; }
 h1 { font-size: 1.6em; } h2 { margin-top: 2em; border-bottom: 1px solid #ccc; } h3 { margin-top: 1.5em; }
 dl.facts { display: grid; grid-template-columns: max-content 1fr; gap: 0.2em 1em; }
 dl.facts dt { font-weight: bold; } dl.facts dd { margin: 0; }
 table { border-collapse: collapse; margin: 1em 0 0.3em; font-size: 0.86em; font-variant-numeric: tabular-nums; }
 caption { caption-side: top; text-align: left; font-weight: bold; padding-bottom: 0.4em; font-size: 1.1em; }
-th, td { padding: 0.25em 0.6em; border-bottom: 1px solid #e3e3e3; text-align: right; white-space: nowrap; }
+th, td { padding: 0.25em 0.5em; border-bottom: 1px solid #e3e3e3; text-align: right; }
+td { white-space: normal; overflow-wrap: anywhere; min-width: 4.5em; }  /* "k/n [low, high]" wraps at its spaces */
+tbody th { white-space: nowrap; }
+td.unsafe { background: #fbe3e1; color: #8a1c12; font-weight: 600; }
 thead th { border-bottom: 2px solid #555; vertical-align: bottom; white-space: normal; }
 tbody th { text-align: left; font-weight: normal; }
 tr.section th { text-align: left; font-style: italic; background: #f3f3f3; }
 tbody tr:hover { background: #fafae8; }
+tbody tr:hover td.unsafe { background: #f6cdc9; }
 .scroll { overflow-x: auto; }
 ul.notes { font-size: 0.85em; color: #444; margin-top: 0.2em; }
 figure { margin: 1.5em 0; } figure img { max-width: 100%; border: 1px solid #ddd; }

@@ -102,7 +102,7 @@ def write_figures(
     run_dir = Path(run_dir)
     out = run_dir / FIGURES_DIR
     out.mkdir(parents=True, exist_ok=True)
-    for old in sorted(out.glob("*.png")):
+    for old in sorted(out.glob("*.png")) + sorted(out.glob("*.svg")) + sorted(out.glob("*.pdf")):
         old.unlink()
     cells = summ["cells"]
     axes = summ["axes"]
@@ -142,6 +142,20 @@ def write_figures(
              f"two-sided {level:.0%} interval and ▼ marks the exact one-sided upper bound of a cell with no event.",
              cell_figures.rate_vs_axis, cells, x_axis, numeric_axes(cells, axes)[x_axis], groups, metrics,
              level=level, x_label=x_label)
+
+    est = summ.get("estimates")
+    if x_axis and est:  # a run of `mcverify estimate`: its estimates against the sweep axis
+        spec = est["spec"]
+        x_label = {"epsilon": "level ε of the VL-CBF", "lambda0": "λ₀"}.get(x_axis, x_axis)
+        by_index = {e["cell_index"]: e for e in est["cells"]}
+        others = [a for a in axes if a != x_axis]
+        groups = [", ".join(pretty_label(a, c["labels"].get(a, "")) for a in others) for c in cells]
+        draw(f"estimate-vs-{x_axis}", f"Estimated {spec['target']} probability against {x_label}",
+             f"{est['method_description']}; the bars are the anytime-valid {spec['level']:.0%} interval at the "
+             "stopping episode (log scale), ▼ the interval's upper end where no event occurred.",
+             cell_figures.estimate_vs_axis, [by_index.get(c["cell_index"], {}) for c in cells],
+             numeric_axes(cells, axes)[x_axis], groups, level=float(spec["level"]), target=spec["target"],
+             x_label=x_label)
 
     if len(axes) == 2:
         a, b = list(axes)

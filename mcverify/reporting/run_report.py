@@ -31,10 +31,10 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from mcverify import store
-from mcverify.analysis import counterexamples, stats, summary
+from mcverify.analysis import counterexamples, estimates, stats, summary
 from mcverify.analysis.cells import cells_table, json_ready
 from mcverify.errors import RunError
-from mcverify.reporting import counterexample_report, html, paper_tables, run_figures
+from mcverify.reporting import counterexample_report, figure_common, html, paper_tables, run_figures
 from mcverify.reporting.check_tables import (
     end_state_table,
     findings_table,
@@ -92,8 +92,13 @@ def write(
     method: str = "clopper-pearson",
     bootstrap_resamples: int = 2000,
     bootstrap_seed: int = 0,
+    figure_formats: Sequence[str] = (),
+    figure_dpi: int = figure_common.DPI,
 ) -> Path:
     """Regenerate every report file of a finished run folder; returns the path of ``report.md``.
+
+    figure_formats / figure_dpi: also write every figure as png, svg or pdf at that dpi, for papers
+    (:func:`mcverify.reporting.figure_common.exporting`); the PNGs the report embeds do not change.
 
     Raises :class:`RunError` (one line for the user) when the folder is not a run folder or
     an option is out of range."""
@@ -105,11 +110,15 @@ def write(
     table = store.read_episodes(run_dir)
     summ = build_summary(manifest, table, opts)
     tables = report_tables(summ, manifest)
-    figs = run_figures.write_figures(run_dir, summ, table, manifest)
+    if not 10 <= figure_dpi <= 1200:
+        raise RunError(f"--dpi must be between 10 and 1200, got {figure_dpi}")
+    with figure_common.exporting(figure_formats, figure_dpi):
+        figs = run_figures.write_figures(run_dir, summ, table, manifest)
     # Counterexamples (issue 19.4): every unsafe episode, worst first, with its replay command.
     cx_records = counterexamples.counterexamples(table, manifest, str(run_dir))
     tables.append(counterexample_report.table(cx_records, "safe", table.num_rows))
-    figs = [*figs, *counterexample_report.figures(run_dir, cx_records, manifest)]
+    with figure_common.exporting(figure_formats, figure_dpi):
+        figs = [*figs, *counterexample_report.figures(run_dir, cx_records, manifest)]
     _write_parquet(run_dir / counterexample_report.FILE, counterexamples.to_arrow(cx_records))
 
     store.write_json_atomic(run_dir / SUMMARY, json_ready(summ))
@@ -137,7 +146,11 @@ def build_summary(manifest: Mapping[str, Any], table: pa.Table, opts: Options = 
         bootstrap_resamples=opts.bootstrap_resamples,
         bootstrap_seed=opts.bootstrap_seed,
     )
-    return {"campaign": manifest["campaign"]["name"], **summ}
+    out = {"campaign": manifest["campaign"]["name"], **summ}
+    est = estimates.estimate_summary(table, manifest)
+    if est is not None:  # a run of `mcverify estimate`
+        out["estimates"] = est
+    return out
 
 
 # ----------------------------------------------------------------------------------------- tables
@@ -148,6 +161,8 @@ def report_tables(summ: Mapping[str, Any], manifest: Mapping[str, Any]) -> list[
     outcomes, the pivot tables of a two-axis grid, distances, times, theorem checks, decisions and
     solver."""
     out: list[Table] = []
+    if summ.get("estimates"):
+        out.append(estimate_table(summ["estimates"]))
     ref = manifest["campaign"].get("reference") or {}
     if ref:
         paper = paper_tables.paper_table(summ, ref)
@@ -162,6 +177,34 @@ def report_tables(summ: Mapping[str, Any], manifest: Mapping[str, Any]) -> list[
     if settle is not None:
         out.append(settle)
     return out
+
+
+def estimate_table(est: Mapping[str, Any]) -> Table:
+    """The estimate of the target's rate per cell (``mcverify estimate``): estimate, anytime-valid
+    interval, episodes used and run, and the cost in control steps and solver time."""
+    spec = est["spec"]
+    level = float(spec["level"])
+    columns = ["cell", "status", "k / n", "estimate", f"{level:.0%} interval", "half-width", "episodes run",
+               "control steps run", "solver time (s)"]
+    rows = []
+    for c in est["cells"]:
+        rows.append([c["cell"], c["status"], f"{c['k']} / {c['n']}",
+                     DASH if c["n"] == 0 else f"{c['estimate']:.4g}", f"[{c['low']:.4g}, {c['high']:.4g}]",
+                     f"{c['halfwidth']:.3g}", str(c["episodes_run"]), f"{c['steps_run']:.0f}",
+                     f"{c['solver_time_s']:.1f}"])
+    width = DASH if spec.get("halfwidth") is None else (
+        f"{spec['halfwidth']:g}" + (" x estimate" if spec.get("relative") else ""))
+    notes = [
+        f"Target: {spec['target']}: {est['target_definition']}. Method: {est['method_description']}; "
+        f"stop at half-width <= {width} or after {spec['budget']} episodes per cell.",
+        "The interval is a confidence sequence (prior Beta"
+        f"({spec['prior'][0]:g}, {spec['prior'][1]:g})): it keeps its coverage at the data-dependent stopping "
+        "episode, unlike the per-cell Clopper-Pearson rates of the other tables, which assume a fixed episode "
+        "count and must not be read as intervals for this run. Episodes are taken in their pre-assigned order; "
+        "episodes run after the stopping episode count as cost only. Solver time: solves x mean solve time, "
+        "machine-dependent.",
+    ]
+    return Table("estimates", f"Estimated {spec['target']} rate per cell", columns, rows, notes)
 
 
 def outcome_table(summ: Mapping[str, Any]) -> Table:

@@ -218,6 +218,24 @@ def _latex_cell(text: str) -> str:
 # ------------------------------------------------------------------------------------------ HTML
 
 
+#: Counts that mean unsafe episodes when k > 0 (by column name, or by a pivot table's key).
+_UNSAFE_EVENTS = ("collision", "ellipse violated", "ellipse_violation")
+_COUNT = re.compile(r"^\s*(\d+)/(\d+)")
+
+
+def unsafe_count(table_key: str, column: str, text: str) -> bool:
+    """Whether a ``k/n`` cell counts unsafe episodes (the report highlights it): a safe count
+    below n, or a collision / ellipse-violation count above 0."""
+    m = _COUNT.match(str(text))
+    if m is None:
+        return False
+    k, n = int(m.group(1)), int(m.group(2))
+    pivot = table_key[len("pivot-"):] if table_key.startswith("pivot-") else None
+    if column == "safe" or pivot == "safe":
+        return k < n
+    return k > 0 and (column.startswith(_UNSAFE_EVENTS) or (pivot is not None and pivot.startswith(_UNSAFE_EVENTS)))
+
+
 def to_html(t: Table) -> str:
     """An HTML ``<table>`` with a caption and the notes in a following paragraph."""
     esc = html.escape
@@ -228,7 +246,10 @@ def to_html(t: Table) -> str:
         if isinstance(row, Section):
             out.append(f'<tr class="section"><th colspan="{len(t.columns)}">{esc(row.title)}</th></tr>')
         else:
-            cells = [f'<th scope="row">{esc(row[0])}</th>'] + [f"<td>{esc(c)}</td>" for c in row[1:]]
+            cells = [f'<th scope="row">{esc(row[0])}</th>'] + [
+                f'<td class="unsafe">{esc(c)}</td>' if unsafe_count(t.key, col, c) else f"<td>{esc(c)}</td>"
+                for col, c in zip(t.columns[1:], row[1:], strict=False)
+            ]
             out.append("<tr>" + "".join(cells) + "</tr>")
     out.append("</tbody></table>")
     if t.notes:

@@ -399,6 +399,23 @@ class LaneGroups:
         pl = self.plants[g]
         self.plants[g] = pl._replace(opp=pl.opp.at[lane].set(jnp.array([x_m, v_mps], dtype=float)))
 
+    def lane_state(self, b: int) -> tuple[Plant, SafetyTrace, np.ndarray]:
+        """Episode ``b``'s plant state, running safety trace and noise root key, as host copies
+        (a snapshot: :meth:`set_lane_state` puts them back exactly)."""
+        g, lane = divmod(b, LANES)
+        take = lambda a: np.array(a[lane])  # noqa: E731 - a copy, not a view of a device buffer
+        return (Plant(*(take(a) for a in self.plants[g])), SafetyTrace(*(take(a) for a in self.traces[g])),
+                take(self.keys[g]))
+
+    def set_lane_state(self, b: int, plant: Plant, trace: SafetyTrace, key: np.ndarray) -> None:
+        """Overwrite episode ``b``'s plant state, safety trace and noise root key (restore a snapshot,
+        or switch the noise of the steps to come to a branch's key)."""
+        g, lane = divmod(b, LANES)
+        put = lambda a, v: a.at[lane].set(jnp.asarray(v, dtype=a.dtype))  # noqa: E731
+        self.plants[g] = Plant(*(put(a, v) for a, v in zip(self.plants[g], plant, strict=True)))
+        self.traces[g] = SafetyTrace(*(put(a, v) for a, v in zip(self.traces[g], trace, strict=True)))
+        self.keys[g] = put(self.keys[g], key)
+
     def trace(self) -> SafetyTrace:
         """(n,) final safety metrics as numpy arrays."""
         return SafetyTrace(*(self._gather([getattr(t, f) for t in self.traces]) for f in SafetyTrace._fields))

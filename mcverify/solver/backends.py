@@ -41,6 +41,7 @@ every other row. Tests: ``tests/solver/test_backends.py``.
 from __future__ import annotations
 
 import dataclasses
+import time
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -237,8 +238,9 @@ class IpmBackend:
     docstring). The cold attempt after two failed warm ones: on the 26 of 652 noisy Table II warm
     solves (v_f = 25 km/h, 24 of them Q2) where both warm attempts failed, it converged in all 26,
     in 19 ms each; the IPOPT reference path took 144 ms each on the same solves.
-    ``ipm_outcomes`` counts the outcome of every IPM attempt of this backend's life (benchmarks
-    and diagnostics only; not part of any result).
+    ``ipm_outcomes`` counts the outcome of every IPM attempt of this backend's life and
+    ``ipm_cpu_s`` sums their CPU seconds (``time.process_time``) by the same tags (benchmarks and
+    diagnostics only; not part of any result).
     """
 
     name = "ipm"
@@ -251,6 +253,7 @@ class IpmBackend:
         self.warm_attempts = tuple(dataclasses.replace(o, tol=params.mpc.tol) for o in WARM_ATTEMPTS)
         self.cold = dataclasses.replace(COLD, tol=params.mpc.tol)
         self.ipm_outcomes: Counter[str] = Counter()
+        self.ipm_cpu_s: Counter[str] = Counter()
 
     def solve(
         self, p: np.ndarray, warm: Start | None, guess: Callable[[], np.ndarray], fast_only: bool = False
@@ -262,10 +265,12 @@ class IpmBackend:
         attempts = [] if warm is None else [(o, warm.x, warm.lam_x, warm.lam_g) for o in self.warm_attempts]
         attempts.append((self.cold, None, None, None))
         for k, (opts, x0, lx0, lg0) in enumerate(attempts):
+            cpu0 = time.process_time()
             r = self.ipm.solve(p, guess() if x0 is None else x0, lx0, lg0, opts)
             iterations += r.iterations
             tag = f"{'warm' if lx0 is not None else 'cold'}{k + 1}:{r.status}"
             self.ipm_outcomes[tag] += 1
+            self.ipm_cpu_s[tag] += time.process_time() - cpu0
             res = self.problem.accept(
                 BackendResult(r.w, r.lam_x, r.lam_g, SolveStatus.ipm(r.status), iterations, r.success), p
             )

@@ -28,6 +28,7 @@ import dataclasses
 import fcntl
 import hashlib
 import json
+import logging
 import os
 import platform
 import re
@@ -43,6 +44,8 @@ import casadi as ca
 
 from mcverify.errors import KernelBuildError
 from mcverify.ocp.problem import FORMULATION_VERSION, OcpStructure, build_nlp, formulation_digest
+
+log = logging.getLogger(__name__)
 
 COMPILER = "gcc"
 # -O1: as fast per solve as -O2 and compiles in about the same time; -O0 compiles faster but every
@@ -202,6 +205,7 @@ def _get_or_build(root: Path, name: str, build, so_file: str = SO_FILE) -> Kerne
         cached = _read_kernel(final, so_file)  # another process may have built it while we waited
         if cached is not None:
             return cached
+        log.info("compiling %s into %s (once per machine; %s)", name, root, expected_build_time(root, name))
         for stale in root.glob(f".tmp-{name}-*"):  # left by a killed build; we hold the lock
             shutil.rmtree(stale, ignore_errors=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{name}-", dir=root))
@@ -219,6 +223,24 @@ def _get_or_build(root: Path, name: str, build, so_file: str = SO_FILE) -> Kerne
             shutil.rmtree(tmp, ignore_errors=True)
             raise
     return Kernel(name=name, path=final, manifest=manifest, so_file=so_file)
+
+
+def expected_build_time(root: Path, name: str) -> str:
+    """How long building ``name`` should take, from the build times recorded by the kernels of the
+    same kind already in ``root`` (e.g. "about 35 s, as the 2 cached ones took 27-55 s"), or a
+    rough figure when there are none."""
+    kind = name.rsplit("-", 1)[0]
+    seconds = []
+    for manifest in root.glob(f"{kind}-*/{MANIFEST_FILE}"):
+        try:
+            data = json.loads(manifest.read_text())
+            seconds.append(float(data.get("generate_seconds", 0.0)) + float(data["compile_seconds"]))
+        except (OSError, ValueError, KeyError, TypeError):
+            continue
+    if not seconds:
+        return "a few seconds" if name.startswith(RUNTIME_PREFIX) else "about 1-3 minutes on a laptop core"
+    median = sorted(seconds)[len(seconds) // 2]
+    return f"about {median:.0f} s; {len(seconds)} such build(s) here took {min(seconds):.0f}-{max(seconds):.0f} s"
 
 
 def _read_kernel(folder: Path, so_file: str = SO_FILE) -> Kernel | None:

@@ -5,12 +5,14 @@ from __future__ import annotations
 import math
 
 from mcverify.bench import engine as bench
+from mcverify.bench import engine_report
 from mcverify.bench.agreement import agreement
+from mcverify.bench.solve_classes import SolveClass
 
 
 def row(e, safe=True, outcome="overtook", d=0.8, g=40.0, t=6.5, solves=100):
-    return {"cell_episode": e, "safe": safe, "outcome": outcome, "min_dist_front_m": d, "min_gap_opp_m": g,
-            "overtake_time_s": t, "solves": solves}
+    return {"cell_episode": e, "episode_id": e, "safe": safe, "outcome": outcome, "min_dist_front_m": d,
+            "min_gap_opp_m": g, "overtake_time_s": t, "solves": solves}
 
 
 def test_agreement_pairs_by_episode_and_lists_disagreements():
@@ -42,21 +44,81 @@ def test_agreement_of_solver_runs_counts_statuses_and_intervals():
     assert agreement([], new)["safe_agree_ci"] is None
 
 
-def test_markdown_rows_go_into_the_bench_table(tmp_path):
+def _side(name, n, cpu):
+    side = bench.SideResult(name, [], 0.0, 0.0)
+    side.add("c", [row(i) for i in range(n)], cpu, cpu)
+    side.classes.add(SolveClass.CONVERGED, cpu / 2)
+    return side
+
+
+def test_markdown_blocks_go_into_the_bench_section(tmp_path):
     path = tmp_path / "BENCHMARKS.md"
-    path.write_text("# Benchmarks\n\n## Other section\n\ntext\n")
-    side = lambda n, cpu: bench.SideResult("x", [row(i) for i in range(n)], cpu, cpu)  # noqa: E731
-    result = {"engine": side(4, 60.0), "naive": side(1, 600.0),
-              "agreement": agreement([row(0)], [row(0)], key="cell_episode"), "ratio": 40.0, "peak_rss_mb": 500.0,
-              "machine": "m", "cell": "c", "backend": "ipopt",
+    path.write_text("# Benchmarks\n\n## Other section\n\ntext\n\n<!-- generated:begin -->\n## G\n<!-- end -->\n")
+    sides = {"engine": _side("engine", 4, 60.0), "baseline": _side("baseline", 4, 120.0)}
+    result = {"sides": sides, "ratios": {"baseline": 2.0}, "peak_rss_mb": 500.0, "machine": "m", "cells": ["c"],
+              "backend": "ipm", "load_average": [1.0, 1.0, 1.0], "setup_cpu_s": 1.0,
+              "agreement": {"baseline": agreement([row(0)], [row(0)], key="episode_id", values=bench.PAIRED_VALUES)},
               "command": "mcverify bench", "date": "2026-11-23", "campaign": "x"}
-    bench.append_markdown(result, path)
-    bench.append_markdown(result, path)
+    engine_report.append_markdown(result, path)
     text = path.read_text()
-    assert text.count("| 2026-11-23 |") == 2 and text.count("| date |") == 1
-    assert "## Other section" in text and "40.0x" in text
-    assert result["engine"].episodes_per_cpu_min == 4.0 and result["naive"].episodes_per_cpu_min == 0.1
-    assert result["engine"].cpu_ms_per_solve == 150.0
+    # a new section goes at the end, after the generated block
+    assert text.count(engine_report.MARKER) == 1 and text.index("<!-- end -->") < text.index(engine_report.MARKER)
+    path.write_text(text.replace("<!-- generated:begin -->\n## G\n<!-- end -->\n", "") + "## Later\n")
+    engine_report.append_markdown(result, path)
+    text = path.read_text()
+    assert text.count("### 2026-11-23: `mcverify bench`") == 2 and text.count(engine_report.MARKER) == 1
+    assert text.index("### 2026-11-23") < text.index("## Later") and "## Other section" in text
+    assert "**2.00x**" in text and "| converged | 7.50 (0.2, 30000.0) | 15.00 (0.2, 60000.0) |" in text
+    assert "| whole episode | 15.00 | 30.00 |" in text and "| c | 15.00 | 30.00 |" in text
+    assert sides["engine"].episodes_per_cpu_min == 4.0 and sides["engine"].cpu_ms_per_solve == 150.0
+    assert "engine / compiled IPOPT loop: 2.00x" in engine_report.render(result)
+
+
+def test_solve_classes_account_for_every_solve_of_every_side():
+    """On a short two-cell campaign: each side's class counts add up to the solves its rows report,
+    and the paired sides agree on the verdicts (the same problems, solved by IPOPT or the fast path)."""
+    from mcverify.campaign.spec import campaign_from_dict
+
+    raw = {"campaign": {"name": "mix", "seed": 3, "episodes": 2, "common_random_numbers": True},
+           "model": {"sim": {"max_time_s": 0.1}, "noise": {"kind": "paper"}, "opposing": {"kind": "human"}},
+           "axes": {"method": {"VL-CBF": {"barrier.epsilon": 0.3}, "MPC-DC": {"mpc.controller": "mpcdc"}}}}
+    import mcverify.bench.engine as eng
+
+    camp = campaign_from_dict(raw)
+    orig = eng.load_campaign
+    eng.load_campaign = lambda path: camp
+    try:
+        result = eng.run(campaign="mix", engine_episodes=2, baseline_episodes=1, write=False, progress=lambda m: None)
+    finally:
+        eng.load_campaign = orig
+    assert result["cells"] == [c.name for c in camp.cells] and set(result["sides"]) == {"engine", "baseline"}
+    for name, side in result["sides"].items():
+        assert sum(side.classes.count.values()) == side.solves > 0, name
+        assert side.classes.total_cpu_s <= side.cpu_s
+        assert sum(n for n, _ in side.per_cell.values()) == len(side.rows)
+    assert len(result["sides"]["engine"].rows) == 4 and len(result["sides"]["baseline"].rows) == 2
+    converged = sum(a["attempts"] for k, a in result["ipm_attempts"].items() if k.endswith(":Converged"))
+    assert converged >= result["sides"]["engine"].classes.count[SolveClass.CONVERGED] > 0  # warm-up not counted
+    assert all(a["cpu_s"] >= 0 for a in result["ipm_attempts"].values())
+    ag = result["agreement"]["baseline"]
+    assert ag["paired"] == 2 and ag["safe_agree"] == 2 and set(result["ratios"]) == {"baseline"}
+
+
+def test_attempt_lines_count_the_cpu_of_attempts_that_did_not_converge():
+    lines = engine_report.attempt_lines({"warm1:Converged": {"attempts": 3, "cpu_s": 1.0},
+                                         "warm1:Line_Search_Failed": {"attempts": 1, "cpu_s": 0.5}})
+    assert lines == ["IPM attempts (engine, all episodes): warm1:Converged 3 (1.0 s), warm1:Line_Search_Failed 1 "
+                     "(0.5 s); 0.5 of 1.5 CPU-s in attempts that did not converge"]
+    assert engine_report.attempt_lines({}) == []
+
+
+def test_naive_planner_wraps_its_solvers():
+    from mcverify.bench.naive import NaiveOptiSolver, naive_planner
+    from mcverify.bench.solve_classes import ClassTally, TimedSolver
+    from mcverify.model import ModelParams
+
+    planner = naive_planner(ModelParams(), wrap=lambda s: TimedSolver(s, ClassTally()))
+    assert isinstance(planner.plain, TimedSolver) and isinstance(planner.plain.solver, NaiveOptiSolver)
 
 
 def _short_cell():
@@ -82,8 +144,8 @@ def test_engine_phases_add_up_to_the_measured_cpu():
     total = phases["planner"] + phases["plant"] + phases["other"]
     assert math.isclose(total, side.cpu_s, rel_tol=1e-9, abs_tol=1e-6)
     side.phases = phases
-    lines = bench.phase_lines(side, {"compute_ms": 1.0, "transfer_ms": 0.01, "batch": 3.0})
-    assert "planner" in lines[0] and "plant" in lines[0] and "per control step of the 3-episode batch" in lines[1]
+    lines = engine_report.phase_lines(side, {"compute_ms": 1.0, "transfer_ms": 0.01, "batch": 3.0})
+    assert "planner" in lines[0] and "plant" in lines[0] and "per control step of the batches" in lines[1]
     assert "device-to-host copies: 0.010 ms" in lines[2]
 
 

@@ -100,12 +100,13 @@ def test_resume_errors(tmp_path, capsys, finished_run):
     code, err = run_cli(capsys, "run", "--resume", str(finished_run))
     assert code == 2 and "is already finished (2 episodes); nothing to resume" in one_line(err)
     for extra, fragment in [(["--episodes", "3"], "leave out --episodes"), (["--out", "x"], "leave out --out"),
+                            (["--run-dir", "x"], "and --run-dir"),
                             (["--set", "mpc.backend=ipopt"], "and --set")]:
         code, err = run_cli(capsys, "run", "--resume", str(finished_run), *extra)
         assert code == 2 and fragment in one_line(err)
     assert (finished_run / store.LEDGER).read_bytes() == ledger, "finished work is untouched"
 
-    code, err = run_cli(capsys, "run", str(FIXTURE), "--out", str(finished_run))
+    code, err = run_cli(capsys, "run", str(FIXTURE), "--run-dir", str(finished_run))
     assert code == 2 and "already holds a run" in one_line(err)
 
 

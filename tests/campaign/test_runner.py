@@ -116,7 +116,7 @@ def test_ray_executor_gives_the_same_episodes(reference: Path, tmp_path: Path):
 def test_sigkill_then_resume_gives_exactly_the_uninterrupted_episodes(reference: Path, tmp_path: Path):
     run_dir = tmp_path / "run"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "mcverify.cli", "run", str(FIXTURE), "--out", str(run_dir),
+        [sys.executable, "-m", "mcverify.cli", "run", str(FIXTURE), "--run-dir", str(run_dir),
          "--workers", "2", "--chunk-size", "1", "--no-progress"],
         cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True,
     )

@@ -37,7 +37,8 @@ def run_dir(tmp_path_factory):
     spec.write_text(CAMPAIGN)
     out = root / "run"
     # chunk size 2: episode 2 of each cell ran in a chunk of its own, the others two together
-    assert cli.main(["run", str(spec), "--out", str(out), "--chunk-size", "2", "--workers", "1", "--no-progress"]) == 0
+    assert cli.main(["run", str(spec), "--run-dir", str(out), "--chunk-size", "2", "--workers", "1",
+                     "--no-progress"]) == 0
     return out
 
 

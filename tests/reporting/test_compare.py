@@ -124,3 +124,14 @@ def test_cli_compare_bad_input(tmp_path, capsys, extra, message):
     assert cli.main(args) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0]
+
+
+def test_cli_compare_with_no_matching_cell_is_one_line_exit_2(tmp_path, capsys):
+    a = _run(tmp_path, "a", _raw())
+    b = _run(tmp_path, "b", _raw(grid={"barrier.epsilon": [0.2, 0.4]}))
+    assert cli.main(["compare", str(a), str(b)]) == 2
+    captured = capsys.readouterr()
+    lines = [ln for ln in captured.err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("mcverify: error: no cell of ")
+    assert "epsilon=0.1; epsilon=0.3" in lines[0] and "--pair CELL_A CELL_B" in lines[0]
+    assert captured.out == ""

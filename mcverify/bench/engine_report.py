@@ -1,0 +1,143 @@
+"""The output of ``mcverify bench``: the terminal summary and the rows of ``results/BENCHMARKS.md``.
+
+:func:`render` prints the figures of :func:`mcverify.bench.engine.run`; :func:`append_markdown` adds
+one row per run to the section's table and the run's solve-class split below it (the rest of the
+file is left as it is).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from mcverify.bench.engine import PAIRED_VALUES, SideResult
+
+BENCHMARKS_MD = Path("results/BENCHMARKS.md")
+MARKER = "## mcverify bench: the engine against the compiled IPOPT loop on the Table IV mix\n\n"
+LABELS = {"engine": "engine", "baseline": "compiled IPOPT loop", "naive": "naive Opti loop"}
+
+
+def class_table(sides: dict[str, SideResult]) -> list[str]:
+    """Markdown table: CPU-s per episode by solve class (and solves, ms per solve) for every side."""
+    names = list(sides)
+    lines = ["| solve class | " + " | ".join(f"{LABELS[s]}: CPU-s/episode (solves/episode, ms/solve)" for s in names)
+             + " |", "|---|" + "---:|" * len(names)]
+    classes = next(iter(sides.values())).classes.as_dict()
+    for cls in classes:
+        cells = []
+        for s in names:
+            d, n = sides[s].classes.as_dict()[cls], max(len(sides[s].rows), 1)
+            cells.append(f"{d['cpu_s'] / n:.2f} ({d['solves'] / n:.1f}, {d['ms_per_solve']:.1f})")
+        lines.append(f"| {cls} | " + " | ".join(cells) + " |")
+    lines.append("| all solves | " + " | ".join(
+        f"{sides[s].classes.total_cpu_s / max(len(sides[s].rows), 1):.2f}" for s in names) + " |")
+    lines.append("| whole episode | " + " | ".join(f"{sides[s].cpu_s_per_episode:.2f}" for s in names) + " |")
+    return lines
+
+
+def cell_table(sides: dict[str, SideResult]) -> list[str]:
+    """Markdown table: CPU-s per episode by cell for every side."""
+    names = list(sides)
+    lines = ["| cell | " + " | ".join(f"{LABELS[s]} CPU-s/episode" for s in names) + " |",
+             "|---|" + "---:|" * len(names)]
+    for cell in sides["engine"].per_cell:
+        vals = []
+        for s in names:
+            n, c = sides[s].per_cell.get(cell, [0, 0.0])
+            vals.append(f"{c / n:.2f}" if n else "-")
+        lines.append(f"| {cell} | " + " | ".join(vals) + " |")
+    return lines
+
+
+def agreement_line(name: str, ag: dict[str, Any]) -> str:
+    diffs = ", ".join(f"{c} {ag[f'{c}_absdiff_max']:.3g}" for c in PAIRED_VALUES)
+    line = (f"{LABELS[name]} vs engine on {ag['paired']} paired episodes: safety verdict {ag['safe_agree']}/"
+            f"{ag['paired']}, outcome {ag['outcome_agree']}/{ag['paired']}; largest differences: {diffs}")
+    differ = [d["episode_id"] for d in ag["disagreements"]]
+    return line + (f"; verdicts or outcomes differ for episode ids {differ}" if differ else "")
+
+
+def render(result: dict[str, Any]) -> str:
+    sides = result["sides"]
+    lines = [f"bench on {result['machine']} (load average {result['load_average']})",
+             f"  {result['campaign']}: {', '.join(result['cells'])}; engine backend {result['backend']}"]
+    for s, side in sides.items():
+        lines.append(f"  {LABELS[s]:>20}: {len(side.rows)} episodes, {side.cpu_s:.1f} CPU-s, "
+                     f"{side.cpu_s_per_episode:.2f} CPU-s per episode, {side.cpu_ms_per_solve:.1f} CPU-ms per solve, "
+                     f"{side.episodes_per_cpu_min:.3g} episodes per CPU-minute")
+    for s, r in result["ratios"].items():
+        lines.append(f"  engine / {LABELS[s]}: {r:.2f}x episodes per CPU-minute")
+    lines.append(f"  peak memory {result['peak_rss_mb']:.0f} MB (the whole process); one-off set-up "
+                 f"{result['setup_cpu_s']:.1f} CPU-s (solver set-up, XLA compile; counted on no side)")
+    lines += ["  " + ln for ln in phase_lines(sides["engine"], result.get("plant_transfer"))]
+    lines += ["  " + ln for ln in class_table(sides)] + ["  " + ln for ln in cell_table(sides)]
+    lines += ["  " + agreement_line(s, ag) for s, ag in result["agreement"].items()]
+    lines += ["  " + ln for ln in attempt_lines(result.get("ipm_attempts", {}))]
+    return "\n".join(lines)
+
+
+def attempt_lines(attempts: dict[str, dict[str, float]]) -> list[str]:
+    """The engine's IPM attempts (``warm1:Converged``: the first warm attempt converged) with their
+    CPU, and the share spent in attempts that did not converge."""
+    if not attempts:
+        return []
+    total = sum(a["cpu_s"] for a in attempts.values())
+    failed = sum(a["cpu_s"] for k, a in attempts.items() if not k.endswith(":Converged"))
+    parts = ", ".join(f"{k} {a['attempts']} ({a['cpu_s']:.1f} s)" for k, a in attempts.items())
+    return [f"IPM attempts (engine, all episodes): {parts}; {failed:.1f} of {total:.1f} CPU-s in attempts "
+            "that did not converge"]
+
+
+def phase_lines(engine: SideResult, transfer: dict[str, float] | None) -> list[str]:
+    """Where the engine's CPU went, per episode and per control step of the batch."""
+    ph = engine.phases
+    if not ph or not engine.rows:
+        return []
+    n, steps = len(engine.rows), max(ph["control_steps"], 1.0)
+    parts = ", ".join(f"{k} {ph[k] / n:.2f} s ({100 * ph[k] / engine.cpu_s:.0f}%)"
+                      for k in ("planner", "plant", "other"))
+    lines = [f"engine CPU per episode: {parts}; the solves' own clock: {ph['solver_wall'] / n:.2f} s wall "
+             "(the solver's share of the planner on an idle machine)",
+             f"JAX plant: {1e3 * ph['plant'] / steps:.2f} CPU-ms per control step of the batches "
+             "(observe + advance, transfers included); no host callbacks (the solver runs between jitted calls)"]
+    if transfer:
+        lines.append(f"of which device-to-host copies: {transfer['transfer_ms']:.3f} ms against "
+                     f"{transfer['compute_ms']:.3f} ms of dispatch and XLA compute per control step "
+                     f"(isolated, {int(transfer['batch'])} episodes, 200 steps)")
+    return lines
+
+
+def append_markdown(result: dict[str, Any], path: Path = BENCHMARKS_MD) -> None:
+    """Append the run to the section :data:`MARKER` (created at the end of the file if missing): a
+    paragraph with the command, the machine, the ratios, the solve-class and cell tables."""
+    sides = result["sides"]
+    ratios = "; ".join(f"engine / {LABELS[s]}: **{r:.2f}x** episodes per CPU-minute"
+                       for s, r in result["ratios"].items())
+    block = [
+        f"### {result['date']}: `{result['command']}`",
+        "",
+        f"{result['machine']}, load average at the end {result['load_average']}. {result['campaign']}, "
+        f"{len(result['cells'])} cell(s), engine backend {result['backend']}. Per side: "
+        + "; ".join(f"{LABELS[s]} {len(d.rows)} episodes, {d.cpu_s_per_episode:.2f} CPU-s per episode"
+                    for s, d in sides.items())
+        + f". {ratios}. Peak memory {result['peak_rss_mb']:.0f} MB (the whole process).",
+        "",
+        *class_table(sides),
+        "",
+        *cell_table(sides),
+        "",
+        *[agreement_line(s, ag) + "." for s, ag in result["agreement"].items()],
+        "",
+        *[ln + "." for ln in attempt_lines(result.get("ipm_attempts", {}))],
+        "",
+    ]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    text = path.read_text() if path.exists() else "# Benchmarks\n"
+    if MARKER not in text:
+        text = text.rstrip("\n") + "\n\n" + MARKER
+    # insert at the end of this section (before the next "## " heading or generated block, if any)
+    start = text.index(MARKER) + len(MARKER)
+    ends = [i for i in (text.find("\n## ", start), text.find("\n<!-- ", start)) if i >= 0]
+    end = min(ends) + 1 if ends else len(text)
+    body = text[:end].rstrip("\n") + "\n\n" + "\n".join(block) + "\n"
+    path.write_text(body + ("\n" + text[end:] if end < len(text) else ""))

@@ -1,0 +1,95 @@
+"""What a campaign will cost before it runs (``mcverify run --dry-run``): cells, episodes, chunks
+and an estimate of the CPU time from per-episode costs measured on this project's reference machine.
+
+The figures (CPU seconds per episode at the paper's 50 Hz planner, ``results/BENCHMARKS.md``) are
+per kind of cell; a cell's episodes cost about the figure times (50 Hz / its planner rate) times
+min(1, its time limit / 10 s), since episodes last up to their time limit and most overtakes take
+5-10 s. Episode costs vary by an order of magnitude within a kind (a run that meets veh_o, or that
+IPOPT must certify infeasible, costs more), so the estimate is a range, not a promise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from mcverify.campaign.spec import Campaign
+from mcverify.cell import Cell
+
+#: CPU seconds per episode at 50 Hz, (low, high), by (controller family, veh_o on the road), with the
+#: fast path (``mpc.backend = "ipm"``). Source: results/BENCHMARKS.md - Table II with ipm 4.5 s (the
+#: paired run 5.2 s); Table IV (34 episodes per cell, ipm): VL-CBF 1.2-12.7 s, MPC-DC 1.1-60.8 s.
+SECONDS_PER_EPISODE: dict[tuple[str, bool], tuple[float, float]] = {
+    ("vlcbf", False): (4.5, 5.2),
+    ("vlcbf", True): (1.2, 12.7),
+    ("mpcdc", False): (4.5, 5.2),
+    ("mpcdc", True): (1.1, 60.8),
+}
+#: IPOPT (``mpc.backend = "ipopt"``) against the fast path, CPU per episode (paired, results/BENCHMARKS.md:
+#: 15.06 vs 5.16 s on Table II, 56.6 vs 15.0 s on Table IV).
+IPOPT_FACTOR = 3.4
+#: The planner rate of the measured figures (Hz) and the episode length they stand for (s).
+REFERENCE_RATE_HZ = 50.0
+REFERENCE_EPISODE_S = 10.0
+
+
+@dataclass(frozen=True)
+class Estimate:
+    cells: int
+    episodes: int
+    chunks: int
+    cpu_s_low: float
+    cpu_s_high: float
+
+    def wall_s(self, workers: int) -> tuple[float, float]:
+        """Wall time on ``workers`` cores, if every core runs episodes all the time."""
+        return self.cpu_s_low / workers, self.cpu_s_high / workers
+
+
+def cell_seconds(cell: Cell) -> tuple[float, float]:
+    """CPU seconds per episode of ``cell``, (low, high)."""
+    p = cell.params
+    family = "mpcdc" if p.mpc.is_mpcdc else "vlcbf"
+    low, high = SECONDS_PER_EPISODE[(family, p.opposing.kind != "none")]
+    scale = (1.0 / p.sim.control_period_s) / REFERENCE_RATE_HZ * min(1.0, p.sim.max_time_s / REFERENCE_EPISODE_S)
+    if p.mpc.backend == "ipopt":
+        scale *= IPOPT_FACTOR
+    return low * scale, high * scale
+
+
+def estimate(campaign: Campaign, chunk_size: int) -> Estimate:
+    low = high = 0.0
+    chunks = 0
+    for cell in campaign.cells:
+        lo, hi = cell_seconds(cell)
+        low += lo * cell.episodes
+        high += hi * cell.episodes
+        chunks += -(-cell.episodes // chunk_size)
+    return Estimate(len(campaign.cells), campaign.total_episodes, chunks, low, high)
+
+
+def duration(seconds: float) -> str:
+    """``42 s``, ``7.5 min``, ``3.2 h``, ``12 days``."""
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    if seconds < 5400:
+        return f"{seconds / 60:.1f} min"
+    if seconds < 3 * 86400:
+        return f"{seconds / 3600:.1f} h"
+    return f"{seconds / 86400:.0f} days"
+
+
+def render(campaign: Campaign, chunk_size: int, workers: int) -> str:
+    """The dry run's report: the cells, the counts and the estimate."""
+    from mcverify.campaign.runner import describe
+
+    est = estimate(campaign, chunk_size)
+    lo, hi = est.wall_s(workers)
+    span = lambda a, b: duration(a) if duration(a) == duration(b) else f"{duration(a)} to {duration(b)}"  # noqa: E731
+    return "\n".join([
+        describe(campaign),
+        f"{est.episodes} episodes in {est.chunks} chunks of up to {chunk_size}",
+        f"estimated CPU: {span(est.cpu_s_low, est.cpu_s_high)}; wall time on {workers} worker(s): "
+        f"{span(lo, hi)}, plus about a minute of start-up (and 1-3 minutes per solver kernel "
+        "not yet compiled)",
+        "(per-episode costs measured on a 2-core machine, results/BENCHMARKS.md; a rough range)",
+    ])

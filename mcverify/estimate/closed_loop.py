@@ -1,0 +1,122 @@
+"""The real closed loop as a branching process for adaptive multilevel splitting.
+
+A fresh particle is episode ``branch_id`` of the cell (its own scenario draw and perception noise);
+a branch restores a snapshot of its parent (:mod:`mcverify.episode.snapshot`) after the step at
+which the parent's score first exceeded the current level and continues with the noise of its own
+branch id. Every particle therefore replays from (campaign seed, cell, episode id, branch id).
+
+Scores (non-decreasing along an episode, the target event is score >= 0):
+
+- ``"h_ef"``: minus the running minimum of h_ef; >= 0 means the ego c.g. reached the safety ellipse
+  (target ``ellipse``, up to the measure-zero h_ef = 0);
+- ``"gap"``: minus the running minimum footprint gap to veh_f and veh_o (gaps are 0 on contact);
+  >= 0 means a collision (target ``collision``).
+
+Cost: control steps simulated (settling steps included) and the CPU seconds of this process.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mcverify.cell import Cell
+from mcverify.control.planner import Planner
+from mcverify.episode.rollout import run_episodes
+from mcverify.episode.snapshot import Branching, EpisodeSnapshot
+from mcverify.sim.plant import SafetyTrace
+
+#: Score name -> the target event it reaches at level 0.
+SCORES: dict[str, str] = {"h_ef": "ellipse", "gap": "collision"}
+
+
+def score_of(trace: SafetyTrace, score: str) -> float:
+    """The running score of one episode's safety trace (see the module docstring)."""
+    if score == "h_ef":
+        return -float(trace.min_h_front)
+    gaps = [float(trace.min_gap_front_m), float(trace.min_gap_opp_any_m)]
+    return -min(g for g in gaps if np.isfinite(g)) if any(np.isfinite(g) for g in gaps) else -np.inf
+
+
+@dataclass(frozen=True)
+class BranchPoint:
+    """Where a branch starts: the parent's snapshot after ``snapshot.step``, its scores up to there and
+    its earlier snapshots (a branch can be branched again before that step)."""
+
+    snapshot: EpisodeSnapshot
+    scores: np.ndarray
+    snapshots: dict[int, EpisodeSnapshot]
+
+
+@dataclass
+class ClosedLoopPath:
+    """A particle: running score after each control step from step 0, its snapshots at the steps
+    where the score rose (inherited from the parent up to the branch step), and its cost."""
+
+    episode_id: int
+    scores: np.ndarray
+    snapshots: dict[int, EpisodeSnapshot]
+    steps: int
+    cpu_s: float
+
+    def snapshot(self, step: int) -> BranchPoint:
+        return BranchPoint(self.snapshots[step], self.scores[: step + 1],
+                           {s: v for s, v in self.snapshots.items() if s <= step})
+
+
+@dataclass
+class ClosedLoopProcess:
+    """Episodes of ``cell`` (seed ``seed``) run one at a time with ``planner``, scored by ``score``;
+    ``cpu_s`` and ``steps`` add up the cost of every run."""
+
+    cell: Cell
+    seed: int
+    planner: Planner
+    score: str = "h_ef"
+    cpu_s: float = 0.0
+    steps: int = 0
+    fresh_steps: list[int] = field(default_factory=list)  # control steps of each fresh (unbranched) episode
+
+    def __post_init__(self) -> None:
+        if self.score not in SCORES:
+            raise ValueError(f"unknown score {self.score!r}; valid: {', '.join(SCORES)}")
+
+    def run(self, start: BranchPoint | None, branch_id: int, stop_level: float) -> ClosedLoopPath:
+        """A fresh episode ``branch_id`` (start None) or a branch from ``start`` with the noise of
+        ``branch_id``. Runs to the episode's end (``stop_level`` is not used: the loop has no early stop)."""
+        if start is None:
+            episode, prefix, snaps = int(branch_id), np.zeros(0), {}
+            branching = Branching(keep=self._rose(-np.inf))
+        else:
+            episode, prefix, snaps = start.snapshot.episode_id, start.scores, dict(start.snapshots)
+            branching = Branching(start=start.snapshot, branch_id=int(branch_id), keep=self._rose(float(prefix[-1])))
+        t0 = time.process_time()
+        run_episodes(self.cell, [episode], self.seed, self.planner, branching=branching)
+        cpu = time.process_time() - t0
+        raw = np.array([score_of(trace, self.score) for _, trace in branching.traces])
+        scores = np.maximum.accumulate(np.concatenate([prefix, raw])) if raw.size or prefix.size else np.zeros(1)
+        snaps.update(branching.snapshots)
+        self.cpu_s += cpu
+        self.steps += branching.steps
+        if start is None:
+            self.fresh_steps.append(branching.steps)
+        return ClosedLoopPath(episode, scores, snaps, branching.steps, cpu)
+
+    @staticmethod
+    def _keep_rule(score: str, best: float):
+        state = {"best": best}
+
+        def keep(step: int, trace: SafetyTrace) -> bool:
+            value = score_of(trace, score)
+            if value > state["best"]:
+                state["best"] = value
+                return True
+            return False
+
+        return keep
+
+    def _rose(self, best: float):
+        """keep(step, trace): a snapshot after every step at which the running score rose above ``best``."""
+        return self._keep_rule(self.score, best)

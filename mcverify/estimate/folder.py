@@ -1,0 +1,76 @@
+"""The folder of an estimate that does not run through the campaign runner (splitting, importance):
+``manifest.json`` (the campaign record, the estimator's specification, the code version),
+``estimate.json`` (the specification and one result per finished cell, rewritten after every cell)
+and ``report.md`` (a table of the results). ``--resume`` keeps the finished cells: each cell's
+result is deterministic, so running it again would give the same numbers.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from mcverify import provenance, store
+from mcverify.analysis.cells import json_ready
+from mcverify.campaign import runner
+from mcverify.campaign.spec import Campaign
+from mcverify.errors import RunError
+
+ESTIMATE = "estimate.json"
+REPORT = "report.md"
+
+#: A report column: (header, cell result -> text).
+Column = tuple[str, Callable[[dict[str, Any]], str]]
+
+
+def create(out: Path, campaign: Campaign, spec: dict[str, Any], cells: Sequence[str] | None) -> None:
+    """A new estimate folder ``out`` (refused if it holds anything); ``cells``: only these cells."""
+    out = Path(out)
+    if cells:
+        known = [c.name for c in campaign.cells]
+        missing = [c for c in cells if c not in known]
+        if missing:
+            raise RunError(f"no cell {missing[0]!r} in {campaign.name}; cells: {', '.join(known)}")
+    if out.exists() and any(out.iterdir()):
+        raise RunError(f"{out} exists and is not empty; choose another --out or use --resume {out}")
+    out.mkdir(parents=True, exist_ok=True)
+    record = runner.campaign_record(campaign)
+    manifest = {"format": store.FORMAT,
+                "campaign": {**{k: v for k, v in record.items() if k != "cells"}, "raw": campaign.raw,
+                             "source": str(campaign.source)},
+                "cells": record["cells"], "estimate": spec, "only_cells": list(cells) if cells else None,
+                "code": provenance.code_version(), "environment": provenance.environment_info()}
+    store.write_json_atomic(out / store.MANIFEST, manifest)
+
+
+def load(out: Path, method: str) -> tuple[dict[str, Any], dict[int, dict[str, Any]]]:
+    """(manifest, finished cells by index) of an estimate folder made by ``method``."""
+    out = Path(out)
+    manifest = store.read_manifest(out)
+    if (manifest.get("estimate") or {}).get("method") != method:
+        raise RunError(f"{out} is not a {method} estimate")
+    diffs = provenance.code_differences(manifest.get("code", {}), provenance.code_version())
+    if diffs:
+        raise RunError(f"cannot resume {out}: it was started with other code ({'; '.join(diffs)})")
+    done = store.read_json(out / ESTIMATE)["cells"] if (out / ESTIMATE).exists() else []
+    return manifest, {c["cell_index"]: c for c in done}
+
+
+def write(out: Path, title: str, intro: str, spec: dict[str, Any], results: dict[int, dict[str, Any]],
+          columns: Sequence[Column]) -> Path:
+    """Rewrite ``estimate.json`` and ``report.md`` with the results so far; returns the report path."""
+    out = Path(out)
+    cells = [results[i] for i in sorted(results)]
+    store.write_json_atomic(out / ESTIMATE, json_ready({"spec": spec, "cells": cells}))
+    lines = [f"# {title}", "", intro, "", "| " + " | ".join(h for h, _ in columns) + " |",
+             "|" + "---|" * len(columns)]
+    lines += ["| " + " | ".join(fn(c) for _, fn in columns) + " |" for c in cells]
+    store.atomic_write(out / REPORT, lambda tmp: Path(tmp).write_text("\n".join(lines) + "\n", encoding="utf-8"))
+    return out / REPORT
+
+
+def num(x: float | None, fmt: str = ".3g") -> str:
+    """A number for the report; "-" where it does not exist (None in JSON, NaN or inf)."""
+    return "-" if x is None or not math.isfinite(float(x)) else format(float(x), fmt)

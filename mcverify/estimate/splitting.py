@@ -1,0 +1,191 @@
+"""Adaptive multilevel splitting (AMS) for the probability that an episode's score reaches a level.
+
+The episode is a Markov chain driven by per-step noise; its *score* after step t is the running
+maximum of an importance function (e.g. minus the running minimum of h_ef), so it never decreases,
+and the target event is "the final score >= ``failure_level``" (h_ef < 0 for the score -min h_ef
+and level 0). Generalised AMS with a fixed number ``k`` of killed particles per iteration
+[CG07], [BLR16]:
+
+1. run ``n`` independent episodes (particles);
+2. z = the k-th smallest final score; stop if z >= failure_level;
+3. kill every particle with score <= z (K >= k of them with ties); if all are killed the estimate
+   is 0 (extinction); else multiply the weight by (1 - K/n);
+4. replace each killed particle by a branch of a survivor drawn uniformly, restarted from the
+   snapshot right after the first step at which that survivor's score exceeded z, continued with
+   fresh noise keyed by a new branch id; go to 2.
+
+The estimate weight x (fraction of the final particles at the failure level) is unbiased for every
+n and k [BLR16, Thm. 4.1]. Its variance has no closed form off the idealised continuous case, so an
+interval comes from ``replicates`` independent AMS runs: their mean is unbiased and a Student t
+interval on the replicate estimates is asymptotic (labelled so); the relative variance of one run is
+close to (-log p)/n for k = 1 in the idealised case [GHM11], which is what the cost comparison with
+crude Monte Carlo builds on.
+
+Determinism: every particle's noise comes from (seed, branch id) through the process, and the
+survivor draws from a generator seeded by (seed, replicate); the whole estimate replays exactly.
+Cost is counted in simulated control steps (what the process reports), not in episodes.
+
+[CG07] F. Cérou, A. Guyader, Adaptive multilevel splitting for rare event analysis, Stoch. Anal.
+Appl. 25 (2007). [BLR16] C.-E. Bréhier, T. Lelièvre, M. Rousset, ..., Unbiasedness of some
+generalized adaptive multilevel splitting algorithms, Ann. Appl. Probab. 26 (2016). [GHM11]
+A. Guyader, N. Hengartner, E. Matzner-Løber, Simulation and estimation of extreme quantiles and
+extreme probabilities, Appl. Math. Optim. 64 (2011).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+from scipy import stats as sps
+
+
+class Path(Protocol):
+    """One episode, possibly a branch of another: ``scores[t]`` the running score after control step t
+    from step 0 (a branch carries its parent's scores up to the branch step), ``steps`` the control
+    steps *this* simulation cost, and ``snapshot(t)`` the full episode state right after step t, for
+    any step t at which the running score rose (the only steps a level can first be exceeded at)."""
+
+    scores: np.ndarray
+    steps: int
+
+    def snapshot(self, step: int) -> Any: ...
+
+
+class BranchingProcess(Protocol):
+    """An episode function that can start fresh or continue from a snapshot with fresh noise.
+
+    ``run(None, branch_id, stop_level)``: a fresh episode whose noise is keyed by ``branch_id``;
+    ``run(snapshot, branch_id, stop_level)``: continue after the snapshot's step with noise keyed by
+    ``branch_id``. Either may stop early once the score reaches ``stop_level`` (the failure set is
+    absorbing for the estimate)."""
+
+    def run(self, start: Any, branch_id: int, stop_level: float) -> Path: ...
+
+
+def first_step_above(path: Path, level: float) -> int:
+    """The first control step after which ``path``'s running score exceeds ``level``."""
+    above = np.flatnonzero(np.asarray(path.scores) > level)
+    if not above.size:
+        raise ValueError(f"the score never exceeded {level}")
+    return int(above[0])
+
+
+@dataclass(frozen=True)
+class AMSRun:
+    """One AMS run: estimate, iterations, the levels reached, particles, cost in control steps."""
+
+    estimate: float
+    iterations: int
+    levels: list[float]
+    n: int
+    k: int
+    steps: int
+    extinct: bool
+    reached: int  # particles at the failure level at the end
+    killed: tuple[int, ...] = ()  # particles killed at each iteration (> k with ties)
+    capped: bool = False  # stopped by max_iterations before the level reached the failure set: not an estimate
+
+
+def ams(process: BranchingProcess, *, n: int, k: int = 1, failure_level: float, seed: int,
+        max_iterations: int = 100_000) -> AMSRun:
+    """One generalised AMS run (see the module docstring) with ``n`` particles, ``k`` killed per
+    iteration at least; particle and branch ids are drawn from (seed, counter)."""
+    if not 1 <= k < n:
+        raise ValueError(f"need 1 <= k < n, got k={k}, n={n}")
+    rng = np.random.default_rng([seed, 0x5A5])
+    next_id = 0
+
+    def fresh_id() -> int:
+        nonlocal next_id
+        next_id += 1
+        return seed * 1_000_003 + next_id  # distinct from other replicates' ids for seeds < 1e6 apart
+
+    particles = [process.run(None, fresh_id(), failure_level) for _ in range(n)]
+    steps = sum(p.steps for p in particles)
+    log_weight, levels, killed_counts, iterations = 0.0, [], [], 0
+    while iterations < max_iterations:
+        scores = np.array([float(p.scores[-1]) for p in particles])
+        z = float(np.sort(scores)[k - 1])
+        if z >= failure_level:
+            break
+        killed = np.flatnonzero(scores <= z)
+        if killed.size == n:
+            return AMSRun(0.0, iterations, levels, n, k, steps, True, 0, tuple(killed_counts))
+        survivors = np.flatnonzero(scores > z)
+        log_weight += math.log1p(-killed.size / n)
+        levels.append(z)
+        killed_counts.append(int(killed.size))
+        for i in killed:
+            parent = particles[int(rng.choice(survivors))]
+            child = process.run(parent.snapshot(first_step_above(parent, z)), fresh_id(), failure_level)
+            steps += child.steps
+            particles[int(i)] = child
+        iterations += 1
+    reached = int(sum(float(p.scores[-1]) >= failure_level for p in particles))
+    capped = iterations >= max_iterations and float(np.sort([p.scores[-1] for p in particles])[k - 1]) < failure_level
+    return AMSRun(math.exp(log_weight) * reached / n, iterations, levels, n, k, steps, False, reached,
+                  tuple(killed_counts), capped)
+
+
+@dataclass(frozen=True)
+class SplittingEstimate:
+    """Mean of ``replicates`` independent AMS runs with a Student t interval at ``level`` (asymptotic),
+    the relative standard error, and the cost in control steps."""
+
+    estimate: float
+    low: float
+    high: float
+    level: float
+    relative_halfwidth: float
+    replicates: int
+    n: int
+    k: int
+    steps: int
+    runs: list[float] = field(default_factory=list)
+    interval: str = "asymptotic: Student t on independent AMS replicates (each unbiased)"
+    warnings: list[str] = field(default_factory=list)
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def contains(self, p: float) -> bool:
+        return bool(self.low <= p <= self.high)
+
+
+def estimate(process: BranchingProcess, *, n: int, k: int = 1, failure_level: float, replicates: int = 10,
+             level: float = 0.95, seed: int = 0, max_iterations: int = 100_000) -> SplittingEstimate:
+    """``replicates`` independent AMS runs (seeds ``seed * replicates + r``) and their t interval."""
+    if replicates < 2:
+        raise ValueError(f"an interval needs at least 2 replicates, got {replicates}")
+    runs = [ams(process, n=n, k=k, failure_level=failure_level, seed=seed * replicates + r,
+                max_iterations=max_iterations) for r in range(replicates)]
+    return from_runs(runs, level)
+
+
+def from_runs(runs: list[AMSRun], level: float = 0.95) -> SplittingEstimate:
+    """The t interval of independent AMS runs, with warnings when it should not be trusted."""
+    values = np.array([r.estimate for r in runs])
+    mean = float(values.mean())
+    se = float(values.std(ddof=1) / math.sqrt(values.size))
+    half = float(sps.t.ppf(0.5 + level / 2, values.size - 1)) * se
+    rel = half / mean if mean > 0 else math.inf
+    warnings = []
+    capped = sum(r.capped for r in runs)
+    if capped:
+        warnings.append(f"{capped} run(s) hit the iteration cap before the failure level: not an estimate")
+    zero = int(np.sum(values == 0))
+    if zero > values.size // 2:
+        warnings.append(f"{zero} of {values.size} runs estimate 0 (extinction or no particle at the failure level): "
+                        "the t interval is unreliable; use more particles")
+    return SplittingEstimate(mean, max(0.0, mean - half), mean + half, level, rel, int(values.size), runs[0].n,
+                             runs[0].k, sum(r.steps for r in runs), [float(v) for v in values], warnings=warnings)
+
+
+def crude_steps_for(p: float, relative_halfwidth: float, steps_per_episode: float, level: float = 0.95) -> float:
+    """Control steps crude Monte Carlo needs for the same relative half-width at ``p`` (normal
+    approximation: N = z^2 (1 - p) / (p r^2) episodes of ``steps_per_episode`` steps each)."""
+    z = float(sps.norm.ppf(0.5 + level / 2))
+    return z * z * (1.0 - p) / (p * relative_halfwidth**2) * steps_per_episode

@@ -1,0 +1,51 @@
+"""``mcverify estimate --method splitting`` end to end on the tiny real campaign (two 1 s cells):
+the files, the flagged warnings of runs that cannot estimate, and a resume that keeps finished cells."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from mcverify.cli import main
+
+FIXTURE = Path(__file__).resolve().parents[1] / "fixtures" / "tiny.toml"
+
+
+def test_splitting_cli_writes_its_estimate_and_resumes(tmp_path: Path, capsys):
+    out = tmp_path / "est"
+    argv = ["estimate", str(FIXTURE), "--method", "splitting", "--particles", "2", "--replicates", "2",
+            "--max-iterations", "1", "--out", str(out)]
+    assert main(argv) == 0
+    est = json.loads((out / "estimate.json").read_text())
+    assert [c["cell_index"] for c in est["cells"]] == [0, 1]
+    for c in est["cells"]:
+        assert c["target"] == "collision" and c["steps"] > 0 and c["cpu_s"] > 0
+        assert any("iteration cap" in w for w in c["warnings"])  # 1 iteration cannot reach a collision
+    assert "| front_speed_kmh=25 |" in (out / "report.md").read_text()
+    before = (out / "estimate.json").read_text()
+    assert main(["estimate", "--resume", str(out)]) == 0
+    assert (out / "estimate.json").read_text() == before
+    assert main(argv) == 2 and "not empty" in capsys.readouterr().err
+
+
+def test_splitting_bad_input_is_one_line(capsys):
+    for argv, message in (
+        (["estimate", str(FIXTURE), "--method", "splitting", "--until-halfwidth", "0.1"], "--until-halfwidth is for"),
+        (["estimate", str(FIXTURE), "--method", "splitting", "--target", "unsafe"], "estimates --target collision or"),
+        (["estimate", str(FIXTURE), "--method", "splitting", "--replicates", "1"], "at least 2 replicates"),
+        (["estimate", str(FIXTURE), "--method", "splitting", "--score", "h_ef"], "not --target collision"),
+    ):
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err.strip()
+        assert message in err and len(err.splitlines()) == 1, err
+
+
+def test_splitting_runs_on_local_workers_give_the_same_estimate(tmp_path: Path):
+    base = ["estimate", str(FIXTURE), "--method", "splitting", "--particles", "2", "--replicates", "2",
+            "--max-iterations", "2", "--cell", "front_speed_kmh=36"]
+    assert main([*base, "--out", str(tmp_path / "serial")]) == 0
+    assert main([*base, "--out", str(tmp_path / "workers"), "--workers", "2"]) == 0
+    a, b = (json.loads((tmp_path / d / "estimate.json").read_text())["cells"] for d in ("serial", "workers"))
+    assert len(a) == len(b) == 1
+    drop = lambda c: {k: v for k, v in c.items() if k != "cpu_s"}  # noqa: E731 - CPU time is the machine's
+    assert drop(a[0]) == drop(b[0]) and len(a[0]["iterations"]) == 2

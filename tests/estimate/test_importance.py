@@ -1,0 +1,60 @@
+"""Cross-entropy importance sampling (mcverify.estimate.importance) on a score with a known failure
+probability: theta uniform on [0, 1]^2, failure where theta_1 + theta_2 >= 1.9, p = 0.005 exactly."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mcverify.estimate import importance
+
+BOUNDS = [(0.0, 1.0), (0.0, 1.0)]
+P = 0.1**2 / 2
+
+
+def score(theta: np.ndarray) -> np.ndarray:
+    return theta.sum(axis=1) - 1.9
+
+
+def test_the_proposal_moves_to_the_failure_corner_and_the_estimate_is_close():
+    est = importance.estimate(score, BOUNDS, samples=2000, seed=1)
+    assert est.ce_levels[-1] == 0.0 and est.ce_levels == sorted(est.ce_levels)
+    assert all(a > b for a, b in zip(est.proposal_a, est.proposal_b, strict=True))  # mass near 1
+    assert est.contains(P) and est.failures > 200 and not est.warnings
+    assert est.ess > 100 and est.max_weight_share < 0.05
+    # the defensive mixture bounds every weight by 1 / alpha
+    assert est.estimate <= 10.0
+
+
+def test_deterministic():
+    assert importance.estimate(score, BOUNDS, samples=500, seed=3) == importance.estimate(
+        score, BOUNDS, samples=500, seed=3)
+
+
+def test_warns_when_it_cannot_find_failures():
+    est = importance.estimate(lambda t: t.sum(axis=1) - 2.5, BOUNDS, samples=300, seed=0)
+    assert est.estimate == 0.0 and any("failing samples" in w for w in est.warnings)
+
+
+def test_bad_input():
+    with pytest.raises(ValueError):
+        importance.estimate(score, [(1.0, 0.0)])
+    with pytest.raises(ValueError):
+        importance.estimate(score, BOUNDS, alpha=0.0)
+
+
+@pytest.mark.parametrize("reps, floor", [pytest.param(20, 0.8, id="fast"),
+                                          pytest.param(200, 0.9, id="large", marks=pytest.mark.slow)])
+def test_coverage(reps, floor):
+    ests = [importance.estimate(score, BOUNDS, samples=1000, seed=100 + r) for r in range(reps)]
+    coverage = np.mean([e.contains(P) for e in ests])
+    values = np.array([e.estimate for e in ests])
+    assert coverage >= floor
+    assert abs(values.mean() / P - 1) < 0.05
+
+
+def test_the_anytime_lower_bound_holds():
+    ests = [importance.estimate(score, BOUNDS, samples=1000, seed=300 + r) for r in range(20)]
+    assert all(e.anytime_lower <= e.estimate for e in ests)
+    assert np.mean([e.anytime_lower > P for e in ests]) <= 0.1
+    assert np.mean([e.anytime_lower for e in ests]) > 0.3 * P  # informative, not just 0

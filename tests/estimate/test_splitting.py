@@ -1,0 +1,90 @@
+"""Adaptive multilevel splitting (mcverify.estimate.splitting) on a cheap episode driven by per-step
+noise (tests/synthetic_walk.py): branches replay exactly, the estimate is deterministic, and the
+95 % interval covers a crude Monte Carlo reference in at least 90 % of independent repetitions."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from synthetic_walk import Walk
+
+from mcverify.estimate import splitting
+
+WALK = Walk(drift=-0.05, sigma=0.3, horizon=60)
+
+
+def test_a_branch_from_a_snapshot_with_the_same_key_replays_the_episode():
+    whole = WALK.run(None, 7, math.inf)
+    step = 20
+    # continuing the same branch id from its own snapshot reproduces the rest bit for bit
+    again = WALK.run(whole.snapshot(step), 7, math.inf)
+    np.testing.assert_array_equal(again.x, whole.x)
+    np.testing.assert_array_equal(again.scores, whole.scores)
+    assert again.steps == WALK.horizon - step - 1
+    other = WALK.run(whole.snapshot(step), 8, math.inf)
+    np.testing.assert_array_equal(other.x[: step + 1], whole.x[: step + 1])
+    assert not np.array_equal(other.x[step + 1:], whole.x[step + 1:])
+
+
+def test_first_step_above_a_level():
+    path = WALK.run(None, 3, math.inf)
+    level = 0.5 * float(path.scores[0] + path.scores[-1])
+    assert path.scores[-1] > path.scores[0]
+    t = splitting.first_step_above(path, level)
+    assert path.scores[t] > level and (t == 0 or path.scores[t - 1] <= level)
+
+
+def test_an_estimate_replays_exactly_and_counts_its_cost():
+    a = splitting.estimate(WALK, n=20, failure_level=2.5, replicates=3, seed=4)
+    b = splitting.estimate(WALK, n=20, failure_level=2.5, replicates=3, seed=4)
+    assert a == b
+    assert a.steps > 3 * 20 * 10 and a.low <= a.estimate <= a.high
+    run = splitting.ams(WALK, n=20, failure_level=2.5, seed=9)
+    assert not run.extinct and run.levels == sorted(run.levels) and len(run.killed) == run.iterations
+    weight = np.prod([1 - K / 20 for K in run.killed])
+    assert run.estimate == pytest.approx(weight * run.reached / 20)
+
+
+def test_a_level_reached_by_every_episode_gives_one():
+    run = splitting.ams(WALK, n=10, failure_level=-10.0, seed=1)
+    assert run.estimate == 1.0 and run.iterations == 0
+
+
+def test_bad_arguments():
+    with pytest.raises(ValueError):
+        splitting.ams(WALK, n=5, k=5, failure_level=1.0, seed=0)
+    with pytest.raises(ValueError):
+        splitting.estimate(WALK, n=5, failure_level=1.0, replicates=1)
+
+
+def _coverage(barrier: float, crude_episodes: int, reps: int, n: int, replicates: int):
+    hits, total = WALK.crude(crude_episodes, barrier, seed=1)
+    p = hits / total
+    results = [splitting.estimate(WALK, n=n, failure_level=barrier, replicates=replicates, seed=100 + r)
+               for r in range(reps)]
+    values = np.array([r.estimate for r in results])
+    coverage = np.mean([r.contains(p) for r in results])
+    return p, coverage, values.mean() / p - 1.0, values.std() / p, results
+
+
+def test_coverage_small():
+    p, coverage, bias, rel_err, _ = _coverage(2.5, 400_000, reps=30, n=30, replicates=8)
+    assert 0.02 < p < 0.06
+    assert coverage >= 0.80  # 30 repetitions: a loose bound here, the slow test checks 90 %
+    assert abs(bias) < 0.1 and rel_err < 0.3
+
+
+@pytest.mark.slow
+def test_coverage_large_rare():
+    """p about 1.8e-3 (reference: 1e7 crude episodes), 60 repetitions of 10 x 50-particle AMS.
+    Measured when written: coverage 0.92, bias -0.3 %, relative error 0.13, ~1.2e5 steps per estimate
+    against ~1.5e6 for crude Monte Carlo at the same relative half-width (about 12x at this p)."""
+    p, coverage, bias, rel_err, results = _coverage(4.5, 10_000_000, reps=60, n=50, replicates=10)
+    assert 1e-3 < p < 3e-3
+    assert coverage >= 0.90, coverage
+    assert abs(bias) < 0.05 and rel_err < 0.2
+    mean_rel = float(np.mean([r.relative_halfwidth for r in results]))
+    crude = splitting.crude_steps_for(p, mean_rel, WALK.horizon)
+    assert crude / np.mean([r.steps for r in results]) > 5
