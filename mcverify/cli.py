@@ -48,6 +48,12 @@ def main(argv: list[str] | None = None) -> int:
         restore_logging()
 
 
+# The commands whose folders resume with `mcverify COMMAND --resume DIR`, and the files that say a
+# folder was written (a run's or estimate's manifest, a search's configuration).
+_RESUMABLE = ("run", "estimate", "falsify")
+_FOLDER_MARKERS = ("manifest.json", "falsify.json", "estimate.json")
+
+
 def _dispatch(args) -> int:
     from mcverify.errors import UserError
 
@@ -63,12 +69,14 @@ def _dispatch(args) -> int:
         return EXIT_USAGE
     except KeyboardInterrupt as err:
         terminated = isinstance(err, Terminated)
-        run_dir = getattr(args, "run_dir", None)
-        if run_dir is not None and not (Path(run_dir) / "manifest.json").is_file():
-            run_dir = None  # stopped before the run folder was written: nothing to resume
+        command = getattr(args, "command", None)
+        run_dir = getattr(args, "run_dir", None) if command in _RESUMABLE else None
+        if run_dir is not None and not any((Path(run_dir) / name).is_file() for name in _FOLDER_MARKERS):
+            run_dir = None  # stopped before the folder was written: nothing to resume
         what = "terminated (SIGTERM)" if terminated else "interrupted"
         if run_dir is not None:
-            print(f"mcverify: {what}; finished chunks are kept (mcverify run --resume {run_dir})", file=sys.stderr)
+            print(f"mcverify: {what}; finished chunks are kept (mcverify {command} --resume {run_dir})",
+                  file=sys.stderr)
         else:
             print(f"mcverify: {what}", file=sys.stderr)
         return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
@@ -143,7 +151,7 @@ def _parser() -> argparse.ArgumentParser:
     common.add_argument("-v", "--verbose", action="count", default=0, help="more detail on stderr")
     common.add_argument("-q", "--quiet", action="count", default=0,
                         help="only warnings and errors on stderr (no progress bar, no notices)")
-    sub = p.add_subparsers(metavar="COMMAND", parser_class=_Parser)
+    sub = p.add_subparsers(metavar="COMMAND", parser_class=_Parser, dest="command")
     _add = sub.add_parser
     sub.add_parser = lambda *a, **k: _add(*a, parents=[common], **k)  # every command takes -v / -q
 

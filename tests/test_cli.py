@@ -47,6 +47,22 @@ def test_sigterm_and_ctrl_c_print_the_resume_hint(tmp_path: Path, capsys, monkey
     assert err == f"mcverify: {word}; finished chunks are kept (mcverify run --resume {run_dir})"
 
 
+@pytest.mark.parametrize("command, marker", [("falsify", "falsify.json"), ("estimate", "manifest.json")])
+def test_the_resume_hint_names_the_command_that_made_the_folder(tmp_path: Path, capsys, monkeypatch, command, marker):
+    folder = tmp_path / "search"
+    folder.mkdir()
+    (folder / marker).write_text("{}")
+
+    def fake_command(args):
+        args.run_dir = folder
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, f"_cmd_{command}", fake_command)
+    assert cli.main([command, "whatever.toml"]) == 130
+    err = capsys.readouterr().err.strip()
+    assert err == f"mcverify: interrupted; finished chunks are kept (mcverify {command} --resume {folder})"
+
+
 def test_a_signal_before_the_run_folder_exists_gives_no_resume_hint(tmp_path: Path, capsys, monkeypatch):
     def fake_run(args):
         args.run_dir = tmp_path / "not-yet"
