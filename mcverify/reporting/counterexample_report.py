@@ -28,7 +28,7 @@ def table(records: Sequence[Mapping[str, Any]], requirement: str, total_episodes
     """The counterexample table: one row per violating episode, worst first."""
     params = [k for k in (records[0] if records else {}) if k.startswith("param:") or k.startswith("sample_")]
     columns = ["episode", "cell", *[p.removeprefix("param:") for p in params], "robustness", "first unsafe (s)",
-               "cause", "min gap veh_f (m)", "min h_ef", "min gap veh_o (m)", "min h_eo (m)", "replay"]
+               "cause", "min gap veh_f (m)", "min h_ef", "min gap veh_o, any time (m)", "min h_eo (m)", "replay"]
     rows = []
     for r in records[:MAX_ROWS]:
         rows.append([str(r["episode_id"]), str(r["cell"]), *[_value(r.get(p)) for p in params],
