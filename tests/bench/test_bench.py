@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import math
 
+import pytest
+
 from mcverify.bench import engine as bench
 from mcverify.bench import engine_report
 from mcverify.bench.agreement import agreement
@@ -74,6 +76,7 @@ def test_markdown_blocks_go_into_the_bench_section(tmp_path):
     assert "engine / compiled IPOPT loop: 2.00x" in engine_report.render(result)
 
 
+@pytest.mark.slow  # three full closed-loop episodes on three solver loops: about 3 minutes
 def test_solve_classes_account_for_every_solve_of_every_side():
     """On a short two-cell campaign: each side's class counts add up to the solves its rows report,
     and the paired sides agree on the verdicts (the same problems, solved by IPOPT or the fast path)."""
