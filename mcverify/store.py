@@ -449,6 +449,20 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
     atomic_write(path, lambda tmp: Path(tmp).write_bytes(data))
 
 
+def replace_section(path: Path, section: str, begin: str, end: str) -> None:
+    """Replace the generated section of a Markdown file that starts with the line ``begin`` and ends
+    with ``end`` (``section`` carries both markers), or append it; the rest of the file is kept.
+    Used by the benchmarks that write into results/BENCHMARKS.md."""
+    path = Path(path)
+    text = path.read_text(encoding="utf-8") if path.is_file() else "# Benchmarks\n\n"
+    if begin in text and end in text:
+        head, rest = text.split(begin, 1)
+        text = head + section.rstrip("\n") + rest.split(end, 1)[1]
+    else:
+        text = text.rstrip("\n") + "\n\n" + section
+    atomic_write(path, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
+
+
 def json_default(obj: Any) -> Any:
     if hasattr(obj, "item"):
         return obj.item()

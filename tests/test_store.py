@@ -163,3 +163,14 @@ def test_trajectory_and_json_are_written_atomically(tmp_path: Path):
     store.write_json_atomic(tmp_path / "a.json", {"k": (1, 2)})
     assert json.loads((tmp_path / "a.json").read_text()) == {"k": [1, 2]}
     assert not [p for p in tmp_path.rglob("*.tmp")]
+
+
+def test_replace_section_appends_then_replaces_keeping_the_rest(tmp_path):
+    md = tmp_path / "BENCHMARKS.md"
+    md.write_text("# Benchmarks\n\nhand-written row\n", encoding="utf-8")
+    begin, end = "<!-- x:begin -->", "<!-- x:end -->"
+    store.replace_section(md, f"{begin}\nfirst\n{end}\n", begin, end)
+    store.replace_section(md, f"{begin}\nsecond\n{end}\n", begin, end)
+    text = md.read_text(encoding="utf-8")
+    assert text.count(begin) == 1 and "second" in text and "first" not in text
+    assert text.startswith("# Benchmarks\n\nhand-written row\n")

@@ -79,11 +79,4 @@ def markdown(res: dict[str, Any], command: str) -> str:
 
 def write(res: dict[str, Any], command: str, path: Path) -> None:
     """Replace this benchmark's section of ``path`` (or append it), keeping the rest of the file."""
-    text = path.read_text() if path.exists() else "# Benchmarks\n\n"
-    section = markdown(res, command)
-    if BEGIN_MARK in text and END_MARK in text:
-        head, rest = text.split(BEGIN_MARK, 1)
-        text = head + section.rstrip("\n") + rest.split(END_MARK, 1)[1]
-    else:
-        text = text.rstrip("\n") + "\n\n" + section
-    store.atomic_write(path, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
+    store.replace_section(path, markdown(res, command), BEGIN_MARK, END_MARK)

@@ -19,6 +19,7 @@ from typing import Any
 
 import tomllib
 
+from mcverify import store
 from mcverify.analysis import stats
 from mcverify.campaign.spec import apply_settings, load_campaign
 from mcverify.falsify import methods, search
@@ -108,14 +109,8 @@ def section(trials: Sequence[Trial], *, budget: int, command: str) -> str:
 
 
 def write_section(path: Path, text: str) -> None:
-    old = path.read_text(encoding="utf-8") if path.is_file() else "# Benchmarks\n"
-    if BEGIN_MARK in old and END_MARK in old:
-        head, rest = old.split(BEGIN_MARK, 1)
-        _, tail = rest.split(END_MARK, 1)
-        new = head + text.rstrip("\n") + tail
-    else:
-        new = old.rstrip("\n") + "\n\n" + text
-    path.write_text(new, encoding="utf-8")
+    """Replace this benchmark's section of ``path`` (or append it), keeping the rest of the file."""
+    store.replace_section(path, text, BEGIN_MARK, END_MARK)
 
 
 DEFAULT_TARGETS = (
