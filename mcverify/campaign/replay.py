@@ -73,7 +73,7 @@ def replay(run_dir: Path, episode_id: int, out_dir: Path | None = None) -> Repla
     plot_path = out_dir / f"episode-{episode_id:06d}.png"
     from mcverify.reporting import episode_plot
 
-    episode_plot.episode_figure(traj, cell, row, plot_path)
+    episode_plot.episode_figure(traj, cell, row, plot_path, plans=recording.plans or None)
     if diffs:
         detail = "; ".join(f"{k}: stored {a!r} vs replayed {b!r}" for k, (a, b) in diffs.items())
         raise ReplayMismatch(f"episode {episode_id} does not reproduce: {detail}")

@@ -17,12 +17,29 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.patches import Rectangle  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 
 from mcverify.reporting.figure_common import MAX_PANELS, inches, panel_grid, save  # noqa: E402
 from mcverify.reporting.tables import fmt_p  # noqa: E402
 
+#: Outline and label colour of a cell with at least one unsafe episode.
+UNSAFE = "crimson"
 _OUTCOME_COLOURS = {"overtook": "tab:green", "went_back": "tab:orange", "timeout": "tab:gray", "error": "black"}
+
+
+def unsafe_cell(cell: Mapping[str, Any]) -> bool:
+    """Whether at least one of the cell's simulated episodes was unsafe (its safe count k < n)."""
+    r = cell["rates"].get("safe")
+    return bool(r and r["n"] and r["k"] < r["n"])
+
+
+def _unsafe_legend(fig: plt.Figure, cells: Sequence[Mapping[str, Any]], text: str) -> None:
+    """A legend line at the figure's foot for the cells drawn as unsafe (none if none is)."""
+    n = sum(unsafe_cell(c) for c in cells)
+    if n:
+        fig.text(0.01, 0.005, f"{text} ({n} of {len(cells)} cells)", color=UNSAFE, fontsize=8, ha="left",
+                 va="bottom")
 
 
 def rates_per_cell(cells: Sequence[Mapping[str, Any]], path: Path) -> dict[str, int]:
@@ -44,7 +61,10 @@ def rates_per_cell(cells: Sequence[Mapping[str, Any]], path: Path) -> dict[str, 
         ax.errorbar(rate, y[ok] + dy, xerr=[rate - low, high - rate], fmt="o", ms=4, color=colour, capsize=2,
                     lw=1, label=name.replace("_", " "))
     ax.set_xlim(-0.02, 1.02)
-    ax.set_yticks(y, [c["cell"] for c in cells], fontsize=8)
+    ax.set_yticks(y, [("⚠ " if unsafe_cell(c) else "") + c["cell"] for c in cells], fontsize=8)
+    for tick, c in zip(ax.get_yticklabels(), cells, strict=True):
+        if unsafe_cell(c):
+            tick.set_color(UNSAFE)
     ax.invert_yaxis()
     ax.set_xlabel("rate (point) with its two-sided interval (bar)")
     ax.grid(axis="x", alpha=0.3)
@@ -65,7 +85,8 @@ def rates_per_cell(cells: Sequence[Mapping[str, Any]], path: Path) -> dict[str, 
     ax2.set_xlim(0, 1)
     ax2.set_xlabel("share of episodes by outcome (counts written in)")
     ax2.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=4, fontsize=8, frameon=False)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.25 / height, 1, 1))
+    _unsafe_legend(fig, cells, "⚠ red name: a cell with at least one unsafe episode")
     return save(fig, path)
 
 
@@ -198,6 +219,9 @@ def rate_heatmap(
         good = r["rate"] if higher_is_better else 1 - r["rate"]
         ax.text(j, i, f"{k}/{n}\n{bound}", ha="center", va="center", fontsize=8,
                 color="black" if 0.25 < good < 0.9 else "white")
+        if unsafe_cell(c):  # black, not red: it must show on the red end of the colour map too
+            ax.add_patch(Rectangle((j - 0.46, i - 0.46), 0.92, 0.92, fill=False, edgecolor="black", lw=2.5, zorder=3))
+            ax.text(j - 0.42, i - 0.40, "⚠", ha="left", va="top", fontsize=10, color="black", zorder=4)
     cmap = plt.get_cmap("RdYlGn" if higher_is_better else "RdYlGn_r").with_extremes(bad="white")
     im = ax.imshow(np.ma.masked_invalid(grid), cmap=cmap, vmin=0.0, vmax=1.0, aspect="auto")
     ax.set_xticks(range(len(col_labels)), tick_labels[1] if tick_labels else col_labels, fontsize=8)
@@ -206,7 +230,8 @@ def rate_heatmap(
     ax.set_ylabel(row_axis)
     ax.set_title(title, fontsize=10)
     fig.colorbar(im, ax=ax, label=f"{metric.replace('_', ' ')} rate")
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.25 / size[1], 1, 1))
+    _unsafe_legend(fig, cells, "⚠ black outline: a cell with at least one unsafe episode")
     return save(fig, path)
 
 

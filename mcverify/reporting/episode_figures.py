@@ -11,7 +11,6 @@ saving: :mod:`mcverify.reporting.figure_common`.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -21,36 +20,18 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from matplotlib.patches import Ellipse, Polygon  # noqa: E402
 
+from mcverify.reporting import road_panels, unsafe_event  # noqa: E402
 from mcverify.reporting.figure_common import column, inches, panel_grid, params_dict, save  # noqa: E402
+from mcverify.reporting.road_panels import EGO, FRONT, OPP, Q1_COLOUR, Q2_COLOUR, UNSAFE  # noqa: E402
+from mcverify.reporting.unsafe_event import UnsafeEvent  # noqa: E402
 
-EGO, FRONT, OPP = "tab:green", "tab:red", "tab:blue"
-Q1_COLOUR, Q2_COLOUR = "tab:green", "tab:orange"
 #: Background colour per ``active_problem`` code (decision.Source): Q1, Q2, fallback, held MPC-DC plan.
 _PROBLEM_COLOURS = {1: Q1_COLOUR, 2: Q2_COLOUR, 3: "tab:red", 4: "tab:purple"}
+#: Width of the stacked road figures (in).
+_ROAD_WIDTH_IN = 12.0
 
 Trajectory = Mapping[str, np.ndarray]
-
-
-def _box(ax: plt.Axes, x: float, y: float, psi: float, p: Mapping[str, Any], colour: str, **kw) -> None:
-    half_l, half_w = 0.5 * p["geometry"]["length_m"], 0.5 * p["geometry"]["width_m"]
-    local = np.array([[half_l, -half_w], [half_l, half_w], [-half_l, half_w], [-half_l, -half_w]])
-    c, s = math.cos(psi), math.sin(psi)
-    corners = np.column_stack([x + local[:, 0] * c - local[:, 1] * s, y + local[:, 0] * s + local[:, 1] * c])
-    ax.add_patch(Polygon(corners, closed=True, color=colour, alpha=kw.pop("alpha", 0.6), lw=0, **kw))
-
-
-def _road(ax: plt.Axes, p: Mapping[str, Any]) -> None:
-    lane = p["road"]["lane_width_m"]
-    ax.axhspan(-lane / 2, lane / 2, color="0.93", zorder=0)
-    ax.axhspan(lane / 2, 1.5 * lane, color="0.85", zorder=0)
-    ax.axhline(lane / 2, color="white", ls=(0, (6, 6)), lw=1.5, zorder=0)
-    ax.set_ylim(-lane / 2 - 0.3, 1.5 * lane + 0.3)
-
-
-def _index_at(t: np.ndarray, when: float) -> int:
-    return int(np.clip(np.searchsorted(t, when, side="right") - 1, 0, len(t) - 1))
 
 
 def snapshot_times(traj: Trajectory, plans: Mapping[str, np.ndarray] | None, n: int = 5) -> list[float]:
@@ -66,6 +47,42 @@ def snapshot_times(traj: Trajectory, plans: Mapping[str, np.ndarray] | None, n: 
     return [float(times[i]) for i in pick]
 
 
+def _with_event(times: list[float], event: UnsafeEvent | None) -> list[tuple[float, UnsafeEvent | None]]:
+    """The snapshot times in order, the first unsafe moment added as its own panel."""
+    moments: list[tuple[float, UnsafeEvent | None]] = [(w, None) for w in times]
+    if event is not None:
+        moments = [m for m in moments if abs(m[0] - event.t_s) > 1e-9] + [(event.t_s, event)]
+    return sorted(moments, key=lambda m: m[0])
+
+
+def _road_stack(fig_height_extra_in: float, traj: Trajectory, plans: Mapping[str, np.ndarray] | None,
+                p: Mapping[str, Any], times: list[float], event: UnsafeEvent | None, *, bottom_in: float = 0.45,
+                ) -> tuple[plt.Figure, list[plt.Axes], float]:
+    """A figure whose top holds one road panel per moment (equal scale, one window width), with
+    ``fig_height_extra_in`` inches left free below them; returns the figure, the road axes and the
+    free height's top in figure coordinates."""
+    moments = _with_event(times, event)
+    lefts, width = road_panels.windows(traj, plans, p, [m[0] for m in moments])
+    header_in = 0.8
+    panel_h = road_panels.panel_height_in(p, width, _ROAD_WIDTH_IN)
+    roads_in = panel_h * len(moments)
+    height = header_in + roads_in + bottom_in + fig_height_extra_in
+    fig = plt.figure(figsize=inches(_ROAD_WIDTH_IN, height))
+    top = 1 - header_in / height
+    road_bottom = (fig_height_extra_in + bottom_in) / height
+    grid = fig.add_gridspec(len(moments), 1, left=0.05, right=0.99, top=top, bottom=road_bottom, hspace=0.35)
+    axes = []
+    for i, ((when, ev), x0) in enumerate(zip(moments, lefts, strict=True)):
+        ax = fig.add_subplot(grid[i, 0])
+        road_panels.road_panel(ax, traj, plans, p, when, x0, width, event=ev)
+        axes.append(ax)
+    axes[-1].set_xlabel("x (m)", fontsize=8)
+    handles = road_panels.legend_handles(traj, plans, event)
+    fig.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, 1 - 0.34 / height),
+               ncol=min(len(handles), 9), fontsize=7, frameon=False)
+    return fig, axes, (fig_height_extra_in) / height
+
+
 def snapshots(
     traj: Trajectory,
     plans: Mapping[str, np.ndarray] | None,
@@ -75,90 +92,17 @@ def snapshots(
     title: str,
     n_snapshots: int = 5,
 ) -> dict[str, int]:
-    """Road snapshots stacked top to bottom (the paper's Figs. 5-7): the ego (green), the front
-    vehicle (red) with its safety ellipse h_ef = 0 (dashed), the opposing vehicle (blue) when there
-    is one, the ego's path so far (black), and at each snapshot the planned Q1 (green dots) and Q2
-    (orange dots) trajectories and the predicted opposing trajectory (blue dots)."""
+    """Road snapshots stacked top to bottom (the paper's Figs. 5-7), drawn to scale: the ego, veh_f
+    with its safety ellipse h_ef = 0 (dashed) and veh_o when there is one, each as its footprint and
+    named, the ego's path so far (black), the planned Q1 (green dots) and Q2 (orange dots)
+    trajectories and veh_o's predicted positions (blue dots). An unsafe episode gets one more panel
+    at its first unsafe moment, framed in red with the cause written in
+    (:mod:`mcverify.reporting.road_panels`)."""
     p = params_dict(params)
-    t = np.asarray(traj["t_s"], dtype=float)
+    event = unsafe_event.first_unsafe_event(traj)
     times = snapshot_times(traj, plans, n_snapshots)
-    ego_x, ego_y = np.asarray(traj["ego_x_m"], float), np.asarray(traj["ego_y_m"], float)
-    psi = column(traj, "ego_psi_rad")
-    front_x = np.asarray(traj["front_x_m"], float)
-    front_y = column(traj, "front_y_m")
-    opp_x, opp_y = column(traj, "opp_x_m"), column(traj, "opp_y_m")
-    a_m, b_m = p["barrier"]["ellipse_a_m"], p["barrier"]["ellipse_b_m"]
-    lane = p["road"]["lane_width_m"]
-    plan_t = column(plans, "t_s") if plans is not None else None
-
-    # one window width for every panel: the ego, the ellipse and the plans of the widest snapshot
-    lefts, spans = [], []
-    for when in times:
-        k = _index_at(t, when)
-        left = min(ego_x[k], front_x[k] - a_m) - 8.0
-        right = max(front_x[k] + a_m, ego_x[k])
-        if plan_t is not None:
-            sel = (plan_t == when) & np.isfinite(plans["x_m"].astype(float))
-            if sel.any():
-                right = max(right, float(np.max(plans["x_m"][sel].astype(float))))
-        lefts.append(left)
-        spans.append(right - left)
-    width = float(np.clip(max(spans, default=60.0) + 12.0, 60.0, 240.0))
-    header_in, panel_h = 0.75, 12.0 * (2 * lane + 0.6) / width + 0.42
-    height = panel_h * len(times) + header_in + 0.45
-    fig, axes = plt.subplots(len(times), 1, figsize=inches(12, height), squeeze=False)
-    fig.subplots_adjust(left=0.05, right=0.99, top=1 - header_in / height, bottom=0.45 / height, hspace=0.35)
-    for ax, when, x0 in zip(axes[:, 0], times, lefts, strict=True):
-        k = _index_at(t, when)
-        _road(ax, p)
-        ax.set_xlim(x0, x0 + width)
-        ax.plot(ego_x[: k + 1], ego_y[: k + 1], color="black", lw=1.2, zorder=3)
-        fy = float(front_y[k]) if front_y is not None else 0.0
-        ax.add_patch(Ellipse((front_x[k], fy), 2 * a_m, 2 * b_m, fill=False, ls="--", lw=1, color=FRONT, zorder=2))
-        _box(ax, front_x[k], fy, 0.0, p, FRONT, zorder=4)
-        _box(ax, ego_x[k], ego_y[k], float(psi[k]) if psi is not None else 0.0, p, EGO, zorder=5)
-        if opp_x is not None and np.isfinite(opp_x[k]):
-            oy = float(opp_y[k]) if opp_y is not None and np.isfinite(opp_y[k]) else lane
-            _box(ax, opp_x[k], oy, math.pi, p, OPP, zorder=4)
-            if opp_x[k] > x0 + width:  # beyond the window: say where it is
-                ax.text(0.995, 0.9, f"veh_o at x = {opp_x[k]:.0f} m →", transform=ax.transAxes, ha="right",
-                        va="top", fontsize=7, color=OPP)
-        if plan_t is not None:
-            problems = plans.get("problem")
-            for name, colour in (("Q1", Q1_COLOUR), ("Q2", Q2_COLOUR)):
-                sel = plan_t == when
-                if problems is not None:
-                    sel &= problems == name
-                if sel.any():
-                    ax.plot(plans["x_m"][sel].astype(float), plans["y_m"][sel].astype(float), ".", ms=3,
-                            color=colour, alpha=0.75, zorder=6)
-                    opp_plan = plans.get("opp_x_m")
-                    if name == "Q1" and opp_plan is not None and np.isfinite(opp_plan[sel].astype(float)).any():
-                        ax.plot(opp_plan[sel].astype(float), np.full(int(sel.sum()), lane), ".", ms=3, color=OPP,
-                                alpha=0.6, zorder=6)
-        ax.set_aspect("equal", adjustable="box")
-        ax.text(0.005, 0.92, f"t = {when:.2f} s", transform=ax.transAxes, fontsize=8, va="top")
-        ax.tick_params(labelsize=7)
-        ax.set_yticks([0.0, lane])
-    axes[-1, 0].set_xlabel("x (m)")
-    handles = [
-        plt.Line2D([], [], color=EGO, lw=6, alpha=0.6, label="ego"),
-        plt.Line2D([], [], color=FRONT, lw=6, alpha=0.6, label="front vehicle"),
-        plt.Line2D([], [], color=FRONT, ls="--", label="safety ellipse h_ef = 0"),
-        plt.Line2D([], [], color="black", label="ego path"),
-    ]
-    if opp_x is not None:
-        handles.append(plt.Line2D([], [], color=OPP, lw=6, alpha=0.6, label="opposing vehicle"))
-    if plan_t is not None:
-        handles += [
-            plt.Line2D([], [], color=Q1_COLOUR, marker=".", ls="", label="Q1 plan (overtake)"),
-            plt.Line2D([], [], color=Q2_COLOUR, marker=".", ls="", label="Q2 plan (go back)"),
-        ]
-        if plans.get("opp_x_m") is not None and column(plans, "opp_x_m") is not None:
-            handles.append(plt.Line2D([], [], color=OPP, marker=".", ls="", label="predicted opposing"))
-    fig.text(0.5, 1 - 0.12 / height, title, ha="center", va="top", fontsize=9)
-    fig.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, 1 - 0.32 / height), ncol=len(handles),
-               fontsize=7, frameon=False)
+    fig, _, _ = _road_stack(0.0, traj, plans, p, times, event)
+    fig.text(0.5, 1 - 0.12 / fig.get_size_inches()[1], title, ha="center", va="top", fontsize=9)
     return save(fig, path)
 
 
@@ -192,9 +136,21 @@ def barrier_panel(
     top = clip if clip is not None else float(finite.max())
     ax.set_ylim(min(-0.1 * max(level, 1e-3), float(finite.min())) - 0.05 * max(abs(top), 1.0), top)
     _shade_problems(ax, t, column(traj, "active_problem"))
+    event = unsafe_event.first_unsafe_event(traj)
+    if event is not None:
+        mark_event(ax, event)
     ax.set_xlabel("time (s)", fontsize=8)
     ax.set_ylabel(name + (" (clipped)" if clip is not None and finite.max() > clip else ""), fontsize=8)
     ax.tick_params(labelsize=7)
+
+
+def mark_event(ax: plt.Axes, event: UnsafeEvent, *, text: bool = True) -> None:
+    """A red vertical line at the first unsafe moment (s), its cause written beside it."""
+    ax.axvline(event.t_s, color=UNSAFE, lw=1.2, label="first unsafe moment")
+    if text:
+        ax.text(event.t_s, 0.96, f" {event.label()}", transform=ax.get_xaxis_transform(), fontsize=7,
+                color=UNSAFE, ha="left", va="top", clip_on=True,
+                bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none", "pad": 1.0})
 
 
 def speed_panel(ax: plt.Axes, traj: Trajectory, speed_limit_mps: float | None) -> None:
@@ -208,6 +164,8 @@ def speed_panel(ax: plt.Axes, traj: Trajectory, speed_limit_mps: float | None) -
         ("opp_speed_mps", OPP, "opposing", {}),
     ):
         v = column(traj, name)
+        if v is not None and name == "opp_speed_mps" and column(traj, "opp_x_m") is not None:
+            v = np.where(column(traj, "opp_x_m") < road_panels.PARKED_BEYOND_X_M, v, np.nan)  # not spawned yet
         if v is not None:
             ax.plot(t, v, color=colour, label=label, **({"lw": 1.2} | kw))
     if speed_limit_mps is not None:
@@ -254,38 +212,25 @@ def episode_overview(
     path: Path,
     *,
     title: str,
+    plans: Mapping[str, np.ndarray] | None = None,
 ) -> dict[str, int]:
-    """One episode on one page: the whole road view with six snapshots of the vehicles and the
-    ellipse, h_ef(t) against ε, and the speeds (the figure ``mcverify replay`` writes)."""
+    """One episode on one page (the figure ``mcverify replay`` writes): road panels to scale at
+    four moments (and at the first unsafe one, marked with its cause), h_ef(t) against ε, and the
+    speeds, the first unsafe moment marked in both."""
     p = params_dict(params)
-    fig, axes = plt.subplots(3, 1, figsize=inches(11, 9), gridspec_kw={"height_ratios": [1.3, 1, 1]})
-    ax = axes[0]
-    _road(ax, p)
-    t = np.asarray(traj["t_s"], dtype=float)
-    ego_x, ego_y = np.asarray(traj["ego_x_m"], float), np.asarray(traj["ego_y_m"], float)
-    front_x = np.asarray(traj["front_x_m"], float)
-    front_y = column(traj, "front_y_m")
-    psi = column(traj, "ego_psi_rad")
-    opp_x = column(traj, "opp_x_m")
-    a_m, b_m = p["barrier"]["ellipse_a_m"], p["barrier"]["ellipse_b_m"]
-    for k in np.unique(np.linspace(0, len(t) - 1, 6).astype(int)):
-        fy = float(front_y[k]) if front_y is not None else 0.0
-        ax.add_patch(Ellipse((front_x[k], fy), 2 * a_m, 2 * b_m, fill=False, ls="--", lw=0.8, color=FRONT))
-        _box(ax, front_x[k], fy, 0.0, p, FRONT, alpha=0.5)
-        _box(ax, ego_x[k], ego_y[k], float(psi[k]) if psi is not None else 0.0, p, EGO, alpha=0.5)
-        if opp_x is not None and np.isfinite(opp_x[k]):
-            _box(ax, opp_x[k], p["road"]["lane_width_m"], math.pi, p, OPP, alpha=0.5)
-        ax.annotate(f"{t[k]:.1f}s", (ego_x[k], ego_y[k] + 1.3), fontsize=7, ha="center")
-    ax.plot(ego_x, ego_y, color="black", lw=1.2, label="ego path")
-    xs = np.concatenate([ego_x, front_x])
-    ax.set_xlim(float(np.min(xs)) - 10, float(np.max(xs)) + 10)
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.legend(loc="upper left", fontsize=8)
-    barrier_panel(axes[1], traj, level, clip=_barrier_clip(level))
-    axes[1].legend(loc="upper right", fontsize=8)
-    speed_panel(axes[2], traj, p["ego"]["speed_max_mps"])
-    axes[2].legend(loc="lower right", fontsize=8)
-    fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
+    event = unsafe_event.first_unsafe_event(traj)
+    times = snapshot_times(traj, plans, 4)
+    series_in = 2 * 2.4 + 0.5
+    fig, _, free_top = _road_stack(series_in, traj, plans, p, times, event, bottom_in=0.3)
+    height = fig.get_size_inches()[1]
+    grid = fig.add_gridspec(2, 1, left=0.07, right=0.99, top=free_top - 0.2 / height, bottom=0.5 / height,
+                            hspace=0.45)
+    ax_h, ax_v = fig.add_subplot(grid[0, 0]), fig.add_subplot(grid[1, 0], sharex=None)
+    barrier_panel(ax_h, traj, level, clip=_barrier_clip(level))
+    ax_h.legend(loc="upper right", fontsize=7)
+    speed_panel(ax_v, traj, p["ego"]["speed_max_mps"])
+    if event is not None:
+        mark_event(ax_v, event, text=False)
+    ax_v.legend(loc="lower right", fontsize=7, ncol=2)
+    fig.text(0.5, 1 - 0.12 / height, title, ha="center", va="top", fontsize=9)
     return save(fig, path)

@@ -18,16 +18,20 @@ def episode_figure(
     cell: Cell,
     row: Mapping[str, Any],
     path: Path,
+    plans: Mapping[str, np.ndarray] | None = None,
 ) -> Path:
-    """Road view with snapshots and the safety ellipse, h_ef(t) against ε, and speeds, for one
-    episode (``traj``: sub-step columns as in ``trajectories/episode-NNNNNN.parquet``; ``row``:
-    its ``episodes.parquet`` row). Columns the trajectory lacks are left out of the drawing; the
-    road snapshots with the Q1/Q2 plans are :func:`mcverify.reporting.episode_figures.snapshots`."""
+    """Road panels to scale at a few labelled moments (and at the first unsafe one, with its cause),
+    h_ef(t) against ε, and the speeds, for one episode (``traj``: sub-step columns as in
+    ``trajectories/episode-NNNNNN.parquet``; ``plans``: its ``-plans.parquet`` columns, if stored;
+    ``row``: its ``episodes.parquet`` row). Columns the trajectory lacks are left out of the drawing."""
     dist = row.get("min_dist_front_m", math.nan)
     h = row.get("min_h_front", math.nan)
+    safety = "safe" if row.get("safe") else "UNSAFE"
+    gap_opp = row.get("min_gap_opp_any_m", math.nan)
+    opp = f" · min gap veh_o {gap_opp:.2f} m" if gap_opp is not None and math.isfinite(gap_opp) else ""
     title = (
-        f"{cell.name} · episode {row.get('episode_id')} · {row.get('outcome')} · safe={row.get('safe')} · "
-        f"min dist. to ellipse {dist:.2f} m · min h {h:.3f}"
+        f"{cell.name} · episode {row.get('episode_id')} · {row.get('outcome')} · {safety} · "
+        f"min dist. to ellipse {dist:.2f} m · min h_ef {h:.3f}{opp}"
     )
-    episode_figures.episode_overview(traj, cell.params, cell.epsilon, Path(path), title=title)
+    episode_figures.episode_overview(traj, cell.params, cell.epsilon, Path(path), title=title, plans=plans)
     return Path(path)

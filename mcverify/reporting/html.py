@@ -25,7 +25,9 @@ caption { caption-side: top; text-align: left; font-weight: bold; padding-bottom
 th, td { padding: 0.25em 0.5em; border-bottom: 1px solid #e3e3e3; text-align: right; }
 td { white-space: normal; overflow-wrap: anywhere; min-width: 4.5em; }  /* "k/n [low, high]" wraps at its spaces */
 tbody th { white-space: nowrap; }
-td.unsafe { background: #fbe3e1; color: #8a1c12; font-weight: 600; }
+td.unsafe, span.unsafe { background: #fbe3e1; color: #8a1c12; font-weight: 600; padding: 0 0.3em; }
+tbody th.unsafe { color: #8a1c12; box-shadow: inset 3px 0 0 #c0392b; }
+p.legend { font-size: 0.9em; }
 thead th { border-bottom: 2px solid #555; vertical-align: bottom; white-space: normal; }
 tbody th { text-align: left; font-weight: normal; }
 tr.section th { text-align: left; font-style: italic; background: #f3f3f3; }
@@ -71,8 +73,12 @@ def render(
     out += [f'<li><a href="#fig-{esc(f.key)}">{esc(f.title)}</a></li>' for f in drawn]
     out.append('<li><a href="#definitions">Definitions</a></li></ul></nav>')
     out.append("<h2>Tables</h2>")
-    for t in tables:
-        out.append(f'<div class="scroll">{to_html(t)}</div>')
+    rendered = [to_html(t) for t in tables]
+    if any('class="unsafe"' in r for r in rendered):
+        out.append('<p class="legend"><span class="unsafe">k/n</span> counts unsafe episodes (safe below n, or a '
+                   "collision or ellipse violation above 0); ⚠ marks a row with such a count.</p>")
+    for r in rendered:
+        out.append(f'<div class="scroll">{r}</div>')
     out.append("<h2>Figures</h2>")
     for f in drawn:
         data = base64.b64encode((Path(run_dir) / f.file).read_bytes()).decode("ascii")

@@ -236,9 +236,10 @@ def _trajectory_figures(
             drawn = episode_figures.snapshots(traj, plans, p, out / f"{key}.png", title=head)
             results.append(FigureResult(
                 key, f"Snapshots: {c['cell']}",
-                f"Episode {ep.episode_id} ({ep.trajectory}) at up to five times: ego (green), front vehicle (red) with "
-                f"its safety ellipse (dashed), opposing vehicle (blue) if any, the ego's path so far (black); "
-                f"{plan_note}; blue dots: the opposing vehicle's predicted trajectory where stored.",
+                f"Episode {ep.episode_id} ({ep.trajectory}) at up to five times, drawn to scale: ego (green), veh_f "
+                f"(red) with its safety ellipse (dashed), veh_o (blue) if any, each as its footprint, the ego's path "
+                f"so far (black); {plan_note}; blue dots: veh_o's predicted trajectory where stored. An unsafe "
+                f"episode gets one more panel, framed in red, at its first unsafe moment with its cause.",
                 f"{FIGURES_DIR}/{key}.png", "", drawn))
         except (KeyError, ValueError) as err:
             results.append(FigureResult(key, f"Snapshots: {c['cell']}", "", None, f"not drawn: {err}"))

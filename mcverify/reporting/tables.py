@@ -246,9 +246,12 @@ def to_html(t: Table) -> str:
         if isinstance(row, Section):
             out.append(f'<tr class="section"><th colspan="{len(t.columns)}">{esc(row.title)}</th></tr>')
         else:
-            cells = [f'<th scope="row">{esc(row[0])}</th>'] + [
-                f'<td class="unsafe">{esc(c)}</td>' if unsafe_count(t.key, col, c) else f"<td>{esc(c)}</td>"
-                for col, c in zip(t.columns[1:], row[1:], strict=False)
+            flags = [unsafe_count(t.key, col, c) for col, c in zip(t.columns[1:], row[1:], strict=False)]
+            head = (f'<th scope="row" class="unsafe">⚠ {esc(row[0])}</th>' if any(flags)
+                    else f'<th scope="row">{esc(row[0])}</th>')
+            cells = [head] + [
+                f'<td class="unsafe">{esc(c)}</td>' if bad else f"<td>{esc(c)}</td>"
+                for bad, c in zip(flags, row[1:], strict=False)
             ]
             out.append("<tr>" + "".join(cells) + "</tr>")
     out.append("</tbody></table>")

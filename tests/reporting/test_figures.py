@@ -65,7 +65,19 @@ def test_heatmap_writes_every_count(tmp_path):
     drawn = cell_figures.rate_heatmap(summ["cells"], "lambda0", axes["lambda0"], "front_accel_range_mps2",
                                  axes["front_accel_range_mps2"], "safe", tmp_path / "h.png", title="safe rate")
     check_png(tmp_path / "h.png", (max(5.0, 1.9 * 3 + 2.5), max(3.0, 0.75 * 3 + 1.6)))
-    assert drawn["texts"] == 9 and drawn["images"] == 1
+    assert drawn["texts"] == 9 and drawn["images"] == 1 and drawn["patches"] == 0  # every cell safe: no outline
+
+
+def test_heatmap_outlines_the_cells_with_an_unsafe_episode(tmp_path):
+    summ, _ = _cells(synthetic.EPS_SWEEP, probs=synthetic.eps_probs)
+    cells, axes = summ["cells"], summ["axes"]
+    unsafe = [c["cell"] for c in cells if cell_figures.unsafe_cell(c)]
+    assert 0 < len(unsafe) < len(cells)  # the fixture has both kinds
+    assert all(c["rates"]["safe"]["k"] < c["rates"]["safe"]["n"] for c in cells if c["cell"] in unsafe)
+    drawn = cell_figures.rate_heatmap(cells, "epsilon", axes["epsilon"], "noise", axes["noise"], "safe",
+                                      tmp_path / "h.png", title="safe rate")
+    assert drawn["patches"] == len(unsafe)  # one outline per unsafe cell
+    assert drawn["texts"] == len(cells) + len(unsafe)  # the counts, and a ⚠ per unsafe cell
 
 
 def test_distance_histograms(tmp_path):

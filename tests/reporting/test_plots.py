@@ -25,11 +25,11 @@ def test_replay_figure_from_the_replay_columns(tmp_path):
     traj["meas_front_speed_mps"] = traj["front_speed_mps"] + 0.3 * np.sin(traj["t_s"])
     path = episode_plot.episode_figure(traj, _cell(), ROW, tmp_path / "e.png")
     img = mpimg.imread(path)
-    assert img.shape[:2] == (900, 1100) and img[..., :3].std() > 0.05
+    assert img.shape[1] == 1200 and img.shape[0] > 900 and img[..., :3].std() > 0.05
 
 
 def test_replay_figure_with_opposing_vehicle_and_missing_heading(tmp_path):
     traj = {k: v for k, v in synthetic.trajectory(opposing=True).items() if k != "ego_psi_rad"}
     path = episode_plot.episode_figure(traj, _cell(), ROW, tmp_path / "o.png")
-    assert mpimg.imread(path).shape[:2] == (900, 1100)
+    assert mpimg.imread(path).shape[1] == 1200
     assert path.read_bytes() == episode_plot.episode_figure(traj, _cell(), ROW, tmp_path / "o2.png").read_bytes()

@@ -44,7 +44,8 @@ def test_eps_sweep_gets_rates_against_eps_and_heat_maps(tmp_path):
     drawn = _check_all(run, _figures(run))
     assert {"rates", "rate-vs-epsilon", "heatmap-safe", "heatmap-overtook", "min-dist-front"} <= set(drawn)
     assert drawn["rate-vs-epsilon"].drawn["collections"] == 3 * 2  # 3 rates x 2 noise levels, each a band
-    assert drawn["heatmap-safe"].drawn["texts"] == 10  # 5 levels x 2 noise levels, counts written in
+    unsafe = drawn["heatmap-safe"].drawn["patches"]  # an outline and a ⚠ per cell with an unsafe episode
+    assert drawn["heatmap-safe"].drawn["texts"] == 10 + unsafe  # 5 levels x 2 noise levels, counts written in
 
 
 def test_lambda0_grid_gets_rates_against_lambda0_and_a_heat_map(tmp_path):

@@ -102,5 +102,7 @@ def test_html_escapes_and_marks_sections():
     h = to_html(_table())
     assert '<table id="tab-demo">' in h and "<caption>Rates per λ₀ &amp; α_f (50%)</caption>" in h
     assert '<tr class="section"><th colspan="3">Scenario A</th></tr>' in h
-    assert "<td>[0.1, 0.2]</td>" in h and '<th scope="row">a_b#c</th>' in h
+    assert "<td>[0.1, 0.2]</td>" in h and '<th scope="row">ε = 0.3 | x</th>' in h
+    # a row with an unsafe count (safe 3/30 < 30) is marked, its count highlighted
+    assert '<th scope="row" class="unsafe">⚠ a_b#c</th><td class="unsafe">3/30</td>' in h
     assert "<li>note with $ and ~</li>" in h
