@@ -236,11 +236,20 @@ def unsafe_count(table_key: str, column: str, text: str) -> bool:
     return k > 0 and (column.startswith(_UNSAFE_EVENTS) or (pivot is not None and pivot.startswith(_UNSAFE_EVENTS)))
 
 
+_NAME_JOINT = re.compile(r"([._])(?=[A-Za-z])")
+
+
+def _breakable(text: str) -> str:
+    """A header that may wrap inside long field names (``opposing.spawn_gap_m``): a ``<wbr>`` after
+    each ``.`` or ``_`` followed by a letter (not inside numbers such as 0.3)."""
+    return _NAME_JOINT.sub(r"\1<wbr>", text)
+
+
 def to_html(t: Table) -> str:
     """An HTML ``<table>`` with a caption and the notes in a following paragraph."""
     esc = html.escape
     out = [f'<table id="tab-{esc(t.key)}">', f"<caption>{esc(t.title)}</caption>", "<thead><tr>"]
-    out.append("".join(f"<th>{esc(c)}</th>" for c in t.columns) + "</tr></thead>")
+    out.append("".join(f"<th>{_breakable(esc(c))}</th>" for c in t.columns) + "</tr></thead>")
     out.append("<tbody>")
     for row in t.rows:
         if isinstance(row, Section):
