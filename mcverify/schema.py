@@ -9,12 +9,21 @@ rendered from them (:func:`markdown_table`; a test keeps the two equal).
 Units: ``m``, ``s``, ``m/s^2``; an empty unit means dimensionless, a count, a flag or text. The
 barrier values (``h_*``, ``epsilon``, ``lambda0``) are dimensionless except h_eo, which is a
 distance (m).
+
+Beside these, one declared family, :data:`GRID_FAMILY`: the *grid values*, one column per model
+field that the campaign's grid or axes vary between cells, named as in the campaign file
+(``<section>.<field>``, e.g. ``barrier.epsilon``) and typed by :func:`grid_columns`. They are the
+episode's inputs copied from its cell's overrides when the chunks are merged, not metrics: no
+re-computation from the trajectory applies to them. ``cells.parquet`` has the same columns.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+import json
+import re
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import pyarrow as pa
 
@@ -175,6 +184,79 @@ FINITE_COLUMNS: tuple[str, ...] = tuple(c.name for c in EPISODE_COLUMNS if c.fin
 OUTCOME_FLAGS: tuple[str, ...] = ("overtook", "went_back", "timeout")
 
 
+@dataclass(frozen=True)
+class ColumnFamily:
+    """Columns declared by a naming rule instead of one by one.
+
+    pattern: how the names are written (for the docs); regex: the names it matches; unit and type:
+    how each column's unit and Arrow type follow from its name and values; definition: one sentence."""
+
+    pattern: str
+    regex: re.Pattern[str]
+    unit: str
+    type: str
+    definition: str
+
+
+#: The grid values of an episode's cell (see the module docstring).
+GRID_FAMILY = ColumnFamily(
+    "<section>.<field>",
+    re.compile(r"^[a-z][a-z0-9_]*\.[a-z][a-z0-9_]*$"),
+    "the field's, from its name's suffix (_m, _s, _mps, _kmh, ...)",
+    "int64, float64 (when any cell's value is a float), bool or string; a list (a range such as "
+    "scenario.front_accel_range_mps2) as its JSON text",
+    "the value, in the episode's cell, of a model field that the campaign's grid or axes vary between cells, "
+    "named as in the campaign file (e.g. barrier.epsilon, noise.scale); an input copied from the cell's "
+    "overrides, not a metric; fields equal in every cell (or set with --set) get no column",
+)
+
+
+def is_grid_column(name: str) -> bool:
+    """Whether ``name`` belongs to :data:`GRID_FAMILY` (no declared column has a dot)."""
+    return GRID_FAMILY.regex.match(name) is not None
+
+
+def grid_columns(overrides: Sequence[Mapping[str, Any]]) -> dict[str, pa.DataType]:
+    """The grid-value columns of a run whose cells have these ``overrides`` (one mapping
+    ``"<section>.<field>" -> value`` per cell, as in the manifest): every field whose value differs
+    between cells (or is set in some cells only), in the order it first appears, with the Arrow
+    type of its values (see :data:`GRID_FAMILY`)."""
+    keys: list[str] = []
+    for o in overrides:
+        keys += [k for k in o if k not in keys]
+    out: dict[str, pa.DataType] = {}
+    for key in keys:
+        values = [o.get(key) for o in overrides]
+        present = [v for v in values if v is not None]
+        if len(present) == len(values) and all(v == present[0] for v in present):
+            continue  # the same in every cell: not a grid value
+        if not is_grid_column(key):
+            raise ValueError(f"{key!r} is not a <section>.<field> name")
+        out[key] = _grid_type(present)
+    return out
+
+
+def grid_value(value: Any, typ: pa.DataType) -> Any:
+    """``value`` as a cell of a grid column of type ``typ`` (see :func:`grid_columns`)."""
+    if value is None:
+        return None
+    if pa.types.is_string(typ):
+        return value if isinstance(value, str) else json.dumps(value)
+    if pa.types.is_floating(typ):
+        return float(value)
+    return value
+
+
+def _grid_type(values: list[Any]) -> pa.DataType:
+    if values and all(isinstance(v, bool) for v in values):
+        return pa.bool_()
+    if values and all(isinstance(v, int) and not isinstance(v, bool) for v in values):
+        return pa.int64()
+    if values and all(isinstance(v, int | float) and not isinstance(v, bool) for v in values):
+        return pa.float64()
+    return pa.string()
+
+
 def column(name: str) -> Column:
     """The declared column ``name``; KeyError naming the column if it is not declared."""
     try:
@@ -199,4 +281,7 @@ def markdown_table() -> str:
     lines = ["| column | type | unit | definition |", "|---|---|---|---|"]
     for c in EPISODE_COLUMNS:
         lines.append(f"| `{c.name}` | {c.type} | {c.unit} | {c.definition} |")
+    f = GRID_FAMILY
+    lines += ["", f"Grid values, after `seed`: one column `{f.pattern}` per varied field: {f.definition}. Type: "
+              f"{f.type}. Unit: {f.unit}."]
     return "\n".join(lines)

@@ -218,13 +218,16 @@ def done_chunks(run_dir: Path, chunks: Iterable[Chunk]) -> set[str]:
 ROW_GROUP_ROWS = 1024
 
 
-def merge_chunks(run_dir: Path, chunks: Sequence[Chunk]) -> int:
+def merge_chunks(run_dir: Path, chunks: Sequence[Chunk], overrides: Mapping[int, Mapping[str, Any]] | None = None,
+                 ) -> int:
     """Stream every chunk, in plan order, into ``episodes.parquet`` (atomically); returns the row count.
 
     Chunks are planned in (cell, episode) order and each file is sorted here, so the merged table
     is sorted by (cell_index, episode_id) while at most :data:`ROW_GROUP_ROWS` rows (plus one
     chunk) are held in memory. The file's schema is the declared one (:mod:`mcverify.schema`),
-    narrowed to the columns the chunks have (a run of error rows only has no metrics).
+    narrowed to the columns the chunks have (a run of error rows only has no metrics), with the
+    grid values (:data:`mcverify.schema.GRID_FAMILY`) after ``seed``: ``overrides`` maps each cell
+    index to its manifest overrides (``"<section>.<field>" -> value``); None adds none.
     """
     run_dir = Path(run_dir)
     names: set[str] = set()
@@ -235,7 +238,9 @@ def merge_chunks(run_dir: Path, chunks: Sequence[Chunk]) -> int:
             raise _missing(run_dir, chunk) from None
     if not names:
         raise RunError(f"{run_dir}: the run has no chunks")
-    table_schema = _declared_schema(names, f"{run_dir}: a chunk")
+    row_schema = _declared_schema(names, f"{run_dir}: a chunk")
+    grid = schema.grid_columns(list(overrides.values())) if overrides else {}
+    table_schema = _with_grid_fields(row_schema, grid)
     fd, tmp = tempfile.mkstemp(dir=run_dir, prefix=f".{EPISODES}.", suffix=".tmp")
     os.close(fd)
     rows = 0
@@ -248,7 +253,8 @@ def merge_chunks(run_dir: Path, chunks: Sequence[Chunk]) -> int:
                 table = read_chunk(run_dir, chunk)
                 if table is None:
                     raise _missing(run_dir, chunk)
-                pending.append(_conform(table.sort_by([("episode_id", "ascending")]), table_schema))
+                rows_of_chunk = _conform(table.sort_by([("episode_id", "ascending")]), row_schema)
+                pending.append(_add_grid_values(rows_of_chunk, grid, overrides or {}, table_schema))
                 held += table.num_rows
                 rows += table.num_rows
                 if len(pending) >= 64:  # many small tables cost far more than their rows: compact
@@ -268,6 +274,25 @@ def merge_chunks(run_dir: Path, chunks: Sequence[Chunk]) -> int:
         if os.path.exists(tmp):
             os.unlink(tmp)
     return rows
+
+
+def _with_grid_fields(row_schema: pa.Schema, grid: Mapping[str, pa.DataType]) -> pa.Schema:
+    """``row_schema`` with the grid-value columns inserted after ``seed`` (at the end without it)."""
+    at = row_schema.get_field_index("seed") + 1 if "seed" in row_schema.names else len(row_schema)
+    fields = list(row_schema)
+    return pa.schema(fields[:at] + [pa.field(name, typ) for name, typ in grid.items()] + fields[at:])
+
+
+def _add_grid_values(table: pa.Table, grid: Mapping[str, pa.DataType], overrides: Mapping[int, Mapping[str, Any]],
+                     target: pa.Schema) -> pa.Table:
+    """``table`` with each row's grid values, looked up by its ``cell_index``, in ``target``'s order."""
+    if not grid:
+        return table
+    cells = table.column("cell_index").to_pylist()
+    added = {name: pa.array([schema.grid_value(overrides.get(c, {}).get(name), typ) for c in cells], type=typ)
+             for name, typ in grid.items()}
+    return pa.Table.from_arrays([added[f.name] if f.name in added else table.column(f.name) for f in target],
+                                schema=target)
 
 
 def _missing(run_dir: Path, chunk: Chunk) -> RunError:

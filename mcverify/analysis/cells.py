@@ -13,6 +13,7 @@ from typing import Any
 
 import pyarrow as pa
 
+from mcverify import schema
 from mcverify.analysis import stats
 from mcverify.analysis.summary import (
     CATEGORY_COLUMNS,
@@ -61,7 +62,7 @@ def cells_table(summ: Mapping[str, Any]) -> pa.Table:
         for a in axes:
             put(f"label_{a}", pa.string(), c["labels"].get(a))
         for key, typ in varied.items():
-            put(key, typ, typed_value(c.get("overrides", {}).get(key), typ))
+            put(key, typ, schema.grid_value(c.get("overrides", {}).get(key), typ))
         put("controller", pa.string(), c["controller"])
         put("opposing_kind", pa.string(), c["opposing_kind"])
         put("epsilon", pa.float64(), c["epsilon"])
@@ -106,42 +107,9 @@ def cells_table(summ: Mapping[str, Any]) -> pa.Table:
 
 
 def varied_fields(cells: list[Mapping[str, Any]]) -> dict[str, pa.DataType]:
-    """The model fields whose value differs between cells (or is set in some cells only), in the
-    order they first appear, each with the Arrow type of its values: int64 for integers, float64
-    when any value is a float, bool, string; a list (a range such as ``front_accel_range_mps2``)
-    becomes its JSON text."""
-    keys: list[str] = []
-    for c in cells:
-        keys += [k for k in c.get("overrides", {}) if k not in keys]
-    out: dict[str, pa.DataType] = {}
-    for key in keys:
-        values = [c.get("overrides", {}).get(key) for c in cells]
-        present = [v for v in values if v is not None]
-        if len(present) == len(values) and all(v == present[0] for v in present):
-            continue  # the same in every cell: not a varied field
-        out[key] = _arrow_type(present)
-    return out
-
-
-def typed_value(value: Any, typ: pa.DataType) -> Any:
-    """``value`` as a cell of a column of type ``typ`` (see :func:`varied_fields`)."""
-    if value is None:
-        return None
-    if pa.types.is_string(typ):
-        return value if isinstance(value, str) else json.dumps(value)
-    if pa.types.is_floating(typ):
-        return float(value)
-    return value
-
-
-def _arrow_type(values: list[Any]) -> pa.DataType:
-    if values and all(isinstance(v, bool) for v in values):
-        return pa.bool_()
-    if values and all(isinstance(v, int) and not isinstance(v, bool) for v in values):
-        return pa.int64()
-    if values and all(isinstance(v, int | float) and not isinstance(v, bool) for v in values):
-        return pa.float64()
-    return pa.string()
+    """The model fields whose value differs between cells, typed: the grid-value columns of
+    :func:`mcverify.schema.grid_columns` (``episodes.parquet`` has the same ones)."""
+    return schema.grid_columns([c.get("overrides", {}) for c in cells])
 
 
 def json_ready(obj: Any) -> Any:

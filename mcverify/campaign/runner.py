@@ -375,7 +375,8 @@ def _execute(
         ran = store.done_chunks(run_dir, chunks)
         chunks = [c for c in chunks if c.name in ran]
     log.info("merging %d chunks into %s and writing the report", len(chunks), store.EPISODES)
-    store.merge_chunks(run_dir, chunks)
+    cells = store.read_json(run_dir / store.MANIFEST)["cells"]
+    store.merge_chunks(run_dir, chunks, {int(c["index"]): c.get("overrides", {}) for c in cells})
     path = run_report.write(run_dir)
     manifest = store.read_json(run_dir / store.MANIFEST)
     manifest["finished_utc"] = provenance.now_utc()
