@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mcverify.campaign.work import episode_done
 from mcverify.episode.recording import EpisodeRecording
 from mcverify.episode.row import identity
 
@@ -75,6 +76,8 @@ def row(cell, seed: int, episode: int, common_random_numbers: bool = False) -> d
 def episodes(cell, episode_ids, seed, common_random_numbers, record) -> Result:
     """Synthetic episodes; a small trajectory (no plans) for each id in ``record``."""
     rows = [row(cell, seed, int(e), common_random_numbers) for e in episode_ids]
+    for r in rows:  # as the real rollout does when each episode stops (per-episode progress)
+        episode_done(r["cell_episode"], not r["safe"])
     recordings = {
         int(e): EpisodeRecording({"t_s": np.arange(5) * 0.1, "ego_x_m": 10 + np.arange(5.0)})
         for e in episode_ids if e in record

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from mcverify.campaign.scheduler import Executor
-from mcverify.campaign.work import ExecutorError, Outcome, Work, default_workers, run_work
+from mcverify.campaign.work import EpisodeDone, ExecutorError, Outcome, Work, default_workers, run_work
 
 
 @dataclass
@@ -95,6 +95,10 @@ class LocalExecutor(Executor):
                     w.ready = True
                     self._startup_failures = 0
                     continue
+                if isinstance(message, EpisodeDone):  # progress inside the unit; its outcome follows
+                    if self.progress is not None:
+                        self.progress(w.handle, message)
+                    continue
                 handle, work = w.handle, w.work
                 if isinstance(message, Outcome):
                     w.handle = w.work = None
@@ -169,7 +173,7 @@ def _worker_main(conn: mpc.Connection) -> None:
             return
         if work is None:
             return
-        conn.send(run_work(work))
+        conn.send(run_work(work, conn.send))  # EpisodeDone messages first, then the Outcome
 
 
 def _die_with_parent() -> None:

@@ -25,6 +25,7 @@ from tqdm.auto import tqdm
 from mcverify import provenance, store
 from mcverify.campaign import executors, lint
 from mcverify.campaign.executors import ChunkOutput, EpisodeFn, Executor
+from mcverify.campaign.progress import ProgressTally
 from mcverify.campaign.spec import Campaign, CampaignError, campaign_from_dict
 from mcverify.episode.recording import EpisodeRecording
 from mcverify.errors import RunError
@@ -338,7 +339,8 @@ def _execute(
     record = [(c.index, 0) for c in campaign.cells if c.episodes > 0] if record_first else []
     if todo and episode_fn is executors.simulate:
         log.info("starting %s: each worker imports JAX and CasADi, loads the solver and compiles the plant once "
-                 "(tens of seconds) before its first chunk; the bar moves as chunks of up to %d episodes finish",
+                 "(tens of seconds) before its first chunk; then the bar moves as episodes finish (chunks of up to %d "
+                 "run together; with Ray, as whole chunks finish)",
                  ", ".join(f"{k} {v}" for k, v in executor.describe().items() if v is not None), chunk_size)
     bar = tqdm(
         total=campaign.total_episodes,
@@ -348,21 +350,16 @@ def _execute(
         disable=not progress,
         dynamic_ncols=True,
     )
-    errors = 0
-    unsafe = _unsafe_in(run_dir, [c for c in chunks if c.name in done])
+    tally = ProgressTally(bar, _unsafe_in(run_dir, [c for c in chunks if c.name in done]))
 
     def on_done(chunk: store.Chunk, output: ChunkOutput) -> None:
-        nonlocal errors, unsafe
         cell = campaign.cells[chunk.cell_index]
         # Recordings first: a chunk in the ledger implies its trajectories are on disk.
         for episode, recording in output.recordings.items():
             _write_recording(run_dir, cell.episode_offset + int(episode), recording)
         rec = store.write_chunk(run_dir, chunk, output.rows, attempts=output.attempts)
         store.append_record(run_dir, rec)
-        errors += rec.errors
-        bar.update(rec.rows)
-        unsafe += sum(r.get("safe") is False for r in output.rows)
-        bar.set_postfix_str(f"unsafe {unsafe}" + (f", error episodes {errors}" if errors else ""))
+        tally.chunk(chunk, output.rows, rec.errors)
         if on_chunk is not None:
             on_chunk(rec)
         if stopper is not None:
@@ -370,7 +367,7 @@ def _execute(
 
     with bar:
         executors.execute(campaign, todo, on_done, executor=executor, episode_fn=episode_fn, record=record,
-                          skip=stopper.skip if stopper is not None else None)
+                          skip=stopper.skip if stopper is not None else None, on_episode=tally.episode)
     if stopper is not None:  # the chunks of decided cells never ran: merge those that did
         ran = store.done_chunks(run_dir, chunks)
         chunks = [c for c in chunks if c.name in ran]

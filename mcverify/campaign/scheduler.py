@@ -18,7 +18,7 @@ from typing import Any
 
 from mcverify import provenance
 from mcverify.campaign.spec import Campaign
-from mcverify.campaign.work import EpisodeFn, ExecutorError, Outcome, Work, run_work, simulate
+from mcverify.campaign.work import EpisodeDone, EpisodeFn, ExecutorError, Outcome, Work, run_work, simulate
 from mcverify.episode.recording import EpisodeRecording
 from mcverify.episode.row import Row, error_row
 from mcverify.schema import ERROR_OUTCOME
@@ -113,6 +113,7 @@ def execute(
     record: Iterable[tuple[int, int]] = (),
     max_attempts: int = MAX_ATTEMPTS,
     skip: Callable[[Chunk], bool] | None = None,
+    on_episode: Callable[[Chunk, EpisodeDone], None] | None = None,
 ) -> None:
     """Run ``chunks`` on ``executor`` (default: in this process) and hand each finished one to
     ``on_done`` in this process, as soon as it is complete (results are streamed, never gathered).
@@ -121,6 +122,9 @@ def execute(
     cluster is reached before anything is written. record: (cell_index, cell-local episode id)
     pairs whose recordings are returned. skip: asked for each chunk just before it is first
     submitted; a chunk it accepts is dropped (sequential stopping: its cell is already decided).
+    on_episode: told of each episode that stops inside a running chunk, where the executor reports
+    them (serial and local do; Ray reports whole chunks only). A retried chunk may report an episode
+    again; its rows still come once, through ``on_done``.
     """
     if max_attempts < 1:
         raise ValueError(f"max_attempts must be >= 1, got {max_attempts}")
@@ -131,6 +135,26 @@ def execute(
     scheduler = _Scheduler(campaign, chunks, max_attempts)
     driver_code = provenance.code_version()
     inflight: dict[Any, _Task] = {}
+    if on_episode is not None:
+        executor.progress = lambda handle, msg: on_episode(inflight[handle].chunk, msg) if handle in inflight else None
+    try:
+        _loop(campaign, scheduler, executor, inflight, wanted, episode_fn, driver_code, on_done, skip)
+    finally:
+        executor.progress = None
+
+
+def _loop(
+    campaign: Campaign,
+    scheduler: _Scheduler,
+    executor: Executor,
+    inflight: dict[Any, _Task],
+    wanted: dict[int, set[int]],
+    episode_fn: EpisodeFn,
+    driver_code: dict[str, Any],
+    on_done: Callable[[Chunk, ChunkOutput], None],
+    skip: Callable[[Chunk], bool] | None,
+) -> None:
+    """The body of :func:`execute`: keep the executor full, hand finished chunks on."""
     while True:
         while len(inflight) < executor.capacity:
             task = scheduler.next()
@@ -167,6 +191,9 @@ class Executor(ABC):
 
     kind: str = "?"
     capacity: int = 1
+    #: Set by :func:`execute` while it runs: ``progress(handle, EpisodeDone)`` for an executor that
+    #: reports episodes inside a unit (None: nobody listens).
+    progress: Callable[[Any, EpisodeDone], None] | None = None
 
     def __enter__(self) -> Executor:
         return self
@@ -206,4 +233,5 @@ class SerialExecutor(Executor):
 
     def wait(self) -> tuple[int, Outcome]:
         handle, work = self._pending.popleft()
-        return handle, run_work(work)
+        report = self.progress
+        return handle, run_work(work, None if report is None else lambda msg: report(handle, msg))

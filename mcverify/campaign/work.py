@@ -9,6 +9,11 @@ well: episode rows (:mod:`mcverify.episode.row`) and recordings
 A unit never raises: an exception becomes ``Outcome(error=...)``, and a row whose safety metrics
 are not finite (the plant state became NaN) becomes an error row, since a NaN must never read as
 "safe" or "unsafe".
+
+Progress inside a unit: an episode function calls :func:`episode_done` as each of its episodes
+stops (the real one through the rollout's ``on_episode`` hook); :func:`run_work` hands these to the
+executor's ``progress`` callback as :class:`EpisodeDone` messages (a local worker sends them up its
+pipe before the outcome). They only move the progress bar: the rows come with the outcome.
 """
 
 from __future__ import annotations
@@ -62,16 +67,37 @@ def solver_for(params: ModelParams):
     return _SOLVERS[params]
 
 
+@dataclass(frozen=True)
+class EpisodeDone:
+    """A progress message: cell-local episode ``episode`` of the running unit has stopped, and was
+    ``unsafe`` (not its row: the row comes with the unit's :class:`Outcome`)."""
+
+    episode: int
+    unsafe: bool
+
+
+#: Where :func:`episode_done` reports while :func:`run_work` runs a unit with a progress callback.
+_PROGRESS: Callable[[EpisodeDone], None] | None = None
+
+
+def episode_done(episode: int, unsafe: bool) -> None:
+    """Called by an episode function when one of its episodes has stopped (cell-local id); passed on
+    to the running unit's progress callback, a no-op when there is none."""
+    if _PROGRESS is not None:
+        _PROGRESS(EpisodeDone(int(episode), bool(unsafe)))
+
+
 def simulate(
     cell: Cell, episode_ids: tuple[int, ...], seed: int, common_random_numbers: bool, record: tuple[int, ...]
 ) -> ChunkResultLike:
     """The real episode function: the closed loop of :func:`mcverify.episode.rollout.run_episodes`
-    (``record``: the ids whose recordings are kept; an empty tuple records nothing)."""
+    (``record``: the ids whose recordings are kept; an empty tuple records nothing); every episode
+    that stops is reported to :func:`episode_done`."""
     from mcverify.episode.rollout import run_episodes
 
     return run_episodes(
         cell, list(episode_ids), seed, solver_for(cell.params),
-        common_random_numbers=common_random_numbers, record=record,
+        common_random_numbers=common_random_numbers, record=record, on_episode=episode_done,
     )
 
 
@@ -102,8 +128,18 @@ class Outcome:
     worker: str = ""  # host:pid
 
 
-def run_work(work: Work) -> Outcome:
-    """Run one work unit and never raise: an exception becomes ``Outcome(error=...)``."""
+def run_work(work: Work, progress: Callable[[EpisodeDone], None] | None = None) -> Outcome:
+    """Run one work unit and never raise: an exception becomes ``Outcome(error=...)``. ``progress``
+    receives an :class:`EpisodeDone` for each episode the episode function reports as stopped."""
+    global _PROGRESS
+    _PROGRESS = progress
+    try:
+        return _run(work)
+    finally:
+        _PROGRESS = None
+
+
+def _run(work: Work) -> Outcome:
     where = f"{socket.gethostname()}:{os.getpid()}"
     try:
         result = work.episode_fn(work.cell, work.episode_ids, work.seed, work.common_random_numbers, work.record)

@@ -158,6 +158,7 @@ def run_episodes(
     clock: PhaseClock | None = None,
     branching: Branching | None = None,
     scenarios: Mapping[int, Mapping[str, float]] | None = None,
+    on_episode: Callable[[int, bool], None] | None = None,
 ) -> ChunkResult:
     """Simulate ``episode_ids`` (ids within the cell) of ``cell`` as one batch; one row per episode.
 
@@ -169,6 +170,9 @@ def run_episodes(
     report the running score (:mod:`mcverify.episode.snapshot`); None leaves the loop as it is.
     scenarios: episode id -> scenario values (keys of :func:`sample_scenario`) that replace the
     episode's own draws (importance sampling over the scenario); the noise is unchanged.
+    on_episode: called as ``on_episode(episode id, unsafe)`` as soon as an episode stops (settling
+    included), before the chunk ends; ``unsafe`` is what its row's ``safe`` will say, negated
+    (progress bars; it changes nothing in the loop).
     """
     phase = clock.phase if clock is not None else _untimed
     p = cell.params
@@ -195,6 +199,7 @@ def run_episodes(
     u_last = np.zeros((len(ids), 2))  # the input each episode had applied last (lateral speed)
     settling: dict[int, _Settling] = {}  # lane -> its settling memory, while it settles
     ends: dict[int, EndState] = {}
+    reported: set[int] = set()  # lanes whose stop on_episode has been told
     first_step = 0
     if branching is not None:
         if len(ids) != 1:
@@ -239,6 +244,8 @@ def run_episodes(
                 u[b], records[b] = planner.step(st, t_s, ego[b], front_meas[b], opp_meas[b] if has_opp else None,
                                                 cell.lambda0)
         active = np.array([not st.done or b in settling for b, st in enumerate(states)])
+        if on_episode is not None:
+            _report_stopped(on_episode, ids, active, reported, world)
         if not active.any():
             break
         u_last[active] = u[active]
@@ -265,6 +272,8 @@ def run_episodes(
         elif b in settling:  # cut by the time limit
             ends[b] = settling.pop(b).end(t_end, ego[b], u_last[b], p)
 
+    if on_episode is not None:
+        _report_stopped(on_episode, ids, np.zeros(len(ids), dtype=bool), reported, world)
     trace = world.trace()
     rows = [
         episode_row(cell, seed, st, samples[b], SafetyTrace(*(np.asarray(a)[b] for a in trace)), float(h0[b]),
@@ -292,6 +301,19 @@ def _note_first_unsafe(states: list[EpisodeState], trace: SafetyTrace, records: 
         if unsafe[b] and not st.first_unsafe_cause and (b in records or b in settling):
             st.first_unsafe_s = t_s
             st.first_unsafe_cause = UNSAFE_CAUSES[records[b].source] if b in records else SETTLING_CAUSE
+
+
+def _report_stopped(on_episode: Callable[[int, bool], None], ids: Sequence[int], active: np.ndarray,
+                    reported: set[int], world: LaneGroups) -> None:
+    """Tell ``on_episode`` about each lane that stopped since the last call (its trace is final)."""
+    stopped = [b for b in range(len(ids)) if not active[b] and b not in reported]
+    if not stopped:
+        return
+    tr = world.trace()
+    unsafe = (np.asarray(tr.min_h_front) < 0) | np.asarray(tr.collision_front) | np.asarray(tr.collision_opp)
+    for b in stopped:
+        reported.add(b)
+        on_episode(ids[b], bool(unsafe[b]))
 
 
 def _finish(st: EpisodeState, t_s: float, outcome: str) -> None:

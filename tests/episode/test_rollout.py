@@ -121,9 +121,26 @@ def settled():
     out = {}
     for settle_s, ids in ((3.0, [0, 1]), (3.0, [1]), (0.0, [0])):
         camp, cell = cell_of({"sim": {**FAST_SIM, "max_time_s": 12.0, "settle_s": settle_s}}, episodes=2)
-        rows = run_episodes(cell, ids, camp.seed, executors.solver_for(cell.params)).rows
+        steps, reports = [-1], []  # the progress hook: (episode, unsafe, the last step run when it was told)
+        rows = run_episodes(cell, ids, camp.seed, executors.solver_for(cell.params), on_step=steps.append,
+                            on_episode=lambda e, unsafe, steps=steps, reports=reports:
+                            reports.append((e, unsafe, steps[-1]))).rows
         out[settle_s, tuple(ids)] = {r["cell_episode"]: strip(r) for r in rows}
+        out["reports", settle_s, tuple(ids)] = reports
     return out
+
+
+def test_each_episode_is_reported_once_as_it_stops_with_its_row_safety(settled):
+    """The rollout's on_episode hook (per-episode progress): once per episode, when its settling
+    ends (well before the 12 s limit here), saying unsafe exactly when its row says not safe."""
+    for key in ((3.0, (0, 1)), (0.0, (0,))):
+        reports = settled[("reports", *key)]
+        assert sorted(e for e, _, _ in reports) == list(key[1])
+        rows = settled[key]
+        for e, unsafe, step in reports:
+            assert unsafe is (not rows[e]["safe"])
+            stop_s = rows[e]["settle_end_s"]
+            assert stop_s < 12.0 and step == pytest.approx(stop_s / FAST_SIM["control_period_s"], abs=1.01)
 
 
 def test_settling_extends_the_checked_time_and_fills_the_end_state(settled):
