@@ -24,6 +24,8 @@ table { border-collapse: collapse; margin: 1em 0 0.3em; font-size: 0.86em; font-
 caption { caption-side: top; text-align: left; font-weight: bold; padding-bottom: 0.4em; font-size: 1.1em; }
 th, td { padding: 0.25em 0.5em; border-bottom: 1px solid #e3e3e3; text-align: right; }
 td { white-space: normal; overflow-wrap: anywhere; min-width: 4.5em; }  /* "k/n [low, high]" wraps at its spaces */
+table.wide { font-size: 0.76em; } table.wide td { min-width: 3.6em; }  /* many columns: smaller, to fit */
+table.wide th, table.wide td { padding: 0.2em 0.35em; }
 tbody th { white-space: nowrap; }
 td.unsafe, span.unsafe { background: #fbe3e1; color: #8a1c12; font-weight: 600; padding: 0 0.3em; }
 tbody th.unsafe { color: #8a1c12; box-shadow: inset 3px 0 0 #c0392b; }

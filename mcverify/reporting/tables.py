@@ -236,6 +236,8 @@ def unsafe_count(table_key: str, column: str, text: str) -> bool:
     return k > 0 and (column.startswith(_UNSAFE_EVENTS) or (pivot is not None and pivot.startswith(_UNSAFE_EVENTS)))
 
 
+#: Tables with more columns than this get a smaller type in HTML (class "wide"), to fit 1400 px.
+WIDE_COLUMNS = 12
 _NAME_JOINT = re.compile(r"([._])(?=[A-Za-z])")
 
 
@@ -248,7 +250,8 @@ def _breakable(text: str) -> str:
 def to_html(t: Table) -> str:
     """An HTML ``<table>`` with a caption and the notes in a following paragraph."""
     esc = html.escape
-    out = [f'<table id="tab-{esc(t.key)}">', f"<caption>{esc(t.title)}</caption>", "<thead><tr>"]
+    wide = ' class="wide"' if len(t.columns) > WIDE_COLUMNS else ""
+    out = [f'<table id="tab-{esc(t.key)}"{wide}>', f"<caption>{esc(t.title)}</caption>", "<thead><tr>"]
     out.append("".join(f"<th>{_breakable(esc(c))}</th>" for c in t.columns) + "</tr></thead>")
     out.append("<tbody>")
     for row in t.rows:
