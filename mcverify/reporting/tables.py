@@ -242,8 +242,8 @@ _NAME_JOINT = re.compile(r"([._])(?=[A-Za-z])")
 
 
 def _breakable(text: str) -> str:
-    """A header that may wrap inside long field names (``opposing.spawn_gap_m``): a ``<wbr>`` after
-    each ``.`` or ``_`` followed by a letter (not inside numbers such as 0.3)."""
+    """Text that may wrap inside long names (``opposing.spawn_gap_m``, ``Infeasible_Problem_Detected``):
+    a ``<wbr>`` after each ``.`` or ``_`` followed by a letter (not inside numbers such as 0.3)."""
     return _NAME_JOINT.sub(r"\1<wbr>", text)
 
 
@@ -262,7 +262,7 @@ def to_html(t: Table) -> str:
             head = (f'<th scope="row" class="unsafe">⚠ {esc(row[0])}</th>' if any(flags)
                     else f'<th scope="row">{esc(row[0])}</th>')
             cells = [head] + [
-                f'<td class="unsafe">{esc(c)}</td>' if bad else f"<td>{esc(c)}</td>"
+                f'<td class="unsafe">{esc(c)}</td>' if bad else f"<td>{_breakable(esc(c))}</td>"
                 for bad, c in zip(flags, row[1:], strict=False)
             ]
             out.append("<tr>" + "".join(cells) + "</tr>")

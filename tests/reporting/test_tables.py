@@ -106,3 +106,7 @@ def test_html_escapes_and_marks_sections():
     # a row with an unsafe count (safe 3/30 < 30) is marked, its count highlighted
     assert '<th scope="row" class="unsafe">⚠ a_b#c</th><td class="unsafe">3/30</td>' in h
     assert "<li>note with $ and ~</li>" in h
+    # long names may wrap after . and _ (not inside numbers)
+    t = Table("w", "t", ["a", "opposing.spawn_gap_m"], [["x", "fallback:Solve_Succeeded 0.3"]])
+    h = to_html(t)
+    assert "<th>opposing.<wbr>spawn_<wbr>gap_<wbr>m</th>" in h and "<td>fallback:Solve_<wbr>Succeeded 0.3</td>" in h
