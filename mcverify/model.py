@@ -122,6 +122,12 @@ BACKEND_NAMES = ("ipopt", "ipm")
 MPCDC_CONTROLLERS = ("mpcdc", "mpcdc_eps")
 #: The evidence that makes the ego abandon the overtake (:attr:`Mpc.abandon_rule`).
 ABANDON_RULES = ("first_failure", "consecutive", "certified")
+#: The requirements of :mod:`mcverify.analysis.robustness` (kept here so the campaign and episode
+#: layers need not import the analysis layer; tests/falsify checks the lists agree). Each is also a
+#: valid :attr:`Simulation.stop_at`.
+REQUIREMENT_NAMES: tuple[str, ...] = (
+    "collision_front", "collision_opp", "ellipse", "invariance", "h_eo", "theorem5", "theorem5_certified", "safe",
+)
 
 
 @dataclass(frozen=True)
@@ -282,6 +288,9 @@ class Simulation:
     the plant keeps running this long (at most until ``max_time_s``) under the lane-keeping law of
     :mod:`mcverify.control.lane_keeping`, every safety check included; the outcome and its time stay
     those of the goal test. 0: the episode ends at the goal test.
+    ``stop_at``: falsification only (set by ``mcverify falsify``, refused in a campaign file): end
+    the episode at the end of the control period in which it first violates this requirement
+    (:data:`REQUIREMENT_NAMES`); "" never stops early.
     """
 
     control_period_s: float = 0.02
@@ -293,6 +302,9 @@ class Simulation:
     settle_s: float = 3.0
     """After the goal test, how long the plant keeps running under the lane-keeping law (0: stop at once). Valid: >=
     0."""
+    stop_at: str = ""
+    """Falsify mode only: end the episode at its first violation of this requirement ("": never). Set by
+    `mcverify falsify` ([falsify] stop_episodes); refused in campaign files."""
 
 
 @dataclass(frozen=True)

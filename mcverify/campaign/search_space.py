@@ -6,6 +6,7 @@
     requirement = "safe"          # a requirement of mcverify.analysis.robustness (default "safe")
     population = 8                # candidates per generation (one batch), >= 2 (default 8)
     stop_at_first = true          # stop after the generation that found a counterexample (default true)
+    stop_episodes = false         # end each episode at its first violation of the requirement (default false)
 
     [falsify.bounds]              # one numeric model field per entry: [low, high], low < high
     "scenario.front_speed_mps" = [5.0, 9.0]
@@ -27,13 +28,11 @@ from typing import Any
 
 from mcverify.campaign.validate import _short
 from mcverify.errors import CampaignError
+from mcverify.model import REQUIREMENT_NAMES
 
-_KEYS = {"requirement", "population", "stop_at_first", "bounds"}
-#: Requirement names known to the robustness module (kept here so the campaign layer need not
-#: import the analysis layer at load time; tests/falsify checks the two lists agree).
-REQUIREMENT_NAMES: tuple[str, ...] = (
-    "collision_front", "collision_opp", "ellipse", "invariance", "h_eo", "theorem5", "theorem5_certified", "safe",
-)
+__all__ = ["MAX_POPULATION", "REQUIREMENT_NAMES", "SearchSpace", "check_single_target", "read_search_space"]
+
+_KEYS = {"requirement", "population", "stop_at_first", "stop_episodes", "bounds"}
 MAX_POPULATION = 1024
 
 
@@ -46,6 +45,7 @@ class SearchSpace:
     population: int
     stop_at_first: bool
     bounds: tuple[tuple[str, float, float], ...]
+    stop_episodes: bool = False
 
     @property
     def fields(self) -> tuple[str, ...]:
@@ -70,7 +70,8 @@ def read_search_space(table: Any, where: str, known_fields: Mapping[str, type]) 
     """Validate a ``[falsify]`` table; ``known_fields`` is every settable ``section.field`` with its type."""
     here = f"{where} [falsify]"
     if not isinstance(table, Mapping):
-        raise CampaignError(f"{here}: must be a table (requirement, population, stop_at_first, [falsify.bounds])")
+        raise CampaignError(f"{here}: must be a table (requirement, population, stop_at_first, stop_episodes, "
+                            "[falsify.bounds])")
     for key in table:
         if key not in _KEYS:
             raise CampaignError(f"{here}: unknown key {_short(key)} (known: {', '.join(sorted(_KEYS))})")
@@ -84,8 +85,10 @@ def read_search_space(table: Any, where: str, known_fields: Mapping[str, type]) 
             f"{here}.population: must be an integer from 2 to {MAX_POPULATION}, got {_short(population)}"
         )
     stop = table.get("stop_at_first", True)
-    if not isinstance(stop, bool):
-        raise CampaignError(f"{here}.stop_at_first: must be true or false, got {_short(stop)}")
+    stop_episodes = table.get("stop_episodes", False)
+    for key, flag in (("stop_at_first", stop), ("stop_episodes", stop_episodes)):
+        if not isinstance(flag, bool):
+            raise CampaignError(f"{here}.{key}: must be true or false, got {_short(flag)}")
     bounds = table.get("bounds")
     if not isinstance(bounds, Mapping) or not bounds:
         raise CampaignError(f"{here}: needs a non-empty [falsify.bounds] table of 'section.field' = [low, high]")
@@ -104,7 +107,7 @@ def read_search_space(table: Any, where: str, known_fields: Mapping[str, type]) 
         if not (math.isfinite(lo) and math.isfinite(hi)) or not lo < hi:
             raise CampaignError(f"{at}: expected finite low < high, got [{lo:g}, {hi:g}]")
         out.append((str(name), lo, hi))
-    return SearchSpace(requirement, population, stop, tuple(out))
+    return SearchSpace(requirement, population, stop, tuple(out), stop_episodes)
 
 
 def check_single_target(raw: Mapping[str, Any], where: str) -> None:

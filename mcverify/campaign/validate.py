@@ -12,7 +12,7 @@ from typing import Any
 
 from mcverify import levels
 from mcverify.errors import CampaignError
-from mcverify.model import ABANDON_RULES, BACKEND_NAMES, ModelParams
+from mcverify.model import ABANDON_RULES, BACKEND_NAMES, REQUIREMENT_NAMES, ModelParams
 
 CONTROLLERS = ("vlcbf", "mpcdc", "mpcdc_eps")
 OPPOSING_KINDS = ("none", "autonomous", "human")
@@ -120,6 +120,8 @@ def validate_params(p: ModelParams, where: str) -> None:
     if s.max_time_s / s.control_period_s > MAX_CONTROL_STEPS:
         raise bad("sim.max_time_s", f"is more than {MAX_CONTROL_STEPS:,} control periods of sim.control_period_s = "
                   f"{s.control_period_s:.4g} s")
+    if s.stop_at and s.stop_at not in REQUIREMENT_NAMES:
+        raise bad("sim.stop_at", f"unknown requirement {_short(s.stop_at)}; valid: {', '.join(REQUIREMENT_NAMES)}")
     if m.controller not in CONTROLLERS:
         raise bad("mpc.controller", f"unknown controller {_short(m.controller)}; valid: {', '.join(CONTROLLERS)}")
     if m.backend not in BACKEND_NAMES:

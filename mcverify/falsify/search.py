@@ -124,8 +124,10 @@ def generation_seed(campaign_seed: int, search_seed: int, generation: int) -> in
     return int.from_bytes(digest[:8], "big") % 2**31  # the summary reads seeds as float64: stay exact
 
 
-def generation_campaign(config: SearchConfig, values: list[dict[str, float]], generation: int) -> Campaign:
-    """Generation ``generation`` as a campaign: one one-episode cell per candidate."""
+def generation_campaign(config: SearchConfig, values: list[dict[str, float]], generation: int,
+                        stop_episodes: bool = False) -> Campaign:
+    """Generation ``generation`` as a campaign: one one-episode cell per candidate; with
+    ``stop_episodes`` each episode ends at its first violation of the requirement (``sim.stop_at``)."""
     raw = copy.deepcopy(config.raw)
     raw.pop("falsify", None)
     head = raw["campaign"]
@@ -134,6 +136,9 @@ def generation_campaign(config: SearchConfig, values: list[dict[str, float]], ge
     head["episodes"] = 1
     head["common_random_numbers"] = False
     raw["axes"] = {"candidate": {f"c{k:02d}": dict(v) for k, v in enumerate(values)}}
+    if stop_episodes:  # end each episode at its first violation of the searched requirement
+        model = raw.setdefault("model", {})
+        model["sim"] = {**model.get("sim", {}), "stop_at": config.requirement}
     return campaign_from_dict(raw, source=f"{config.source} (generation {generation})")
 
 
@@ -178,7 +183,7 @@ def _search(
         points = search.ask()
         n = min(space.population, config.budget - len(evaluations))
         values = [space.values(list(p)) for p in points[:n]]
-        gen_campaign = generation_campaign(config, values, generation)
+        gen_campaign = generation_campaign(config, values, generation, space.stop_episodes)
         gen_dir = out_dir / GENERATIONS / f"g{generation:03d}"
         finished = _finished(gen_dir)
         if not finished:

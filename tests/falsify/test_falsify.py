@@ -51,6 +51,7 @@ def test_requirement_lists_agree():
         ({"bounds": {"scenario.front_speed_mps": [1, 2]}, "population": 1}, "population"),
         ({"bounds": {"scenario.front_speed_mps": [1, 2]}, "requirement": "fast"}, "unknown requirement"),
         ({"bounds": {"scenario.front_speed_mps": [1, 2]}, "stop_at_first": "yes"}, "stop_at_first"),
+        ({"bounds": {"scenario.front_speed_mps": [1, 2]}, "stop_episodes": 1}, "stop_episodes"),
         ({"bounds": {"scenario.front_speed_mps": [1, 2]}, "budget": 3}, "unknown key"),
         ("x", "must be a table"),
     ],
@@ -112,6 +113,20 @@ def test_resume_mid_search_equals_an_uninterrupted_search(tmp_path, method):
     gen = tmp_path / "whole" / search.GENERATIONS / f"g{ev.generation:03d}"
     manifest = search.store.read_json(gen / search.store.MANIFEST)
     assert manifest["cells"][ev.candidate]["overrides"] == ev.values
+
+
+@pytest.mark.parametrize("stop_episodes", [False, True])
+def test_stop_episodes_makes_every_generation_stop_at_the_requirement(tmp_path, stop_episodes):
+    """With stop_episodes the generations' episodes run with sim.stop_at = the searched requirement (the
+    rollout then ends them at their first violation: tests/episode/test_stop.py); the manifest keeps it,
+    so replay re-simulates the stopped episode."""
+    raw = copy.deepcopy(RAW)
+    raw["falsify"]["stop_episodes"] = stop_episodes
+    config = search.SearchConfig(raw=raw, source="<test>", method="random", budget=8, seed=3, requirement="safe")
+    search.start(config, tmp_path / "s", **_kw())
+    for gen in sorted((tmp_path / "s" / search.GENERATIONS).iterdir()):
+        campaign = search.runner.campaign_from_manifest(search.store.read_json(gen / search.store.MANIFEST))
+        assert {c.params.sim.stop_at for c in campaign.cells} == {"safe" if stop_episodes else ""}
 
 
 def test_search_finds_the_counterexample_and_reports_it(tmp_path):
