@@ -124,9 +124,10 @@ def generation_seed(campaign_seed: int, search_seed: int, generation: int) -> in
     return int.from_bytes(digest[:8], "big") % 2**31  # the summary reads seeds as float64: stay exact
 
 
-def generation_campaign(config: SearchConfig, values: list[dict[str, float]], generation: int,
+def generation_campaign(config: SearchConfig, values: list[dict[str, Any]], generation: int,
                         stop_episodes: bool = False) -> Campaign:
-    """Generation ``generation`` as a campaign: one one-episode cell per candidate; with
+    """Generation ``generation`` as a campaign: one one-episode cell per candidate (``values``: its
+    cell overrides, :meth:`SearchSpace.overrides`); with
     ``stop_episodes`` each episode ends at its first violation of the requirement (``sim.stop_at``)."""
     raw = copy.deepcopy(config.raw)
     raw.pop("falsify", None)
@@ -183,7 +184,8 @@ def _search(
         points = search.ask()
         n = min(space.population, config.budget - len(evaluations))
         values = [space.values(list(p)) for p in points[:n]]
-        gen_campaign = generation_campaign(config, values, generation, space.stop_episodes)
+        gen_campaign = generation_campaign(config, [space.overrides(v) for v in values], generation,
+                                           space.stop_episodes)
         gen_dir = out_dir / GENERATIONS / f"g{generation:03d}"
         finished = _finished(gen_dir)
         if not finished:

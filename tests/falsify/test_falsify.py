@@ -52,6 +52,9 @@ def test_requirement_lists_agree():
         ({"bounds": {"scenario.front_speed_mps": [1, 2]}, "requirement": "fast"}, "unknown requirement"),
         ({"bounds": {"scenario.front_speed_mps": [1, 2]}, "stop_at_first": "yes"}, "stop_at_first"),
         ({"bounds": {"scenario.front_speed_mps": [1, 2]}, "stop_episodes": 1}, "stop_episodes"),
+        ({"bounds": {"noise.opp_x_segments": [-1, 1]}}, 'search its elements as "noise.opp_x_segments[0]"'),
+        ({"bounds": {"scenario.front_speed_mps[0]": [1, 2]}}, "selects an element of a list field"),
+        ({"bounds": {"noise.opp_x_segments[1]": [-1, 1]}}, "must be [0] to [K-1]"),
         ({"bounds": {"scenario.front_speed_mps": [1, 2]}, "budget": 3}, "unknown key"),
         ("x", "must be a table"),
     ],
@@ -169,3 +172,23 @@ def test_bench_trials_and_section(tmp_path):
     bench.write_section(md, text)
     assert md.read_text().count(bench.BEGIN_MARK) == 1 and "intro" in md.read_text()
     assert bench.draw_curves(trials, tmp_path / "b")[0].is_file()
+
+
+def test_piecewise_constant_offsets_are_searched_as_list_elements(tmp_path):
+    """[falsify.bounds] "noise.opp_x_segments[0]" .. "[K-1]": each element is one coordinate; the
+    candidate's cell gets the whole list (so the episode's inputs, and replay, have it)."""
+    raw = copy.deepcopy(RAW)
+    raw["falsify"]["bounds"] = {"scenario.front_speed_mps": [5.0, 9.0], "noise.structured_share": [0.0, 1.0],
+                                "noise.opp_x_segments[0]": [-1.0, 1.0], "noise.opp_x_segments[1]": [-1.0, 1.0],
+                                "noise.opp_x_segments[2]": [-1.0, 1.0]}
+    res = search.start(_config("cma", budget=8, raw=raw), tmp_path / "s", **_kw())
+    assert res.space.dimension == 5
+    table = pq.read_table(tmp_path / "s" / search.SEARCH).to_pylist()
+    for ev, row in zip(res.evaluations, table, strict=True):
+        gen = tmp_path / "s" / search.GENERATIONS / f"g{ev.generation:03d}"
+        manifest = search.store.read_json(gen / search.store.MANIFEST)
+        segments = [ev.values[f"noise.opp_x_segments[{i}]"] for i in range(3)]
+        assert manifest["cells"][ev.candidate]["overrides"]["noise.opp_x_segments"] == segments
+        cell = search.runner.campaign_from_manifest(manifest).cells[ev.candidate]
+        assert cell.params.noise.opp_x_segments == tuple(segments)
+        assert row["noise.opp_x_segments[1]"] == segments[1] and all(-1 <= x <= 1 for x in segments)
