@@ -34,6 +34,7 @@ import pyarrow.parquet as pq
 
 from mcverify import store
 from mcverify.analysis import counterexamples as cx
+from mcverify.analysis import failure_regions
 from mcverify.analysis import robustness as rb
 from mcverify.campaign import executors, runner
 from mcverify.campaign.executors import EpisodeFn, Executor
@@ -260,15 +261,21 @@ def search_table(result: SearchResult) -> pa.Table:
 
 
 def counterexample_records(result: SearchResult) -> list[dict[str, Any]]:
-    """Every violating episode of the search, worst first, with its generation's replay command."""
+    """Every violating episode of the search, worst first, with its generation's replay command,
+    its searched values (``param:<bound name>``, list elements included) and its failure region
+    over the whole search (scaled by the search space's bounds)."""
+    values = {(e.generation, int(e.row["episode_id"])): e.values for e in result.evaluations}
     records: list[dict[str, Any]] = []
     for generation in sorted({e.generation for e in result.evaluations}):
         gen_dir = result.out_dir / GENERATIONS / f"g{generation:03d}"
         manifest = store.read_json(gen_dir / store.MANIFEST)
         for rec in cx.counterexamples(store.read_episodes(gen_dir), manifest, str(gen_dir),
                                       result.config.requirement):
+            searched = values.get((generation, int(rec["episode_id"])), {})
+            rec.update({f"param:{name}": float(searched[name]) for name in result.space.fields if name in searched})
             records.append({"generation": generation, **rec})
     records.sort(key=lambda r: (r["robustness"], r["generation"], r["episode_id"]))
+    failure_regions.assign(records, {f"param:{name}": (lo, hi) for name, lo, hi in result.space.bounds})
     return records
 
 

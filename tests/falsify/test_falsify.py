@@ -142,6 +142,10 @@ def test_search_finds_the_counterexample_and_reports_it(tmp_path):
     assert cex[0]["replay"].startswith(f"mcverify replay {tmp_path / 's' / search.GENERATIONS}")
     report = (tmp_path / "s" / "report.md").read_text()
     assert "first counterexample" in report and "Counterexamples (ellipse)" in report
+    # grouped by failure mode and region of the searched space (scaled by its bounds)
+    assert all(r["region"] >= 1 and r["failure_mode"] == "ellipse/planned" for r in cex)
+    assert all(5.0 <= r["param:scenario.front_speed_mps"] <= 9.0 for r in cex)
+    assert "## Failure regions" in report and "scenario.front_speed_mps" in report.split("## Failure regions")[1]
 
 
 def test_a_search_that_finds_nothing_reports_its_minimum(tmp_path):
