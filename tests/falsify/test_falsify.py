@@ -196,3 +196,43 @@ def test_piecewise_constant_offsets_are_searched_as_list_elements(tmp_path):
         cell = search.runner.campaign_from_manifest(manifest).cells[ev.candidate]
         assert cell.params.noise.opp_x_segments == tuple(segments)
         assert row["noise.opp_x_segments[1]"] == segments[1] and all(-1 <= x <= 1 for x in segments)
+
+
+def _fake_start(monkeypatch):
+    """`mcverify falsify` in this process with the cheap episodes (the command's own folder logic)."""
+    real = search.start
+
+    def start(config, out_dir, **kw):
+        kw.update(make_executor=executors.SerialExecutor, episode_fn=fake_episodes.episodes)
+        return real(config, out_dir, **kw)
+
+    monkeypatch.setattr(search, "start", start)
+
+
+def test_falsify_out_is_a_parent_folder_and_run_dir_the_folder_like_run(tmp_path, monkeypatch, capsys):
+    from mcverify import cli  # noqa: PLC0415
+
+    _fake_start(monkeypatch)
+    f = tmp_path / "fz.toml"
+    f.write_text('[campaign]\nname = "fz"\nseed = 11\nepisodes = 1\n[falsify]\nrequirement = "ellipse"\n'
+                 'population = 4\n[falsify.bounds]\n"scenario.front_speed_mps" = [5.0, 9.0]\n')
+    base = ["falsify", str(f), "--budget", "4", "--method", "random", "--no-progress"]
+    # --out DIR: a new folder DIR/falsify-<name>-<method>-<timestamp>, twice in the same second too
+    assert cli.main([*base, "--out", str(tmp_path / "parent")]) == 0
+    assert cli.main([*base, "--out", str(tmp_path / "parent")]) == 0
+    made = sorted(p.name for p in (tmp_path / "parent").iterdir())
+    assert len(made) == 2 and all(n.startswith("falsify-fz-random-") for n in made)
+    assert all((tmp_path / "parent" / n / "report.md").is_file() for n in made)
+    # --run-dir OUT: that folder; then --resume OUT
+    assert cli.main([*base, "--run-dir", str(tmp_path / "exact")]) == 0
+    assert (tmp_path / "exact" / search.CONFIG).is_file()
+    assert cli.main(["falsify", "--resume", str(tmp_path / "exact"), "--no-progress"]) == 0
+    # default parent: $MCVERIFY_RESULTS
+    monkeypatch.setenv("MCVERIFY_RESULTS", str(tmp_path / "env"))
+    assert cli.main(base) == 0 and len(list((tmp_path / "env").iterdir())) == 1
+    capsys.readouterr()
+    for argv, message in (([*base, "--out", "a", "--run-dir", "b"], "not both"),
+                          (["falsify", "--resume", str(tmp_path / "exact"), "--run-dir", "b"], "--resume keeps")):
+        assert cli.main(argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert message in err and len(err.splitlines()) == 1, err
