@@ -45,6 +45,7 @@ def falsify(args: Any) -> int:
         method = args.method or "cma"
         if method not in methods.METHODS:
             raise RunError(f"unknown --method {method!r}; choose one of {', '.join(methods.METHODS)}")
+        methods.searcher(method, 1, 2, 0)  # an optional method without its package: one line, before any output
         import tomllib  # noqa: PLC0415
 
         raw = apply_settings(tomllib.loads(Path(args.campaign).read_text(encoding="utf-8")), args.settings)

@@ -83,8 +83,15 @@ def test_cli_bad_falsify_table_exits_2_with_one_line(tmp_path):
     assert proc.stderr.count("\n") == 1 and "low < high" in proc.stderr
 
 
+def _needs(method):
+    """bo needs the optional optuna; skip its tests where it is not installed."""
+    if method == "bo":
+        pytest.importorskip("optuna")
+
+
 @pytest.mark.parametrize("method", methods.METHODS)
 def test_methods_are_deterministic_for_a_seed(method):
+    _needs(method)
     def run(seed):
         s = methods.searcher(method, 3, 6, seed)
         out = []
@@ -100,8 +107,9 @@ def test_methods_are_deterministic_for_a_seed(method):
     assert not np.array_equal(a, run(6))
 
 
-@pytest.mark.parametrize("method", ["cma", "cross-entropy"])
+@pytest.mark.parametrize("method", ["cma", "cross-entropy", "bo"])
 def test_resume_mid_search_equals_an_uninterrupted_search(tmp_path, method):
+    _needs(method)
     whole = search.start(_config(method), tmp_path / "whole", **_kw())
     with pytest.raises(RunError, match="test hook"):
         search.start(_config(method), tmp_path / "cut", stop_after_generations=1, **_kw())
@@ -132,10 +140,12 @@ def test_stop_episodes_makes_every_generation_stop_at_the_requirement(tmp_path, 
         assert {c.params.sim.stop_at for c in campaign.cells} == {"safe" if stop_episodes else ""}
 
 
-def test_search_finds_the_counterexample_and_reports_it(tmp_path):
+@pytest.mark.parametrize("method", ["cma", "bo"])
+def test_search_finds_the_counterexample_and_reports_it(tmp_path, method):
+    _needs(method)
     raw = copy.deepcopy(RAW)
     raw["falsify"]["stop_at_first"] = True
-    res = search.start(_config("cma", budget=60, raw=raw), tmp_path / "s", **_kw())
+    res = search.start(_config(method, budget=60, raw=raw), tmp_path / "s", **_kw())
     cex = pq.read_table(tmp_path / "s" / search.COUNTEREXAMPLES).to_pylist()
     assert res.first_counterexample is not None and res.episodes <= 60
     assert cex and all(r["robustness"] < 0 for r in cex)
@@ -236,3 +246,18 @@ def test_falsify_out_is_a_parent_folder_and_run_dir_the_folder_like_run(tmp_path
         assert cli.main(argv) == 2
         err = capsys.readouterr().err.strip()
         assert message in err and len(err.splitlines()) == 1, err
+
+
+def test_bo_without_optuna_is_one_line(tmp_path, monkeypatch, capsys):
+    from mcverify import cli  # noqa: PLC0415
+
+    monkeypatch.setitem(sys.modules, "optuna", None)  # `import optuna` now raises ImportError
+    with pytest.raises(RunError, match=r"needs optuna \(the optional extra"):
+        methods.searcher("bo", 2, 4, 0)
+    f = tmp_path / "fz.toml"
+    f.write_text('[campaign]\nname = "fz"\nseed = 1\nepisodes = 1\n[falsify.bounds]\n'
+                 '"scenario.front_speed_mps" = [5.0, 9.0]\n')
+    assert cli.main(["falsify", str(f), "--budget", "4", "--method", "bo", "--run-dir", str(tmp_path / "s")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "needs optuna" in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "s").exists()  # refused before anything is written
