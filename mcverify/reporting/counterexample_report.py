@@ -75,7 +75,9 @@ def regions_table(records: Sequence[Mapping[str, Any]]) -> Table:
 
 
 def _region_text(g: failure_regions.Region) -> str:
-    box = ", ".join(f"{p.removeprefix('param:')} {_box(b)}" for p, b in g.box.items())
+    """One region for the notes; the box only for regions of two or more (a single counterexample's
+    values are its row of the table)."""
+    box = ", ".join(f"{p.removeprefix('param:')} {_box(b)}" for p, b in g.box.items()) if g.count > 1 else ""
     return f"region {g.region} {g.failure_mode}: {g.count} (worst {fmt_num(g.worst_robustness, 3, signed=True)}" + (
         f"; {box})" if box else ")")
 
