@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+import zlib
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -51,7 +52,7 @@ import numpy as np
 
 from mcverify.model import BACKEND_NAMES, ModelParams
 from mcverify.solver.cfun import CFunction
-from mcverify.solver.ipm import COLD, WARM_ATTEMPTS, Ipm
+from mcverify.solver.ipm import COLD, WARM_ATTEMPTS, Ipm, IpmResult
 from mcverify.solver.kernels import Kernel, get_runtime_library
 from mcverify.solver.status import SolveRoute, SolveStatus
 
@@ -254,6 +255,10 @@ class IpmBackend:
         self.cold = dataclasses.replace(COLD, tol=params.mpc.tol)
         self.ipm_outcomes: Counter[str] = Counter()
         self.ipm_cpu_s: Counter[str] = Counter()
+        self.infeasibility = params.mpc.infeasibility
+        self.audit_every = params.mpc.infeasibility_audit_every
+        self.phase1_warm = dataclasses.replace(WARM_ATTEMPTS[0], tol=params.mpc.tol, phase1=True)
+        self.phase1_cold = dataclasses.replace(COLD, tol=params.mpc.tol, phase1=True)
 
     def solve(
         self, p: np.ndarray, warm: Start | None, guess: Callable[[], np.ndarray], fast_only: bool = False
@@ -278,10 +283,55 @@ class IpmBackend:
                 return res
         if fast_only:
             return dataclasses.replace(res, status=res.status.via(SolveRoute.PRESUMED))
+        if self.infeasibility == "phase1":
+            cert = self.certify(p, warm, guess, iterations)
+            if cert is not None:
+                return self.audit(p, warm, guess, cert) if self.audit_due(p) else cert
         ref = self.reference.solve(p, warm, guess)
         return dataclasses.replace(
             ref, status=ref.status.via(SolveRoute.FALLBACK), iterations=iterations + ref.iterations
         )
+
+
+    # ---------------------------------------------------------------- Mpc.infeasibility = "phase1"
+
+    def certify(self, p: np.ndarray, warm: Start | None, guess: Callable[[], np.ndarray],
+                iterations: int) -> BackendResult | None:
+        """The start-independent certificate of infeasibility (docs/engine.md): phase 1 of the C
+        restoration phase (:attr:`IpmOptions.phase1`) from the warm start, when there is one, and from
+        the cold guess; a certificate only if every one of them ends with "Infeasible_Problem_Detected"
+        (the cold one's point is returned). None otherwise (a feasible point or an undecided run)."""
+        runs = [] if warm is None else [(self.phase1_warm, warm.x, warm.lam_x, warm.lam_g)]
+        runs.append((self.phase1_cold, None, None, None))
+        r: IpmResult | None = None
+        for k, (opts, x0, lx0, lg0) in enumerate(runs):
+            cpu0 = time.process_time()
+            r = self.ipm.solve(p, guess() if x0 is None else x0, lx0, lg0, opts)
+            iterations += r.iterations
+            tag = f"phase1_{'warm' if lx0 is not None else 'cold'}{k + 1}:{r.status}"
+            self.ipm_outcomes[tag] += 1
+            self.ipm_cpu_s[tag] += time.process_time() - cpu0
+            if not r.infeasible:
+                return None
+        return BackendResult(r.w, r.lam_x, r.lam_g, SolveStatus.ipm(r.status), iterations, False,
+                             self.problem.max_violation(r.w, p))
+
+    def audit_due(self, p: np.ndarray) -> bool:
+        """Whether IPOPT re-checks this certificate: about one in ``infeasibility_audit_every``, chosen
+        by a checksum of the parameter vector, so the schedule depends on the problem only (not on
+        the order, chunk or worker it is solved in)."""
+        return zlib.crc32(np.ascontiguousarray(p, dtype=np.float64).tobytes()) % self.audit_every == 0
+
+    def audit(self, p: np.ndarray, warm: Start | None, guess: Callable[[], np.ndarray],
+              cert: BackendResult) -> BackendResult:
+        """IPOPT's full attempt (warm, then cold) on a certified problem: if it fails too, the
+        certificate stands (route AUDITED); if it solves it, its solution is returned (route
+        AUDIT_DISAGREED), so a disagreement never costs a solution."""
+        ref = self.reference.solve(p, warm, guess)
+        its = cert.iterations + ref.iterations
+        if ref.success:
+            return dataclasses.replace(ref, status=ref.status.via(SolveRoute.AUDIT_DISAGREED), iterations=its)
+        return dataclasses.replace(cert, status=cert.status.via(SolveRoute.AUDITED), iterations=its)
 
 
 #: Backend name -> implementation, one for every name of :data:`mcverify.model.BACKEND_NAMES`.

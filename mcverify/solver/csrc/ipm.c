@@ -145,6 +145,7 @@ typedef struct {
   const int *fixed;
   double *xr, *dr2;
   double *pe, *ne, *zp, *zn, *dpe, *dne, *dzp, *dzn, *pet, *net, *sigp, *sign_;
+  double *dpe_keep, *dne_keep; /* the Newton step's dpe, dne while second-order corrections are tried */
 } ipm_ws;
 
 /* A row with elastic variables in the restoration phase (all but the fixing rows). */
@@ -187,9 +188,9 @@ static void carve_workspace(ipm_ws *S, double *wd, int *wi) {
   double **per_row[] = {&S->lg, &S->ug, &S->dc, &S->g, &S->s, &S->y, &S->vl, &S->vu, &S->ds, &S->dy, &S->dvl,
                         &S->dvu, &S->cres, &S->sigs, &S->gt, &S->st_, &S->ds_soc,
                         &S->pe, &S->ne, &S->zp, &S->zn, &S->dpe, &S->dne, &S->dzp, &S->dzn, &S->pet, &S->net,
-                        &S->sigp, &S->sign_};
+                        &S->sigp, &S->sign_, &S->dpe_keep, &S->dne_keep};
   for (size_t k = 0; k < sizeof per_row / sizeof per_row[0]; ++k) { *per_row[k] = wd; wd += ng; }
-  wd += 3 * ng;
+  wd += 1 * ng;
   S->jac = wd; wd += st->n_j;
   S->jraw = wd; wd += st->n_j;
   S->hess = wd; wd += st->n_h;
@@ -491,14 +492,15 @@ static double elastic_rhs(const ipm_ws *S, int i, double mu, double dw) {
   return -gp / (S->sigp[i] + dw) + gn / (S->sign_[i] + dw);
 }
 
-/* The elastic steps implied by dy (dpe = (dy - gp) / (sigp + dw), dne = -(dy + gn) / (sign + dw)). */
-static void elastic_steps(ipm_ws *S, double mu, double dw) {
+/* The elastic steps implied by the row steps dyv (dpe = (dy - gp) / (sigp + dw), dne = -(dy + gn) /
+   (sign + dw)), into S->dpe, S->dne. */
+static void elastic_steps(ipm_ws *S, const double *dyv, double mu, double dw) {
   for (int i = 0; i < S->ng; ++i) {
     S->dpe[i] = S->dne[i] = 0.0;
     if (!ELASTIC(i)) continue;
     double gp = S->rho - S->y[i] - mu / S->pe[i], gn = S->rho + S->y[i] - mu / S->ne[i];
-    S->dpe[i] = (S->dy[i] - gp) / (S->sigp[i] + dw);
-    S->dne[i] = -(S->dy[i] + gn) / (S->sign_[i] + dw);
+    S->dpe[i] = (dyv[i] - gp) / (S->sigp[i] + dw);
+    S->dne[i] = -(dyv[i] + gn) / (S->sign_[i] + dw);
   }
 }
 
@@ -589,7 +591,7 @@ static int newton_step(ipm_ws *S, double mu, double dw_last, double *dw_out, ipm
     solve_permuted(S, S->rhs, S->tmp, S->sol);
     for (int i = 0; i < S->ng; ++i) S->dy[i] = S->sol[S->nw + i];
     unpack_step(S, S->sol, mu, dw, S->dx, S->ds);
-    if (S->resto) elastic_steps(S, mu, dw);
+    if (S->resto) elastic_steps(S, S->dy, mu, dw);
     if (curvature_ok(S, dw)) { *dw_out = dw; return IPM_CONVERGED; }
     dw = next_dw(dw, dw_last);
   }
@@ -637,7 +639,7 @@ static double primal_step_max(const ipm_ws *S, const double *dxv, const double *
     if (isfinite(lg[i]) && dsv[i] < 0.0) a = fmin(a, -tau * (s[i] - lg[i]) / dsv[i]);
     if (isfinite(ug[i]) && dsv[i] > 0.0) a = fmin(a, tau * (ug[i] - s[i]) / dsv[i]);
   }
-  if (S->resto) /* (no second-order corrections in the restoration phase: dpe, dne are the step's) */
+  if (S->resto) /* dpe, dne: the step's (the Newton step's or a second-order correction's) */
     for (int i = 0; i < ng; ++i) {
       if (!ELASTIC(i)) continue;
       if (S->dpe[i] < 0.0) a = fmin(a, -tau * S->pe[i] / S->dpe[i]);
@@ -792,16 +794,24 @@ static int second_order_corrections(ipm_ws *S, const merit_t *m, const filter_t 
   const int nw = S->nw, ng = S->ng;
   double *c_soc = S->sol + nw; /* the factorised step's rows are no longer needed */
   double theta_prev = ls->trial.theta;
+  /* restoration phase: the corrected step's elastic steps go to dpe, dne (read by the step rules
+     and the trial), the Newton step's are kept and put back unless a correction is accepted */
+  if (S->resto) {
+    memcpy(S->dpe_keep, S->dpe, sizeof(double) * ng);
+    memcpy(S->dne_keep, S->dne, sizeof(double) * ng);
+  }
   for (int i = 0; i < ng; ++i) c_soc[i] = ls->alpha * S->cres[i];
   for (int k = 0; k < IPM_MAX_SOC; ++k) {
     for (int i = 0; i < ng; ++i) {
       double ci = IS_EQ(i) ? S->gt[i] * S->dc[i] - S->lg[i] : S->gt[i] * S->dc[i] - S->st_[i];
+      if (ELASTIC(i)) ci += S->net[i] - S->pet[i];
       c_soc[i] += ci;
     }
     for (int j = 0; j < nw; ++j) S->tmp[j] = S->rhs[j];
     for (int i = 0; i < ng; ++i) S->tmp[nw + i] = S->rhs[nw + i] + S->cres[i] - c_soc[i];
     solve_permuted(S, S->tmp, S->soc_buf, S->tmp);
     unpack_step(S, S->tmp, mu, dw, S->dx_soc, S->ds_soc);
+    if (S->resto) elastic_steps(S, S->tmp + nw, mu, dw);
     double asoc = primal_step_max(S, S->dx_soc, S->ds_soc, tau);
     int ok = trial_eval(S, S->dx_soc, S->ds_soc, asoc, mu, &ls->trial);
     if (ok < 0) return -1;
@@ -813,8 +823,12 @@ static int second_order_corrections(ipm_ws *S, const merit_t *m, const filter_t 
       ls->alpha = asoc;
       return 0;
     }
-    if (!ok || ls->trial.theta > IPM_KAPPA_SOC * theta_prev) return 0;
+    if (!ok || ls->trial.theta > IPM_KAPPA_SOC * theta_prev) break;
     theta_prev = ls->trial.theta;
+  }
+  if (S->resto) {
+    memcpy(S->dpe, S->dpe_keep, sizeof(double) * ng);
+    memcpy(S->dne, S->dne_keep, sizeof(double) * ng);
   }
   return 0;
 }
@@ -833,7 +847,7 @@ static int line_search(ipm_ws *S, const merit_t *m, const filter_t *F, double al
     int ok = trial_eval(S, S->dx, S->ds, ls->alpha, mu, &ls->trial);
     if (ok < 0) return -1;
     if (ok && acceptable(&ls->trial, m, ls->alpha, ls->theta_min, F, &ls->f_type)) { ls->accepted = 1; break; }
-    if (k == 0 && ok && ls->trial.theta >= m->theta0 && !S->resto) {
+    if (k == 0 && ok && ls->trial.theta >= m->theta0) {
       if (second_order_corrections(S, m, F, mu, dw, tau, ls, stats) < 0) return -1;
       if (ls->accepted) break;
     }
@@ -1059,6 +1073,7 @@ static int restoration(ipm_ws *S, double mu0, double theta_fail, int phase1, ipm
     if (mu != F.mu) { F.n = 0; F.mu = mu; F.theta_max = IPM_THETA_MAX_FACTOR * fmax(1.0, m.theta0); }
     search_t ls;
     if (line_search(S, &m, &F, ap, mu, dw, tau, &ls, stats)) { status = IPM_EVALUATION_ERROR; break; }
+    if (ls.soc_used) { bound_multiplier_steps(S, mu); ad = dual_step_max(S, tau); }
     if (o->verbose)
       fprintf(stderr, "resto %2d mu %.1e theta %.2e elastic %.2e phi0 %.6e err0 %.2e ap %.3e alpha %.3e dw %.1e\n",
               it, mu, theta, m.theta0, m.phi0, err0, ap, ls.alpha, dw);
