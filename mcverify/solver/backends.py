@@ -22,7 +22,12 @@ started like the reference, with a second, more central attempt; IPOPT is its fa
   :attr:`~mcverify.solver.status.SolveRoute.FALLBACK`. So a failed solve always means "the
   reference could not solve it either", never "the fast path gave up";
 * an IPM success has IPOPT's contract: scaled KKT error <= ``params.mpc.tol``, unscaled
-  constraint violation <= 1e-7, then the common 1e-5 check.
+  constraint violation <= 1e-7, then the common 1e-5 check;
+* with ``params.mpc.infeasibility = "phase1"`` (default "ipopt"), before the fallback the C phase 1
+  runs from the warm start and the cold guess; if both certify local infeasibility the certificate
+  is the answer (status ``IPM_Infeasible_Problem_Detected``) and IPOPT runs only as the scheduled
+  auditor (:meth:`IpmBackend.audit_due`): docs/engine.md, "The restoration phase and what
+  infeasible means".
 
 Safety of the fast path (the paper's continuous-time CBF condition at the sample). The node-0 row
 of eq.tompc_cbf, hdot(x_0, u_0, t_0) + Lambda H(h(x_0, t_0)) >= 0, is affine in u_0 once x_0 and
