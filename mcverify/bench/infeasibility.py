@@ -4,16 +4,19 @@ Two measurements, written together into a generated section of results/BENCHMARK
 (:func:`mcverify.store.replace_section`):
 
 1. **Paired episodes** (:func:`compare_policies`): ``mcverify bench``'s engine side
-   (:func:`mcverify.bench.engine.run`, no baseline) on the same (seed, cell, episode id) once per
-   policy, "ipopt" (the default: IPOPT certifies as the fast path's fallback) and "phase1" (the C
-   phase-1 certificate from every start, IPOPT as scheduled auditor): CPU per episode by solve class,
-   the audit counters, and the episode-by-episode agreement of safety verdicts and outcomes.
+   (:func:`mcverify.bench.engine.run`, no baseline) on the same (seed, cell, episode id) with the
+   default settings and with one :data:`VARIANTS` entry: "phase1" (``mpc.infeasibility``: the C
+   phase-1 certificate from every start, IPOPT as scheduled auditor), "restoration"
+   (``mpc.ipm_restoration``: the IPM attempts with the restoration phase), or both: CPU per episode
+   by solve class, the audit counters, and the episode-by-episode agreement of safety verdicts and
+   outcomes.
 2. **Recorded solves** (:func:`replay_verdicts`): every solve of a recording
    (:mod:`mcverify.bench.recorded_ipm`) the IPM did not converge on, replayed under phase 1 from the
    warm and the cold start and under the restoration-enabled attempts: how the start-independent
    verdict compares with what IPOPT made of the same problem.
 
-Run: ``python -m mcverify.bench.infeasibility --episodes 1 [--recording FILE ...] [--no-write]``.
+Run: ``python -m mcverify.bench.infeasibility --variant phase1 --episodes 1 [--recording FILE ...]
+[--no-write]`` (each variant has its own generated section).
 """
 
 from __future__ import annotations
@@ -34,21 +37,35 @@ from mcverify.bench.engine import PAIRED_VALUES
 from mcverify.bench.engine_report import BENCHMARKS_MD
 from mcverify.bench.solve_classes import SolveClass
 
-POLICIES = ("ipopt", "phase1")
+#: Settings compared with the default (dotted keys of the model).
+VARIANTS: dict[str, dict[str, Any]] = {
+    "phase1": {"mpc.infeasibility": "phase1"},
+    "restoration": {"mpc.ipm_restoration": True},
+    "phase1+restoration": {"mpc.infeasibility": "phase1", "mpc.ipm_restoration": True},
+}
+#: The default side's label.
+DEFAULT = "default"
 BEGIN_MARK = "<!-- BEGIN mcverify bench infeasibility (generated) -->"
 END_MARK = "<!-- END mcverify bench infeasibility -->"
 
 
-def compare_policies(campaign: str, cell_name: str, episodes: int, progress=print) -> dict[str, Any]:
-    """Each policy's engine run on episodes 0 .. episodes - 1 of every chosen cell, and their
-    agreement (rows paired by ``episode_id``, unique in a run)."""
+def marks(variant: str) -> tuple[str, str]:
+    """The generated section's markers for one variant (or "replay")."""
+    return (BEGIN_MARK.replace("infeasibility", f"infeasibility {variant}"),
+            END_MARK.replace("infeasibility", f"infeasibility {variant}"))
+
+
+def compare_policies(campaign: str, cell_name: str, episodes: int, variant: str = "phase1",
+                     progress=print) -> dict[str, Any]:
+    """The engine run on episodes 0 .. episodes - 1 of every chosen cell with the default settings
+    and with ``variant``, and their agreement (rows paired by ``episode_id``, unique in a run)."""
     runs = {}
-    for policy in POLICIES:
-        progress(f"policy {policy}")
-        runs[policy] = engine.run(campaign=campaign, cell_name=cell_name, engine_episodes=episodes,
-                                  baseline_episodes=0, write=False, progress=progress,
-                                  infeasibility=policy)["sides"]["engine"]
-    ref, new = runs["ipopt"], runs["phase1"]
+    for name, overrides in ((DEFAULT, {}), (variant, VARIANTS[variant])):
+        progress(f"settings {name}")
+        runs[name] = engine.run(campaign=campaign, cell_name=cell_name, engine_episodes=episodes,
+                                baseline_episodes=0, write=False, progress=progress,
+                                overrides=overrides)["sides"]["engine"]
+    ref, new = runs[DEFAULT], runs[variant]
     ag = agreement(ref.rows, new.rows, key="episode_id", values=PAIRED_VALUES)
     per_cell = {}
     for cell in dict.fromkeys(r["cell"] for r in ref.rows):
@@ -57,7 +74,7 @@ def compare_policies(campaign: str, cell_name: str, episodes: int, progress=prin
         per_cell[cell] = {k: a[k] for k in ("paired", "safe_agree", "outcome_agree")}
     audits = {k: sum(int(r[k]) for r in new.rows) for k in ("infeasibility_audits",
                                                               "infeasibility_audit_disagreements")}
-    return {"runs": runs, "agreement": ag, "per_cell": per_cell, "audits": audits}
+    return {"variant": variant, "runs": runs, "agreement": ag, "per_cell": per_cell, "audits": audits}
 
 
 def replay_verdicts(paths: Sequence[str | Path], tol: float, progress=print) -> dict[str, Any]:
@@ -84,13 +101,16 @@ def _mean(xs: list[float]) -> float:
 
 
 def markdown(paired: dict[str, Any] | None, replay: dict[str, Any] | None, command: str) -> str:
-    """The generated section (both markers included)."""
-    lines = [BEGIN_MARK, "", f"### {datetime.now(timezone.utc):%Y-%m-%d}: `{command}`", "",
+    """The generated section (both markers of its variant included)."""
+    variant = paired["variant"] if paired is not None else "replay"
+    begin, end = marks(variant)
+    lines = [begin, "", f"### {datetime.now(timezone.utc):%Y-%m-%d}: `{command}`", "",
              f"{engine.machine()}, load average {engine._load()}."]
     if paired is not None:
-        lines += ["", "Paired episodes, engine only, `mpc.infeasibility` = ipopt (default) vs phase1. CPU-s per "
+        lines += ["", f"Paired episodes, engine only, default settings against {variant} "
+                  f"({', '.join(f'`{k} = {v}`' for k, v in VARIANTS[variant].items())}). CPU-s per "
                   "episode by solve class (solves per episode):", "",
-                  "| policy | episodes | CPU-s / episode | " + " | ".join(c.value for c in SolveClass) + " |",
+                  "| settings | episodes | CPU-s / episode | " + " | ".join(c.value for c in SolveClass) + " |",
                   "|---|---|---|" + "---|" * len(SolveClass)]
         for policy, side in paired["runs"].items():
             n = max(len(side.rows), 1)
@@ -98,7 +118,7 @@ def markdown(paired: dict[str, Any] | None, replay: dict[str, Any] | None, comma
                                for c in SolveClass)
             lines.append(f"| {policy} | {len(side.rows)} | {side.cpu_s_per_episode:.2f} | {cells} |")
         ag = paired["agreement"]
-        lines += ["", f"Agreement (phase1 against ipopt): {ag['paired']} paired episodes, safety verdicts "
+        lines += ["", f"Agreement ({variant} against default): {ag['paired']} paired episodes, safety verdicts "
                   f"{ag['safe_agree']}/{ag['paired']} (95% CI {_ci(ag['safe_agree_ci'])}), outcomes "
                   f"{ag['outcome_agree']}/{ag['paired']} (95% CI {_ci(ag['outcome_agree_ci'])}); "
                   f"min distance to veh_f differs by at most {ag['min_dist_front_m_absdiff_max']:.3g} m. Per cell: "
@@ -121,7 +141,7 @@ def markdown(paired: dict[str, Any] | None, replay: dict[str, Any] | None, comma
         for cls, d in replay["table"].items():
             lines.append(f"| {cls} | {d['solves']} | {d['infeasible']} | {d['feasible']} | {d['undecided']} | "
                          f"{d['warm_only_infeasible']} | {d['resto_converged']} | {replay['phase1_ms'][cls]:.0f} |")
-    lines += ["", END_MARK, ""]
+    lines += ["", end, ""]
     return "\n".join(lines)
 
 
@@ -134,11 +154,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--campaign", default=engine.DEFAULT_CAMPAIGN)
     ap.add_argument("--cell", default=engine.ALL_CELLS)
     ap.add_argument("--episodes", type=int, default=1, help="paired episodes per cell (0: replay only)")
+    ap.add_argument("--variant", choices=tuple(VARIANTS), default="phase1", help="settings compared with the default")
     ap.add_argument("--recording", action="append", default=[], help="a recorded_ipm pickle to replay")
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args(argv)
     say = lambda m: print(m, file=sys.stderr)  # noqa: E731
-    paired = compare_policies(args.campaign, args.cell, args.episodes, say) if args.episodes > 0 else None
+    paired = compare_policies(args.campaign, args.cell, args.episodes, args.variant, say) if args.episodes else None
     from mcverify.model import ModelParams
 
     replay = replay_verdicts(args.recording, ModelParams().mpc.tol, say) if args.recording else None
@@ -146,7 +167,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     text = markdown(paired, replay, command.strip())
     print(text)
     if not args.no_write:
-        store.replace_section(Path(BENCHMARKS_MD), text, BEGIN_MARK, END_MARK)
+        store.replace_section(Path(BENCHMARKS_MD), text, *marks(paired["variant"] if paired else "replay"))
         say(f"wrote {BENCHMARKS_MD}")
     return 0
 

@@ -127,6 +127,8 @@ def validate_params(p: ModelParams, where: str) -> None:
     if m.infeasibility not in INFEASIBILITY_POLICIES:
         raise bad("mpc.infeasibility",
                   f"unknown policy {_short(m.infeasibility)}; valid: {', '.join(INFEASIBILITY_POLICIES)}")
+    if not isinstance(m.ipm_restoration, bool):
+        raise bad("mpc.ipm_restoration", f"must be true or false, got {_short(m.ipm_restoration)}")
     if type(m.infeasibility_audit_every) is not int or m.infeasibility_audit_every < 1:
         raise bad("mpc.infeasibility_audit_every",
                   f"must be an integer >= 1, got {_short(m.infeasibility_audit_every)}")

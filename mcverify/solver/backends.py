@@ -256,8 +256,9 @@ class IpmBackend:
         self.reference = IpoptBackend(problem, params)
         lib = get_runtime_library("ipm", kernel_dir).so_path
         self.ipm = Ipm(problem.kernel.so_path, problem.lbx, problem.ubx, problem.lbg, problem.ubg, lib)
-        self.warm_attempts = tuple(dataclasses.replace(o, tol=params.mpc.tol) for o in WARM_ATTEMPTS)
-        self.cold = dataclasses.replace(COLD, tol=params.mpc.tol)
+        resto = params.mpc.ipm_restoration  # off by default: the attempts of ABI 1, bit for bit
+        self.warm_attempts = tuple(dataclasses.replace(o, tol=params.mpc.tol, restoration=resto) for o in WARM_ATTEMPTS)
+        self.cold = dataclasses.replace(COLD, tol=params.mpc.tol, restoration=resto)
         self.ipm_outcomes: Counter[str] = Counter()
         self.ipm_cpu_s: Counter[str] = Counter()
         self.infeasibility = params.mpc.infeasibility

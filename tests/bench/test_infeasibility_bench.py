@@ -25,7 +25,7 @@ def _side(name, rows, cpu):
 
 def test_section_holds_both_measurements_and_is_replaced(tmp_path):
     ref, new = [_row(0), _row(1)], [_row(0, audits=2, disagreements=1), _row(1, safe=False, outcome="went_back")]
-    paired = {"runs": {"ipopt": _side("engine", ref, 10.0), "phase1": _side("engine", new, 4.0)},
+    paired = {"variant": "phase1", "runs": {"default": _side("engine", ref, 10.0), "phase1": _side("engine", new, 4.0)},
               "agreement": agreement(ref, new, key="episode_id", values=PAIRED_VALUES),
               "per_cell": {"c": {"paired": 2, "safe_agree": 1, "outcome_agree": 1}},
               "audits": {"infeasibility_audits": 2, "infeasibility_audit_disagreements": 1}}
@@ -33,14 +33,17 @@ def test_section_holds_both_measurements_and_is_replaced(tmp_path):
               "table": {"certified": {"solves": 5, "infeasible": 2, "feasible": 1, "undecided": 2,
                                       "warm_only_infeasible": 0, "resto_converged": 1}}}
     text = inf.markdown(paired, replay, "python -m mcverify.bench.infeasibility --episodes 1")
-    assert text.startswith(inf.BEGIN_MARK) and text.rstrip().endswith(inf.END_MARK)
-    assert "| ipopt | 2 | 5.00 | 2.50 (0.5) |" in text and "| phase1 | 2 | 2.00 |" in text
+    begin, end = inf.marks("phase1")
+    assert text.startswith(begin) and text.rstrip().endswith(end) and begin != inf.marks("replay")[0]
+    assert "| default | 2 | 5.00 | 2.50 (0.5) |" in text and "| phase1 | 2 | 2.00 |" in text
     assert "safety verdicts 1/2" in text and "Audits by IPOPT: 2, disagreements 1" in text
     assert "- differs: c episode 1: safe True -> False, outcome overtook -> went_back" in text
     assert "| certified | 5 | 2 | 1 | 2 | 0 | 1 | 65 |" in text
     path = tmp_path / "BENCHMARKS.md"
     path.write_text("# Benchmarks\n\nkept\n")
-    store.replace_section(path, text, inf.BEGIN_MARK, inf.END_MARK)
-    store.replace_section(path, inf.markdown(None, replay, "again"), inf.BEGIN_MARK, inf.END_MARK)
+    store.replace_section(path, text, begin, end)
+    store.replace_section(path, inf.markdown(paired, None, "again"), begin, end)
+    store.replace_section(path, inf.markdown(None, replay, "replayed"), *inf.marks("replay"))
     out = path.read_text()
-    assert out.count(inf.BEGIN_MARK) == 1 and "kept" in out and "`again`" in out and "Paired" not in out
+    assert out.count(begin) == 1 and "kept" in out and "`again`" in out and "`replayed`" in out
+    assert out.count("| certified | 5 |") == 1  # the first write's replay table was replaced

@@ -92,3 +92,13 @@ def test_campaign_rejects_a_bad_policy(key, value, match):
     raw["model"]["mpc"] = {"infeasibility": "phase1", "infeasibility_audit_every": 3}
     assert campaign.campaign_from_dict(raw).cells[0].params.mpc.infeasibility == "phase1"
     assert backends.REGISTRY["ipm"] is backends.IpmBackend
+
+
+def test_ipm_restoration_turns_on_the_restoration_phase_in_every_attempt():
+    on = dataclasses.replace(P_IPM, mpc=dataclasses.replace(P_IPM.mpc, ipm_restoration=True))
+    backend = MpcSolver(on).backend
+    assert all(o.restoration for o in (*backend.warm_attempts, backend.cold))
+    assert not any(o.restoration for o in (*MpcSolver(P_IPM).backend.warm_attempts, MpcSolver(P_IPM).backend.cold))
+    raw = {"campaign": {"name": "t", "seed": 1, "episodes": 1}, "model": {"mpc": {"ipm_restoration": "yes"}}}
+    with pytest.raises(campaign.CampaignError, match="mpc.ipm_restoration: expected bool"):
+        campaign.campaign_from_dict(raw)
