@@ -104,7 +104,9 @@ def markdown(paired: dict[str, Any] | None, replay: dict[str, Any] | None, comma
     """The generated section (both markers of its variant included)."""
     variant = paired["variant"] if paired is not None else "replay"
     begin, end = marks(variant)
-    lines = [begin, "", f"### {datetime.now(timezone.utc):%Y-%m-%d}: `{command}`", "",
+    title = "recorded solves replayed" if paired is None else f"{variant} against the default settings"
+    lines = [begin, "", f"## The C restoration phase and infeasibility certificates: {title}", "",
+             f"### {datetime.now(timezone.utc):%Y-%m-%d}: `{command}`", "",
              f"{engine.machine()}, load average {engine._load()}."]
     if paired is not None:
         lines += ["", f"Paired episodes, engine only, default settings against {variant} "
