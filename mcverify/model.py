@@ -217,8 +217,8 @@ class Mpc:
     """Who certifies infeasibility on the ipm backend: ipopt (its fallback) or phase1 (the C phase 1 from every start,
     IPOPT as scheduled auditor; docs/engine.md)."""
     ipm_restoration: bool = False
-    """The ipm backend's IPM attempts run with the C restoration phase: a failed line search restores feasibility
-    instead of ending the attempt (docs/engine.md)."""
+    """The ipm backend's cold IPM attempt of a full solve runs with the C restoration phase: a failed line search
+    restores feasibility instead of ending the attempt (docs/engine.md)."""
     infeasibility_audit_every: int = 10
     """With infeasibility = phase1: about one C certificate in this many is re-checked by IPOPT (1: every one).
     Valid: >= 1."""

@@ -256,9 +256,13 @@ class IpmBackend:
         self.reference = IpoptBackend(problem, params)
         lib = get_runtime_library("ipm", kernel_dir).so_path
         self.ipm = Ipm(problem.kernel.so_path, problem.lbx, problem.ubx, problem.lbg, problem.ubg, lib)
-        resto = params.mpc.ipm_restoration  # off by default: the attempts of ABI 1, bit for bit
-        self.warm_attempts = tuple(dataclasses.replace(o, tol=params.mpc.tol, restoration=resto) for o in WARM_ATTEMPTS)
-        self.cold = dataclasses.replace(COLD, tol=params.mpc.tol, restoration=resto)
+        self.warm_attempts = tuple(dataclasses.replace(o, tol=params.mpc.tol) for o in WARM_ATTEMPTS)
+        self.cold = dataclasses.replace(COLD, tol=params.mpc.tol)
+        # mpc.ipm_restoration (off by default: the attempts of ABI 1, bit for bit): the cold attempt of
+        # a full solve restores feasibility after a failed line search (not the warm attempts, whose
+        # failures the cold start repairs cheaply, nor a presumed-infeasible fast-only solve, where a
+        # restoration would mostly fail at a price)
+        self.cold_full = dataclasses.replace(self.cold, restoration=params.mpc.ipm_restoration)
         self.ipm_outcomes: Counter[str] = Counter()
         self.ipm_cpu_s: Counter[str] = Counter()
         self.infeasibility = params.mpc.infeasibility
@@ -274,7 +278,7 @@ class IpmBackend:
         :attr:`mcverify.model.Mpc.infeasible_recheck_steps`)."""
         iterations = 0
         attempts = [] if warm is None else [(o, warm.x, warm.lam_x, warm.lam_g) for o in self.warm_attempts]
-        attempts.append((self.cold, None, None, None))
+        attempts.append((self.cold if fast_only else self.cold_full, None, None, None))
         for k, (opts, x0, lx0, lg0) in enumerate(attempts):
             cpu0 = time.process_time()
             r = self.ipm.solve(p, guess() if x0 is None else x0, lx0, lg0, opts)

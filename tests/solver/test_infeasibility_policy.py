@@ -94,11 +94,20 @@ def test_campaign_rejects_a_bad_policy(key, value, match):
     assert backends.REGISTRY["ipm"] is backends.IpmBackend
 
 
-def test_ipm_restoration_turns_on_the_restoration_phase_in_every_attempt():
+def test_ipm_restoration_turns_on_the_restoration_phase_in_the_full_cold_attempt(monkeypatch):
     on = dataclasses.replace(P_IPM, mpc=dataclasses.replace(P_IPM.mpc, ipm_restoration=True))
     backend = MpcSolver(on).backend
-    assert all(o.restoration for o in (*backend.warm_attempts, backend.cold))
-    assert not any(o.restoration for o in (*MpcSolver(P_IPM).backend.warm_attempts, MpcSolver(P_IPM).backend.cold))
+    assert backend.cold_full.restoration and not any(o.restoration for o in (*backend.warm_attempts, backend.cold))
+    default = MpcSolver(P_IPM).backend
+    assert not any(o.restoration for o in (*default.warm_attempts, default.cold, default.cold_full))
+    seen = []
+    real = backend.ipm.solve
+    monkeypatch.setattr(backend.ipm, "solve", lambda *a: seen.append(a[-1].restoration) or real(*a))
+    solver = MpcSolver(on)
+    solver.backend = backend
+    solver.solve(EGO, INFEASIBLE_FRONT, 1, LAMBDA0, fast_only=True)
+    solver.solve(EGO, INFEASIBLE_FRONT, 1, LAMBDA0)
+    assert seen == [False, True]  # presumed: the plain cold attempt; full: with the restoration phase
     raw = {"campaign": {"name": "t", "seed": 1, "episodes": 1}, "model": {"mpc": {"ipm_restoration": "yes"}}}
     with pytest.raises(campaign.CampaignError, match="mpc.ipm_restoration: expected bool"):
         campaign.campaign_from_dict(raw)
