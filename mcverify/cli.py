@@ -210,7 +210,11 @@ def _parser() -> argparse.ArgumentParser:
     est.add_argument("--seed", type=_nonneg_int, help="campaign seed (overrides the file)")
     est.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", dest="settings",
                      help="override a model parameter of the file (repeatable)")
-    est.add_argument("--out", type=Path, help="run folder (default: results/<name>-<timestamp>)")
+    est.add_argument("--out", type=Path, metavar="DIR",
+                     help="parent folder of the new estimate folder DIR/<name>-<timestamp> (default: "
+                          "$MCVERIFY_RESULTS, else ./results)")
+    est.add_argument("--run-dir", type=Path, dest="new_run_dir", metavar="RUN_DIR",
+                     help="the exact (new or empty) folder for this estimate, instead of a fresh one under --out")
     est.add_argument("--executor", choices=("local", "ray", "serial"), default="local",
                      help="local worker processes (default), tasks on a Ray cluster, or this process")
     est.add_argument("--address", metavar="ADDR", help="Ray cluster to join (with --executor ray)")
@@ -299,13 +303,18 @@ def _parser() -> argparse.ArgumentParser:
 
     fal = sub.add_parser("falsify", help="search for counterexamples (robustness-guided; mcverify.falsify)")
     fal.add_argument("campaign", nargs="?", type=Path, help="campaign TOML file with a [falsify] table")
-    fal.add_argument("--method", choices=("cma", "cross-entropy", "random"), help="search method (default cma)")
+    fal.add_argument("--method", choices=("cma", "cross-entropy", "random", "bo"),
+                     help="search method (default cma; bo: Bayesian optimisation, needs the extra mcverify[bo])")
     fal.add_argument("--budget", type=_positive_int, help="episodes the search may spend")
     fal.add_argument("--requirement", help="requirement to falsify (default: the file's, else safe)")
     fal.add_argument("--seed", type=_nonneg_int, help="search seed (default: the campaign's seed)")
     fal.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", dest="settings",
                      help="override a model parameter of the file (repeatable)")
-    fal.add_argument("--out", type=Path, help="search folder (default: results/falsify-<name>-<method>-<time>)")
+    fal.add_argument("--out", type=Path, metavar="DIR",
+                     help="parent folder of the new search folder DIR/falsify-<name>-<method>-<timestamp> (default: "
+                          "$MCVERIFY_RESULTS, else ./results)")
+    fal.add_argument("--run-dir", type=Path, dest="new_run_dir", metavar="OUT",
+                     help="the exact (new or empty) folder for this search, instead of a fresh one under --out")
     fal.add_argument("--executor", choices=("local", "ray", "serial"), default="local")
     fal.add_argument("--address", metavar="ADDR", help="Ray cluster to join (with --executor ray)")
     fal.add_argument("--workers", type=_positive_int, default=None, help="worker processes / tasks in flight")
@@ -395,9 +404,7 @@ def _cmd_run(args) -> int:
             print(cost.render(campaign, args.chunk_size or runner.DEFAULT_CHUNK_SIZE,
                               args.workers or executors.default_workers()))
             return 0
-        if args.out is not None and args.new_run_dir is not None:
-            raise RunError("give --out (a parent folder for new runs) or --run-dir (the run folder), not both")
-        out = args.run_dir = args.new_run_dir or runner.default_run_dir(campaign, args.out)
+        out = args.run_dir = new_folder(args, lambda parent: runner.default_run_dir(campaign, parent))
         executor = executors.make_executor(args.executor, workers=args.workers, address=args.address)
 
         def starting(planned: int, done: int) -> None:  # after every check: errors stay one line
@@ -412,6 +419,13 @@ def _cmd_run(args) -> int:
     print(path.read_text())
     print(f"report: {path}", file=sys.stderr)
     return 0
+
+
+def new_folder(args, fresh) -> Path:
+    """The folder of a new run or estimate (:func:`mcverify.campaign.runner.new_folder`)."""
+    from mcverify.campaign import runner
+
+    return runner.new_folder(args.out, args.new_run_dir, fresh)
 
 
 def _cmd_falsify(args) -> int:
@@ -437,7 +451,8 @@ def _cmd_estimate(args) -> int:
         return _cmd_estimate_in_process(args, method)
     executor = executors.make_executor(args.executor, workers=args.workers, address=args.address)
     if args.resume:
-        if args.campaign or args.out or args.seed is not None or args.settings or args.until_halfwidth:
+        if (args.campaign or args.out or args.new_run_dir or args.seed is not None or args.settings
+                or args.until_halfwidth):
             raise RunError("--resume keeps the estimate's campaign and rule: give only RUN_DIR (and the executor)")
         args.run_dir = args.resume
         path = mc.resume(args.resume, executor=executor, progress=not args.no_progress)
@@ -450,7 +465,7 @@ def _cmd_estimate(args) -> int:
         except ValueError as err:
             raise RunError(str(err)) from None
         campaign = load_campaign(args.campaign, episodes=args.budget, seed=args.seed, settings=args.settings)
-        out = args.run_dir = args.out or runner.default_run_dir(campaign)
+        out = args.run_dir = new_folder(args, lambda parent: runner.default_run_dir(campaign, parent))
         print(runner.describe(campaign), file=sys.stderr)
         print(f"estimate folder: {out}", file=sys.stderr)
         path = mc.run(campaign, spec, out, executor=executor,
@@ -491,6 +506,8 @@ def _cmd_estimate_in_process(args, method: str) -> int:
     if args.resume:
         from mcverify import store
 
+        if args.out is not None or args.new_run_dir is not None:
+            raise RunError("--resume writes into RUN_DIR: leave out --out and --run-dir")
         manifest = store.read_manifest(args.resume)
         camp = manifest["campaign"]
         campaign = campaign_from_dict(camp["raw"], source=camp["source"], seed=camp["seed"])
@@ -515,7 +532,7 @@ def _cmd_estimate_in_process(args, method: str) -> int:
         except ValueError as err:
             raise RunError(str(err)) from None
         campaign = load_campaign(args.campaign, seed=args.seed, settings=args.settings)
-        out = args.run_dir = args.out or runner.default_run_dir(campaign)
+        out = args.run_dir = new_folder(args, lambda parent: runner.default_run_dir(campaign, parent))
         log(runner.describe(campaign))
         log(f"estimate folder: {out}")
         path = module.run(campaign, spec, out, progress=log, cells=args.cell or None, **_executor_for(args, method))

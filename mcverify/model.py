@@ -124,6 +124,14 @@ MPCDC_CONTROLLERS = ("mpcdc", "mpcdc_eps")
 INFEASIBILITY_POLICIES = ("ipopt", "phase1")
 #: The evidence that makes the ego abandon the overtake (:attr:`Mpc.abandon_rule`).
 ABANDON_RULES = ("first_failure", "consecutive", "certified")
+#: Most piecewise-constant segments of one structured disturbance (:attr:`Noise.front_x_segments`).
+MAX_SEGMENTS = 8
+#: The requirements of :mod:`mcverify.analysis.robustness` (kept here so the campaign and episode
+#: layers need not import the analysis layer; tests/falsify checks the lists agree). Each is also a
+#: valid :attr:`Simulation.stop_at`.
+REQUIREMENT_NAMES: tuple[str, ...] = (
+    "collision_front", "collision_opp", "ellipse", "invariance", "h_eo", "theorem5", "theorem5_certified", "safe",
+)
 
 
 @dataclass(frozen=True)
@@ -246,7 +254,10 @@ class Noise:
     quantity (x position, speed), t the episode time (s). So the error stays inside the declared
     bounds (the half-widths above) whatever the disturbance: a per-episode bias, a slow drift and the
     random part share the same budget. Biases in [-1, 1] (fractions of the half-width), drifts in
-    1/s, the share in [0, 1].
+    1/s, the share in [0, 1]. Piecewise-constant offsets (``*_segments``, K <= :data:`MAX_SEGMENTS`
+    values in [-1, 1] each): the episode duration ``sim.max_time_s`` is cut into K equal segments and
+    the k-th value is added inside the clip during segment k, so ``s(t) = clip(bias + drift_per_s * t
+    + offset_k(t), -1, 1)``; () (the default) adds nothing.
     """
 
     kind: str = "paper"
@@ -280,6 +291,18 @@ class Noise:
     """Structured bias of veh_o's measured speed, as a fraction of its half-width. Valid: [-1, 1]. Paper: 0."""
     opp_v_drift_per_s: float = 0.0
     """Drift of veh_o's speed disturbance (1/s). Valid: finite. Paper: 0."""
+    front_x_segments: tuple[float, ...] = ()
+    """Piecewise-constant offsets of veh_f's x disturbance, one per equal segment of sim.max_time_s (added to bias +
+    drift t before the clip). Valid: up to 8 values in [-1, 1]. Paper: () (none)."""
+    front_v_segments: tuple[float, ...] = ()
+    """Piecewise-constant offsets of veh_f's speed disturbance (see front_x_segments). Valid: up to 8 values in [-1,
+    1]. Paper: ()."""
+    opp_x_segments: tuple[float, ...] = ()
+    """Piecewise-constant offsets of veh_o's x disturbance (see front_x_segments). Valid: up to 8 values in [-1, 1].
+    Paper: ()."""
+    opp_v_segments: tuple[float, ...] = ()
+    """Piecewise-constant offsets of veh_o's speed disturbance (see front_x_segments). Valid: up to 8 values in [-1,
+    1]. Paper: ()."""
 
 
 @dataclass(frozen=True)
@@ -293,6 +316,9 @@ class Simulation:
     the plant keeps running this long (at most until ``max_time_s``) under the lane-keeping law of
     :mod:`mcverify.control.lane_keeping`, every safety check included; the outcome and its time stay
     those of the goal test. 0: the episode ends at the goal test.
+    ``stop_at``: falsification only (set by ``mcverify falsify``, refused in a campaign file): end
+    the episode at the end of the control period in which it first violates this requirement
+    (:data:`REQUIREMENT_NAMES`); "" never stops early.
     """
 
     control_period_s: float = 0.02
@@ -304,6 +330,9 @@ class Simulation:
     settle_s: float = 3.0
     """After the goal test, how long the plant keeps running under the lane-keeping law (0: stop at once). Valid: >=
     0."""
+    stop_at: str = ""
+    """Falsify mode only: end the episode at its first violation of this requirement ("": never). Set by
+    `mcverify falsify` ([falsify] stop_episodes); refused in campaign files."""
 
 
 @dataclass(frozen=True)

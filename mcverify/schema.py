@@ -65,7 +65,8 @@ EPISODE_COLUMNS: tuple[Column, ...] = (
     _c("sample_opp_spawn_gap_m", _FLOAT, "m", "x_o - x_e at which veh_o appears when the ego enters the opposing "
        "lane (opposing.spawn = lane_entry; NaN otherwise)"),
     # outcome
-    _c("outcome", _STR, "", "overtook, went_back, timeout or error (an episode that could not be simulated)"),
+    _c("outcome", _STR, "", "overtook, went_back, timeout, stopped (falsify mode: ended at its first violation "
+       "before a goal, see stopped_at_violation) or error (an episode that could not be simulated)"),
     _c("overtook", _BOOL, "", "the paper's convergence test was met ahead of the front vehicle"),
     _c("went_back", _BOOL, "", "the episode ended behind the front vehicle in the ego lane (Q2's goal)"),
     _c("timeout", _BOOL, "", "neither goal was reached within the episode time limit"),
@@ -116,6 +117,9 @@ EPISODE_COLUMNS: tuple[Column, ...] = (
        "(between the road's outer edge and the lane line)"),
     _c("unsafe_in_settling", _BOOL, "", "the ego first left the safe set after the goal test, in the settling "
        "period (first_unsafe_s >= end_time_s)"),
+    _c("stopped_at_violation", _BOOL, "", "falsify mode (sim.stop_at): the episode was ended at the end of the "
+       "control period in which it first violated that requirement; its trajectory and every metric stop at "
+       "settle_end_s (outcome stopped, or the goal's outcome if it was settling); always false in run and estimate"),
     # decisions (Theorem 5, Algorithm 1, Table I)
     _c("steps", _INT, "", "control steps run"),
     _c("opp_detected_steps", _INT, "", "control steps with veh_o detected"),

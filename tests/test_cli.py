@@ -42,7 +42,13 @@ def test_sigterm_and_ctrl_c_print_the_resume_hint(tmp_path: Path, capsys, monkey
         raise AssertionError("the signal did not interrupt the run")
 
     monkeypatch.setattr(cli, "_cmd_run", fake_run)
-    assert cli.main(["run", "whatever.toml"]) == code
+    # A shell without job control starts background jobs with SIGINT ignored, and Python then installs
+    # no KeyboardInterrupt handler; give the process what a terminal's Ctrl-C reaches.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        assert cli.main(["run", "whatever.toml"]) == code
+    finally:
+        signal.signal(signal.SIGINT, previous)
     err = capsys.readouterr().err.strip()
     assert err == f"mcverify: {word}; finished chunks are kept (mcverify run --resume {run_dir})"
 

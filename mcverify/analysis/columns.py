@@ -30,6 +30,11 @@ class Columns:
             col = t.column(name)
             if pa.types.is_boolean(col.type):
                 data[name] = np.asarray(pc.fill_null(col, False).to_numpy(zero_copy_only=False), dtype=bool)
+            elif pa.types.is_integer(col.type) and col.null_count == 0:
+                # numpy's conversion, not Arrow's checked cast: a 64-bit seed above 2**53 (valid in a
+                # campaign) is not exactly representable and Arrow refuses it; nothing here does
+                # arithmetic on seeds, and every smaller integer converts exactly either way.
+                data[name] = np.asarray(col.to_numpy(zero_copy_only=False)).astype(np.float64)
             elif pa.types.is_integer(col.type) or pa.types.is_floating(col.type):
                 data[name] = np.asarray(pc.cast(col, pa.float64()).to_numpy(zero_copy_only=False), dtype=np.float64)
             else:

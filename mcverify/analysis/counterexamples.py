@@ -13,6 +13,8 @@ the chosen requirement, then episode id):
 - ``first_unsafe_s`` and ``first_unsafe_cause`` (what drove the ego then), ``outcome``;
 - ``failure_mode``: the most violated member requirement and the driver at the first unsafe
   instant (e.g. ``collision_opp/planned``), to group distinct failures;
+- ``region``: the failure region, i.e. the group of counterexamples of the same failure mode that
+  lie close together in parameter space (:mod:`mcverify.analysis.failure_regions`);
 - ``replay``: the command that re-simulates the episode bit for bit.
 """
 
@@ -21,17 +23,18 @@ from __future__ import annotations
 import json
 import math
 from collections import Counter
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 import pyarrow as pa
 
+from mcverify.analysis import failure_regions
 from mcverify.analysis import robustness as rb
 
 #: The margins copied from the row (the smallest distances and barrier values of the episode).
 MARGIN_COLUMNS: tuple[str, ...] = ("min_gap_front_m", "min_h_front", "min_gap_opp_any_m", "min_h_opp")
 #: Row columns copied as they are.
-ROW_COLUMNS: tuple[str, ...] = ("outcome", "first_unsafe_s", "first_unsafe_cause")
+ROW_COLUMNS: tuple[str, ...] = ("outcome", "first_unsafe_s", "first_unsafe_cause", "stopped_at_violation")
 #: The requirements whose robustness every counterexample row carries.
 REPORTED: tuple[str, ...] = tuple(rb.REQUIREMENTS)
 
@@ -80,7 +83,25 @@ def counterexamples(
         rec["failure_mode"] = failure_mode(r, requirement)
         rec["replay"] = replay_command(run_dir, int(r["episode_id"]))
         out.append(rec)
+    failure_regions.assign(out, run_bounds(out, table, cells.values()))
     return out
+
+
+def run_bounds(records: Sequence[Mapping[str, Any]], table: pa.Table,
+               cells: Iterable[Mapping[str, Any]]) -> dict[str, tuple[float, float]]:
+    """The scale of each numeric coordinate of a run's counterexamples (:mod:`failure_regions`): a
+    ``param:`` column by the range of that override over all the run's cells, a ``sample_`` column
+    by its range over all the run's episodes."""
+    cells = list(cells)
+    bounds = {}
+    for name in failure_regions.numeric_columns(records):
+        if name.startswith("param:"):
+            rng = failure_regions.span([c.get("overrides", {}).get(name.removeprefix("param:")) for c in cells])
+        else:
+            rng = failure_regions.span(table.column(name).to_pylist())
+        if rng is not None:
+            bounds[name] = rng
+    return bounds
 
 
 def to_arrow(records: Sequence[Mapping[str, Any]]) -> pa.Table:

@@ -77,6 +77,15 @@ def default_run_dir(campaign: Campaign, results_dir: Path | None = None) -> Path
     return path
 
 
+def new_folder(out: Path | None, run_dir: Path | None, fresh: Callable[[Path | None], Path]) -> Path:
+    """The one rule of ``--out`` and ``--run-dir`` for every command that makes a new folder (run,
+    estimate, falsify): ``run_dir`` (``--run-dir``) is the folder itself; otherwise ``fresh(out)``
+    makes a new folder under the parent ``out`` (``--out``; None: :func:`default_results_dir`)."""
+    if out is not None and run_dir is not None:
+        raise RunError("give --out (a parent folder for new runs) or --run-dir (the run folder), not both")
+    return Path(run_dir) if run_dir is not None else fresh(out)
+
+
 # ---------------------------------------------------------------------------------- manifest
 
 

@@ -6,10 +6,13 @@
     requirement = "safe"          # a requirement of mcverify.analysis.robustness (default "safe")
     population = 8                # candidates per generation (one batch), >= 2 (default 8)
     stop_at_first = true          # stop after the generation that found a counterexample (default true)
+    stop_episodes = false         # end each episode at its first violation of the requirement (default false)
 
     [falsify.bounds]              # one numeric model field per entry: [low, high], low < high
     "scenario.front_speed_mps" = [5.0, 9.0]
     "opposing.speed_mps" = [8.0, 19.4]
+    "noise.opp_x_segments[0]" = [-1.0, 1.0]   # elements [0]..[K-1] of a list field: the whole list
+    "noise.opp_x_segments[1]" = [-1.0, 1.0]
 
 Every candidate is one episode of a one-episode cell whose overrides are the candidate's values (so
 its episode is an ordinary row and ``mcverify replay`` re-simulates it bit for bit); the per-step
@@ -21,20 +24,21 @@ Every problem is a :class:`CampaignError` of one line.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
 from mcverify.campaign.validate import _short
 from mcverify.errors import CampaignError
+from mcverify.model import REQUIREMENT_NAMES
 
-_KEYS = {"requirement", "population", "stop_at_first", "bounds"}
-#: Requirement names known to the robustness module (kept here so the campaign layer need not
-#: import the analysis layer at load time; tests/falsify checks the two lists agree).
-REQUIREMENT_NAMES: tuple[str, ...] = (
-    "collision_front", "collision_opp", "ellipse", "invariance", "h_eo", "theorem5", "theorem5_certified", "safe",
-)
+__all__ = ["MAX_POPULATION", "REQUIREMENT_NAMES", "SearchSpace", "check_single_target", "read_search_space",
+           "split_element"]
+
+_KEYS = {"requirement", "population", "stop_at_first", "stop_episodes", "bounds"}
 MAX_POPULATION = 1024
+_ELEMENT = re.compile(r"(.+)\[(\d+)\]")
 
 
 @dataclass(frozen=True)
@@ -46,6 +50,7 @@ class SearchSpace:
     population: int
     stop_at_first: bool
     bounds: tuple[tuple[str, float, float], ...]
+    stop_episodes: bool = False
 
     @property
     def fields(self) -> tuple[str, ...]:
@@ -54,6 +59,18 @@ class SearchSpace:
     @property
     def dimension(self) -> int:
         return len(self.bounds)
+
+    def overrides(self, values: Mapping[str, float]) -> dict[str, Any]:
+        """The cell overrides of a candidate's ``values``: plain fields as they are, the elements
+        ``field[i]`` of a list field gathered into that field's whole list (indices 0..K-1)."""
+        out: dict[str, Any] = {}
+        for name, value in values.items():
+            field, index = split_element(name)
+            if index is None:
+                out[name] = value
+            else:
+                out.setdefault(field, []).append((index, value))
+        return {k: [x for _, x in sorted(v)] if isinstance(v, list) else v for k, v in out.items()}
 
     def values(self, unit_point: list[float]) -> dict[str, float]:
         """The model values of a point of the unit cube [0, 1]^dimension (clipped into it)."""
@@ -70,7 +87,8 @@ def read_search_space(table: Any, where: str, known_fields: Mapping[str, type]) 
     """Validate a ``[falsify]`` table; ``known_fields`` is every settable ``section.field`` with its type."""
     here = f"{where} [falsify]"
     if not isinstance(table, Mapping):
-        raise CampaignError(f"{here}: must be a table (requirement, population, stop_at_first, [falsify.bounds])")
+        raise CampaignError(f"{here}: must be a table (requirement, population, stop_at_first, stop_episodes, "
+                            "[falsify.bounds])")
     for key in table:
         if key not in _KEYS:
             raise CampaignError(f"{here}: unknown key {_short(key)} (known: {', '.join(sorted(_KEYS))})")
@@ -84,19 +102,29 @@ def read_search_space(table: Any, where: str, known_fields: Mapping[str, type]) 
             f"{here}.population: must be an integer from 2 to {MAX_POPULATION}, got {_short(population)}"
         )
     stop = table.get("stop_at_first", True)
-    if not isinstance(stop, bool):
-        raise CampaignError(f"{here}.stop_at_first: must be true or false, got {_short(stop)}")
+    stop_episodes = table.get("stop_episodes", False)
+    for key, flag in (("stop_at_first", stop), ("stop_episodes", stop_episodes)):
+        if not isinstance(flag, bool):
+            raise CampaignError(f"{here}.{key}: must be true or false, got {_short(flag)}")
     bounds = table.get("bounds")
     if not isinstance(bounds, Mapping) or not bounds:
         raise CampaignError(f"{here}: needs a non-empty [falsify.bounds] table of 'section.field' = [low, high]")
     out = []
+    elements: dict[str, list[int]] = {}
     for name, pair in bounds.items():
         at = f"{here}.bounds.{name}"
-        if name not in known_fields:
+        field, index = split_element(str(name))
+        if field not in known_fields:
             raise CampaignError(f"{here}.bounds: unknown model field {_short(name)}")
-        if known_fields[name] is not float:
-            raise CampaignError(f"{at}: only numeric (float) fields can be searched, this one is "
-                                f"{known_fields[name].__name__}")
+        kind = known_fields[field]
+        if index is not None and kind is not tuple:
+            raise CampaignError(f"{at}: [i] selects an element of a list field; {field} is {kind.__name__}")
+        if index is None and kind is not float:
+            raise CampaignError(f"{at}: only numeric (float) fields can be searched, this one is {kind.__name__}"
+                                + (f"; search its elements as \"{field}[0]\", \"{field}[1]\", ..." if kind is tuple
+                                   else ""))
+        if index is not None:
+            elements.setdefault(field, []).append(index)
         if (not isinstance(pair, list) or len(pair) != 2
                 or any(isinstance(v, bool) or not isinstance(v, int | float) for v in pair)):
             raise CampaignError(f"{at}: expected [low, high] (two numbers), got {_short(pair)}")
@@ -104,7 +132,17 @@ def read_search_space(table: Any, where: str, known_fields: Mapping[str, type]) 
         if not (math.isfinite(lo) and math.isfinite(hi)) or not lo < hi:
             raise CampaignError(f"{at}: expected finite low < high, got [{lo:g}, {hi:g}]")
         out.append((str(name), lo, hi))
-    return SearchSpace(requirement, population, stop, tuple(out))
+    for field, indices in elements.items():
+        if sorted(indices) != list(range(len(indices))):
+            raise CampaignError(f"{here}.bounds: the searched elements of {field} must be [0] to [K-1] (they make "
+                                f"the whole list), got {sorted(indices)}")
+    return SearchSpace(requirement, population, stop, tuple(out), stop_episodes)
+
+
+def split_element(name: str) -> tuple[str, int | None]:
+    """``"noise.opp_x_segments[2]"`` -> ("noise.opp_x_segments", 2); a plain name -> (name, None)."""
+    match = _ELEMENT.fullmatch(name)
+    return (match.group(1), int(match.group(2))) if match else (name, None)
 
 
 def check_single_target(raw: Mapping[str, Any], where: str) -> None:

@@ -116,7 +116,12 @@ def load_campaign(
         raise CampaignError(f"{path}: not a text file (UTF-8 TOML expected)") from None
     except OSError as err:
         raise CampaignError(f"cannot read campaign file {path}: {err.strerror or err}") from None
-    return campaign_from_dict(apply_settings(raw, settings), source=str(path), episodes=episodes, seed=seed)
+    campaign = campaign_from_dict(apply_settings(raw, settings), source=str(path), episodes=episodes, seed=seed)
+    if any(cell.params.sim.stop_at for cell in campaign.cells):
+        # an episode ended at its first violation has every other metric cut short: never in statistics
+        raise CampaignError(f"{path}: sim.stop_at is set by `mcverify falsify` only (stop_episodes = true in "
+                            "[falsify]); remove it from the campaign file")
+    return campaign
 
 
 def apply_settings(raw: Mapping[str, Any], settings: Sequence[str]) -> dict[str, Any]:

@@ -12,7 +12,17 @@ from typing import Any
 
 from mcverify import levels
 from mcverify.errors import CampaignError
-from mcverify.model import ABANDON_RULES, BACKEND_NAMES, INFEASIBILITY_POLICIES, ModelParams
+from mcverify.model import (
+    ABANDON_RULES,
+    BACKEND_NAMES,
+    INFEASIBILITY_POLICIES,
+    MAX_SEGMENTS,
+    REQUIREMENT_NAMES,
+    ModelParams,
+)
+
+#: The piecewise-constant disturbance fields of [model.noise].
+SEGMENT_FIELDS = ("front_x_segments", "front_v_segments", "opp_x_segments", "opp_v_segments")
 
 CONTROLLERS = ("vlcbf", "mpcdc", "mpcdc_eps")
 OPPOSING_KINDS = ("none", "autonomous", "human")
@@ -69,6 +79,11 @@ def validate_params(p: ModelParams, where: str) -> None:
     for key, (v, low) in unit_interval.items():
         if not low <= v <= 1.0:
             raise bad(key, f"must be in [{low:g}, 1] (a fraction of the noise bound), got {_short(v)}")
+    for name in SEGMENT_FIELDS:
+        v = getattr(n, name)
+        if len(v) > MAX_SEGMENTS or not all(-1.0 <= x <= 1.0 for x in v):
+            raise bad(f"noise.{name}", f"must be at most {MAX_SEGMENTS} values in [-1, 1] (fractions of the noise "
+                      f"bound), got {_short(list(v))}")
     nonneg = {
         "mpc.phi_s": m.phi_s,
         "mpc.smooth_weight": m.smooth_weight,
@@ -120,6 +135,8 @@ def validate_params(p: ModelParams, where: str) -> None:
     if s.max_time_s / s.control_period_s > MAX_CONTROL_STEPS:
         raise bad("sim.max_time_s", f"is more than {MAX_CONTROL_STEPS:,} control periods of sim.control_period_s = "
                   f"{s.control_period_s:.4g} s")
+    if s.stop_at and s.stop_at not in REQUIREMENT_NAMES:
+        raise bad("sim.stop_at", f"unknown requirement {_short(s.stop_at)}; valid: {', '.join(REQUIREMENT_NAMES)}")
     if m.controller not in CONTROLLERS:
         raise bad("mpc.controller", f"unknown controller {_short(m.controller)}; valid: {', '.join(CONTROLLERS)}")
     if m.backend not in BACKEND_NAMES:

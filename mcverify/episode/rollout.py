@@ -22,6 +22,7 @@ fixed-width lane groups, see :mod:`mcverify.sim.plant`), which ``mcverify replay
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -36,6 +37,7 @@ from mcverify.cell import Cell
 from mcverify.control import lane_keeping
 from mcverify.control.decision import Source
 from mcverify.control.planner import EpisodeState, Planner, StepRecord
+from mcverify.episode import stop
 from mcverify.episode.recording import EpisodeRecording
 from mcverify.episode.row import EndState, Row, episode_row
 from mcverify.episode.snapshot import Branching
@@ -252,10 +254,15 @@ def run_episodes(
         _note_first_unsafe(states, trace, records, t_s, settling)
         if rec is not None:
             rec.add(t_s, world.substeps_of(subs), u, records, front_meas, opp_meas, active)
+        if p.sim.stop_at:
+            hit = stop.violated(p.sim.stop_at, trace, states, h0, cell.epsilon, has_opp) & active
+            _stop(hit, states, settling, ends, world, u_last, (step + 1) * p.sim.control_period_s, p)
         if on_step is not None:
             on_step(step)
         if branching is not None:
             branching.after_step(step, world, keys[0], states[0], entered_s[0], u_last[0], settling.get(0), ends.get(0))
+            if branching.stopped:  # splitting: the score reached the failure level (absorbing)
+                _stop(active, states, settling, ends, world, u_last, (step + 1) * p.sim.control_period_s, p)
     t_end = n_steps * p.sim.control_period_s
     ego = world.ego()
     for b, st in enumerate(states):
@@ -292,6 +299,24 @@ def _note_first_unsafe(states: list[EpisodeState], trace: SafetyTrace, records: 
         if unsafe[b] and not st.first_unsafe_cause and (b in records or b in settling):
             st.first_unsafe_s = t_s
             st.first_unsafe_cause = UNSAFE_CAUSES[records[b].source] if b in records else SETTLING_CAUSE
+
+
+def _stop(hit: np.ndarray, states: list[EpisodeState], settling: dict[int, _Settling], ends: dict[int, EndState],
+          world: LaneGroups, u_last: np.ndarray, t_s: float, p) -> None:
+    """End the episodes of the mask ``hit`` (shape (episodes,), active ones only) at ``t_s``, the end of
+    the control period just simulated, where their recorded trajectories end too: falsify mode's
+    first violation of ``sim.stop_at``, or a splitting branch whose score reached its level."""
+    if not hit.any():
+        return
+    ego = world.ego()
+    for b in (int(i) for i in np.flatnonzero(hit)):
+        st = states[b]
+        if b in settling:  # the goal was reached: the outcome stays, the settling is cut
+            end = settling.pop(b).end(t_s, ego[b], u_last[b], p)
+        else:
+            st.done, st.outcome, st.end_time_s = True, stop.STOPPED_OUTCOME, t_s
+            end = _end_state(t_s, ego[b], u_last[b], p)
+        ends[b] = dataclasses.replace(end, stopped=True)
 
 
 def _finish(st: EpisodeState, t_s: float, outcome: str) -> None:

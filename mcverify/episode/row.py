@@ -52,7 +52,7 @@ class EndState:
     rollout: at the goal test (``conv_*``, NaN for a timeout) and when the simulation stopped
     (``end_*`` at ``settle_end_s``); ``line_excess_max_m``: the footprint's largest reach past the lane
     line over the settling period (NaN for a timeout); ``in_lane``: the footprint inside the ego lane
-    at ``settle_end_s``."""
+    at ``settle_end_s``; ``stopped``: the episode was ended at its first violation of ``sim.stop_at``."""
 
     settle_end_s: float
     end_heading_rad: float
@@ -63,6 +63,7 @@ class EndState:
     conv_lateral_speed_mps: float = math.nan
     conv_line_excess_m: float = math.nan
     line_excess_max_m: float = math.nan
+    stopped: bool = False  # ended at its first violation of sim.stop_at (falsify mode)
 
 
 def _settling(st: EpisodeState, end: EndState) -> Row:
@@ -78,6 +79,7 @@ def _settling(st: EpisodeState, end: EndState) -> Row:
         "settle_line_excess_max_m": end.line_excess_max_m,
         "settled_in_lane": bool(converged and end.in_lane),
         "unsafe_in_settling": bool(converged and st.first_unsafe_s >= st.end_time_s),
+        "stopped_at_violation": end.stopped,
     }
 
 

@@ -65,16 +65,19 @@ class EpisodeSnapshot:
 class Branching:
     """Controls of a one-episode run: ``start`` (restore this snapshot, continue after its step),
     ``branch_id`` (continue with this branch's noise; None: the snapshot's key, i.e. the same noise),
-    ``keep(step, trace)`` (take a snapshot after this step?). Filled by the run: ``traces`` (the
+    ``keep(step, trace)`` (take a snapshot after this step?), ``stop(step, trace)`` (end the episode
+    after this step, e.g. once a splitting score reached its failure level?). Filled by the run: ``traces`` (the
     episode's running safety trace after every step it simulated, as (step, trace)), ``snapshots``
-    (step -> snapshot) and ``steps`` (control steps simulated)."""
+    (step -> snapshot), ``steps`` (control steps simulated) and ``stopped`` (``stop`` ended it)."""
 
     start: EpisodeSnapshot | None = None
     branch_id: int | None = None
     keep: Callable[[int, SafetyTrace], bool] | None = None
+    stop: Callable[[int, SafetyTrace], bool] | None = None
     traces: list[tuple[int, SafetyTrace]] = field(default_factory=list)
     snapshots: dict[int, EpisodeSnapshot] = field(default_factory=dict)
     steps: int = 0
+    stopped: bool = False
 
     def first_step(self) -> int:
         return 0 if self.start is None else self.start.step + 1
@@ -92,6 +95,7 @@ class Branching:
         self.traces.append((step, trace))
         if self.keep is not None and self.keep(step, trace):
             self.snapshots[step] = self.capture(step, world, episode_key, state, entered_s, u_last, settling, end)
+        self.stopped = self.stop is not None and bool(self.stop(step, trace))
 
     def restore(self, world: LaneGroups) -> tuple[EpisodeState, float, np.ndarray, Any, Any]:
         """Put the start snapshot into ``world`` (lane 0, with the branch's key when branching) and

@@ -85,13 +85,18 @@ class ClosedLoopProcess:
 
     def run(self, start: BranchPoint | None, branch_id: int, stop_level: float) -> ClosedLoopPath:
         """A fresh episode ``branch_id`` (start None) or a branch from ``start`` with the noise of
-        ``branch_id``. Runs to the episode's end (``stop_level`` is not used: the loop has no early stop)."""
+        ``branch_id``. Ends the episode after the first step at which the score reaches ``stop_level``
+        (the failure set is absorbing: the rest of the episode cannot change the estimate)."""
+        def reached(step: int, trace: SafetyTrace) -> bool:
+            return score_of(trace, self.score) >= stop_level
+
         if start is None:
             episode, prefix, snaps = int(branch_id), np.zeros(0), {}
-            branching = Branching(keep=self._rose(-np.inf))
+            branching = Branching(keep=self._rose(-np.inf), stop=reached)
         else:
             episode, prefix, snaps = start.snapshot.episode_id, start.scores, dict(start.snapshots)
-            branching = Branching(start=start.snapshot, branch_id=int(branch_id), keep=self._rose(float(prefix[-1])))
+            branching = Branching(start=start.snapshot, branch_id=int(branch_id), keep=self._rose(float(prefix[-1])),
+                                  stop=reached)
         t0 = time.process_time()
         run_episodes(self.cell, [episode], self.seed, self.planner, branching=branching)
         cpu = time.process_time() - t0

@@ -26,10 +26,11 @@ def falsify(args: Any) -> int:
             print(line, file=sys.stderr)
 
     if args.resume is not None:
-        if args.campaign is not None or args.out is not None or args.settings or args.budget is not None \
-                or args.method is not None or args.seed is not None or args.requirement is not None:
-            raise RunError("--resume keeps the search's campaign, method, budget, seed and requirement: give only "
-                           "--resume OUT (and --executor/--workers)")
+        if args.campaign is not None or args.out is not None or args.new_run_dir is not None or args.settings \
+                or args.budget is not None or args.method is not None or args.seed is not None \
+                or args.requirement is not None:
+            raise RunError("--resume keeps the search's campaign, method, budget, seed, requirement and folder: "
+                           "give only --resume OUT (and --executor/--workers)")
         args.run_dir = args.resume
         result = search.resume(args.resume, make_executor=make_executor, progress=say)
     else:
@@ -44,6 +45,7 @@ def falsify(args: Any) -> int:
         method = args.method or "cma"
         if method not in methods.METHODS:
             raise RunError(f"unknown --method {method!r}; choose one of {', '.join(methods.METHODS)}")
+        methods.searcher(method, 1, 2, 0)  # an optional method without its package: one line, before any output
         import tomllib  # noqa: PLC0415
 
         raw = apply_settings(tomllib.loads(Path(args.campaign).read_text(encoding="utf-8")), args.settings)
@@ -54,7 +56,10 @@ def falsify(args: Any) -> int:
             seed=campaign.seed if args.seed is None else args.seed,
             requirement=args.requirement or campaign.falsify.requirement,
         )
-        out = args.run_dir = args.out or _default_out(campaign.name, method)
+        from mcverify.campaign import runner  # noqa: PLC0415
+
+        out = args.run_dir = runner.new_folder(args.out, args.new_run_dir,
+                                               lambda parent: _default_out(campaign.name, method, parent))
         say(f"falsify {args.campaign}: {method}, budget {args.budget} episodes, requirement "
             f"{config.requirement}, into {out}")
         result = search.start(config, out, make_executor=make_executor, progress=say)
@@ -66,11 +71,16 @@ def falsify(args: Any) -> int:
     return 0
 
 
-def _default_out(name: str, method: str) -> Path:
+def _default_out(name: str, method: str, parent: Path | None) -> Path:
+    """A new folder ``parent/falsify-<name>-<method>-<timestamp>`` (parent: $MCVERIFY_RESULTS, else
+    ./results, when None), like ``mcverify run``'s run folders."""
     from datetime import datetime  # noqa: PLC0415
 
+    from mcverify.campaign import runner  # noqa: PLC0415
+
+    parent = Path(parent) if parent is not None else runner.default_results_dir()
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-    base = Path("results") / f"falsify-{name}-{method}-{stamp}"
+    base = parent / runner.folder_name(f"falsify-{name}-{method}-{stamp}")
     path, n = base, 1
     while path.exists():
         n += 1

@@ -12,7 +12,11 @@ exactly where an uninterrupted one would.
 - ``cma``: CMA-ES from the ``cma`` package (ask/tell, bounds [0, 1]); CMA-ES needs two or more
   dimensions, so a one-dimensional space gets an inert second coordinate. ``cma`` seeds numpy's global
   generator; the searcher keeps that generator's state as its own and restores the caller's after
-  each call, so nothing else in the process can perturb the search (nor it them).
+  each call, so nothing else in the process can perturb the search (nor it them);
+- ``bo``: Bayesian optimisation with optuna's TPE sampler (seeded, ask/tell on an in-memory study,
+  one float parameter in [0, 1] per coordinate), the optional extra ``mcverify[bo]``; without optuna
+  the method is refused with one line. A generation's points are asked before any is told, so
+  they come from the same model (TPE's first ``BO_STARTUP`` points are its own random start).
 """
 
 from __future__ import annotations
@@ -22,7 +26,9 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
-METHODS: tuple[str, ...] = ("cma", "cross-entropy", "random")
+from mcverify.errors import RunError
+
+METHODS: tuple[str, ...] = ("cma", "cross-entropy", "random", "bo")
 #: Fraction of a generation refitted by cross-entropy.
 ELITE_FRACTION = 0.25
 #: Weight of the new fit in cross-entropy's update (the rest is the previous distribution).
@@ -31,6 +37,8 @@ CE_SMOOTHING = 0.7
 CE_MIN_STD = 0.02
 #: CMA-ES's initial step size on the unit cube.
 CMA_SIGMA0 = 0.3
+#: Random points TPE draws before it models the told values (optuna's default is 10).
+BO_STARTUP = 10
 #: What a NaN (an episode that could not be simulated) or an infinite robustness is told as.
 UNINFORMATIVE = 1e6
 
@@ -119,9 +127,31 @@ class Cma(Searcher):
         self._own_random(lambda: self._es.tell(self._asked, values))
 
 
+class Bayesian(Searcher):
+    def __init__(self, dimension: int, population: int, seed: int) -> None:
+        try:
+            import optuna  # noqa: PLC0415 - an optional extra
+        except ImportError:
+            raise RunError("--method bo needs optuna (the optional extra: pip install 'mcverify[bo]')") from None
+        super().__init__(dimension, population, seed)
+        optuna.logging.set_verbosity(optuna.logging.WARNING)  # no line per trial
+        sampler = optuna.samplers.TPESampler(seed=int(seed % 2**32), n_startup_trials=BO_STARTUP)
+        self._study = optuna.create_study(direction="minimize", sampler=sampler)
+        self._space = {f"x{i}": optuna.distributions.FloatDistribution(0.0, 1.0) for i in range(dimension)}
+        self._trials: list = []
+
+    def ask(self) -> np.ndarray:
+        self._trials = [self._study.ask(self._space) for _ in range(self.population)]
+        return np.array([[t.params[f"x{i}"] for i in range(self.dimension)] for t in self._trials])
+
+    def tell(self, points: np.ndarray, robustness: np.ndarray) -> None:
+        for trial, value in zip(self._trials, finite_values(robustness), strict=True):
+            self._study.tell(trial, float(value))
+
+
 def searcher(method: str, dimension: int, population: int, seed: int) -> Searcher:
     """A fresh searcher of ``method`` (one of :data:`METHODS`)."""
-    classes = {"cma": Cma, "cross-entropy": CrossEntropy, "random": RandomSearch}
+    classes = {"cma": Cma, "cross-entropy": CrossEntropy, "random": RandomSearch, "bo": Bayesian}
     if method not in classes:
         raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
     return classes[method](dimension, population, seed)

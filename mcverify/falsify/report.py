@@ -82,6 +82,8 @@ def write(result: SearchResult, records: Sequence[Mapping[str, Any]]) -> Path:
               "requirement is violated. Per episode in `search.parquet`.", ""]
     table = counterexample_report.table(records, result.config.requirement, result.episodes)
     lines += ["## Counterexamples", "", to_markdown(table), ""]
+    if records:
+        lines += [to_markdown(counterexample_report.regions_table(records), heading="##"), ""]
     drawn = _draw_worst(out, records)
     if drawn:
         lines += ["## Worst counterexamples", ""]

@@ -34,6 +34,7 @@ import pyarrow.parquet as pq
 
 from mcverify import store
 from mcverify.analysis import counterexamples as cx
+from mcverify.analysis import failure_regions
 from mcverify.analysis import robustness as rb
 from mcverify.campaign import executors, runner
 from mcverify.campaign.executors import EpisodeFn, Executor
@@ -124,8 +125,11 @@ def generation_seed(campaign_seed: int, search_seed: int, generation: int) -> in
     return int.from_bytes(digest[:8], "big") % 2**31  # the summary reads seeds as float64: stay exact
 
 
-def generation_campaign(config: SearchConfig, values: list[dict[str, float]], generation: int) -> Campaign:
-    """Generation ``generation`` as a campaign: one one-episode cell per candidate."""
+def generation_campaign(config: SearchConfig, values: list[dict[str, Any]], generation: int,
+                        stop_episodes: bool = False) -> Campaign:
+    """Generation ``generation`` as a campaign: one one-episode cell per candidate (``values``: its
+    cell overrides, :meth:`SearchSpace.overrides`); with
+    ``stop_episodes`` each episode ends at its first violation of the requirement (``sim.stop_at``)."""
     raw = copy.deepcopy(config.raw)
     raw.pop("falsify", None)
     head = raw["campaign"]
@@ -134,6 +138,9 @@ def generation_campaign(config: SearchConfig, values: list[dict[str, float]], ge
     head["episodes"] = 1
     head["common_random_numbers"] = False
     raw["axes"] = {"candidate": {f"c{k:02d}": dict(v) for k, v in enumerate(values)}}
+    if stop_episodes:  # end each episode at its first violation of the searched requirement
+        model = raw.setdefault("model", {})
+        model["sim"] = {**model.get("sim", {}), "stop_at": config.requirement}
     return campaign_from_dict(raw, source=f"{config.source} (generation {generation})")
 
 
@@ -178,7 +185,8 @@ def _search(
         points = search.ask()
         n = min(space.population, config.budget - len(evaluations))
         values = [space.values(list(p)) for p in points[:n]]
-        gen_campaign = generation_campaign(config, values, generation)
+        gen_campaign = generation_campaign(config, [space.overrides(v) for v in values], generation,
+                                           space.stop_episodes)
         gen_dir = out_dir / GENERATIONS / f"g{generation:03d}"
         finished = _finished(gen_dir)
         if not finished:
@@ -253,15 +261,21 @@ def search_table(result: SearchResult) -> pa.Table:
 
 
 def counterexample_records(result: SearchResult) -> list[dict[str, Any]]:
-    """Every violating episode of the search, worst first, with its generation's replay command."""
+    """Every violating episode of the search, worst first, with its generation's replay command,
+    its searched values (``param:<bound name>``, list elements included) and its failure region
+    over the whole search (scaled by the search space's bounds)."""
+    values = {(e.generation, int(e.row["episode_id"])): e.values for e in result.evaluations}
     records: list[dict[str, Any]] = []
     for generation in sorted({e.generation for e in result.evaluations}):
         gen_dir = result.out_dir / GENERATIONS / f"g{generation:03d}"
         manifest = store.read_json(gen_dir / store.MANIFEST)
         for rec in cx.counterexamples(store.read_episodes(gen_dir), manifest, str(gen_dir),
                                       result.config.requirement):
+            searched = values.get((generation, int(rec["episode_id"])), {})
+            rec.update({f"param:{name}": float(searched[name]) for name in result.space.fields if name in searched})
             records.append({"generation": generation, **rec})
     records.sort(key=lambda r: (r["robustness"], r["generation"], r["episode_id"]))
+    failure_regions.assign(records, {f"param:{name}": (lo, hi) for name, lo, hi in result.space.bounds})
     return records
 
 

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from mcverify.analysis import counterexamples as cx
+from mcverify.analysis import failure_regions
 from mcverify.reporting import episode_figures, figure_common
 from mcverify.reporting.run_figures import FIGURES_DIR, TRAJECTORY_DIRS, FigureResult
 from mcverify.reporting.tables import Table, fmt_num
@@ -22,6 +23,8 @@ FILE = "counterexamples.parquet"
 MAX_ROWS = 25
 #: Worst counterexamples drawn (those with a stored trajectory).
 MAX_DRAWN = 3
+#: Failure regions listed in the counterexample table's notes (all in ``regions_table`` / the file).
+MAX_REGIONS = 10
 
 
 def table(records: Sequence[Mapping[str, Any]], requirement: str, total_episodes: int) -> Table:
@@ -43,10 +46,44 @@ def table(records: Sequence[Mapping[str, Any]], requirement: str, total_episodes
     if modes:
         notes.append("Failure modes (violated requirement/what drove the ego at the first unsafe instant): "
                      + "; ".join(f"{m}: {n} (worst {fmt_num(w, 3, signed=True)})" for m, n, w in modes) + ".")
+    regions = failure_regions.from_records(records)
+    if regions:
+        notes.append(f"Failure regions (counterexamples of one failure mode joined by steps of at most "
+                     f"{failure_regions.LINK:g} of each parameter's range; column `region`): {len(regions)}. "
+                     + "; ".join(_region_text(g) for g in regions[:MAX_REGIONS])
+                     + (f"; ... {len(regions) - MAX_REGIONS} more." if len(regions) > MAX_REGIONS else "."))
     if not records:
         notes.append("No episode violated the requirement.")
     return Table("counterexamples", f"Counterexamples ({requirement})", columns, rows, notes,
                  align="l" * 2 + "r" * (len(columns) - 3) + "l")
+
+
+def regions_table(records: Sequence[Mapping[str, Any]]) -> Table:
+    """One row per failure region: mode, size, worst robustness, the box per parameter, the worst's replay."""
+    regions = failure_regions.from_records(records)
+    params = list(regions[0].box) if regions else []
+    columns = ["region", "failure mode", "episodes", "worst robustness",
+               *[p.removeprefix("param:") for p in params], "replay (worst)"]
+    rows = [[str(g.region), g.failure_mode, str(g.count), fmt_num(g.worst_robustness, 3, signed=True),
+             *[_box(g.box[p]) for p in params], g.worst_replay] for g in regions]
+    notes = [f"Counterexamples grouped by failure mode and parameter region: within one mode, two are in the "
+             f"same region when a chain of counterexamples joins them whose neighbours differ by at most "
+             f"{failure_regions.LINK:g} of the searched range in every parameter (single linkage, "
+             "mcverify.analysis.failure_regions); each parameter column is the box the region spans."]
+    return Table("failure_regions", "Failure regions", columns, rows, notes,
+                 align="l" * 2 + "r" * (len(columns) - 3) + "l")
+
+
+def _region_text(g: failure_regions.Region) -> str:
+    """One region for the notes; the box only for regions of two or more (a single counterexample's
+    values are its row of the table)."""
+    box = ", ".join(f"{p.removeprefix('param:')} {_box(b)}" for p, b in g.box.items()) if g.count > 1 else ""
+    return f"region {g.region} {g.failure_mode}: {g.count} (worst {fmt_num(g.worst_robustness, 3, signed=True)}" + (
+        f"; {box})" if box else ")")
+
+
+def _box(b: tuple[float, float]) -> str:
+    return fmt_num(b[0], 3) if b[0] == b[1] else f"{fmt_num(b[0], 3)} to {fmt_num(b[1], 3)}"
 
 
 def figures(run_dir: Path, records: Sequence[Mapping[str, Any]], manifest: Mapping[str, Any]) -> list[FigureResult]:

@@ -14,7 +14,7 @@ from typing import TypeAlias
 import jax
 import jax.numpy as jnp
 
-from mcverify.model import Noise
+from mcverify.model import MAX_SEGMENTS, Noise
 
 Array: TypeAlias = jax.Array
 ArrayLike: TypeAlias = jax.typing.ArrayLike
@@ -90,13 +90,46 @@ def disturbance_arrays(noise: Noise) -> dict[str, list[float]]:
     }
 
 
-def structured_offsets(disturbance: ArrayLike, t_s: ArrayLike) -> tuple[Array, Array]:
-    """s(t) for x and speed: ``clip(bias + drift * t, -1, 1)``; disturbance (4,) as in
-    :func:`disturbance_arrays`, t_s the episode time (s)."""
+def segment_arrays(noise: Noise) -> dict[str, tuple[list[list[float]], list[float]]]:
+    """The piecewise-constant offsets per vehicle: (values (2, MAX_SEGMENTS) for [x, speed], zero
+    padded; counts (2,) the number K of segments of each, 0 for none). Padding keeps one array shape
+    (one compiled plant) whatever K."""
+    def pad(v: tuple[float, ...]) -> list[float]:
+        return [*v, *([0.0] * (MAX_SEGMENTS - len(v)))]
+
+    return {
+        "front": ([pad(noise.front_x_segments), pad(noise.front_v_segments)],
+                  [float(len(noise.front_x_segments)), float(len(noise.front_v_segments))]),
+        "opp": ([pad(noise.opp_x_segments), pad(noise.opp_v_segments)],
+                [float(len(noise.opp_x_segments)), float(len(noise.opp_v_segments))]),
+    }
+
+
+def segment_offset(values: ArrayLike, count: ArrayLike, t_s: ArrayLike, episode_s: ArrayLike) -> Array:
+    """The piecewise-constant offset at episode time ``t_s``: ``values[k]`` on the k-th of ``count``
+    equal segments of [0, episode_s] (the last one closed), 0 when ``count`` is 0.
+    values: (MAX_SEGMENTS,); count, t_s (s), episode_s (s): scalars."""
+    k = jnp.clip(jnp.floor(t_s / episode_s * count), 0.0, jnp.maximum(count - 1.0, 0.0)).astype(jnp.int32)
+    return jnp.where(count > 0, jnp.asarray(values, dtype=float)[k], 0.0)
+
+
+def structured_offsets(
+    disturbance: ArrayLike,
+    t_s: ArrayLike,
+    segments: ArrayLike | None = None,
+    counts: ArrayLike | None = None,
+    episode_s: ArrayLike = 1.0,
+) -> tuple[Array, Array]:
+    """s(t) for x and speed: ``clip(bias + drift * t + offset(t), -1, 1)``; disturbance (4,) as in
+    :func:`disturbance_arrays`, t_s the episode time (s); segments (2, MAX_SEGMENTS) and counts (2,)
+    as in :func:`segment_arrays` over the episode duration ``episode_s`` (s), or None for none.
+    Without segments (count 0) the sum is not formed at all, so s(t) is bit for bit the old one."""
     d = jnp.asarray(disturbance, dtype=float)
-    sx = jnp.clip(d[0] + d[1] * t_s, -1.0, 1.0)
-    sv = jnp.clip(d[2] + d[3] * t_s, -1.0, 1.0)
-    return sx, sv
+    raw = [d[0] + d[1] * t_s, d[2] + d[3] * t_s]
+    if segments is not None and counts is not None:
+        seg, cnt = jnp.asarray(segments, dtype=float), jnp.asarray(counts, dtype=float)
+        raw = [jnp.where(cnt[i] > 0, r + segment_offset(seg[i], cnt[i], t_s, episode_s), r) for i, r in enumerate(raw)]
+    return jnp.clip(raw[0], -1.0, 1.0), jnp.clip(raw[1], -1.0, 1.0)
 
 
 def measure(

@@ -77,12 +77,18 @@ class PlantParams(NamedTuple):
     noise_share: Array
     front_disturbance: Array
     opp_disturbance: Array
+    front_segments: Array  # (2, MAX_SEGMENTS) piecewise-constant offsets of x and speed, zero padded
+    front_segment_counts: Array  # (2,) segments in use (0: none)
+    opp_segments: Array
+    opp_segment_counts: Array
+    episode_s: Array  # sim.max_time_s: the segments divide it
 
 
 def plant_params(p: ModelParams) -> PlantParams:
     """The runtime numbers of a cell's plant."""
     o, road = p.opposing, p.road
     nz = noise.noise_arrays(p.noise)
+    segments = noise.segment_arrays(p.noise)
     f = lambda v: jnp.asarray(v, dtype=float)  # noqa: E731
     return PlantParams(
         control_period_s=f(p.sim.control_period_s),
@@ -114,6 +120,11 @@ def plant_params(p: ModelParams) -> PlantParams:
         noise_share=f(p.noise.structured_share),
         front_disturbance=f(noise.disturbance_arrays(p.noise)["front"]),
         opp_disturbance=f(noise.disturbance_arrays(p.noise)["opp"]),
+        front_segments=f(segments["front"][0]),
+        front_segment_counts=f(segments["front"][1]),
+        opp_segments=f(segments["opp"][0]),
+        opp_segment_counts=f(segments["opp"][1]),
+        episode_s=f(p.sim.max_time_s),
     )
 
 
@@ -228,8 +239,10 @@ def observe(plant: Plant, key: Array, step: Array, pp: PlantParams) -> tuple[Arr
     c = checks(plant.ego, plant.front, plant.opp, jnp.zeros(2), pp)
     nz = {"pos_far_m": pp.pos_far_m, "pos_near_m": pp.pos_near_m, "near_threshold_m": pp.near_threshold_m,
           "speed_rel": pp.speed_rel, "scale": pp.noise_scale}
-    fsx, fsv = noise.structured_offsets(pp.front_disturbance, plant.t_s)
-    osx, osv = noise.structured_offsets(pp.opp_disturbance, plant.t_s)
+    fsx, fsv = noise.structured_offsets(pp.front_disturbance, plant.t_s, pp.front_segments, pp.front_segment_counts,
+                                        pp.episode_s)
+    osx, osv = noise.structured_offsets(pp.opp_disturbance, plant.t_s, pp.opp_segments, pp.opp_segment_counts,
+                                        pp.episode_s)
     fx, fy, fv = noise.measure(noise.step_key(key, step, STREAM_FRONT), plant.front[0], 0.0, plant.front[1],
                                c.gap_front_m, **nz, share=pp.noise_share, x_offset=fsx, v_offset=fsv)
     ox, _, ov = noise.measure(noise.step_key(key, step, STREAM_OPP), plant.opp[0], pp.opp_lane_y_m, plant.opp[1],

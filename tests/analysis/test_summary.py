@@ -206,3 +206,16 @@ def test_theorem_five_split_and_findings():
     assert c["counts"]["went_back_q1_failure"] == {"certified_infeasible": 1}
     cells = cells_table(summary.summarise(t))
     assert cells.column("thm_both_infeasible_longest_run").to_pylist() == [3]
+
+
+def test_a_64_bit_seed_above_2_53_does_not_break_the_summary():
+    """Campaign seeds may be any non-negative int64; Arrow's checked cast to float64 refused those
+    above 2**53 and the report crashed after every episode had run."""
+    big = 2**63 - 5
+    t = _table(
+        cell=["a"] * 2, cell_index=[0] * 2, seed=pa.array([big, big], pa.int64()),
+        cell_episode=pa.array([0, 1], pa.int64()), outcome=["overtook"] * 2, safe=[True, False],
+        collision_front=[False, True], ellipse_violation=[False, False], min_dist_front_m=[1.0, 0.0],
+    )
+    c = summary.summarise(t)["cells"][0]
+    assert (c["rates"]["safe"]["k"], c["rates"]["safe"]["n"]) == (1, 2)

@@ -42,7 +42,7 @@ def test_given_scenario_values_replace_the_draws():
 def test_importance_cli_writes_its_estimate_and_resumes(tmp_path: Path, campaign_file: Path, capsys):
     out = tmp_path / "est"
     argv = ["estimate", str(campaign_file), "--method", "importance", "--target", "ellipse", "--samples", "8",
-            "--ce-samples", "8", "--ce-iterations", "1", "--out", str(out)]
+            "--ce-samples", "8", "--ce-iterations", "1", "--run-dir", str(out)]
     assert main(argv) == 0
     est = json.loads((out / "estimate.json").read_text())
     (cell,) = est["cells"]
@@ -55,5 +55,5 @@ def test_importance_cli_writes_its_estimate_and_resumes(tmp_path: Path, campaign
 
 
 def test_a_cell_without_ranges_is_refused(tmp_path: Path, capsys):
-    assert main(["estimate", str(FIXTURE), "--method", "importance", "--out", str(tmp_path / "x")]) == 2
+    assert main(["estimate", str(FIXTURE), "--method", "importance", "--run-dir", str(tmp_path / "x")]) == 2
     assert "draws no scenario parameter from a range" in capsys.readouterr().err

@@ -14,7 +14,7 @@ FIXTURE = Path(__file__).resolve().parents[1] / "fixtures" / "tiny.toml"
 def test_splitting_cli_writes_its_estimate_and_resumes(tmp_path: Path, capsys):
     out = tmp_path / "est"
     argv = ["estimate", str(FIXTURE), "--method", "splitting", "--particles", "2", "--replicates", "2",
-            "--max-iterations", "1", "--out", str(out)]
+            "--max-iterations", "1", "--run-dir", str(out)]
     assert main(argv) == 0
     est = json.loads((out / "estimate.json").read_text())
     assert [c["cell_index"] for c in est["cells"]] == [0, 1]
@@ -43,8 +43,8 @@ def test_splitting_bad_input_is_one_line(capsys):
 def test_splitting_runs_on_local_workers_give_the_same_estimate(tmp_path: Path):
     base = ["estimate", str(FIXTURE), "--method", "splitting", "--particles", "2", "--replicates", "2",
             "--max-iterations", "2", "--cell", "front_speed_kmh=36"]
-    assert main([*base, "--out", str(tmp_path / "serial")]) == 0
-    assert main([*base, "--out", str(tmp_path / "workers"), "--workers", "2"]) == 0
+    assert main([*base, "--run-dir", str(tmp_path / "serial")]) == 0
+    assert main([*base, "--run-dir", str(tmp_path / "workers"), "--workers", "2"]) == 0
     a, b = (json.loads((tmp_path / d / "estimate.json").read_text())["cells"] for d in ("serial", "workers"))
     assert len(a) == len(b) == 1
     drop = lambda c: {k: v for k, v in c.items() if k != "cpu_s"}  # noqa: E731 - CPU time is the machine's

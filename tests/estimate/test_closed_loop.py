@@ -45,3 +45,16 @@ def test_a_short_ams_run_replays_exactly(process):
     (a, steps_a), (b, steps_b) = runs
     assert a == b and steps_a == steps_b == a.steps
     assert a.iterations == 2 and a.levels == sorted(a.levels) and a.capped
+
+
+def test_a_path_ends_once_its_score_reaches_the_stop_level(process):
+    """The failure set is absorbing: a path stops after the first step with score >= stop_level, and
+    up to there it is the uninterrupted path bit for bit (so the estimate is unchanged, the cost lower)."""
+    proc = process()
+    whole = proc.run(None, 4, np.inf)
+    level = 0.5 * (whole.scores[0] + whole.scores[-1])
+    hit = int(np.flatnonzero(whole.scores >= level)[0])
+    assert hit < whole.scores.size - 1
+    stopped = proc.run(None, 4, level)
+    np.testing.assert_array_equal(stopped.scores, whole.scores[: hit + 1])
+    assert stopped.steps == hit + 1 < whole.steps

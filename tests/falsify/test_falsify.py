@@ -51,6 +51,10 @@ def test_requirement_lists_agree():
         ({"bounds": {"scenario.front_speed_mps": [1, 2]}, "population": 1}, "population"),
         ({"bounds": {"scenario.front_speed_mps": [1, 2]}, "requirement": "fast"}, "unknown requirement"),
         ({"bounds": {"scenario.front_speed_mps": [1, 2]}, "stop_at_first": "yes"}, "stop_at_first"),
+        ({"bounds": {"scenario.front_speed_mps": [1, 2]}, "stop_episodes": 1}, "stop_episodes"),
+        ({"bounds": {"noise.opp_x_segments": [-1, 1]}}, 'search its elements as "noise.opp_x_segments[0]"'),
+        ({"bounds": {"scenario.front_speed_mps[0]": [1, 2]}}, "selects an element of a list field"),
+        ({"bounds": {"noise.opp_x_segments[1]": [-1, 1]}}, "must be [0] to [K-1]"),
         ({"bounds": {"scenario.front_speed_mps": [1, 2]}, "budget": 3}, "unknown key"),
         ("x", "must be a table"),
     ],
@@ -79,8 +83,15 @@ def test_cli_bad_falsify_table_exits_2_with_one_line(tmp_path):
     assert proc.stderr.count("\n") == 1 and "low < high" in proc.stderr
 
 
+def _needs(method):
+    """bo needs the optional optuna; skip its tests where it is not installed."""
+    if method == "bo":
+        pytest.importorskip("optuna")
+
+
 @pytest.mark.parametrize("method", methods.METHODS)
 def test_methods_are_deterministic_for_a_seed(method):
+    _needs(method)
     def run(seed):
         s = methods.searcher(method, 3, 6, seed)
         out = []
@@ -96,8 +107,9 @@ def test_methods_are_deterministic_for_a_seed(method):
     assert not np.array_equal(a, run(6))
 
 
-@pytest.mark.parametrize("method", ["cma", "cross-entropy"])
+@pytest.mark.parametrize("method", ["cma", "cross-entropy", "bo"])
 def test_resume_mid_search_equals_an_uninterrupted_search(tmp_path, method):
+    _needs(method)
     whole = search.start(_config(method), tmp_path / "whole", **_kw())
     with pytest.raises(RunError, match="test hook"):
         search.start(_config(method), tmp_path / "cut", stop_after_generations=1, **_kw())
@@ -114,16 +126,36 @@ def test_resume_mid_search_equals_an_uninterrupted_search(tmp_path, method):
     assert manifest["cells"][ev.candidate]["overrides"] == ev.values
 
 
-def test_search_finds_the_counterexample_and_reports_it(tmp_path):
+@pytest.mark.parametrize("stop_episodes", [False, True])
+def test_stop_episodes_makes_every_generation_stop_at_the_requirement(tmp_path, stop_episodes):
+    """With stop_episodes the generations' episodes run with sim.stop_at = the searched requirement (the
+    rollout then ends them at their first violation: tests/episode/test_stop.py); the manifest keeps it,
+    so replay re-simulates the stopped episode."""
+    raw = copy.deepcopy(RAW)
+    raw["falsify"]["stop_episodes"] = stop_episodes
+    config = search.SearchConfig(raw=raw, source="<test>", method="random", budget=8, seed=3, requirement="safe")
+    search.start(config, tmp_path / "s", **_kw())
+    for gen in sorted((tmp_path / "s" / search.GENERATIONS).iterdir()):
+        campaign = search.runner.campaign_from_manifest(search.store.read_json(gen / search.store.MANIFEST))
+        assert {c.params.sim.stop_at for c in campaign.cells} == {"safe" if stop_episodes else ""}
+
+
+@pytest.mark.parametrize("method", ["cma", "bo"])
+def test_search_finds_the_counterexample_and_reports_it(tmp_path, method):
+    _needs(method)
     raw = copy.deepcopy(RAW)
     raw["falsify"]["stop_at_first"] = True
-    res = search.start(_config("cma", budget=60, raw=raw), tmp_path / "s", **_kw())
+    res = search.start(_config(method, budget=60, raw=raw), tmp_path / "s", **_kw())
     cex = pq.read_table(tmp_path / "s" / search.COUNTEREXAMPLES).to_pylist()
     assert res.first_counterexample is not None and res.episodes <= 60
     assert cex and all(r["robustness"] < 0 for r in cex)
     assert cex[0]["replay"].startswith(f"mcverify replay {tmp_path / 's' / search.GENERATIONS}")
     report = (tmp_path / "s" / "report.md").read_text()
     assert "first counterexample" in report and "Counterexamples (ellipse)" in report
+    # grouped by failure mode and region of the searched space (scaled by its bounds)
+    assert all(r["region"] >= 1 and r["failure_mode"] == "ellipse/planned" for r in cex)
+    assert all(5.0 <= r["param:scenario.front_speed_mps"] <= 9.0 for r in cex)
+    assert "## Failure regions" in report and "scenario.front_speed_mps" in report.split("## Failure regions")[1]
 
 
 def test_a_search_that_finds_nothing_reports_its_minimum(tmp_path):
@@ -154,3 +186,78 @@ def test_bench_trials_and_section(tmp_path):
     bench.write_section(md, text)
     assert md.read_text().count(bench.BEGIN_MARK) == 1 and "intro" in md.read_text()
     assert bench.draw_curves(trials, tmp_path / "b")[0].is_file()
+
+
+def test_piecewise_constant_offsets_are_searched_as_list_elements(tmp_path):
+    """[falsify.bounds] "noise.opp_x_segments[0]" .. "[K-1]": each element is one coordinate; the
+    candidate's cell gets the whole list (so the episode's inputs, and replay, have it)."""
+    raw = copy.deepcopy(RAW)
+    raw["falsify"]["bounds"] = {"scenario.front_speed_mps": [5.0, 9.0], "noise.structured_share": [0.0, 1.0],
+                                "noise.opp_x_segments[0]": [-1.0, 1.0], "noise.opp_x_segments[1]": [-1.0, 1.0],
+                                "noise.opp_x_segments[2]": [-1.0, 1.0]}
+    res = search.start(_config("cma", budget=8, raw=raw), tmp_path / "s", **_kw())
+    assert res.space.dimension == 5
+    table = pq.read_table(tmp_path / "s" / search.SEARCH).to_pylist()
+    for ev, row in zip(res.evaluations, table, strict=True):
+        gen = tmp_path / "s" / search.GENERATIONS / f"g{ev.generation:03d}"
+        manifest = search.store.read_json(gen / search.store.MANIFEST)
+        segments = [ev.values[f"noise.opp_x_segments[{i}]"] for i in range(3)]
+        assert manifest["cells"][ev.candidate]["overrides"]["noise.opp_x_segments"] == segments
+        cell = search.runner.campaign_from_manifest(manifest).cells[ev.candidate]
+        assert cell.params.noise.opp_x_segments == tuple(segments)
+        assert row["noise.opp_x_segments[1]"] == segments[1] and all(-1 <= x <= 1 for x in segments)
+
+
+def _fake_start(monkeypatch):
+    """`mcverify falsify` in this process with the cheap episodes (the command's own folder logic)."""
+    real = search.start
+
+    def start(config, out_dir, **kw):
+        kw.update(make_executor=executors.SerialExecutor, episode_fn=fake_episodes.episodes)
+        return real(config, out_dir, **kw)
+
+    monkeypatch.setattr(search, "start", start)
+
+
+def test_falsify_out_is_a_parent_folder_and_run_dir_the_folder_like_run(tmp_path, monkeypatch, capsys):
+    from mcverify import cli  # noqa: PLC0415
+
+    _fake_start(monkeypatch)
+    f = tmp_path / "fz.toml"
+    f.write_text('[campaign]\nname = "fz"\nseed = 11\nepisodes = 1\n[falsify]\nrequirement = "ellipse"\n'
+                 'population = 4\n[falsify.bounds]\n"scenario.front_speed_mps" = [5.0, 9.0]\n')
+    base = ["falsify", str(f), "--budget", "4", "--method", "random", "--no-progress"]
+    # --out DIR: a new folder DIR/falsify-<name>-<method>-<timestamp>, twice in the same second too
+    assert cli.main([*base, "--out", str(tmp_path / "parent")]) == 0
+    assert cli.main([*base, "--out", str(tmp_path / "parent")]) == 0
+    made = sorted(p.name for p in (tmp_path / "parent").iterdir())
+    assert len(made) == 2 and all(n.startswith("falsify-fz-random-") for n in made)
+    assert all((tmp_path / "parent" / n / "report.md").is_file() for n in made)
+    # --run-dir OUT: that folder; then --resume OUT
+    assert cli.main([*base, "--run-dir", str(tmp_path / "exact")]) == 0
+    assert (tmp_path / "exact" / search.CONFIG).is_file()
+    assert cli.main(["falsify", "--resume", str(tmp_path / "exact"), "--no-progress"]) == 0
+    # default parent: $MCVERIFY_RESULTS
+    monkeypatch.setenv("MCVERIFY_RESULTS", str(tmp_path / "env"))
+    assert cli.main(base) == 0 and len(list((tmp_path / "env").iterdir())) == 1
+    capsys.readouterr()
+    for argv, message in (([*base, "--out", "a", "--run-dir", "b"], "not both"),
+                          (["falsify", "--resume", str(tmp_path / "exact"), "--run-dir", "b"], "--resume keeps")):
+        assert cli.main(argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert message in err and len(err.splitlines()) == 1, err
+
+
+def test_bo_without_optuna_is_one_line(tmp_path, monkeypatch, capsys):
+    from mcverify import cli  # noqa: PLC0415
+
+    monkeypatch.setitem(sys.modules, "optuna", None)  # `import optuna` now raises ImportError
+    with pytest.raises(RunError, match=r"needs optuna \(the optional extra"):
+        methods.searcher("bo", 2, 4, 0)
+    f = tmp_path / "fz.toml"
+    f.write_text('[campaign]\nname = "fz"\nseed = 1\nepisodes = 1\n[falsify.bounds]\n'
+                 '"scenario.front_speed_mps" = [5.0, 9.0]\n')
+    assert cli.main(["falsify", str(f), "--budget", "4", "--method", "bo", "--run-dir", str(tmp_path / "s")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "needs optuna" in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "s").exists()  # refused before anything is written

@@ -176,3 +176,72 @@ def test_disturbance_fields_are_validated_with_one_line():
         with pytest.raises(CampaignError, match=f"noise.{field}") as err:
             campaign_from_dict(raw)
         assert "\n" not in str(err.value)
+
+
+# --- piecewise-constant offsets over equal segments of the episode --------------------------------
+
+
+def test_segment_offsets_pick_the_segment_of_the_time_and_none_is_the_old_value():
+    import jax.numpy as jnp  # noqa: PLC0415
+    import numpy as np  # noqa: PLC0415
+
+    from mcverify.model import MAX_SEGMENTS  # noqa: PLC0415
+    from mcverify.sim import noise as nz  # noqa: PLC0415
+
+    values = jnp.asarray([0.5, -0.25, 1.0, -1.0, *([0.0] * (MAX_SEGMENTS - 4))])
+    # 4 segments of a 20 s episode: [0, 5), [5, 10), [10, 15), [15, 20]
+    for t, want in ((0.0, 0.5), (4.999, 0.5), (5.0, -0.25), (12.0, 1.0), (19.9, -1.0), (20.0, -1.0)):
+        assert float(nz.segment_offset(values, 4.0, t, 20.0)) == want, t
+    assert float(nz.segment_offset(values, 0.0, 7.0, 20.0)) == 0.0
+    # bias + drift + offset, clipped to the bound
+    seg = jnp.stack([values, values])
+    sx, sv = nz.structured_offsets([0.2, 0.01, -0.9, 0.0], 12.0, seg, [4.0, 4.0], 20.0)
+    assert float(sx) == 1.0 and float(sv) == float(np.float64(-0.9) + np.float64(1.0))
+    # no segments: bit for bit the offsets without them, at any time and disturbance
+    rng = np.random.default_rng(1)
+    zero = jnp.zeros((2, MAX_SEGMENTS))
+    for _ in range(50):
+        d, t = rng.uniform(-1, 1, 4), rng.uniform(0, 25)
+        old = nz.structured_offsets(d, t)
+        new = nz.structured_offsets(d, t, zero, [0.0, 0.0], 25.0)
+        assert [float(a) for a in old] == [float(b) for b in new]
+
+
+def test_segment_fields_are_validated_and_padded():
+    import pytest  # noqa: PLC0415
+
+    from mcverify.campaign.spec import campaign_from_dict  # noqa: PLC0415
+    from mcverify.errors import CampaignError  # noqa: PLC0415
+    from mcverify.sim import noise as nz  # noqa: PLC0415
+
+    def camp(value):
+        return campaign_from_dict({"campaign": {"name": "x", "seed": 1, "episodes": 1},
+                                   "model": {"noise": {"opp_x_segments": value}}})
+
+    noise_params = camp([0.5, -1.0, 0.0]).cells[0].params.noise
+    assert noise_params.opp_x_segments == (0.5, -1.0, 0.0)
+    values, counts = nz.segment_arrays(noise_params)["opp"]
+    assert counts == [3.0, 0.0] and values[0][:4] == [0.5, -1.0, 0.0, 0.0] and len(values[1]) == 8
+    for bad in ([1.5], [0.0] * 9):
+        with pytest.raises(CampaignError, match="noise.opp_x_segments") as err:
+            camp(bad)
+        assert "\n" not in str(err.value)
+
+
+def test_the_plant_measures_veh_f_with_the_offset_of_the_current_segment():
+    """Through the plant: share 1, no bias, three segments of a 24 s episode; the x error is
+    half-width * the segment's value, the speed (no segments) is exact."""
+    import jax  # noqa: PLC0415
+    import jax.numpy as jnp  # noqa: PLC0415
+
+    from mcverify.campaign.spec import campaign_from_dict  # noqa: PLC0415
+    from mcverify.sim import plant as pl  # noqa: PLC0415
+
+    model = {"noise": {"structured_share": 1.0, "front_x_segments": [0.5, -1.0, 0.25]}, "sim": {"max_time_s": 24.0}}
+    p = campaign_from_dict({"campaign": {"name": "x", "seed": 1, "episodes": 1}, "model": model}).cells[0].params
+    pp = pl.plant_params(p)
+    lane = jax.tree_util.tree_map(lambda a: a[0], pl.initial_plant(p, [0.0]))
+    for t_s, value in ((1.0, 0.5), (9.0, -1.0), (17.0, 0.25)):
+        front, _ = pl.observe(lane._replace(t_s=jnp.asarray(t_s)), jax.random.PRNGKey(3), jnp.int32(4), pp)
+        assert float(front[0]) - float(lane.front[0]) == p.noise.pos_far_m * value, t_s  # far regime: 0.5 m
+        assert float(front[2]) == float(lane.front[1])
