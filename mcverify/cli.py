@@ -272,6 +272,8 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--naive-episodes", type=_nonneg_int, default=0,
                        help="paired episodes per cell, the paper-style Opti loop (0: skip, the default)")
     bench.add_argument("--backend", help="the engine's solver backend (default: the cell's)")
+    bench.add_argument("--infeasibility", choices=("ipopt", "phase1"),
+                       help="the engine's mpc.infeasibility policy (default: the cell's)")
     bench.add_argument("--no-write", action="store_true", help="do not append to results/BENCHMARKS.md")
     bench.set_defaults(func=_cmd_bench)
 
@@ -603,7 +605,7 @@ def _cmd_bench(args) -> int:
     result = engine.run(
         campaign=args.campaign, cell_name=args.cell, engine_episodes=args.engine_episodes,
         baseline_episodes=args.baseline_episodes, naive_episodes=args.naive_episodes, backend=args.backend,
-        write=not args.no_write, progress=lambda msg: print(msg, file=sys.stderr),
+        write=not args.no_write, progress=lambda msg: print(msg, file=sys.stderr), infeasibility=args.infeasibility,
     )
     print(engine_report.render(result))
     if not args.no_write:

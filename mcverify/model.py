@@ -120,6 +120,8 @@ BACKEND_NAMES = ("ipopt", "ipm")
 #: The MPC-DC baselines (Sec. VI-D): "mpcdc" keeps the ellipses at the nodes (h >= 0), "mpcdc_eps"
 #: at the level of the cell (h >= barrier.epsilon); everything else about them is the same.
 MPCDC_CONTROLLERS = ("mpcdc", "mpcdc_eps")
+#: Who certifies that a problem is infeasible on the ipm backend (:attr:`Mpc.infeasibility`).
+INFEASIBILITY_POLICIES = ("ipopt", "phase1")
 #: The evidence that makes the ego abandon the overtake (:attr:`Mpc.abandon_rule`).
 ABANDON_RULES = ("first_failure", "consecutive", "certified")
 #: Most piecewise-constant segments of one structured disturbance (:attr:`Noise.front_x_segments`).
@@ -219,6 +221,15 @@ class Mpc:
     """Failed Q1 solves in a row that abandon with abandon_rule = consecutive. Valid: >= 1."""
     tol: float = 1e-6
     """Solver tolerance on the scaled KKT error. Valid: > 0."""
+    infeasibility: str = "ipopt"
+    """Who certifies infeasibility on the ipm backend: ipopt (its fallback) or phase1 (the C phase 1 from every start,
+    IPOPT as scheduled auditor; docs/engine.md)."""
+    ipm_restoration: bool = False
+    """The ipm backend's cold IPM attempt of a full solve runs with the C restoration phase: a failed line search
+    restores feasibility instead of ending the attempt (docs/engine.md)."""
+    infeasibility_audit_every: int = 10
+    """With infeasibility = phase1: about one C certificate in this many is re-checked by IPOPT (1: every one).
+    Valid: >= 1."""
 
     @property
     def is_mpcdc(self) -> bool:

@@ -164,12 +164,16 @@ EPISODE_COLUMNS: tuple[Column, ...] = (
     _c("solves", _INT, "", "problems solved (attempted) in the episode"),
     _c("cold_retries", _INT, "", "failed warm IPOPT starts retried cold"),
     _c("presumed_infeasible_solves", _INT, "", "fast-path-only solves of a problem IPOPT certified infeasible"),
+    _c("infeasibility_audits", _INT, "", "C certificates of infeasibility IPOPT re-checked as the scheduled auditor "
+       "(mpc.infeasibility = phase1; 0 otherwise)"),
+    _c("infeasibility_audit_disagreements", _INT, "", "infeasibility_audits where IPOPT solved the problem (its "
+       "solution was used)"),
     _c("iterations_mean", _FLOAT, "", "mean solver iterations per solve"),
     _c("iterations_max", _INT, "", "most solver iterations of one solve"),
     _c("solve_time_mean_s", _FLOAT, "s", "mean wall time per solve (machine-dependent)", wall_clock=True),
     _c("solve_time_max_s", _FLOAT, "s", "longest wall time of one solve (machine-dependent)", wall_clock=True),
     _c("solver_statuses", _STR, "", "JSON counts of solve statuses (str of SolveStatus: fallback: and "
-       "presumed_infeasible: mark the route)"),
+       "presumed_infeasible:, audited: and audit_disagreed: mark the route)"),
     # failures
     _c(ERROR_COLUMN, _STR, "", "why the episode could not be simulated; null for every simulated episode"),
 )

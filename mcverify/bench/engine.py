@@ -142,13 +142,17 @@ def plant_transfer_ms(cell: Cell, batch: int, seed: int, reps: int = 200) -> dic
     return {"compute_ms": 1e3 * compute / reps, "transfer_ms": 1e3 * transfer / reps, "batch": float(batch)}
 
 
-def pick_cells(campaign_path: str, cell_name: str, backend: str | None) -> tuple[list[Cell], int, bool]:
-    """The cells to run (``cell_name`` or every cell for ``"all"``), with ``backend`` applied."""
+def pick_cells(campaign_path: str, cell_name: str, backend: str | None, infeasibility: str | None = None,
+               overrides: dict | None = None) -> tuple[list[Cell], int, bool]:
+    """The cells to run (``cell_name`` or every cell for ``"all"``), with ``backend``, the
+    ``mpc.infeasibility`` policy and other ``overrides`` (dotted keys) applied when given."""
     camp = load_campaign(campaign_path)
     cells = list(camp.cells) if cell_name == ALL_CELLS else [camp.cell(cell_name)]
-    if backend is not None:
-        cells = [dataclasses.replace(c, params=apply_overrides(c.params, {"mpc.backend": backend}, "--backend"))
-                 for c in cells]
+    changes = [("mpc.backend", backend, "--backend"), ("mpc.infeasibility", infeasibility, "--infeasibility")]
+    changes += [(k, v, "overrides") for k, v in (overrides or {}).items()]
+    for key, value, flag in changes:
+        if value is not None:
+            cells = [dataclasses.replace(c, params=apply_overrides(c.params, {key: value}, flag)) for c in cells]
     return cells, camp.seed, camp.common_random_numbers
 
 
@@ -203,6 +207,8 @@ def run(
     backend: str | None = None,
     write: bool = True,
     progress=print,
+    infeasibility: str | None = None,
+    overrides: dict | None = None,
 ) -> dict[str, Any]:
     """Run the sides on every chosen cell and return the figures (and append them to results/BENCHMARKS.md).
 
@@ -213,7 +219,7 @@ def run(
             baseline_episodes, naive_episodes) <= engine_episodes:
         raise ValueError("need engine_episodes >= 1 and 0 <= baseline_episodes, naive_episodes <= engine_episodes "
                          "(their episodes are paired with the engine's)")
-    cells, seed, crn = pick_cells(campaign, cell_name, backend)
+    cells, seed, crn = pick_cells(campaign, cell_name, backend, infeasibility, overrides)
     counts = {"engine": engine_episodes, "baseline": baseline_episodes, "naive": naive_episodes}
     progress(f"bench: {campaign}, {len(cells)} cell(s); episodes per cell: engine {engine_episodes}, "
              f"compiled IPOPT loop {baseline_episodes}, naive {naive_episodes} (paired: the first ones)")
@@ -250,6 +256,7 @@ def run(
         "campaign": campaign,
         "cells": [c.name for c in cells],
         "backend": ",".join(sorted({c.params.mpc.backend for c in cells})),
+        "infeasibility": ",".join(sorted({c.params.mpc.infeasibility for c in cells})),
         "sides": {s: sides[s] for s in active},
         "ratios": {s: engine.episodes_per_cpu_min / sides[s].episodes_per_cpu_min
                    for s in ("baseline", "naive") if counts[s]},

@@ -12,7 +12,14 @@ from typing import Any
 
 from mcverify import levels
 from mcverify.errors import CampaignError
-from mcverify.model import ABANDON_RULES, BACKEND_NAMES, MAX_SEGMENTS, REQUIREMENT_NAMES, ModelParams
+from mcverify.model import (
+    ABANDON_RULES,
+    BACKEND_NAMES,
+    INFEASIBILITY_POLICIES,
+    MAX_SEGMENTS,
+    REQUIREMENT_NAMES,
+    ModelParams,
+)
 
 #: The piecewise-constant disturbance fields of [model.noise].
 SEGMENT_FIELDS = ("front_x_segments", "front_v_segments", "opp_x_segments", "opp_v_segments")
@@ -134,6 +141,14 @@ def validate_params(p: ModelParams, where: str) -> None:
         raise bad("mpc.controller", f"unknown controller {_short(m.controller)}; valid: {', '.join(CONTROLLERS)}")
     if m.backend not in BACKEND_NAMES:
         raise bad("mpc.backend", f"unknown solver backend {_short(m.backend)}; valid: {', '.join(BACKEND_NAMES)}")
+    if m.infeasibility not in INFEASIBILITY_POLICIES:
+        raise bad("mpc.infeasibility",
+                  f"unknown policy {_short(m.infeasibility)}; valid: {', '.join(INFEASIBILITY_POLICIES)}")
+    if not isinstance(m.ipm_restoration, bool):
+        raise bad("mpc.ipm_restoration", f"must be true or false, got {_short(m.ipm_restoration)}")
+    if type(m.infeasibility_audit_every) is not int or m.infeasibility_audit_every < 1:
+        raise bad("mpc.infeasibility_audit_every",
+                  f"must be an integer >= 1, got {_short(m.infeasibility_audit_every)}")
     if n.kind not in ("paper", "none"):
         raise bad("noise.kind", f"unknown noise model {_short(n.kind)}; valid: paper, none")
     if not b.lambdas_m or any(not (isinstance(x, int | float) and math.isfinite(x) and x > 0) for x in b.lambdas_m):

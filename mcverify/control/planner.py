@@ -76,6 +76,8 @@ class EpisodeState:
     q1_rescue_steps: int = 0
     cold_retries: int = 0
     presumed_infeasible_solves: int = 0
+    infeasibility_audits: int = 0  # Mpc.infeasibility = "phase1": C certificates IPOPT re-checked
+    infeasibility_audit_disagreements: int = 0  # ... and solved
     switched_to_q2_at_s: float = math.nan
     went_back_reason: str = ""
     went_back_q1_failure: str = ""  # the kind of the Q1 failure that abandoned the overtake
@@ -99,6 +101,8 @@ class EpisodeState:
         self.statuses[shown] = self.statuses.get(shown, 0) + 1
         self.cold_retries += int(sol.retried_cold)
         self.presumed_infeasible_solves += int(sol.status.presumed_infeasible)
+        self.infeasibility_audits += int(sol.status.audited)
+        self.infeasibility_audit_disagreements += int(sol.status.audit_disagreed)
 
     def count_q1_failure(self, sol: MpcSolution) -> None:
         """A failed Q1 solve: ``q1_fail_steps`` and its split by :func:`failure_kind`."""

@@ -161,6 +161,8 @@ def episode_row(
         "solves": len(st.iterations),
         "cold_retries": st.cold_retries,
         "presumed_infeasible_solves": st.presumed_infeasible_solves,
+        "infeasibility_audits": st.infeasibility_audits,
+        "infeasibility_audit_disagreements": st.infeasibility_audit_disagreements,
         "iterations_mean": float(iters.mean()),
         "iterations_max": int(iters.max()),
         "solve_time_mean_s": float(times.mean()),

@@ -22,7 +22,12 @@ started like the reference, with a second, more central attempt; IPOPT is its fa
   :attr:`~mcverify.solver.status.SolveRoute.FALLBACK`. So a failed solve always means "the
   reference could not solve it either", never "the fast path gave up";
 * an IPM success has IPOPT's contract: scaled KKT error <= ``params.mpc.tol``, unscaled
-  constraint violation <= 1e-7, then the common 1e-5 check.
+  constraint violation <= 1e-7, then the common 1e-5 check;
+* with ``params.mpc.infeasibility = "phase1"`` (default "ipopt"), before the fallback the C phase 1
+  runs from the warm start and the cold guess; if both certify local infeasibility the certificate
+  is the answer (status ``IPM_Infeasible_Problem_Detected``) and IPOPT runs only as the scheduled
+  auditor (:meth:`IpmBackend.audit_due`): docs/engine.md, "The restoration phase and what
+  infeasible means".
 
 Safety of the fast path (the paper's continuous-time CBF condition at the sample). The node-0 row
 of eq.tompc_cbf, hdot(x_0, u_0, t_0) + Lambda H(h(x_0, t_0)) >= 0, is affine in u_0 once x_0 and
@@ -42,6 +47,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+import zlib
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -51,7 +57,7 @@ import numpy as np
 
 from mcverify.model import BACKEND_NAMES, ModelParams
 from mcverify.solver.cfun import CFunction
-from mcverify.solver.ipm import COLD, WARM_ATTEMPTS, Ipm
+from mcverify.solver.ipm import COLD, WARM_ATTEMPTS, Ipm, IpmResult
 from mcverify.solver.kernels import Kernel, get_runtime_library
 from mcverify.solver.status import SolveRoute, SolveStatus
 
@@ -252,8 +258,17 @@ class IpmBackend:
         self.ipm = Ipm(problem.kernel.so_path, problem.lbx, problem.ubx, problem.lbg, problem.ubg, lib)
         self.warm_attempts = tuple(dataclasses.replace(o, tol=params.mpc.tol) for o in WARM_ATTEMPTS)
         self.cold = dataclasses.replace(COLD, tol=params.mpc.tol)
+        # mpc.ipm_restoration (off by default: the attempts of ABI 1, bit for bit): the cold attempt of
+        # a full solve restores feasibility after a failed line search (not the warm attempts, whose
+        # failures the cold start repairs cheaply, nor a presumed-infeasible fast-only solve, where a
+        # restoration would mostly fail at a price)
+        self.cold_full = dataclasses.replace(self.cold, restoration=params.mpc.ipm_restoration)
         self.ipm_outcomes: Counter[str] = Counter()
         self.ipm_cpu_s: Counter[str] = Counter()
+        self.infeasibility = params.mpc.infeasibility
+        self.audit_every = params.mpc.infeasibility_audit_every
+        self.phase1_warm = dataclasses.replace(WARM_ATTEMPTS[0], tol=params.mpc.tol, phase1=True)
+        self.phase1_cold = dataclasses.replace(COLD, tol=params.mpc.tol, phase1=True)
 
     def solve(
         self, p: np.ndarray, warm: Start | None, guess: Callable[[], np.ndarray], fast_only: bool = False
@@ -263,7 +278,7 @@ class IpmBackend:
         :attr:`mcverify.model.Mpc.infeasible_recheck_steps`)."""
         iterations = 0
         attempts = [] if warm is None else [(o, warm.x, warm.lam_x, warm.lam_g) for o in self.warm_attempts]
-        attempts.append((self.cold, None, None, None))
+        attempts.append((self.cold if fast_only else self.cold_full, None, None, None))
         for k, (opts, x0, lx0, lg0) in enumerate(attempts):
             cpu0 = time.process_time()
             r = self.ipm.solve(p, guess() if x0 is None else x0, lx0, lg0, opts)
@@ -278,10 +293,55 @@ class IpmBackend:
                 return res
         if fast_only:
             return dataclasses.replace(res, status=res.status.via(SolveRoute.PRESUMED))
+        if self.infeasibility == "phase1":
+            cert = self.certify(p, warm, guess, iterations)
+            if cert is not None:
+                return self.audit(p, warm, guess, cert) if self.audit_due(p) else cert
         ref = self.reference.solve(p, warm, guess)
         return dataclasses.replace(
             ref, status=ref.status.via(SolveRoute.FALLBACK), iterations=iterations + ref.iterations
         )
+
+
+    # ---------------------------------------------------------------- Mpc.infeasibility = "phase1"
+
+    def certify(self, p: np.ndarray, warm: Start | None, guess: Callable[[], np.ndarray],
+                iterations: int) -> BackendResult | None:
+        """The start-independent certificate of infeasibility (docs/engine.md): phase 1 of the C
+        restoration phase (:attr:`IpmOptions.phase1`) from the warm start, when there is one, and from
+        the cold guess; a certificate only if every one of them ends with "Infeasible_Problem_Detected"
+        (the cold one's point is returned). None otherwise (a feasible point or an undecided run)."""
+        runs = [] if warm is None else [(self.phase1_warm, warm.x, warm.lam_x, warm.lam_g)]
+        runs.append((self.phase1_cold, None, None, None))
+        r: IpmResult | None = None
+        for k, (opts, x0, lx0, lg0) in enumerate(runs):
+            cpu0 = time.process_time()
+            r = self.ipm.solve(p, guess() if x0 is None else x0, lx0, lg0, opts)
+            iterations += r.iterations
+            tag = f"phase1_{'warm' if lx0 is not None else 'cold'}{k + 1}:{r.status}"
+            self.ipm_outcomes[tag] += 1
+            self.ipm_cpu_s[tag] += time.process_time() - cpu0
+            if not r.infeasible:
+                return None
+        return BackendResult(r.w, r.lam_x, r.lam_g, SolveStatus.ipm(r.status), iterations, False,
+                             self.problem.max_violation(r.w, p))
+
+    def audit_due(self, p: np.ndarray) -> bool:
+        """Whether IPOPT re-checks this certificate: about one in ``infeasibility_audit_every``, chosen
+        by a checksum of the parameter vector, so the schedule depends on the problem only (not on
+        the order, chunk or worker it is solved in)."""
+        return zlib.crc32(np.ascontiguousarray(p, dtype=np.float64).tobytes()) % self.audit_every == 0
+
+    def audit(self, p: np.ndarray, warm: Start | None, guess: Callable[[], np.ndarray],
+              cert: BackendResult) -> BackendResult:
+        """IPOPT's full attempt (warm, then cold) on a certified problem: if it fails too, the
+        certificate stands (route AUDITED); if it solves it, its solution is returned (route
+        AUDIT_DISAGREED), so a disagreement never costs a solution."""
+        ref = self.reference.solve(p, warm, guess)
+        its = cert.iterations + ref.iterations
+        if ref.success:
+            return dataclasses.replace(ref, status=ref.status.via(SolveRoute.AUDIT_DISAGREED), iterations=its)
+        return dataclasses.replace(cert, status=cert.status.via(SolveRoute.AUDITED), iterations=its)
 
 
 #: Backend name -> implementation, one for every name of :data:`mcverify.model.BACKEND_NAMES`.

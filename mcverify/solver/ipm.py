@@ -34,13 +34,17 @@ _L = ctypes.POINTER(ctypes.c_int64)
 _FUN = ctypes.c_void_p
 
 #: ``IPM_ABI_VERSION`` of ``csrc/ipm.h`` this binding is written for.
-ABI_VERSION = 1
+ABI_VERSION = 2
 #: The status codes of ``csrc/ipm.h`` (``enum ipm_status``) -> status strings, the one table of them
 #: on this side (checked against the library's ``ipm_status_name`` at load).
 STATUS = {
     0: "Converged", 1: "Max_Iterations", 2: "Line_Search_Failed", 3: "Regularisation_Failed",
-    4: "Nonfinite", 5: "Evaluation_Error",
+    4: "Nonfinite", 5: "Evaluation_Error", 6: "Infeasible_Problem_Detected", 7: "Restoration_Failed",
+    8: "Feasible_Point_Found",
 }
+#: Statuses only the restoration phase returns (``IpmOptions.restoration`` or ``phase1``): a
+#: certificate of local infeasibility, undecided, a feasible point (phase 1 only).
+INFEASIBLE, RESTORATION_FAILED, FEASIBLE_POINT_FOUND = 6, 7, 8
 CONVERGED = 0
 _KERNEL_FUNCTIONS = ("nlp_g", "nlp_grad_f", "nlp_jac_g", "nlp_hess_l")
 
@@ -52,7 +56,16 @@ class IpmOptions:
     start and its floor; bound_push: relative distance a start is pushed inside its bounds;
     mult_push: smallest bound multiplier at the start; bound_relax: bounds are relaxed by this
     relative amount (IPOPT's ``bound_relax_factor``); max_iter; verbose: one line per iteration
-    on stderr."""
+    on stderr; theta_far, mu_far, push_far: a warm start whose largest scaled violation exceeds
+    theta_far starts at mu_far with pushes push_far.
+
+    Restoration phase (off by default: the behaviour of ABI 1 is kept bit for bit): restoration,
+    a failed line search starts IPOPT's l1 feasibility problem (csrc/ipm.c, "restoration phase")
+    instead of ending the solve; phase1, solve only that problem from the start (status
+    ``Feasible_Point_Found``, ``Infeasible_Problem_Detected`` or ``Restoration_Failed``);
+    resto_max_iter: iterations of one restoration phase at most; resto_rho: the l1 penalty
+    (IPOPT's 1000); resto_mu_cert: a certificate of local infeasibility needs the restoration's
+    barrier parameter at most this (and its scaled KKT error at most tol)."""
 
     tol: float = 1e-6
     constr_viol_tol: float = 1e-7
@@ -66,6 +79,11 @@ class IpmOptions:
     theta_far: float = float("inf")
     mu_far: float = 1e-5
     push_far: float = 1e-4
+    restoration: bool = False
+    phase1: bool = False
+    resto_max_iter: int = 100
+    resto_rho: float = 1000.0
+    resto_mu_cert: float = 1e-6
 
 
 #: Warm starts: first the IPOPT reference's own warm-start settings (mu_init 1e-7, pushes 1e-6),
@@ -101,7 +119,8 @@ class _Opts(ctypes.Structure):
         ("mu_min", ctypes.c_double), ("bound_push", ctypes.c_double), ("mult_push", ctypes.c_double),
         ("bound_relax", ctypes.c_double), ("max_iter", ctypes.c_int), ("warm", ctypes.c_int),
         ("verbose", ctypes.c_int), ("theta_far", ctypes.c_double), ("mu_far", ctypes.c_double),
-        ("push_far", ctypes.c_double),
+        ("push_far", ctypes.c_double), ("restoration", ctypes.c_int), ("phase1", ctypes.c_int),
+        ("resto_max_iter", ctypes.c_int), ("resto_rho", ctypes.c_double), ("resto_mu_cert", ctypes.c_double),
     ]
 
 
@@ -111,6 +130,8 @@ class _Stats(ctypes.Structure):
         ("regularised", ctypes.c_int), ("backtracks", ctypes.c_int), ("soc", ctypes.c_int), ("far", ctypes.c_int),
         ("inf_pr", ctypes.c_double), ("inf_du", ctypes.c_double), ("mu", ctypes.c_double),
         ("theta_start", ctypes.c_double), ("first_alpha", ctypes.c_double),
+        ("resto_calls", ctypes.c_int), ("resto_iterations", ctypes.c_int), ("cert_violation", ctypes.c_double),
+        ("cert_stationarity", ctypes.c_double), ("cert_mu", ctypes.c_double),
     ]
 
 
@@ -204,6 +225,19 @@ class IpmResult:
     far_start: bool = False  # the start was far from feasible (theta_start > theta_far): mu_far, push_far used
     theta_start: float = float("nan")  # largest scaled constraint violation at the (embedded) start
     first_alpha: float = float("nan")  # primal step length of the first iteration (negative: corrected step)
+    resto_calls: int = 0  # restoration phases (their iterations are counted in iterations too)
+    resto_iterations: int = 0
+    # at the end of the last restoration phase (nan: none): the l1 norm of the scaled constraint
+    # violation (a certificate's measured violation), the scaled KKT error of the l1 feasibility
+    # problem (its stationarity) and its barrier parameter
+    cert_violation: float = float("nan")
+    cert_stationarity: float = float("nan")
+    cert_mu: float = float("nan")
+
+    @property
+    def infeasible(self) -> bool:
+        """A certificate of local infeasibility (status ``Infeasible_Problem_Detected``)."""
+        return self.status == STATUS[INFEASIBLE]
 
 
 class Ipm:
@@ -259,7 +293,8 @@ class Ipm:
         o = options or (WARM_ATTEMPTS[0] if lam_x0 is not None else COLD)
         warm = lam_x0 is not None and lam_g0 is not None
         copts = _Opts(o.tol, o.constr_viol_tol, o.mu_init, o.mu_min, o.bound_push, o.mult_push, o.bound_relax,
-                      o.max_iter, int(warm), int(o.verbose), o.theta_far, o.mu_far, o.push_far)
+                      o.max_iter, int(warm), int(o.verbose), o.theta_far, o.mu_far, o.push_far,
+                      int(o.restoration), int(o.phase1), o.resto_max_iter, o.resto_rho, o.resto_mu_cert)
         x = np.array(w0, dtype=np.float64).reshape(-1)
         lx = np.array(lam_x0 if warm else np.zeros(self.n_w), dtype=np.float64).reshape(-1)
         lg = np.array(lam_g0 if warm else np.zeros(self.n_g), dtype=np.float64).reshape(-1)
@@ -279,7 +314,9 @@ class Ipm:
             iterations=int(st.iterations), factorisations=int(st.factorisations), regularised=int(st.regularised),
             backtracks=int(st.backtracks), soc=int(st.soc), max_violation=float(st.inf_pr),
             dual_infeasibility=float(st.inf_du), far_start=bool(st.far), theta_start=float(st.theta_start),
-            first_alpha=float(st.first_alpha),
+            first_alpha=float(st.first_alpha), resto_calls=int(st.resto_calls),
+            resto_iterations=int(st.resto_iterations), cert_violation=float(st.cert_violation),
+            cert_stationarity=float(st.cert_stationarity), cert_mu=float(st.cert_mu),
         )
 
 

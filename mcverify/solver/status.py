@@ -7,7 +7,9 @@ backend's own status text (``raw``: IPOPT's ``return_status``, ``"IPM_<status>"`
 
 ``str(status)`` renders the form stored in episode rows (the keys of ``solver_statuses``) and shown
 in benchmarks: ``raw`` for the backend's own path, ``"fallback:<raw>"`` for a solve the fast path
-handed to the IPOPT reference, ``"presumed_infeasible:<raw>"`` for a fast-path-only failure.
+handed to the IPOPT reference, ``"presumed_infeasible:<raw>"`` for a fast-path-only failure,
+``"audited:<raw>"`` / ``"audit_disagreed:<raw>"`` for a C certificate of infeasibility that IPOPT
+re-checked as the scheduled auditor (``Mpc.infeasibility = "phase1"``) and failed on too / solved.
 """
 
 from __future__ import annotations
@@ -39,6 +41,10 @@ class SolveRoute(enum.Enum):
     PRIMARY = "primary"  # the backend's own path: IPOPT for "ipopt", the IPM for "ipm"
     FALLBACK = "fallback"  # the IPM failed and the IPOPT reference path answered
     PRESUMED = "presumed"  # fast path only (a problem IPOPT certified infeasible): no reference tried
+    # Mpc.infeasibility = "phase1": a C certificate that IPOPT re-checked as the scheduled auditor and
+    # also failed on (AUDITED), or solved (AUDIT_DISAGREED: the result is IPOPT's solution)
+    AUDITED = "audited"
+    AUDIT_DISAGREED = "audit_disagreed"
 
 
 #: IPOPT ``return_status`` values with their own outcome; any other is :attr:`SolveOutcome.FAILED`.
@@ -52,6 +58,7 @@ IPOPT_OUTCOMES: dict[str, SolveOutcome] = {
 IPM_OUTCOMES: dict[str, SolveOutcome] = {
     "Converged": SolveOutcome.SOLVED,
     "Max_Iterations": SolveOutcome.ITERATION_LIMIT,
+    "Infeasible_Problem_Detected": SolveOutcome.INFEASIBLE,  # the restoration phase's certificate
 }
 #: Prefix of ``raw`` for an IPM status (the IPM's names differ from IPOPT's).
 IPM_RAW_PREFIX = "IPM_"
@@ -60,6 +67,8 @@ ROUTE_PREFIXES: dict[SolveRoute, str] = {
     SolveRoute.PRIMARY: "",
     SolveRoute.FALLBACK: "fallback:",
     SolveRoute.PRESUMED: "presumed_infeasible:",
+    SolveRoute.AUDITED: "audited:",
+    SolveRoute.AUDIT_DISAGREED: "audit_disagreed:",
 }
 
 
@@ -108,8 +117,19 @@ class SolveStatus:
         return self.route is SolveRoute.PRESUMED
 
     @property
+    def audited(self) -> bool:
+        """A C certificate of infeasibility that IPOPT re-checked (agreeing or not)."""
+        return self.route in (SolveRoute.AUDITED, SolveRoute.AUDIT_DISAGREED)
+
+    @property
+    def audit_disagreed(self) -> bool:
+        """IPOPT solved a problem the C restoration phase had certified infeasible."""
+        return self.route is SolveRoute.AUDIT_DISAGREED
+
+    @property
     def certified_infeasible(self) -> bool:
-        """IPOPT itself reported local infeasibility (directly or as the fast path's fallback)."""
+        """Local infeasibility certified: by IPOPT (directly or as the fast path's fallback) or, with
+        ``Mpc.infeasibility = "phase1"``, by the C restoration phase from every start it was given."""
         return self.outcome is SolveOutcome.INFEASIBLE and self.route is not SolveRoute.PRESUMED
 
     def __str__(self) -> str:

@@ -11,8 +11,9 @@
  * (D = 1/Sigma_s on inequality rows, dc on equality rows), fraction-to-the-boundary step rules,
  * IPOPT's filter line search on (theta = |c|_1, phi = barrier objective) with up to
  * IPM_MAX_SOC second-order corrections at the first trial step, and the monotone barrier update.
- * Left out: the restoration phase (a failed line search ends the solve), the acceptable-level
- * exit and the objective scaling. What makes it fast is the linear algebra and the absence of
+ * Left out: the acceptable-level exit and the objective scaling. The restoration phase (IPOPT's
+ * l1 elastic feasibility problem) runs only when ipm_opts.restoration or phase1 asks for it (see
+ * "restoration phase" below); otherwise a failed line search ends the solve. What makes it fast is the linear algebra and the absence of
  * layers: the KKT matrix has a fixed pattern that a reverse Cuthill-McKee ordering makes banded,
  * factorised by a banded LU with partial pivoting, and the NLP's functions are the CasADi-generated
  * C of the kernel, called through function pointers. Inertia is not available from an LU; the step
@@ -134,7 +135,21 @@ typedef struct {
      multipliers, steps, residual c, barrier diagonal, trial g and slack, corrected slack step */
   double *lg, *ug, *dc, *g, *s, *y, *vl, *vu, *ds, *dy, *dvl, *dvu, *cres, *sigs, *gt, *st_, *ds_soc;
   double *jac, *jraw, *hess; /* scaled and raw Jacobian nonzeros, Hessian upper triangle */
+  /* restoration phase (resto != 0): the l1 feasibility problem
+       min rho sum(pe + ne) + zeta/2 sum dr2 (x - xr)^2  s.t.  c(x, s) - pe + ne = 0, pe, ne >= 0
+     on every row but the fixing ones (fixed[i]); per variable: reference point and squared
+     proximity scaling; per row: elastic variables, their multipliers, steps, trial values and
+     barrier diagonals */
+  int resto;
+  double rho, zeta;
+  const int *fixed;
+  double *xr, *dr2;
+  double *pe, *ne, *zp, *zn, *dpe, *dne, *dzp, *dzn, *pet, *net, *sigp, *sign_;
+  double *dpe_keep, *dne_keep; /* the Newton step's dpe, dne while second-order corrections are tried */
 } ipm_ws;
+
+/* A row with elastic variables in the restoration phase (all but the fixing rows). */
+#define ELASTIC(i) (S->resto && !S->fixed[i])
 
 /* An equality row (lbg == ubg). A macro on the locals lbg, ubg (not S->lbg) so that the loops keep
    the bounds' pointers in registers across the calls of log and pow. */
@@ -152,8 +167,8 @@ void ipm_work_sizes(const ipm_struct *st, int64_t *n_dbl, int64_t *n_int) {
   int64_t n = st->n, nw = st->n_w, ng = st->n_g;
   int64_t amax = max_work_size(st, 0), rmax = max_work_size(st, 1);
   int64_t iwmax = max_work_size(st, 2), wmax = max_work_size(st, 3);
-  *n_dbl = (int64_t)st->ldab * n + 8 * n + 24 * nw + 24 * ng + 2 * st->n_j + st->n_h + wmax + 64;
-  *n_int = (n + 2) + 2 * (iwmax + 8) + 2 * (amax + 8) + 2 * (rmax + 8) + 64;
+  *n_dbl = (int64_t)st->ldab * n + 8 * n + 24 * nw + 32 * ng + 2 * st->n_j + st->n_h + wmax + 64;
+  *n_int = (n + 2) + 2 * (iwmax + 8) + 2 * (amax + 8) + 2 * (rmax + 8) + (ng + 2) + 64;
 }
 
 /* Carve the workspace (layout of ipm_work_sizes; the unnamed gaps are spare). */
@@ -167,13 +182,15 @@ static void carve_workspace(ipm_ws *S, double *wd, int *wi) {
   S->soc_buf = wd; wd += n;
   wd += 4 * n;
   double **per_var[] = {&S->lx, &S->ux, &S->zl, &S->zu, &S->grad, &S->dx, &S->dzl, &S->dzu, &S->xt, &S->sigx,
-                        &S->jty, &S->hdx, &S->dx_soc};
+                        &S->jty, &S->hdx, &S->dx_soc, &S->xr, &S->dr2};
   for (size_t k = 0; k < sizeof per_var / sizeof per_var[0]; ++k) { *per_var[k] = wd; wd += nw; }
-  wd += 11 * nw;
+  wd += 9 * nw;
   double **per_row[] = {&S->lg, &S->ug, &S->dc, &S->g, &S->s, &S->y, &S->vl, &S->vu, &S->ds, &S->dy, &S->dvl,
-                        &S->dvu, &S->cres, &S->sigs, &S->gt, &S->st_, &S->ds_soc};
+                        &S->dvu, &S->cres, &S->sigs, &S->gt, &S->st_, &S->ds_soc,
+                        &S->pe, &S->ne, &S->zp, &S->zn, &S->dpe, &S->dne, &S->dzp, &S->dzn, &S->pet, &S->net,
+                        &S->sigp, &S->sign_, &S->dpe_keep, &S->dne_keep};
   for (size_t k = 0; k < sizeof per_row / sizeof per_row[0]; ++k) { *per_row[k] = wd; wd += ng; }
-  wd += 7 * ng;
+  wd += 1 * ng;
   S->jac = wd; wd += st->n_j;
   S->jraw = wd; wd += st->n_j;
   S->hess = wd; wd += st->n_h;
@@ -182,13 +199,19 @@ static void carve_workspace(ipm_ws *S, double *wd, int *wi) {
   S->E.iw = (casadi_int_t *)wi;
   wi += 2 * (max_work_size(st, 2) + 8);
   S->E.arg = (const double **)wi; wi += 2 * (max_work_size(st, 0) + 8);
-  S->E.res = (double **)wi;
+  S->E.res = (double **)wi; wi += 2 * (max_work_size(st, 1) + 8);
+  int *fixed = wi;
+  for (int i = 0; i < ng; ++i) fixed[i] = 0;
+  for (int k = 0; k < st->n_fix; ++k) fixed[st->fix_row[k]] = 1;
+  S->fixed = fixed;
 }
 
 static void init_stats(ipm_stats *stats, const ipm_opts *o) {
   stats->iterations = 0; stats->status = IPM_CONVERGED; stats->factorisations = 0; stats->regularised = 0;
   stats->backtracks = 0; stats->soc = 0; stats->far = 0; stats->theta_start = 0.0; stats->first_alpha = 0.0;
   stats->inf_pr = INFINITY; stats->inf_du = INFINITY; stats->mu = o->mu_init;
+  stats->resto_calls = 0; stats->resto_iterations = 0;
+  stats->cert_violation = NAN; stats->cert_stationarity = NAN; stats->cert_mu = NAN;
 }
 
 /* ---------------------------------------------------------------------------- the start -- */
@@ -354,6 +377,12 @@ static kkt_errors residuals(ipm_ws *S) {
       if (isfinite(lg[i])) inf_co = fmax(inf_co, fabs((s[i] - lg[i]) * vl[i]));
       if (isfinite(ug[i])) inf_co = fmax(inf_co, fabs((ug[i] - s[i]) * vu[i]));
     }
+    if (ELASTIC(i)) { /* c - pe + ne; stationarity in pe, ne: rho -+ y - z = 0 */
+      cres[i] += S->ne[i] - S->pe[i];
+      inf_du = fmax(inf_du, fmax(fabs(S->rho - y[i] - S->zp[i]), fabs(S->rho + y[i] - S->zn[i])));
+      zsum += S->zp[i] + S->zn[i]; cnt_z += 2;
+      inf_co = fmax(inf_co, fmax(S->pe[i] * S->zp[i], S->ne[i] * S->zn[i]));
+    }
     inf_pr = fmax(inf_pr, fabs(cres[i]));
     double graw = g[i] / dc[i];
     viol_unscaled = fmax(viol_unscaled, fmax(lbg[i] - graw, graw - ubg[i]));
@@ -380,6 +409,9 @@ static double complementarity_error(const ipm_ws *S, double mu) {
     if (isfinite(lg[i])) co_mu = fmax(co_mu, fabs((s[i] - lg[i]) * vl[i] - mu));
     if (isfinite(ug[i])) co_mu = fmax(co_mu, fabs((ug[i] - s[i]) * vu[i] - mu));
   }
+  if (S->resto)
+    for (int i = 0; i < ng; ++i)
+      if (ELASTIC(i)) co_mu = fmax(co_mu, fmax(fabs(S->pe[i] * S->zp[i] - mu), fabs(S->ne[i] * S->zn[i] - mu)));
   return co_mu;
 }
 
@@ -415,6 +447,7 @@ static void barrier_diagonals(ipm_ws *S) {
       if (isfinite(ug[i])) sg += S->vu[i] / (ug[i] - s[i]);
     }
     S->sigs[i] = sg;
+    if (ELASTIC(i)) { S->sigp[i] = S->zp[i] / S->pe[i]; S->sign_[i] = S->zn[i] / S->ne[i]; }
   }
 }
 
@@ -428,11 +461,16 @@ static void assemble_kkt(ipm_ws *S, double dw, double dcr) {
     double v;
     switch (st->ent_kind[e]) {
       case IPM_ENTRY_HESSIAN: v = S->hess[st->hs_src[st->ent_src[e]]]; break;
-      case IPM_ENTRY_PRIMAL_DIAG: v = S->sigx[r] + dw; break;
+      case IPM_ENTRY_PRIMAL_DIAG:
+        v = S->sigx[r] + dw;
+        if (S->resto) v += S->zeta * S->dr2[r];
+        break;
       case IPM_ENTRY_JAC_T: case IPM_ENTRY_JAC: v = S->jac[st->ent_src[e]]; break;
       default: { /* IPM_ENTRY_DUAL_DIAG */
         int i = r - S->nw;
         v = IS_EQ(i) ? -dcr : -1.0 / (S->sigs[i] + dw) - dcr;
+        /* the elastic variables eliminated: their inverse barrier diagonals join the row's */
+        if (ELASTIC(i)) v -= 1.0 / (S->sigp[i] + dw) + 1.0 / (S->sign_[i] + dw);
       }
     }
     S->ab[st->ent_pos[e]] += v;
@@ -445,6 +483,25 @@ static double slack_q(const ipm_ws *S, int i, double mu) {
   if (isfinite(S->lg[i])) q += mu / (S->s[i] - S->lg[i]);
   if (isfinite(S->ug[i])) q -= mu / (S->ug[i] - S->s[i]);
   return q;
+}
+
+/* Elastic rows: the barrier gradients of pe (rho - y - mu/pe) and ne (rho + y - mu/ne) over their
+   diagonals, what eliminating dpe, dne adds to the row's right-hand side. */
+static double elastic_rhs(const ipm_ws *S, int i, double mu, double dw) {
+  double gp = S->rho - S->y[i] - mu / S->pe[i], gn = S->rho + S->y[i] - mu / S->ne[i];
+  return -gp / (S->sigp[i] + dw) + gn / (S->sign_[i] + dw);
+}
+
+/* The elastic steps implied by the row steps dyv (dpe = (dy - gp) / (sigp + dw), dne = -(dy + gn) /
+   (sign + dw)), into S->dpe, S->dne. */
+static void elastic_steps(ipm_ws *S, const double *dyv, double mu, double dw) {
+  for (int i = 0; i < S->ng; ++i) {
+    S->dpe[i] = S->dne[i] = 0.0;
+    if (!ELASTIC(i)) continue;
+    double gp = S->rho - S->y[i] - mu / S->pe[i], gn = S->rho + S->y[i] - mu / S->ne[i];
+    S->dpe[i] = (dyv[i] - gp) / (S->sigp[i] + dw);
+    S->dne[i] = -(dyv[i] + gn) / (S->sign_[i] + dw);
+  }
 }
 
 /* Right-hand side of the augmented system (slacks eliminated). */
@@ -461,6 +518,7 @@ static void newton_rhs(ipm_ws *S, double mu, double dw) {
   for (int i = 0; i < S->ng; ++i) {
     if (IS_EQ(i)) S->rhs[nw + i] = -S->cres[i];
     else S->rhs[nw + i] = -S->cres[i] + slack_q(S, i, mu) / (S->sigs[i] + dw);
+    if (ELASTIC(i)) S->rhs[nw + i] += elastic_rhs(S, i, mu, dw);
   }
 }
 
@@ -497,6 +555,14 @@ static int curvature_ok(ipm_ws *S, double dw) {
   for (int j = 0; j < S->nw; ++j) { curv += dx[j] * (S->hdx[j] + (S->sigx[j] + dw) * dx[j]); nrm += dx[j] * dx[j]; }
   for (int i = 0; i < S->ng; ++i)
     if (!IS_EQ(i)) { curv += (S->sigs[i] + dw) * ds[i] * ds[i]; nrm += ds[i] * ds[i]; }
+  if (S->resto) {
+    for (int j = 0; j < S->nw; ++j) curv += S->zeta * S->dr2[j] * dx[j] * dx[j];
+    for (int i = 0; i < S->ng; ++i)
+      if (ELASTIC(i)) {
+        curv += (S->sigp[i] + dw) * S->dpe[i] * S->dpe[i] + (S->sign_[i] + dw) * S->dne[i] * S->dne[i];
+        nrm += S->dpe[i] * S->dpe[i] + S->dne[i] * S->dne[i];
+      }
+  }
   return isfinite(curv) && curv >= IPM_CURVATURE_MIN * nrm;
 }
 
@@ -525,6 +591,7 @@ static int newton_step(ipm_ws *S, double mu, double dw_last, double *dw_out, ipm
     solve_permuted(S, S->rhs, S->tmp, S->sol);
     for (int i = 0; i < S->ng; ++i) S->dy[i] = S->sol[S->nw + i];
     unpack_step(S, S->sol, mu, dw, S->dx, S->ds);
+    if (S->resto) elastic_steps(S, S->dy, mu, dw);
     if (curvature_ok(S, dw)) { *dw_out = dw; return IPM_CONVERGED; }
     dw = next_dw(dw, dw_last);
   }
@@ -546,6 +613,13 @@ static void bound_multiplier_steps(ipm_ws *S, double mu) {
     if (isfinite(lg[i])) S->dvl[i] = mu / (s[i] - lg[i]) - vl[i] - vl[i] / (s[i] - lg[i]) * ds[i];
     if (isfinite(ug[i])) S->dvu[i] = mu / (ug[i] - s[i]) - vu[i] + vu[i] / (ug[i] - s[i]) * ds[i];
   }
+  if (S->resto)
+    for (int i = 0; i < S->ng; ++i) {
+      S->dzp[i] = S->dzn[i] = 0.0;
+      if (!ELASTIC(i)) continue;
+      S->dzp[i] = mu / S->pe[i] - S->zp[i] - S->sigp[i] * S->dpe[i];
+      S->dzn[i] = mu / S->ne[i] - S->zn[i] - S->sign_[i] * S->dne[i];
+    }
 }
 
 /* ----------------------------------------------------------------- fraction to the boundary -- */
@@ -565,6 +639,12 @@ static double primal_step_max(const ipm_ws *S, const double *dxv, const double *
     if (isfinite(lg[i]) && dsv[i] < 0.0) a = fmin(a, -tau * (s[i] - lg[i]) / dsv[i]);
     if (isfinite(ug[i]) && dsv[i] > 0.0) a = fmin(a, tau * (ug[i] - s[i]) / dsv[i]);
   }
+  if (S->resto) /* dpe, dne: the step's (the Newton step's or a second-order correction's) */
+    for (int i = 0; i < ng; ++i) {
+      if (!ELASTIC(i)) continue;
+      if (S->dpe[i] < 0.0) a = fmin(a, -tau * S->pe[i] / S->dpe[i]);
+      if (S->dne[i] < 0.0) a = fmin(a, -tau * S->ne[i] / S->dne[i]);
+    }
   return a;
 }
 
@@ -584,6 +664,12 @@ static double dual_step_max(const ipm_ws *S, double tau) {
     if (dvl[i] < 0.0) a = fmin(a, -tau * vl[i] / dvl[i]);
     if (dvu[i] < 0.0) a = fmin(a, -tau * vu[i] / dvu[i]);
   }
+  if (S->resto)
+    for (int i = 0; i < ng; ++i) {
+      if (!ELASTIC(i)) continue;
+      if (S->dzp[i] < 0.0) a = fmin(a, -tau * S->zp[i] / S->dzp[i]);
+      if (S->dzn[i] < 0.0) a = fmin(a, -tau * S->zn[i] / S->dzn[i]);
+    }
   return a;
 }
 
@@ -620,8 +706,19 @@ static merit_t current_merit(const ipm_ws *S, double fval, double mu) {
     if (isfinite(ug[i])) { m.phi0 -= mu * log(ug[i] - s[i]); gs += mu / (ug[i] - s[i]); }
     m.dphi += gs * ds[i];
   }
+  if (S->resto)
+    for (int i = 0; i < ng; ++i) {
+      if (!ELASTIC(i)) continue;
+      m.phi0 += S->rho * (S->pe[i] + S->ne[i]) - mu * (log(S->pe[i]) + log(S->ne[i]));
+      m.dphi += (S->rho - mu / S->pe[i]) * S->dpe[i] + (S->rho - mu / S->ne[i]) * S->dne[i];
+    }
   return m;
 }
+
+/* The restoration objective at x (and, with trial elastic values pe + a dpe, ne + a dne written to
+   pet, net): zeta/2 sum dr2 (x - xr)^2 + rho sum(pet + net) (the barrier terms are the caller's,
+   except the elastic ones, added here). */
+static double resto_objective(ipm_ws *S, const double *xv, double a, double mu);
 
 /* A trial point's merit. */
 typedef struct { double phi, theta; } trial_t;
@@ -639,7 +736,8 @@ static int trial_eval(ipm_ws *S, const double *dxv, const double *dsv, double a,
   for (int j = 0; j < nw; ++j) xt[j] = x[j] + a * dxv[j];
   for (int i = 0; i < ng; ++i) st_[i] = s[i] + a * dsv[i];
   double ft = 0.0;
-  if (call(&S->E, st->f_grad_f, xt, S->p, 0, 0, &ft, S->hdx)) return -1; /* hdx: gradient scratch */
+  if (S->resto) ft = resto_objective(S, xt, a, mu);
+  else if (call(&S->E, st->f_grad_f, xt, S->p, 0, 0, &ft, S->hdx)) return -1; /* hdx: gradient scratch */
   if (call(&S->E, st->f_g, xt, S->p, 0, 0, gt, 0)) return -1;
   double ph = ft, th = 0.0;
   if (!isfinite(ft)) return 0;
@@ -650,9 +748,10 @@ static int trial_eval(ipm_ws *S, const double *dxv, const double *dsv, double a,
   for (int i = 0; i < ng; ++i) {
     double gi = gt[i] * dc[i];
     if (!isfinite(gi)) return 0;
-    if (IS_EQ(i)) th += fabs(gi - lg[i]);
+    double el = ELASTIC(i) ? S->net[i] - S->pet[i] : 0.0;
+    if (IS_EQ(i)) th += ELASTIC(i) ? fabs(gi - lg[i] + el) : fabs(gi - lg[i]);
     else {
-      th += fabs(gi - st_[i]);
+      th += ELASTIC(i) ? fabs(gi - st_[i] + el) : fabs(gi - st_[i]);
       if (isfinite(lg[i])) ph -= mu * log(st_[i] - lg[i]);
       if (isfinite(ug[i])) ph -= mu * log(ug[i] - st_[i]);
     }
@@ -695,16 +794,24 @@ static int second_order_corrections(ipm_ws *S, const merit_t *m, const filter_t 
   const int nw = S->nw, ng = S->ng;
   double *c_soc = S->sol + nw; /* the factorised step's rows are no longer needed */
   double theta_prev = ls->trial.theta;
+  /* restoration phase: the corrected step's elastic steps go to dpe, dne (read by the step rules
+     and the trial), the Newton step's are kept and put back unless a correction is accepted */
+  if (S->resto) {
+    memcpy(S->dpe_keep, S->dpe, sizeof(double) * ng);
+    memcpy(S->dne_keep, S->dne, sizeof(double) * ng);
+  }
   for (int i = 0; i < ng; ++i) c_soc[i] = ls->alpha * S->cres[i];
   for (int k = 0; k < IPM_MAX_SOC; ++k) {
     for (int i = 0; i < ng; ++i) {
       double ci = IS_EQ(i) ? S->gt[i] * S->dc[i] - S->lg[i] : S->gt[i] * S->dc[i] - S->st_[i];
+      if (ELASTIC(i)) ci += S->net[i] - S->pet[i];
       c_soc[i] += ci;
     }
     for (int j = 0; j < nw; ++j) S->tmp[j] = S->rhs[j];
     for (int i = 0; i < ng; ++i) S->tmp[nw + i] = S->rhs[nw + i] + S->cres[i] - c_soc[i];
     solve_permuted(S, S->tmp, S->soc_buf, S->tmp);
     unpack_step(S, S->tmp, mu, dw, S->dx_soc, S->ds_soc);
+    if (S->resto) elastic_steps(S, S->tmp + nw, mu, dw);
     double asoc = primal_step_max(S, S->dx_soc, S->ds_soc, tau);
     int ok = trial_eval(S, S->dx_soc, S->ds_soc, asoc, mu, &ls->trial);
     if (ok < 0) return -1;
@@ -716,8 +823,12 @@ static int second_order_corrections(ipm_ws *S, const merit_t *m, const filter_t 
       ls->alpha = asoc;
       return 0;
     }
-    if (!ok || ls->trial.theta > IPM_KAPPA_SOC * theta_prev) return 0;
+    if (!ok || ls->trial.theta > IPM_KAPPA_SOC * theta_prev) break;
     theta_prev = ls->trial.theta;
+  }
+  if (S->resto) {
+    memcpy(S->dpe, S->dpe_keep, sizeof(double) * ng);
+    memcpy(S->dne, S->dne_keep, sizeof(double) * ng);
   }
   return 0;
 }
@@ -769,6 +880,14 @@ static void take_step(ipm_ws *S, double alpha, double ad) {
     S->vl[i] += ad * S->dvl[i];
     S->vu[i] += ad * S->dvu[i];
   }
+  if (S->resto)
+    for (int i = 0; i < S->ng; ++i) {
+      if (!ELASTIC(i)) continue;
+      S->pe[i] += alpha * S->dpe[i];
+      S->ne[i] += alpha * S->dne[i];
+      S->zp[i] += ad * S->dzp[i];
+      S->zn[i] += ad * S->dzn[i];
+    }
 }
 
 /* z kept within [b / kappa_sigma, kappa_sigma b], b = mu / slack (IPOPT's kappa_Sigma safeguard). */
@@ -790,9 +909,197 @@ static void clip_bound_multipliers(ipm_ws *S, double mu) {
     if (isfinite(lg[i])) vl[i] = clip_multiplier(vl[i], mu / (s[i] - lg[i]));
     if (isfinite(ug[i])) vu[i] = clip_multiplier(vu[i], mu / (ug[i] - s[i]));
   }
+  if (S->resto)
+    for (int i = 0; i < ng; ++i)
+      if (ELASTIC(i)) {
+        S->zp[i] = clip_multiplier(S->zp[i], mu / S->pe[i]);
+        S->zn[i] = clip_multiplier(S->zn[i], mu / S->ne[i]);
+      }
+}
+
+/* ------------------------------------------------------------------ restoration phase -- */
+/*
+ * IPOPT's restoration phase (Waechter & Biegler 2006, section 3.3): from the point x_R where the
+ * line search failed, the l1 elastic feasibility problem
+ *
+ *     min  rho sum_i (pe_i + ne_i) + zeta/2 sum_j dr2_j (x_j - xr_j)^2
+ *     s.t. c_i(x, s) - pe_i + ne_i = 0,  pe, ne >= 0,  x and s within their bounds,
+ *
+ * (c: the scaled residual g - s of an inequality row, g - lbg of an equality row; zeta =
+ * IPM_RESTO_PROXIMITY sqrt(mu); dr2_j = min(1, 1/|xr_j|)^2) is solved by the same barrier method.
+ * pe, ne carry log barriers; their Newton steps are eliminated row by row, which only adds
+ * 1/(sigma_pe + dw) + 1/(sigma_ne + dw) to the row's diagonal of the augmented matrix and a term to
+ * its right-hand side (elastic_rhs): the band, its pattern and its bandwidth are those of the
+ * original problem. Fixing rows (initial value embedding) get no elastic pair: they stay exact.
+ *
+ * Ends: (a) the original violation theta = |c|_1 fell below IPM_KAPPA_RESTO times its value at
+ * the failure (phase1: the unscaled violation <= constr_viol_tol): back to the original problem;
+ * (b) the feasibility problem converged (scaled KKT error <= tol at mu <= resto_mu_cert) with the
+ * unscaled violation still above constr_viol_tol: a stationary point of the l1 violation with
+ * positive violation, the certificate of local infeasibility; (c) anything else: undecided.
+ */
+
+static double resto_objective(ipm_ws *S, const double *xv, double a, double mu) {
+  double f = 0.0;
+  for (int j = 0; j < S->nw; ++j) { double d = xv[j] - S->xr[j]; f += S->dr2[j] * d * d; }
+  f *= 0.5 * S->zeta;
+  for (int i = 0; i < S->ng; ++i) {
+    if (!ELASTIC(i)) continue;
+    S->pet[i] = S->pe[i] + a * S->dpe[i];
+    S->net[i] = S->ne[i] + a * S->dne[i];
+    f += S->rho * (S->pet[i] + S->net[i]) - mu * (log(S->pet[i]) + log(S->net[i]));
+  }
+  return f;
+}
+
+/* The proximity term's value (*fval) and gradient (grad) at x, with the current zeta. */
+static void resto_gradient(ipm_ws *S, double *fval) {
+  double f = 0.0;
+  for (int j = 0; j < S->nw; ++j) {
+    double d = S->x[j] - S->xr[j];
+    S->grad[j] = S->zeta * S->dr2[j] * d;
+    f += S->dr2[j] * d * d;
+  }
+  *fval = 0.5 * S->zeta * f;
+}
+
+/* g and J at x (scaled), the proximity objective and its gradient. */
+static int resto_evaluate(ipm_ws *S, double *fval) {
+  const ipm_struct *st = S->st;
+  if (call(&S->E, st->f_jac_g, S->x, S->p, 0, 0, S->g, S->jraw)) return IPM_EVALUATION_ERROR;
+  for (int e = 0; e < st->n_j; ++e) S->jac[e] = S->jraw[e] * S->dc[st->j_rows[e]];
+  for (int i = 0; i < S->ng; ++i) S->g[i] *= S->dc[i];
+  resto_gradient(S, fval);
+  return IPM_CONVERGED;
+}
+
+/* ne >= 0 of the pair minimising rho (pe + ne) - mu log(pe) - mu log(ne) with pe - ne = c
+   (IPOPT's start of the elastic variables), in a form without cancellation. */
+static double elastic_start(double c, double mu, double rho) {
+  double a = (mu - rho * c) / (2.0 * rho), b = mu * c / (2.0 * rho);
+  double r = sqrt(a * a + b);
+  return a >= 0.0 ? a + r : b / (r - a);
+}
+
+/* The restoration problem's start at the current (x, s): reference point, elastic pairs at their
+   barrier minimisers, y = 0, bound multipliers centred (slack * multiplier = mu). */
+static int resto_start(ipm_ws *S, double mu) {
+  const double *lbg = S->lbg, *ubg = S->ubg;
+  const int nw = S->nw, ng = S->ng;
+  if (call(&S->E, S->st->f_g, S->x, S->p, 0, 0, S->g, 0)) return IPM_EVALUATION_ERROR;
+  for (int j = 0; j < nw; ++j) {
+    double d = fmin(1.0, 1.0 / fabs(S->x[j]));
+    S->xr[j] = S->x[j];
+    S->dr2[j] = d * d;
+    S->zl[j] = isfinite(S->lx[j]) ? mu / (S->x[j] - S->lx[j]) : 0.0;
+    S->zu[j] = isfinite(S->ux[j]) ? mu / (S->ux[j] - S->x[j]) : 0.0;
+  }
+  for (int i = 0; i < ng; ++i) {
+    S->y[i] = 0.0;
+    if (!IS_EQ(i)) {
+      S->vl[i] = isfinite(S->lg[i]) ? mu / (S->s[i] - S->lg[i]) : 0.0;
+      S->vu[i] = isfinite(S->ug[i]) ? mu / (S->ug[i] - S->s[i]) : 0.0;
+    }
+    if (!ELASTIC(i)) continue;
+    double gi = S->g[i] * S->dc[i];
+    double c = IS_EQ(i) ? gi - S->lg[i] : gi - S->s[i];
+    S->ne[i] = elastic_start(c, mu, S->rho);
+    S->pe[i] = c + S->ne[i];
+    if (!(S->pe[i] > 0.0)) S->pe[i] = mu / S->rho; /* round-off when c << 0 */
+    S->zp[i] = mu / S->pe[i];
+    S->zn[i] = mu / S->ne[i];
+  }
+  return IPM_CONVERGED;
+}
+
+/* |c|_1 of the original rows (scaled) at the current (x, s), from the residuals' cres. */
+static double original_theta(const ipm_ws *S) {
+  double th = 0.0;
+  for (int i = 0; i < S->ng; ++i) th += fabs(ELASTIC(i) ? S->cres[i] - S->ne[i] + S->pe[i] : S->cres[i]);
+  return th;
+}
+
+/* One restoration phase from the current point (the original problem's mu0, its theta at the
+   failure theta_fail). Returns IPM_CONVERGED when the original problem may go on from the new
+   point, else the status that ends the solve. */
+static int restoration(ipm_ws *S, double mu0, double theta_fail, int phase1, ipm_stats *stats) {
+  const ipm_opts *o = S->o;
+  const ipm_struct *st = S->st;
+  double zero = 0.0, fval = 0.0;
+  stats->resto_calls++;
+  S->resto = 1;
+  S->rho = o->resto_rho;
+  /* mu_R = max(mu, |c|_inf) as in IPOPT, from the scaled residual of the original rows */
+  double cmax = 0.0;
+  if (call(&S->E, st->f_g, S->x, S->p, 0, 0, S->g, 0)) { S->resto = 0; return IPM_EVALUATION_ERROR; }
+  for (int i = 0; i < S->ng; ++i) {
+    double gi = S->g[i] * S->dc[i];
+    if (!S->fixed[i]) cmax = fmax(cmax, fabs(S->lbg[i] == S->ubg[i] ? gi - S->lg[i] : gi - S->s[i]));
+  }
+  double mu = fmax(mu0, cmax);
+  S->zeta = IPM_RESTO_PROXIMITY * sqrt(mu);
+  int status = resto_start(S, mu);
+  filter_t F = {.n = 0, .mu = -1.0, .theta_max = INFINITY};
+  double dw_last = 0.0;
+  for (int it = 0; status == IPM_CONVERGED; ++it) {
+    if (resto_evaluate(S, &fval)) { status = IPM_EVALUATION_ERROR; break; }
+    kkt_errors err = residuals(S);
+    double theta = original_theta(S);
+    double err0 = fmax(err.inf_du / err.sd, fmax(err.inf_pr, err.inf_co / err.sc));
+    stats->inf_pr = err.viol_unscaled; stats->mu = mu;
+    stats->cert_violation = theta; stats->cert_stationarity = err0; stats->cert_mu = mu;
+    if (!isfinite(err0)) { status = IPM_RESTORATION_FAILED; break; }
+    int feasible = err.viol_unscaled <= o->constr_viol_tol;
+    if (phase1 ? feasible : theta < IPM_KAPPA_RESTO * theta_fail) break; /* restored */
+    if (err0 <= o->tol && mu <= o->resto_mu_cert) {
+      status = feasible ? IPM_CONVERGED : IPM_INFEASIBLE_PROBLEM_DETECTED;
+      break;
+    }
+    if (it >= o->resto_max_iter) { status = IPM_RESTORATION_FAILED; break; }
+    mu = update_barrier(S, mu, &err);
+    S->zeta = IPM_RESTO_PROXIMITY * sqrt(mu);
+    resto_gradient(S, &fval);
+    double tau = fmax(IPM_TAU_MIN, 1.0 - mu);
+    for (int i = 0; i < S->ng; ++i) S->tmp[i] = S->y[i] * S->dc[i];
+    if (call(&S->E, st->f_hess_l, S->x, S->p, &zero, S->tmp, S->hess, 0)) { status = IPM_EVALUATION_ERROR; break; }
+    barrier_diagonals(S);
+    double dw = 0.0;
+    if (newton_step(S, mu, dw_last, &dw, stats)) { status = IPM_RESTORATION_FAILED; break; }
+    dw_last = dw;
+    bound_multiplier_steps(S, mu);
+    double ap = primal_step_max(S, S->dx, S->ds, tau);
+    double ad = dual_step_max(S, tau);
+    merit_t m = current_merit(S, fval, mu);
+    if (mu != F.mu) { F.n = 0; F.mu = mu; F.theta_max = IPM_THETA_MAX_FACTOR * fmax(1.0, m.theta0); }
+    search_t ls;
+    if (line_search(S, &m, &F, ap, mu, dw, tau, &ls, stats)) { status = IPM_EVALUATION_ERROR; break; }
+    if (ls.soc_used) { bound_multiplier_steps(S, mu); ad = dual_step_max(S, tau); }
+    if (o->verbose)
+      fprintf(stderr, "resto %2d mu %.1e theta %.2e elastic %.2e phi0 %.6e err0 %.2e ap %.3e alpha %.3e dw %.1e\n",
+              it, mu, theta, m.theta0, m.phi0, err0, ap, ls.alpha, dw);
+    if (!ls.accepted) { status = IPM_RESTORATION_FAILED; break; }
+    if (!ls.f_type) augment_filter(&F, &m);
+    take_step(S, ls.alpha, ad);
+    clip_bound_multipliers(S, mu);
+    stats->resto_iterations++;
+  }
+  S->resto = 0;
+  return status;
+}
+
+/* Back to the original problem after a restoration: its multipliers restart from y = 0 (the
+   restoration's y belong to the l1 problem); the bound multipliers are the restoration's. */
+static void leave_restoration(ipm_ws *S) {
+  for (int i = 0; i < S->ng; ++i) S->y[i] = 0.0;
 }
 
 /* ----------------------------------------------------------------------------- the solver -- */
+
+/* Outputs in CasADi's convention (unscaled). */
+static void write_multipliers(const ipm_ws *S, double *lam_x, double *lam_g) {
+  for (int i = 0; i < S->ng; ++i) lam_g[i] = S->y[i] * S->dc[i];
+  for (int j = 0; j < S->nw; ++j) lam_x[j] = S->zu[j] - S->zl[j];
+}
 
 static int finish(ipm_stats *stats, int status) {
   stats->status = status;
@@ -827,11 +1134,17 @@ int ipm_solve(const ipm_struct *st, const ipm_opts *o, const double *p, const do
   double mu = 0.0, fval = 0.0, one = 1.0;
   int status = start(S, lam_x, lam_g, stats, &mu);
   if (status) return finish(stats, status);
+  if (o->phase1) {
+    status = restoration(S, mu, INFINITY, 1, stats);
+    stats->iterations = stats->resto_iterations;
+    write_multipliers(S, lam_x, lam_g);
+    return finish(stats, status == IPM_CONVERGED ? IPM_FEASIBLE_POINT_FOUND : status);
+  }
 
   filter_t F = {.n = 0, .mu = -1.0, .theta_max = INFINITY};
   double dw_last = 0.0; /* last successful primal regularisation */
   for (int it = 0; it <= o->max_iter; ++it) {
-    stats->iterations = it;
+    stats->iterations = it + stats->resto_iterations;
     if (evaluate(S, &fval)) return finish(stats, IPM_EVALUATION_ERROR);
     kkt_errors err = residuals(S);
     stats->inf_pr = err.viol_unscaled; stats->inf_du = err.inf_du / err.sd; stats->mu = mu;
@@ -865,15 +1178,21 @@ int ipm_solve(const ipm_struct *st, const ipm_opts *o, const double *p, const do
     if (o->verbose)
       fprintf(stderr, "it %2d mu %.1e theta0 %.2e phi0 %.6e dphi %.2e inf_du %.2e err0 %.2e ap %.3e ad %.3e alpha %.3e dw %.1e %s\n",
               it, mu, m.theta0, m.phi0, m.dphi, err.inf_du / err.sd, err0, ap, ad, ls.alpha, dw, ls.f_type ? "f" : "h");
+    if (!ls.accepted && o->restoration && stats->resto_calls < IPM_MAX_RESTO_CALLS) {
+      status = restoration(S, mu, m.theta0, 0, stats);
+      stats->iterations = it + stats->resto_iterations;
+      if (status != IPM_CONVERGED) { write_multipliers(S, lam_x, lam_g); return finish(stats, status); }
+      leave_restoration(S);
+      F.mu = -1.0; /* a new filter from the restored point */
+      continue;
+    }
     if (!ls.accepted) return finish(stats, IPM_LINE_SEARCH_FAILED);
     if (!ls.f_type) augment_filter(&F, &m);
     if (it == 0) stats->first_alpha = ls.soc_used ? -ls.alpha : ls.alpha; /* negative: a corrected step */
     take_step(S, ls.alpha, ad);
     clip_bound_multipliers(S, mu);
   }
-  /* outputs in CasADi's convention */
-  for (int i = 0; i < S->ng; ++i) lam_g[i] = S->y[i] * S->dc[i];
-  for (int j = 0; j < S->nw; ++j) lam_x[j] = S->zu[j] - S->zl[j];
+  write_multipliers(S, lam_x, lam_g);
   return stats->status;
 }
 
@@ -895,16 +1214,18 @@ int ipm_abi_layout(int64_t *out, int cap) {
     OFF(ipm_struct, f_g), OFF(ipm_struct, f_grad_f), OFF(ipm_struct, f_jac_g), OFF(ipm_struct, f_hess_l),
     OFF(ipm_struct, work_sizes), OFF(ipm_struct, n_fix), OFF(ipm_struct, fix_row), OFF(ipm_struct, fix_var),
     OFF(ipm_struct, fix_coef),
-    (int64_t)sizeof(ipm_opts), 13,
+    (int64_t)sizeof(ipm_opts), 18,
     OFF(ipm_opts, tol), OFF(ipm_opts, constr_viol_tol), OFF(ipm_opts, mu_init), OFF(ipm_opts, mu_min),
     OFF(ipm_opts, bound_push), OFF(ipm_opts, mult_push), OFF(ipm_opts, bound_relax), OFF(ipm_opts, max_iter),
     OFF(ipm_opts, warm), OFF(ipm_opts, verbose), OFF(ipm_opts, theta_far), OFF(ipm_opts, mu_far),
-    OFF(ipm_opts, push_far),
-    (int64_t)sizeof(ipm_stats), 12,
+    OFF(ipm_opts, push_far), OFF(ipm_opts, restoration), OFF(ipm_opts, phase1), OFF(ipm_opts, resto_max_iter),
+    OFF(ipm_opts, resto_rho), OFF(ipm_opts, resto_mu_cert),
+    (int64_t)sizeof(ipm_stats), 17,
     OFF(ipm_stats, iterations), OFF(ipm_stats, status), OFF(ipm_stats, factorisations),
     OFF(ipm_stats, regularised), OFF(ipm_stats, backtracks), OFF(ipm_stats, soc), OFF(ipm_stats, far),
     OFF(ipm_stats, inf_pr), OFF(ipm_stats, inf_du), OFF(ipm_stats, mu), OFF(ipm_stats, theta_start),
-    OFF(ipm_stats, first_alpha),
+    OFF(ipm_stats, first_alpha), OFF(ipm_stats, resto_calls), OFF(ipm_stats, resto_iterations),
+    OFF(ipm_stats, cert_violation), OFF(ipm_stats, cert_stationarity), OFF(ipm_stats, cert_mu),
   };
   const int count = (int)(sizeof layout / sizeof layout[0]);
   if (count <= cap) memcpy(out, layout, sizeof layout);
@@ -921,6 +1242,9 @@ const char *ipm_status_name(int status) {
     [IPM_REGULARISATION_FAILED] = "Regularisation_Failed",
     [IPM_NONFINITE] = "Nonfinite",
     [IPM_EVALUATION_ERROR] = "Evaluation_Error",
+    [IPM_INFEASIBLE_PROBLEM_DETECTED] = "Infeasible_Problem_Detected",
+    [IPM_RESTORATION_FAILED] = "Restoration_Failed",
+    [IPM_FEASIBLE_POINT_FOUND] = "Feasible_Point_Found",
   };
   return status >= 0 && status < IPM_STATUS_COUNT ? names[status] : NULL;
 }

@@ -28,7 +28,7 @@
 #include <stdint.h>
 
 /* Raised when a struct's meaning changes; ipm.py refuses a library of another version. */
-#define IPM_ABI_VERSION 1
+#define IPM_ABI_VERSION 2
 
 /* ------------------------------------------------------------------------- status codes ---- */
 
@@ -42,7 +42,15 @@ enum ipm_status {
   IPM_NONFINITE = 4,             /* an infinite dual or primal residual (the max-norms use fmax, which
                                     skips NaN: a NaN derivative ends in IPM_REGULARISATION_FAILED) */
   IPM_EVALUATION_ERROR = 5,      /* a generated function returned nonzero */
-  IPM_STATUS_COUNT = 6
+  /* only with ipm_opts.restoration or ipm_opts.phase1 (never returned otherwise): */
+  IPM_INFEASIBLE_PROBLEM_DETECTED = 6, /* certificate of local infeasibility: the restoration phase
+                                    converged (its scaled KKT error <= tol at mu <= resto_mu_cert) to
+                                    a point whose unscaled violation exceeds constr_viol_tol; the
+                                    measured violation and stationarity are in ipm_stats.cert_* */
+  IPM_RESTORATION_FAILED = 7,    /* undecided: the restoration phase neither restored feasibility
+                                    nor converged (its iteration limit, line search or factorisation) */
+  IPM_FEASIBLE_POINT_FOUND = 8,  /* phase1 only: a point with unscaled violation <= constr_viol_tol */
+  IPM_STATUS_COUNT = 9
 };
 
 /* Kinds of KKT entries in ipm_struct.ent_kind (mcverify.solver.kkt.KIND_*). */
@@ -86,6 +94,10 @@ enum ipm_entry_kind {
 #define IPM_S_THETA 1.1
 #define IPM_MAX_FILTER 256             /* filter entries kept at most (more are not added) */
 #define IPM_KAPPA_SIGMA 1e10           /* bound multipliers stay within [b / kappa, kappa b], b = mu / slack */
+/* Restoration phase (IPOPT's l1 elastic problem, section 3.3 of Waechter & Biegler 2006) */
+#define IPM_KAPPA_RESTO 0.9            /* back to the problem once theta <= this theta at the failure */
+#define IPM_RESTO_PROXIMITY 1.0        /* zeta = this sqrt(mu): weight of the proximity term */
+#define IPM_MAX_RESTO_CALLS 3          /* restoration phases per solve at most */
 
 /* ----------------------------------------------------------------------------- structs ---- */
 
@@ -122,6 +134,13 @@ typedef struct {
   int max_iter, warm, verbose; /* warm: start from the caller's multipliers; verbose: a line per iteration on stderr */
   /* a warm start whose largest scaled constraint violation exceeds theta_far uses mu_far, push_far */
   double theta_far, mu_far, push_far;
+  /* ABI 2. restoration: a failed line search starts the restoration phase (0: it ends the solve, the
+     behaviour of ABI 1); phase1: solve only the feasibility problem from the start (ends with
+     IPM_FEASIBLE_POINT_FOUND, IPM_INFEASIBLE_PROBLEM_DETECTED or IPM_RESTORATION_FAILED);
+     resto_max_iter: iterations of one restoration phase at most; resto_rho: the l1 penalty (IPOPT's
+     1000); resto_mu_cert: a certificate needs the restoration's barrier parameter at most this */
+  int restoration, phase1, resto_max_iter;
+  double resto_rho, resto_mu_cert;
 } ipm_opts;
 
 /* Counters and errors of one solve (written by ipm_solve). */
@@ -132,6 +151,12 @@ typedef struct {
   double mu;          /* barrier parameter of the last iteration */
   double theta_start; /* largest scaled violation at the (embedded) start */
   double first_alpha; /* primal step of iteration 0 (negative: a second-order corrected step) */
+  /* ABI 2: restoration phases and their iterations (also counted in iterations); at the end of the
+     last restoration phase: cert_violation, the l1 norm of the scaled constraint violation (the
+     measured violation of a certificate), cert_stationarity, the scaled KKT error of the l1
+     feasibility problem (its stationarity) and cert_mu its barrier parameter (nan: no restoration) */
+  int resto_calls, resto_iterations;
+  double cert_violation, cert_stationarity, cert_mu;
 } ipm_stats;
 
 /* ------------------------------------------------------------------------- functions ---- */

@@ -1,0 +1,223 @@
+"""Record the engine's backend solves of closed loops and replay them on the C interior point.
+
+Replaying recorded problems is far cheaper than running episodes: one Table IV episode costs
+about 12 CPU-s, its ~400 backend solves replay on the IPM in a second or two. Used to measure the
+restoration phase and the phase-1 certificates of :mod:`mcverify.solver.ipm` on the problems the
+engine met (which IPOPT certified infeasible, which it rescued) and to check that the default
+IPM attempts reproduce the recorded ones bit for bit (``tests/bench/test_recorded_ipm.py``).
+
+A :class:`RecordedSolve` holds what :meth:`mcverify.solver.backends.IpmBackend.solve` got (the
+parameter vector, the warm start, the cold guess) and what the engine answered (status string,
+success); the kernel and bounds are held once per problem structure (:class:`ProblemKey`).
+Recordings are pickled (:func:`save`, :func:`load`); nothing of them is committed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import pickle
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from mcverify.solver.backends import IpmBackend, Start
+from mcverify.solver.ipm import Ipm, IpmOptions, IpmResult
+
+
+@dataclass(frozen=True)
+class ProblemKey:
+    """One problem structure: the kernel's shared object and the NLP's bounds."""
+
+    kernel_so: str
+    lbx: np.ndarray
+    ubx: np.ndarray
+    lbg: np.ndarray
+    ubg: np.ndarray
+
+
+@dataclass(frozen=True)
+class RecordedSolve:
+    """One backend solve: problem index (into :attr:`Recording.problems`), p (n_p,), the warm start
+    (or None), the cold guess (n_w,), fast_only, and the engine's answer (``str`` of its status,
+    success, IPM attempts' statuses in order)."""
+
+    problem: int
+    p: np.ndarray
+    warm: Start | None
+    guess: np.ndarray
+    fast_only: bool
+    status: str
+    success: bool
+    attempts: tuple[str, ...]
+
+    @property
+    def certified_by_ipopt(self) -> bool:
+        """The IPM failed and IPOPT, as the fallback, reported local infeasibility."""
+        return self.status == "fallback:Infeasible_Problem_Detected"
+
+    @property
+    def rescued_by_ipopt(self) -> bool:
+        """The IPM failed and IPOPT, as the fallback, solved it."""
+        return self.success and self.status.startswith("fallback:")
+
+
+@dataclass
+class Recording:
+    problems: list[ProblemKey] = dataclasses.field(default_factory=list)
+    solves: list[RecordedSolve] = dataclasses.field(default_factory=list)
+
+
+class RecordingBackend:
+    """Wraps an :class:`IpmBackend`: every solve's inputs and answer go into ``recording``."""
+
+    def __init__(self, backend: IpmBackend, recording: Recording) -> None:
+        self.backend = backend
+        self.recording = recording
+        pr = backend.problem
+        recording.problems.append(ProblemKey(str(pr.kernel.so_path), pr.lbx, pr.ubx, pr.lbg, pr.ubg))
+        self.index = len(recording.problems) - 1
+
+    def solve(self, p, warm, guess, fast_only: bool = False):
+        g = np.array(guess(), dtype=float)
+        before = dict(self.backend.ipm_outcomes)
+        res = self.backend.solve(p, warm, lambda: g.copy(), fast_only=fast_only)
+        # this solve's attempt tags ("warm1:<status>", ..., "cold3:<status>"), in attempt order
+        new = [t for t, n in self.backend.ipm_outcomes.items() if n > before.get(t, 0)]
+        attempts = tuple(sorted(new, key=lambda t: int(t.split(":")[0].lstrip("warmcold"))))
+        w = None if warm is None else Start(np.array(warm.x), np.array(warm.lam_x), np.array(warm.lam_g))
+        self.recording.solves.append(RecordedSolve(
+            self.index, np.array(p, dtype=float), w, g, bool(fast_only), str(res.status), bool(res.success), attempts))
+        return res
+
+    def __getattr__(self, name):
+        return getattr(self.backend, name)
+
+
+def record_engine(cells: Sequence, seed: int, episode_ids: Sequence[int], common_random_numbers: bool = False
+                  ) -> Recording:
+    """Run ``episode_ids`` of every cell with the engine (its ``ipm`` backend) and record every
+    backend solve (``common_random_numbers``: the campaign's setting, see ``run_episodes``)."""
+    from mcverify.control.planner import Planner
+    from mcverify.episode.rollout import run_episodes
+    from mcverify.solver.mpc import MpcSolver
+
+    rec = Recording()
+
+    def factory(params, structure):
+        solver = MpcSolver(params, structure)
+        solver.backend = RecordingBackend(solver.backend, rec)
+        return solver
+
+    for cell in cells:
+        if cell.params.mpc.backend != "ipm":
+            raise ValueError(f"cell {cell.name}: record_engine needs the ipm backend")
+        run_episodes(cell, list(episode_ids), seed, Planner(cell.params, solver_factory=factory),
+                     common_random_numbers=common_random_numbers)
+    return rec
+
+
+def save(rec: Recording, path: str | Path) -> None:
+    Path(path).write_bytes(pickle.dumps(rec, protocol=pickle.HIGHEST_PROTOCOL))
+
+
+def load(path: str | Path) -> Recording:
+    return pickle.loads(Path(path).read_bytes())  # noqa: S301 - our own benchmark files
+
+
+class Replayer:
+    """The C IPM on every problem structure of a recording (one :class:`Ipm` per structure)."""
+
+    def __init__(self, rec: Recording, library_so: str | Path) -> None:
+        self.rec = rec
+        self.ipms = [Ipm(k.kernel_so, k.lbx, k.ubx, k.lbg, k.ubg, library_so) for k in rec.problems]
+
+    def solve(self, s: RecordedSolve, options: IpmOptions, warm: bool) -> IpmResult:
+        """One IPM solve of ``s`` from its warm start (``warm``; requires one) or its cold guess."""
+        ipm = self.ipms[s.problem]
+        if warm:
+            return ipm.solve(s.p, s.warm.x, s.warm.lam_x, s.warm.lam_g, options)
+        return ipm.solve(s.p, s.guess, None, None, options)
+
+    def engine_attempts(self, s: RecordedSolve, warm_attempts: Iterable[IpmOptions], cold: IpmOptions
+                        ) -> list[IpmResult]:
+        """The IPM attempts of :meth:`IpmBackend.solve` in order, up to the first converged one."""
+        out = []
+        starts = ([(o, True) for o in warm_attempts] if s.warm is not None else []) + [(cold, False)]
+        for o, w in starts:
+            out.append(self.solve(s, o, w))
+            if out[-1].success:
+                break
+        return out
+
+
+# ------------------------------------------------------------------ infeasibility verdicts
+
+
+def engine_class(s: RecordedSolve) -> str:
+    """What the engine made of ``s``: "converged" (by the IPM), "rescued" / "certified" (by IPOPT
+    as the fallback), "presumed" (IPM only, memo), "other" (IPOPT failed otherwise)."""
+    if s.status.startswith("presumed_infeasible:"):
+        return "presumed"
+    if s.certified_by_ipopt:
+        return "certified"
+    if s.rescued_by_ipopt:
+        return "rescued"
+    return "converged" if s.success else "other"
+
+
+@dataclass(frozen=True)
+class Verdicts:
+    """The C restoration phase on one recorded solve: phase 1 from the warm start (None: no warm
+    start) and from the cold guess (status names), the start-independent verdict ("infeasible" if
+    every phase 1 certified, "feasible" if one found a feasible point, else "undecided"), and the
+    engine's IPM attempts rerun with the restoration phase on (did one converge; its status list).
+    cpu_s: CPU seconds of the phase-1 runs and of the restoration attempts."""
+
+    engine: str
+    phase1_warm: str | None
+    phase1_cold: str
+    verdict: str
+    resto_converged: bool
+    resto_attempts: tuple[str, ...]
+    phase1_cpu_s: float
+    resto_cpu_s: float
+
+
+def verdicts(rp: Replayer, s: RecordedSolve, tol: float) -> Verdicts:
+    """Replay ``s`` under the phase-1 certificate and the restoration-enabled attempts."""
+    import time
+
+    from mcverify.solver.ipm import COLD, WARM_ATTEMPTS
+
+    t0 = time.process_time()
+    warm = None if s.warm is None else rp.solve(s, dataclasses.replace(WARM_ATTEMPTS[0], tol=tol, phase1=True), True)
+    cold = rp.solve(s, dataclasses.replace(COLD, tol=tol, phase1=True), False)
+    t1 = time.process_time()
+    runs = [r.status for r in (warm, cold) if r is not None]
+    if all(st == "Infeasible_Problem_Detected" for st in runs):
+        verdict = "infeasible"
+    elif "Feasible_Point_Found" in runs:
+        verdict = "feasible"
+    else:
+        verdict = "undecided"
+    attempts = rp.engine_attempts(s, [dataclasses.replace(o, tol=tol, restoration=True) for o in WARM_ATTEMPTS],
+                                  dataclasses.replace(COLD, tol=tol, restoration=True))
+    t2 = time.process_time()
+    return Verdicts(engine_class(s), None if warm is None else warm.status, cold.status, verdict,
+                    attempts[-1].success, tuple(a.status for a in attempts), t1 - t0, t2 - t1)
+
+
+def verdict_table(rows: Sequence[Verdicts]) -> dict[str, dict[str, int]]:
+    """engine class -> {start-independent verdict: count, "resto_converged": count, "solves": count}."""
+    out: dict[str, dict[str, int]] = {}
+    for v in rows:
+        d = out.setdefault(v.engine, {"solves": 0, "infeasible": 0, "feasible": 0, "undecided": 0,
+                                      "warm_only_infeasible": 0, "resto_converged": 0})
+        d["solves"] += 1
+        d[v.verdict] += 1
+        d["resto_converged"] += int(v.resto_converged)
+        warm_cert = v.phase1_warm == "Infeasible_Problem_Detected"
+        d["warm_only_infeasible"] += int(warm_cert and v.phase1_cold != "Infeasible_Problem_Detected")
+    return out

@@ -1,0 +1,58 @@
+"""Recording the engine's backend solves and replaying them on the C interior point
+(mcverify.bench.recorded_ipm): the replay reproduces the recorded IPM attempts, and the phase-1 /
+restoration verdicts are computed per solve."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from mcverify.bench import recorded_ipm as R
+from mcverify.campaign.spec import campaign_from_dict
+from mcverify.solver import kernels
+from mcverify.solver.backends import Start
+from mcverify.solver.ipm import COLD, WARM_ATTEMPTS
+
+
+def _short_cell():
+    raw = {"campaign": {"name": "rec", "seed": 3, "episodes": 1},
+           "model": {"sim": {"max_time_s": 0.2}, "noise": {"kind": "paper"}}}
+    return campaign_from_dict(raw).cells[0]
+
+
+def test_replay_reproduces_the_recorded_attempts(tmp_path):
+    cell = _short_cell()
+    rec = R.record_engine([cell], 3, [0])
+    assert len(rec.solves) >= 10 and len(rec.problems) >= 1
+    R.save(rec, tmp_path / "rec.pkl")
+    rec = R.load(tmp_path / "rec.pkl")
+    rp = R.Replayer(rec, kernels.get_runtime_library("ipm").so_path)
+    tol = cell.params.mpc.tol
+    warm = [dataclasses.replace(o, tol=tol) for o in WARM_ATTEMPTS]
+    for s in rec.solves:
+        replayed = rp.engine_attempts(s, warm, dataclasses.replace(COLD, tol=tol))
+        assert tuple(r.status for r in replayed) == tuple(t.split(":", 1)[1] for t in s.attempts)
+        assert s.success == (replayed[-1].success or s.rescued_by_ipopt)
+
+
+def test_verdicts_of_a_recorded_infeasible_solve():
+    """A recorded solve whose warm start is the cold guess of an infeasible problem (front too fast)."""
+    from mcverify.model import ModelParams
+    from mcverify.solver.mpc import MpcSolver
+
+    params = ModelParams()
+    solver = MpcSolver(params)
+    rec = R.Recording()
+    solver.backend = R.RecordingBackend(solver.backend, rec)
+    ego = np.array([10.0, 0.0, 0.0, 10.0])
+    solver.solve(ego, np.array([64.0, 0.0, 18.0]), 1, -(0.3 + 0.5 * 0.3**3))
+    (s,) = rec.solves
+    assert s.certified_by_ipopt and R.engine_class(s) == "certified" and s.attempts == ("cold1:Line_Search_Failed",)
+    s = dataclasses.replace(s, warm=Start(s.guess, np.zeros(s.guess.size), np.zeros(rec.problems[0].lbg.size)))
+    v = R.verdicts(R.Replayer(rec, kernels.get_runtime_library("ipm").so_path), s, params.mpc.tol)
+    assert (v.phase1_warm, v.phase1_cold, v.verdict) == ("Infeasible_Problem_Detected",) * 2 + ("infeasible",)
+    assert not v.resto_converged and v.phase1_cpu_s > 0
+    table = R.verdict_table([v])
+    assert table == {"certified": {"solves": 1, "infeasible": 1, "feasible": 0, "undecided": 0,
+                                   "warm_only_infeasible": 0, "resto_converged": 0}}
