@@ -550,6 +550,8 @@ def _cmd_replay(args) -> int:
         print(f"mcverify: replay FAILED: {err}", file=sys.stderr)
         return EXIT_MISMATCH
     print(f"episode {res.episode_id} reproduced exactly ({res.row['outcome']}, safe={res.row['safe']})")
+    if res.not_stored:
+        print(f"(not compared: {len(res.not_stored)} column(s) newer than the run: {', '.join(res.not_stored)})")
     print(f"trajectory: {res.trajectory_path}")
     print(f"plot: {res.plot_path}")
     return 0

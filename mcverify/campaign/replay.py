@@ -29,6 +29,8 @@ class ReplayResult:
     trajectory_path: Path
     plot_path: Path
     row: dict
+    #: Columns the replay produced that the stored run has not (it was made by an older version).
+    not_stored: tuple[str, ...] = ()
 
 
 def replay(run_dir: Path, episode_id: int, out_dir: Path | None = None) -> ReplayResult:
@@ -77,14 +79,16 @@ def replay(run_dir: Path, episode_id: int, out_dir: Path | None = None) -> Repla
     if diffs:
         detail = "; ".join(f"{k}: stored {a!r} vs replayed {b!r}" for k, (a, b) in diffs.items())
         raise ReplayMismatch(f"episode {episode_id} does not reproduce: {detail}")
-    return ReplayResult(episode_id, traj_path, plot_path, row)
+    not_stored = tuple(k for k in row if k not in stored and k not in TIMING_COLUMNS)
+    return ReplayResult(episode_id, traj_path, plot_path, row, not_stored)
 
 
 def compare_rows(stored: dict, replayed: dict) -> dict[str, tuple]:
-    """Columns whose values differ (bit for bit; NaN equals NaN); timing columns are skipped."""
+    """Columns whose values differ (bit for bit; NaN equals NaN); timing columns are skipped, and so
+    are columns the stored run does not have (added to the schema after it was made)."""
     diffs = {}
     for key, value in replayed.items():
-        if key in TIMING_COLUMNS:
+        if key in TIMING_COLUMNS or key not in stored:
             continue
         old = stored.get(key)
         if not _same(old, value):
