@@ -29,6 +29,8 @@ import pyarrow as pa
 
 #: ``outcome`` of an episode that could not be simulated (its metrics are null).
 ERROR_OUTCOME = "error"
+#: ``outcome`` of an episode a falsification search ended at its first violation (``sim.stop_at``).
+STOPPED_OUTCOME = "stopped"
 #: The column that carries an episode's error message (null for every simulated episode).
 ERROR_COLUMN = "error_message"
 

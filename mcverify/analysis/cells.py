@@ -70,7 +70,7 @@ def cells_table(summ: Mapping[str, Any]) -> pa.Table:
         for key in ("episodes_planned", "episodes", "valid"):
             put(key, pa.int64(), c[key])
         for o in OUTCOMES:
-            put(f"outcome_{o}", pa.int64(), c["outcomes"][o])
+            put(f"outcome_{o}", pa.int64(), c["outcomes"].get(o, 0))  # a summary from before "stopped" lacks it
         for r in rate_names:
             rs = c["rates"].get(r, {})
             for key, typ in (("k", pa.int64()), ("n", pa.int64())):

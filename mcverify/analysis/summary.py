@@ -26,7 +26,7 @@ import pyarrow as pa
 from mcverify import schema
 from mcverify.analysis import bounds, stats
 from mcverify.analysis.columns import Columns, bools, floats, strings
-from mcverify.schema import ERROR_OUTCOME, OUTCOME_FLAGS
+from mcverify.schema import ERROR_OUTCOME, OUTCOME_FLAGS, STOPPED_OUTCOME
 
 #: Version of the summary.json / cells.parquet layout.
 FORMAT = 2
@@ -111,8 +111,9 @@ METRICS: dict[str, Metric] = {m.name: m for m in RATE_METRICS + VALUE_METRICS}
 #: Quantiles stored for every continuous metric.
 QUANTILES = (0.0, 0.05, 0.25, 0.5, 0.75, 0.95, 1.0)
 
-#: Outcomes in report order; "error" episodes are kept apart from the safety statistics.
-OUTCOMES = (*OUTCOME_FLAGS, ERROR_OUTCOME)
+#: Outcomes in report order; "error" episodes are kept apart from the safety statistics. "stopped"
+#: occurs only in falsification searches (an episode ended at its first violation).
+OUTCOMES = (*OUTCOME_FLAGS, STOPPED_OUTCOME, ERROR_OUTCOME)
 
 #: Categorical episode columns counted per cell (empty strings are not counted): what drove the ego
 #: when it first left the safe set ("planned", "held", "fallback") and why it went back.

@@ -14,10 +14,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from mcverify.control.planner import EpisodeState
+from mcverify.schema import STOPPED_OUTCOME  # noqa: F401 - re-exported; declared once, in the schema
 from mcverify.sim.plant import SafetyTrace
-
-#: ``outcome`` of an episode ended at its first violation before reaching a goal.
-STOPPED_OUTCOME = "stopped"
 
 
 def violated(name: str, trace: SafetyTrace, states: Sequence[EpisodeState], h0: np.ndarray, epsilon: float,

@@ -25,7 +25,8 @@ from mcverify.reporting.tables import fmt_p  # noqa: E402
 
 #: Outline and label colour of a cell with at least one unsafe episode.
 UNSAFE = "crimson"
-_OUTCOME_COLOURS = {"overtook": "tab:green", "went_back": "tab:orange", "timeout": "tab:gray", "error": "black"}
+_OUTCOME_COLOURS = {"overtook": "tab:green", "went_back": "tab:orange", "timeout": "tab:gray",
+                    "stopped": "tab:red", "error": "black"}
 
 
 def unsafe_cell(cell: Mapping[str, Any]) -> bool:

@@ -29,7 +29,7 @@ def test_rates_counts_intervals_and_zero_event_bounds():
     s = summary.summarise(t)
     c = s["cells"][0]
     assert (c["episodes"], c["valid"], c["outcomes"]) == (30, 30, {"overtook": 20, "went_back": 10, "timeout": 0,
-                                                                    "error": 0})
+                                                                    "stopped": 0, "error": 0})
     assert c["rates"]["safe"] == stats.rate_summary(27, 30)
     assert c["rates"]["overtook"]["k"] == 20 and c["rates"]["went_back"]["k"] == 10
     # zero-failure cell: the exact one-sided bound, 1 - 0.05^(1/30) = 0.0950
@@ -219,3 +219,15 @@ def test_a_64_bit_seed_above_2_53_does_not_break_the_summary():
     )
     c = summary.summarise(t)["cells"][0]
     assert (c["rates"]["safe"]["k"], c["rates"]["safe"]["n"]) == (1, 2)
+
+
+def test_episodes_stopped_at_a_violation_are_counted_as_their_own_outcome():
+    """A falsification search ends episodes at their first violation (outcome "stopped")."""
+    t = _table(
+        cell=["a"] * 3, cell_index=[0] * 3, outcome=["stopped", "stopped", "overtook"],
+        safe=[False, False, True], collision_front=[True, False, False], ellipse_violation=[False, True, False],
+        min_dist_front_m=[0.0, -0.1, 0.8],
+    )
+    c = summary.summarise(t)["cells"][0]
+    assert c["outcomes"] == {"overtook": 1, "went_back": 0, "timeout": 0, "stopped": 2, "error": 0}
+    assert (c["rates"]["safe"]["k"], c["rates"]["safe"]["n"]) == (1, 3)
