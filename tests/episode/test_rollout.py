@@ -95,6 +95,7 @@ def test_vlcbf_with_a_human_opposing_driver_overtakes_safely():
     assert not row["collision_opp"] and row["min_h_front"] >= 0
 
 
+@pytest.mark.slow  # two full opposing-traffic episodes, 72 s: the default suite was 9 min 50 s
 def test_mpcdc_squeezes_in_where_vlcbf_declines():
     """Table IV Scenario A: veh_o too close and fast. The dual TO-CBF-MPC goes back at once (Table I);
     MPC-DC, with no Q2 and the ellipses only at its nodes, overtakes and leaves the safe set."""
