@@ -65,9 +65,9 @@ def falsify(args: Any) -> int:
         result = search.start(config, out, make_executor=make_executor, progress=say)
     print((result.out_dir / "report.md").read_text())
     first = result.first_counterexample
-    print(f"report: {result.out_dir / 'report.md'}; " + (f"first counterexample at episode {first}" if first else
-          f"no counterexample in {result.episodes} episodes, minimum robustness {result.min_robustness:.4g}"),
-          file=sys.stderr)
+    found = (f"first counterexample at episode {first}" if first else
+             f"no counterexample in {result.episodes} episodes, minimum robustness {result.min_robustness:.4g}")
+    print(f"report: {result.out_dir / 'report.md'} (also report.html); {found}", file=sys.stderr)
     return 0
 
 

@@ -1,9 +1,11 @@
-"""The report of a falsification search: ``OUT/report.md`` and ``OUT/figures/``.
+"""The report of a falsification search: ``OUT/report.md``, ``OUT/report.html`` and ``OUT/figures/``.
 
 Facts (method, requirement, budget and effort, the minimum robustness reached, when the first
 counterexample came), robustness against episodes (each episode and the running minimum), the
 counterexample table (:mod:`mcverify.reporting.counterexample_report`) and road snapshots of the
 worst counterexamples (every candidate's trajectory is stored in its generation folder).
+report.html is the same content as one self-contained page (:mod:`mcverify.reporting.html`, the
+renderer of run reports: tables that fit, figures embedded, unsafe rows marked).
 """
 
 from __future__ import annotations
@@ -21,13 +23,18 @@ import numpy as np  # noqa: E402
 from mcverify import store  # noqa: E402
 from mcverify.analysis import robustness as rb  # noqa: E402
 from mcverify.reporting import counterexample_report  # noqa: E402
+from mcverify.reporting import html as report_html  # noqa: E402
+from mcverify.reporting.run_figures import FigureResult  # noqa: E402
 from mcverify.reporting.tables import fmt_num, to_markdown  # noqa: E402
 
 if TYPE_CHECKING:
     from mcverify.falsify.search import SearchResult
 
 REPORT = "report.md"
+HTML = "report.html"
 FIGURES = "figures"
+ROBUSTNESS_CAPTION = ("Each episode's robustness (dots) and the smallest so far (line); below the dashed line the "
+                      "requirement is violated. Per episode in `search.parquet`.")
 
 
 def robustness_curves(curves: Mapping[str, Sequence[float]], path: Path, requirement: str) -> None:
@@ -71,20 +78,23 @@ def facts(result: SearchResult, records: Sequence[Mapping[str, Any]]) -> list[tu
 
 
 def write(result: SearchResult, records: Sequence[Mapping[str, Any]]) -> Path:
+    """Write report.md and report.html of the search; returns report.md's path."""
     out = result.out_dir
     (out / FIGURES).mkdir(exist_ok=True)
     robustness_curves({result.config.method: [e.robustness for e in result.evaluations]},
                       out / FIGURES / "robustness.png", result.config.requirement)
-    lines = [f"# Falsification: {Path(result.config.source).name}", ""]
-    lines += [f"- **{k}**: {v}" for k, v in facts(result, records)]
-    lines += ["", "## Robustness against episodes", "", f"![robustness]({FIGURES}/robustness.png)", "",
-              "Each episode's robustness (dots) and the smallest so far (line); below the dashed line the "
-              "requirement is violated. Per episode in `search.parquet`.", ""]
-    table = counterexample_report.table(records, result.config.requirement, result.episodes)
-    lines += ["## Counterexamples", "", to_markdown(table), ""]
+    fact_list = facts(result, records)
+    tables = [counterexample_report.table(records, result.config.requirement, result.episodes)]
     if records:
-        lines += [to_markdown(counterexample_report.regions_table(records), heading="##"), ""]
+        tables.append(counterexample_report.regions_table(records))
     drawn = _draw_worst(out, records)
+    title = f"Falsification: {Path(result.config.source).name}"
+    lines = [f"# {title}", ""]
+    lines += [f"- **{k}**: {v}" for k, v in fact_list]
+    lines += ["", "## Robustness against episodes", "", f"![robustness]({FIGURES}/robustness.png)", "",
+              ROBUSTNESS_CAPTION, ""]
+    lines += ["## Counterexamples", "", to_markdown(tables[0]), ""]
+    lines += [line for t in tables[1:] for line in (to_markdown(t, heading="##"), "")]
     if drawn:
         lines += ["## Worst counterexamples", ""]
         for path, caption in drawn:
@@ -93,7 +103,25 @@ def write(result: SearchResult, records: Sequence[Mapping[str, Any]]) -> Path:
         lines += ["No counterexample could be drawn (no stored trajectory).", ""]
     text = "\n".join(lines)
     store.atomic_write(out / REPORT, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
+    page = report_html.render(out, fact_list, tables, _html_figures(result, drawn),
+                              _definitions(result.config.requirement), title=title)
+    store.atomic_write(out / HTML, lambda tmp: Path(tmp).write_text(page, encoding="utf-8"))
     return out / REPORT
+
+
+def _html_figures(result: SearchResult, drawn: Sequence[tuple[str, str]]) -> list[FigureResult]:
+    figs = [FigureResult("robustness", "Robustness against episodes", ROBUSTNESS_CAPTION,
+                         f"{FIGURES}/robustness.png")]
+    figs += [FigureResult(f"worst-{k}", f"Worst counterexample {k + 1}", caption, path)
+             for k, (path, caption) in enumerate(drawn)]
+    return figs
+
+
+def _definitions(chosen: str) -> list[tuple[str, str]]:
+    """The chosen requirement first, then every other one (the counterexample file has them all)."""
+    names = [chosen, *[n for n in rb.REQUIREMENTS if n != chosen]]
+    return [(n, f"{rb.requirement(n).statement}; robustness in {rb.requirement(n).unit or 'its own unit'}, "
+                f"negative iff violated") for n in names]
 
 
 def _draw_worst(out: Path, records: Sequence[Mapping[str, Any]]) -> list[tuple[str, str]]:

@@ -12,7 +12,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from mcverify.reporting.run_figures import FigureResult
-from mcverify.reporting.tables import Table, to_html
+from mcverify.reporting.tables import Table, inline_html, to_html
 
 _CSS = """
 body { font-family: system-ui, -apple-system, "Segoe UI", Roboto, sans-serif; margin: 2em auto; max-width: 1360px;
@@ -40,6 +40,7 @@ ul.notes { font-size: 0.85em; color: #444; margin-top: 0.2em; }
 figure { margin: 1.5em 0; } figure img { max-width: 100%; border: 1px solid #ddd; }
 figcaption { font-size: 0.9em; color: #333; margin-top: 0.4em; }
 nav ul { columns: 2; }
+code { font-size: 0.92em; background: #f3f3f3; padding: 0 0.2em; border-radius: 2px; }
 """
 
 
@@ -67,7 +68,7 @@ def render(
         f"<h1>{esc(title)}</h1>",
         '<dl class="facts">',
     ]
-    out += [f"<dt>{esc(k)}</dt><dd>{esc(v)}</dd>" for k, v in facts]
+    out += [f"<dt>{esc(k)}</dt><dd>{inline_html(v)}</dd>" for k, v in facts]
     out.append("</dl>")
     drawn = [f for f in figures if f.file]
     out.append("<nav><h2>Contents</h2><ul>")
@@ -86,12 +87,12 @@ def render(
         data = base64.b64encode((Path(run_dir) / f.file).read_bytes()).decode("ascii")
         out.append(f'<figure id="fig-{esc(f.key)}"><h3>{esc(f.title)}</h3>'
                    f'<img alt="{esc(f.title)}" src="data:image/png;base64,{data}">'
-                   f"<figcaption>{esc(f.caption)}</figcaption></figure>")
+                   f"<figcaption>{inline_html(f.caption)}</figcaption></figure>")
     skipped = [f for f in figures if not f.file]
     if skipped:
-        out.append("<p>Not drawn:</p><ul>" + "".join(f"<li>{esc(f.title)}: {esc(f.skipped)}</li>" for f in skipped)
-                   + "</ul>")
+        items = "".join(f"<li>{esc(f.title)}: {inline_html(f.skipped)}</li>" for f in skipped)
+        out.append(f"<p>Not drawn:</p><ul>{items}</ul>")
     out.append('<h2 id="definitions">Definitions</h2><dl>')
-    out += [f"<dt><strong>{esc(k)}</strong></dt><dd>{esc(v)}.</dd>" for k, v in definitions]
+    out += [f"<dt><strong>{esc(k)}</strong></dt><dd>{inline_html(v)}.</dd>" for k, v in definitions]
     out += ["</dl>", "</body>", "</html>", ""]
     return "\n".join(out)

@@ -247,6 +247,14 @@ def _breakable(text: str) -> str:
     return _NAME_JOINT.sub(r"\1<wbr>", text)
 
 
+def inline_html(text: str) -> str:
+    """``text`` escaped for HTML, with Markdown's inline code (```x```) as ``<code>x</code>``."""
+    parts = html.escape(text).split("`")
+    if len(parts) % 2 == 0:  # an unpaired backtick: leave the text as written
+        return html.escape(text)
+    return "".join(f"<code>{p}</code>" if k % 2 else p for k, p in enumerate(parts))
+
+
 def to_html(t: Table) -> str:
     """An HTML ``<table>`` with a caption and the notes in a following paragraph."""
     esc = html.escape
@@ -268,5 +276,5 @@ def to_html(t: Table) -> str:
             out.append("<tr>" + "".join(cells) + "</tr>")
     out.append("</tbody></table>")
     if t.notes:
-        out.append('<ul class="notes">' + "".join(f"<li>{esc(n)}</li>" for n in t.notes) + "</ul>")
+        out.append('<ul class="notes">' + "".join(f"<li>{inline_html(n)}</li>" for n in t.notes) + "</ul>")
     return "\n".join(out)

@@ -156,6 +156,10 @@ def test_search_finds_the_counterexample_and_reports_it(tmp_path, method):
     assert all(r["region"] >= 1 and r["failure_mode"] == "ellipse/planned" for r in cex)
     assert all(5.0 <= r["param:scenario.front_speed_mps"] <= 9.0 for r in cex)
     assert "## Failure regions" in report and "scenario.front_speed_mps" in report.split("## Failure regions")[1]
+    page = (tmp_path / "s" / "report.html").read_text()  # the same content as one self-contained page
+    assert page.count("data:image/png;base64,") == 1 + report.count("![worst counterexample]")
+    assert 'id="tab-counterexamples"' in page and 'id="tab-failure_regions"' in page
+    assert "<dt><strong>ellipse</strong></dt>" in page.split('id="definitions"')[1].split("</dl>")[0][:200]
 
 
 def test_a_search_that_finds_nothing_reports_its_minimum(tmp_path):
@@ -165,6 +169,8 @@ def test_a_search_that_finds_nothing_reports_its_minimum(tmp_path):
     assert res.first_counterexample is None and res.min_robustness > 0
     report = (tmp_path / "s" / "report.md").read_text()
     assert "none found within 8 episodes" in report and "minimum robustness reached" in report
+    page = (tmp_path / "s" / "report.html").read_text()
+    assert "none found within 8 episodes" in page and "No episode violated the requirement." in page
 
 
 def test_bench_trials_and_section(tmp_path):

@@ -16,6 +16,7 @@ from mcverify.reporting.tables import (
     fmt_p,
     fmt_rate,
     fmt_rel,
+    inline_html,
     latex_escape,
     to_html,
     to_latex,
@@ -110,3 +111,10 @@ def test_html_escapes_and_marks_sections():
     t = Table("w", "t", ["a", "opposing.spawn_gap_m"], [["x", "fallback:Solve_Succeeded 0.3"]])
     h = to_html(t)
     assert "<th>opposing.<wbr>spawn_<wbr>gap_<wbr>m</th>" in h and "<td>fallback:Solve_<wbr>Succeeded 0.3</td>" in h
+
+
+def test_inline_code_becomes_code_elements_and_the_rest_is_escaped():
+    assert inline_html("replay: `mcverify replay <run> 3` & more") == (
+        "replay: <code>mcverify replay &lt;run&gt; 3</code> &amp; more")
+    assert inline_html("an unpaired ` stays") == "an unpaired ` stays"
+    assert inline_html("") == ""
