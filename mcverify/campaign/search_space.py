@@ -14,6 +14,15 @@
     "noise.opp_x_segments[0]" = [-1.0, 1.0]   # elements [0]..[K-1] of a list field: the whole list
     "noise.opp_x_segments[1]" = [-1.0, 1.0]
 
+    [falsify.nominal]             # optional: a field's nominal distribution inside its bounds
+    "scenario.front_speed_mps" = { mean = 6.94, std = 0.5 }   # normal truncated to the bounds
+
+Without a ``[falsify.nominal]`` entry a field is uniform on its bounds. A search works on the unit
+cube; a coordinate u maps to its field through the inverse CDF of the field's nominal distribution
+(:meth:`SearchSpace.values`), so ``random`` draws from the nominal distribution, the other methods
+start from it (their first generation is centred on the cube), and every method stays inside the
+bounds.
+
 Every candidate is one episode of a one-episode cell whose overrides are the candidate's values (so
 its episode is an ordinary row and ``mcverify replay`` re-simulates it bit for bit); the per-step
 perception noise still acts as in any run. A campaign with a ``[falsify]`` table must define one
@@ -25,6 +34,7 @@ from __future__ import annotations
 
 import math
 import re
+import statistics
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -36,7 +46,7 @@ from mcverify.model import REQUIREMENT_NAMES
 __all__ = ["MAX_POPULATION", "REQUIREMENT_NAMES", "SearchSpace", "check_single_target", "read_search_space",
            "split_element"]
 
-_KEYS = {"requirement", "population", "stop_at_first", "stop_episodes", "bounds"}
+_KEYS = {"requirement", "population", "stop_at_first", "stop_episodes", "bounds", "nominal"}
 MAX_POPULATION = 1024
 _ELEMENT = re.compile(r"(.+)\[(\d+)\]")
 
@@ -44,13 +54,14 @@ _ELEMENT = re.compile(r"(.+)\[(\d+)\]")
 @dataclass(frozen=True)
 class SearchSpace:
     """A validated ``[falsify]`` table: ``bounds`` maps a model field to (low, high) in its unit,
-    in file order."""
+    in file order; ``nominal`` maps some of them to (mean, std) of a normal truncated to the bounds."""
 
     requirement: str
     population: int
     stop_at_first: bool
     bounds: tuple[tuple[str, float, float], ...]
     stop_episodes: bool = False
+    nominal: tuple[tuple[str, float, float], ...] = ()
 
     @property
     def fields(self) -> tuple[str, ...]:
@@ -76,11 +87,35 @@ class SearchSpace:
         """The model values of a point of the unit cube [0, 1]^dimension (clipped into it)."""
         if len(unit_point) != self.dimension:
             raise ValueError(f"expected {self.dimension} coordinates, got {len(unit_point)}")
+        nominal = {name: (mean, std) for name, mean, std in self.nominal}
         out = {}
         for (name, lo, hi), u in zip(self.bounds, unit_point, strict=True):
             u = min(1.0, max(0.0, float(u)))
-            out[name] = float(lo + u * (hi - lo))
+            uniform = float(lo + u * (hi - lo))
+            out[name] = truncated_normal_ppf(u, *nominal[name], lo, hi) if name in nominal else uniform
         return out
+
+    def describe(self) -> str:
+        """One line: each field's bounds and, where given, its nominal distribution."""
+        nominal = {name: (mean, std) for name, mean, std in self.nominal}
+        return ", ".join(f"{n} in [{lo:g}, {hi:g}]" + (f" (nominal N({nominal[n][0]:g}, {nominal[n][1]:g}²) "
+                                                        "truncated)" if n in nominal else "")
+                         for n, lo, hi in self.bounds)
+
+
+_STANDARD_NORMAL = statistics.NormalDist()
+
+
+def truncated_normal_ppf(u: float, mean: float, std: float, lo: float, hi: float) -> float:
+    """The u-quantile (u in [0, 1]) of N(mean, std²) truncated to [lo, hi]; pure Python, so the same
+    u gives the same value on every machine. The ends of [0, 1] are the bounds exactly."""
+    if u <= 0.0 or u >= 1.0:
+        return float(lo if u <= 0.0 else hi)
+    cdf_lo = _STANDARD_NORMAL.cdf((lo - mean) / std)
+    cdf_hi = _STANDARD_NORMAL.cdf((hi - mean) / std)
+    p = cdf_lo + u * (cdf_hi - cdf_lo)
+    p = min(max(p, 1e-300), 1.0 - 1e-16)  # inv_cdf needs 0 < p < 1
+    return float(min(hi, max(lo, mean + std * _STANDARD_NORMAL.inv_cdf(p))))
 
 
 def read_search_space(table: Any, where: str, known_fields: Mapping[str, type]) -> SearchSpace:
@@ -136,7 +171,32 @@ def read_search_space(table: Any, where: str, known_fields: Mapping[str, type]) 
         if sorted(indices) != list(range(len(indices))):
             raise CampaignError(f"{here}.bounds: the searched elements of {field} must be [0] to [K-1] (they make "
                                 f"the whole list), got {sorted(indices)}")
-    return SearchSpace(requirement, population, stop, tuple(out), stop_episodes)
+    nominal = _read_nominal(table.get("nominal", {}), here, {name: (lo, hi) for name, lo, hi in out})
+    return SearchSpace(requirement, population, stop, tuple(out), stop_episodes, nominal)
+
+
+def _read_nominal(table: Any, here: str,
+                  bounds: Mapping[str, tuple[float, float]]) -> tuple[tuple[str, float, float], ...]:
+    """``[falsify.nominal]``: ``"field" = { mean = m, std = s }`` for searched fields, m inside the
+    bounds, s > 0."""
+    if not isinstance(table, Mapping):
+        raise CampaignError(f"{here}.nominal: must be a table of \"section.field\" = {{ mean = m, std = s }}")
+    out = []
+    for name, spec in table.items():
+        at = f"{here}.nominal.{name}"
+        if name not in bounds:
+            raise CampaignError(f"{at}: not a searched field (give its [low, high] in [falsify.bounds] first)")
+        if not isinstance(spec, Mapping) or set(spec) != {"mean", "std"} or any(
+                isinstance(v, bool) or not isinstance(v, int | float) for v in spec.values()):
+            raise CampaignError(f"{at}: expected {{ mean = m, std = s }} (two numbers), got {_short(spec)}")
+        mean, std = float(spec["mean"]), float(spec["std"])
+        lo, hi = bounds[name]
+        if not (math.isfinite(mean) and lo <= mean <= hi):
+            raise CampaignError(f"{at}: mean must lie in the bounds [{lo:g}, {hi:g}], got {mean:g}")
+        if not (math.isfinite(std) and std > 0.0):
+            raise CampaignError(f"{at}: std must be a positive number, got {std:g}")
+        out.append((str(name), mean, std))
+    return tuple(out)
 
 
 def split_element(name: str) -> tuple[str, int | None]:

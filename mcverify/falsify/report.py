@@ -61,7 +61,7 @@ def robustness_curves(curves: Mapping[str, Sequence[float]], path: Path, require
 def facts(result: SearchResult, records: Sequence[Mapping[str, Any]]) -> list[tuple[str, str]]:
     req = rb.requirement(result.config.requirement)
     first = result.first_counterexample
-    space = ", ".join(f"{n} in [{lo:g}, {hi:g}]" for n, lo, hi in result.space.bounds)
+    space = result.space.describe()
     generations = len({e.generation for e in result.evaluations})
     return [
         ("campaign", f"`{result.config.source}`"),

@@ -57,6 +57,17 @@ def test_requirement_lists_agree():
         ({"bounds": {"noise.opp_x_segments[1]": [-1, 1]}}, "must be [0] to [K-1]"),
         ({"bounds": {"scenario.front_speed_mps": [1, 2]}, "budget": 3}, "unknown key"),
         ("x", "must be a table"),
+        ({"bounds": {"scenario.front_speed_mps": [1, 2]}, "nominal": {"opposing.speed_mps": {"mean": 1, "std": 1}}},
+         "not a searched field"),
+        ({"bounds": {"scenario.front_speed_mps": [1, 2]}, "nominal": {"scenario.front_speed_mps": {"mean": 3,
+                                                                                                    "std": 1}}},
+         "mean must lie in the bounds [1, 2]"),
+        ({"bounds": {"scenario.front_speed_mps": [1, 2]}, "nominal": {"scenario.front_speed_mps": {"mean": 1.5,
+                                                                                                    "std": 0}}},
+         "std must be a positive number"),
+        ({"bounds": {"scenario.front_speed_mps": [1, 2]}, "nominal": {"scenario.front_speed_mps": [1.5, 0.2]}},
+         "expected { mean = m, std = s }"),
+        ({"bounds": {"scenario.front_speed_mps": [1, 2]}, "nominal": 3}, "must be a table"),
     ],
 )
 def test_bad_falsify_tables_are_one_line(falsify, message):
@@ -267,3 +278,22 @@ def test_bo_without_optuna_is_one_line(tmp_path, monkeypatch, capsys):
     err = capsys.readouterr().err.strip()
     assert "needs optuna" in err and len(err.splitlines()) == 1
     assert not (tmp_path / "s").exists()  # refused before anything is written
+
+
+def test_a_nominal_distribution_maps_the_unit_cube_through_its_truncated_normal_quantiles():
+    raw = copy.deepcopy(RAW)
+    raw["falsify"]["nominal"] = {"scenario.front_speed_mps": {"mean": 6.0, "std": 0.5}}
+    space = campaign_from_dict(raw, source="f.toml").falsify
+    from statistics import NormalDist  # noqa: PLC0415
+
+    values = [space.values([u, u]) for u in (0.0, 0.1, 0.5, 0.9, 1.0)]
+    speeds = [v["scenario.front_speed_mps"] for v in values]
+    assert speeds[0] == 5.0 and speeds[-1] == 9.0  # the ends of the cube are the bounds
+    lo, hi = NormalDist(6.0, 0.5).cdf(5.0), NormalDist(6.0, 0.5).cdf(9.0)
+    for u, x in zip((0.1, 0.5, 0.9), speeds[1:4], strict=True):  # the u-quantile of the truncated normal
+        assert NormalDist(6.0, 0.5).cdf(x) == pytest.approx(lo + u * (hi - lo), abs=1e-12)
+    assert [v["opposing.speed_mps"] for v in values] == [8.0, 9.1, 13.5, 17.9, 19.0]  # no nominal: uniform
+    assert "nominal N(6, 0.5²) truncated" in space.describe()
+    rng = np.random.default_rng(0)  # random search on the cube = draws from the nominal distribution
+    draws = np.array([space.values([u, 0.5])["scenario.front_speed_mps"] for u in rng.random(4000)])
+    assert abs(draws.mean() - 6.0) < 0.05 and abs(draws.std() - 0.5) < 0.05
