@@ -8,8 +8,10 @@ the warm attempts, then the cold one, up to the first converged), once with
 alternates from solve to solve), so the CPU ratio is paired and robust to the machine's load.
 
 Reported: CPU (``time.process_time``) per solve and per IPM iteration on each side and their
-ratio; how many solves end with the same status sequence, the same iteration counts, and the
-largest absolute difference of the returned point (and multipliers) where both converged; the
+ratio; how many solves end with the same status sequence, the same final success (what decides
+whether the engine hands the solve to IPOPT), the same iteration counts, and where both converged
+the absolute difference of the returned points (largest, median, 99th percentile, how many within
+1e-6 and 1e-3) and the largest of the multipliers; the
 LDL^T path's counters (fallbacks to the LU, refinement steps, wrong-inertia factorisations, the
 largest backward error of an accepted solve).
 
@@ -71,6 +73,7 @@ class Tally:
     iterations_lu: int = 0
     iterations_variant: int = 0
     same_statuses: int = 0
+    same_success: int = 0
     same_iterations: int = 0
     both_converged: int = 0
     max_abs_dw: float = 0.0
@@ -83,6 +86,7 @@ class Tally:
     factorisations_lu: int = 0
     ratio_max: float = 0.0
     differing: list[dict[str, Any]] = dataclasses.field(default_factory=list)
+    dw: list[float] = dataclasses.field(default_factory=list)  # max |w_lu - w_variant| per solve both converged
 
     def add(self, s: recorded_ipm.RecordedSolve, lu: Side, var: Side, lu_runs, var_runs) -> None:
         self.solves += 1
@@ -91,6 +95,7 @@ class Tally:
         self.iterations_lu += lu.iterations
         self.iterations_variant += var.iterations
         self.same_statuses += lu.statuses == var.statuses
+        self.same_success += lu.last.success == var.last.success
         self.same_iterations += [r.iterations for r in lu_runs] == [r.iterations for r in var_runs]
         recorded = tuple(t.split(":", 1)[1] for t in s.attempts)
         self.recorded_statuses_reproduced += recorded == lu.statuses
@@ -102,7 +107,8 @@ class Tally:
         self.ratio_max = max(self.ratio_max, *(r.kkt_ratio_max for r in var_runs))
         if lu.last.success and var.last.success:
             self.both_converged += 1
-            self.max_abs_dw = max(self.max_abs_dw, float(np.max(np.abs(lu.last.w - var.last.w))))
+            self.dw.append(float(np.max(np.abs(lu.last.w - var.last.w))))
+            self.max_abs_dw = max(self.max_abs_dw, self.dw[-1])
             dlam = max(np.max(np.abs(lu.last.lam_g - var.last.lam_g)), np.max(np.abs(lu.last.lam_x - var.last.lam_x)))
             self.max_abs_dlam = max(self.max_abs_dlam, float(dlam))
         if lu.statuses != var.statuses and len(self.differing) < 20:
@@ -110,8 +116,11 @@ class Tally:
 
     def summary(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
+        dw = np.asarray(d.pop("dw") or [0.0])
         n = max(self.solves, 1)
         d.update(
+            dw_median=float(np.median(dw)), dw_p99=float(np.percentile(dw, 99)),
+            dw_within_1e_6=int(np.sum(dw <= 1e-6)), dw_within_1e_3=int(np.sum(dw <= 1e-3)),
             cpu_ms_per_solve_lu=1e3 * self.cpu_lu_s / n, cpu_ms_per_solve_variant=1e3 * self.cpu_variant_s / n,
             cpu_us_per_iteration_lu=1e6 * self.cpu_lu_s / max(self.iterations_lu, 1),
             cpu_us_per_iteration_variant=1e6 * self.cpu_variant_s / max(self.iterations_variant, 1),
