@@ -16,7 +16,8 @@ LDL^T path's counters (fallbacks to the LU, refinement steps, wrong-inertia fact
 largest backward error of an accepted solve).
 
 Run: ``python -m mcverify.bench.kkt_factorisation --recording FILE [--recording FILE ...]
-[--variant ldlt] [--every K] [--json OUT]``.
+[--variant ldlt] [--every K] [--json OUT]``; ``--only lu|ldlt|ldlt_curvature`` replays one side only
+(to profile it, e.g. under ``perf record``).
 """
 
 from __future__ import annotations
@@ -154,6 +155,26 @@ def compare(paths: Sequence[str], variant: str = "ldlt", delta: float = 1e-9, ev
     return out
 
 
+def one_side(paths: Sequence[str], kkt: str, delta: float = 1e-9, every: int = 1) -> dict[str, Any]:
+    """Only one factorisation's replay (for a profiler: ``perf record python -m ... --only lu``):
+    solves, iterations, factorisations and CPU seconds."""
+    from mcverify.solver import kernels
+
+    lib = kernels.get_runtime_library("ipm").so_path
+    opts = attempts(kkt, delta)
+    out = {"kkt": kkt, "solves": 0, "iterations": 0, "factorisations": 0, "cpu_s": 0.0}
+    for path in paths:
+        rec = recorded_ipm.load(path)
+        rp = recorded_ipm.Replayer(rec, lib)
+        for s in rec.solves[::every]:
+            side, runs = replay(rp, s, *opts)
+            out["solves"] += 1
+            out["iterations"] += side.iterations
+            out["factorisations"] += sum(r.factorisations for r in runs)
+            out["cpu_s"] += side.cpu_s
+    return out
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m mcverify.bench.kkt_factorisation", description=__doc__.split("\n")[0])
     ap.add_argument("--recording", action="append", required=True, help="a recorded_ipm pickle (repeatable)")
@@ -161,8 +182,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--delta", type=float, default=1e-9, help="the LDL^T's dual regularisation kkt_delta")
     ap.add_argument("--every", type=int, default=1, help="replay every K-th solve only")
     ap.add_argument("--json", help="write the summary here too")
+    ap.add_argument("--only", choices=list(KKT_FACTORISATIONS), help="replay with this factorisation only (profiling)")
     args = ap.parse_args(argv)
-    out = compare(args.recording, args.variant, args.delta, args.every, progress=print)
+    if args.only:
+        out = one_side(args.recording, args.only, args.delta, args.every)
+    else:
+        out = compare(args.recording, args.variant, args.delta, args.every, progress=print)
     text = json.dumps(out, indent=1, default=str)
     print(text)
     if args.json:
