@@ -33,7 +33,8 @@ def test_lu_against_ldlt_on_a_recording(recording):
     assert out["cpu_ratio_lu_over_variant"] == pytest.approx(out["cpu_lu_s"] / out["cpu_variant_s"])
     assert out["same_success"] >= out["both_converged"]
     one = kkt_factorisation.one_side([path], "lu")  # the profiling mode replays the same attempts
-    assert (one["solves"], one["iterations"], one["factorisations"]) == (n, out["iterations_lu"], out["factorisations_lu"])
+    assert one["solves"] == n
+    assert (one["iterations"], one["factorisations"]) == (out["iterations_lu"], out["factorisations_lu"])
 
 
 def test_warm_attempt_report_counts_the_recording(recording):
