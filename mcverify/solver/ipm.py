@@ -2,7 +2,8 @@
 
 The algorithm is IPOPT's primal-dual barrier method with its filter line search and second-order
 corrections (see the C source for what is left out). It runs entirely in C: the banded KKT system
-of :class:`mcverify.solver.kkt.KktStructure` is factorised by a banded LU, and the NLP's functions
+of :class:`mcverify.solver.kkt.KktStructure` is factorised by a banded LU (or, with
+``IpmOptions.kkt_factorisation``, a banded LDL^T), and the NLP's functions
 are the kernel's generated C, called through function pointers, so an iteration costs several
 times less than an IPOPT iteration through CasADi on the same kernel (results/BENCHMARKS.md). The
 C library is compiled once per machine into the kernel cache

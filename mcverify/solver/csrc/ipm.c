@@ -19,7 +19,9 @@
  * C of the kernel, called through function pointers. Inertia is not available from an LU; the step
  * is instead accepted only if it has positive curvature, dx'(W + Sigma_x + dw)dx + ds' Sigma_s ds >=
  * IPM_CURVATURE_MIN |(dx, ds)|^2 (the inertia-free test of Chiang & Zavala 2016), otherwise dw
- * grows as in IPOPT.
+ * grows as in IPOPT. ipm_opts.kkt_ldlt replaces the LU by a banded LDL^T without pivoting of the
+ * quasi-definitely regularised matrix (same band order), refined against the LU's matrix, whose
+ * pivots' signs give the inertia (ipm.h, enum ipm_kkt_factorisation; "band LDL^T" below).
  *
  * Rows of g are scaled by min(1, IPM_SCALING_MAX_GRADIENT / max_j |J_ij|) at the starting point
  * (IPOPT's gradient-based scaling); the objective is not scaled. Multipliers come back unscaled in
