@@ -122,6 +122,9 @@ BACKEND_NAMES = ("ipopt", "ipm")
 MPCDC_CONTROLLERS = ("mpcdc", "mpcdc_eps")
 #: Who certifies that a problem is infeasible on the ipm backend (:attr:`Mpc.infeasibility`).
 INFEASIBILITY_POLICIES = ("ipopt", "phase1")
+#: How the ipm backend factorises the KKT system (:attr:`Mpc.kkt_factorization`; the names of
+#: ``mcverify.solver.ipm.KKT_FACTORISATIONS``, checked there).
+KKT_FACTORIZATIONS = ("lu", "ldlt", "ldlt_curvature")
 #: The evidence that makes the ego abandon the overtake (:attr:`Mpc.abandon_rule`).
 ABANDON_RULES = ("first_failure", "consecutive", "certified")
 #: Most piecewise-constant segments of one structured disturbance (:attr:`Noise.front_x_segments`).
@@ -227,6 +230,9 @@ class Mpc:
     ipm_restoration: bool = False
     """The ipm backend's cold IPM attempt of a full solve runs with the C restoration phase: a failed line search
     restores feasibility instead of ending the attempt (docs/engine.md)."""
+    kkt_factorization: str = "lu"
+    """How the ipm backend factorises its KKT system: lu (banded LU, the default), ldlt (banded LDL^T with the inertia
+    test) or ldlt_curvature (banded LDL^T with the LU's curvature test); docs/engine.md, "The LDL^T path"."""
     infeasibility_audit_every: int = 10
     """With infeasibility = phase1: about one C certificate in this many is re-checked by IPOPT (1: every one).
     Valid: >= 1."""

@@ -16,6 +16,7 @@ from mcverify.model import (
     ABANDON_RULES,
     BACKEND_NAMES,
     INFEASIBILITY_POLICIES,
+    KKT_FACTORIZATIONS,
     MAX_SEGMENTS,
     REQUIREMENT_NAMES,
     ModelParams,
@@ -144,6 +145,9 @@ def validate_params(p: ModelParams, where: str) -> None:
     if m.infeasibility not in INFEASIBILITY_POLICIES:
         raise bad("mpc.infeasibility",
                   f"unknown policy {_short(m.infeasibility)}; valid: {', '.join(INFEASIBILITY_POLICIES)}")
+    if m.kkt_factorization not in KKT_FACTORIZATIONS:
+        raise bad("mpc.kkt_factorization",
+                  f"unknown factorization {_short(m.kkt_factorization)}; valid: {', '.join(KKT_FACTORIZATIONS)}")
     if not isinstance(m.ipm_restoration, bool):
         raise bad("mpc.ipm_restoration", f"must be true or false, got {_short(m.ipm_restoration)}")
     if type(m.infeasibility_audit_every) is not int or m.infeasibility_audit_every < 1:

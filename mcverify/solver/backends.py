@@ -55,9 +55,9 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from mcverify.model import BACKEND_NAMES, ModelParams
+from mcverify.model import BACKEND_NAMES, KKT_FACTORIZATIONS, ModelParams
 from mcverify.solver.cfun import CFunction
-from mcverify.solver.ipm import COLD, WARM_ATTEMPTS, Ipm, IpmResult
+from mcverify.solver.ipm import COLD, KKT_FACTORISATIONS, WARM_ATTEMPTS, Ipm, IpmResult
 from mcverify.solver.kernels import Kernel, get_runtime_library
 from mcverify.solver.status import SolveRoute, SolveStatus
 
@@ -256,8 +256,10 @@ class IpmBackend:
         self.reference = IpoptBackend(problem, params)
         lib = get_runtime_library("ipm", kernel_dir).so_path
         self.ipm = Ipm(problem.kernel.so_path, problem.lbx, problem.ubx, problem.lbg, problem.ubg, lib)
-        self.warm_attempts = tuple(dataclasses.replace(o, tol=params.mpc.tol) for o in WARM_ATTEMPTS)
-        self.cold = dataclasses.replace(COLD, tol=params.mpc.tol)
+        # mpc.kkt_factorization: every IPM run of this backend factorises its KKT system that way
+        kkt = {"kkt_factorisation": params.mpc.kkt_factorization}
+        self.warm_attempts = tuple(dataclasses.replace(o, tol=params.mpc.tol, **kkt) for o in WARM_ATTEMPTS)
+        self.cold = dataclasses.replace(COLD, tol=params.mpc.tol, **kkt)
         # mpc.ipm_restoration (off by default: the attempts of ABI 1, bit for bit): the cold attempt of
         # a full solve restores feasibility after a failed line search (not the warm attempts, whose
         # failures the cold start repairs cheaply, nor a presumed-infeasible fast-only solve, where a
@@ -267,8 +269,8 @@ class IpmBackend:
         self.ipm_cpu_s: Counter[str] = Counter()
         self.infeasibility = params.mpc.infeasibility
         self.audit_every = params.mpc.infeasibility_audit_every
-        self.phase1_warm = dataclasses.replace(WARM_ATTEMPTS[0], tol=params.mpc.tol, phase1=True)
-        self.phase1_cold = dataclasses.replace(COLD, tol=params.mpc.tol, phase1=True)
+        self.phase1_warm = dataclasses.replace(WARM_ATTEMPTS[0], tol=params.mpc.tol, phase1=True, **kkt)
+        self.phase1_cold = dataclasses.replace(COLD, tol=params.mpc.tol, phase1=True, **kkt)
 
     def solve(
         self, p: np.ndarray, warm: Start | None, guess: Callable[[], np.ndarray], fast_only: bool = False
@@ -348,6 +350,9 @@ class IpmBackend:
 REGISTRY: dict[str, type] = {cls.name: cls for cls in (IpoptBackend, IpmBackend)}
 if set(REGISTRY) != set(BACKEND_NAMES):  # a name the model accepts must have a solver (checked even under -O)
     raise ImportError(f"solver backends {sorted(REGISTRY)} do not implement BACKEND_NAMES {BACKEND_NAMES}")
+if set(KKT_FACTORIZATIONS) != set(KKT_FACTORISATIONS):  # likewise for mpc.kkt_factorization
+    raise ImportError(f"mpc.kkt_factorization {KKT_FACTORIZATIONS} and the C solver's "
+                      f"{tuple(KKT_FACTORISATIONS)} differ")
 
 
 def create_backend(name: str, problem: Problem, params: ModelParams):

@@ -111,3 +111,17 @@ def test_ipm_restoration_turns_on_the_restoration_phase_in_the_full_cold_attempt
     raw = {"campaign": {"name": "t", "seed": 1, "episodes": 1}, "model": {"mpc": {"ipm_restoration": "yes"}}}
     with pytest.raises(campaign.CampaignError, match="mpc.ipm_restoration: expected bool"):
         campaign.campaign_from_dict(raw)
+
+
+def test_kkt_factorization_reaches_every_ipm_run_and_is_validated():
+    on = dataclasses.replace(P_IPM, mpc=dataclasses.replace(P_IPM.mpc, kkt_factorization="ldlt"))
+    backend = MpcSolver(on).backend
+    runs = (*backend.warm_attempts, backend.cold, backend.cold_full, backend.phase1_warm, backend.phase1_cold)
+    assert all(o.kkt_factorisation == "ldlt" for o in runs)
+    default = MpcSolver(P_IPM).backend
+    assert all(o.kkt_factorisation == "lu" for o in (*default.warm_attempts, default.cold, default.cold_full))
+    plan = MpcSolver(on).solve(EGO, INFEASIBLE_FRONT, 1, LAMBDA0)
+    assert plan is not None
+    raw = {"campaign": {"name": "t", "seed": 1, "episodes": 1}, "model": {"mpc": {"kkt_factorization": "qr"}}}
+    with pytest.raises(campaign.CampaignError, match="mpc.kkt_factorization: unknown factorization"):
+        campaign.campaign_from_dict(raw)
