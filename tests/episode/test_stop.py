@@ -37,6 +37,7 @@ def episodes(tmp_path_factory):
     return full, stored, replayed
 
 
+@pytest.mark.slow  # the fixture runs three real MPC-DC episodes (about a minute of CPU with the kernel built)
 def test_a_stopped_episode_ends_at_its_first_violation_and_says_so(episodes):
     full, stopped, _ = episodes
     whole = full.rows[0]
@@ -52,6 +53,7 @@ def test_a_stopped_episode_ends_at_its_first_violation_and_says_so(episodes):
     assert stopped["min_h_front"] >= whole["min_h_front"]  # a minimum over a shorter time
 
 
+@pytest.mark.slow  # shares the fixture above
 def test_the_stopped_trajectory_is_the_prefix_and_its_metrics_recompute(episodes):
     full, stopped, replayed = episodes
     import pyarrow.parquet as pq  # noqa: PLC0415
