@@ -64,6 +64,11 @@ class SearchSpace:
     nominal: tuple[tuple[str, float, float], ...] = ()
 
     @property
+    def nominal_by_field(self) -> dict[str, tuple[float, float]]:
+        """field -> (mean, std) of the fields with a nominal distribution."""
+        return {name: (mean, std) for name, mean, std in self.nominal}
+
+    @property
     def fields(self) -> tuple[str, ...]:
         return tuple(b[0] for b in self.bounds)
 
@@ -87,7 +92,7 @@ class SearchSpace:
         """The model values of a point of the unit cube [0, 1]^dimension (clipped into it)."""
         if len(unit_point) != self.dimension:
             raise ValueError(f"expected {self.dimension} coordinates, got {len(unit_point)}")
-        nominal = {name: (mean, std) for name, mean, std in self.nominal}
+        nominal = self.nominal_by_field
         out = {}
         for (name, lo, hi), u in zip(self.bounds, unit_point, strict=True):
             u = min(1.0, max(0.0, float(u)))
@@ -97,7 +102,7 @@ class SearchSpace:
 
     def describe(self) -> str:
         """One line: each field's bounds and, where given, its nominal distribution."""
-        nominal = {name: (mean, std) for name, mean, std in self.nominal}
+        nominal = self.nominal_by_field
         return ", ".join(f"{n} in [{lo:g}, {hi:g}]" + (f" (nominal N({nominal[n][0]:g}, {nominal[n][1]:g}²) "
                                                         "truncated)" if n in nominal else "")
                          for n, lo, hi in self.bounds)
