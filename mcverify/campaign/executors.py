@@ -48,7 +48,8 @@ from mcverify.schema import ERROR_OUTCOME
 
 __all__ = [
     "ERROR_OUTCOME", "MAX_ATTEMPTS", "MAX_MESSAGE", "MAX_STARTUP_FAILURES", "ChunkOutput", "ChunkResultLike",
-    "EpisodeFn", "Executor", "ExecutorError", "KeptAlive", "LocalExecutor", "Outcome", "RayExecutor", "SerialExecutor", "Work",
+    "EpisodeFn", "Executor", "ExecutorError", "KeptAlive", "LocalExecutor", "Outcome", "RayExecutor",
+    "SerialExecutor", "Work",
     "default_workers", "error_row", "execute", "make_executor", "one_line", "probe_address", "run_work",
     "simulate", "solver_for",
 ]

@@ -191,6 +191,8 @@ class Executor(ABC):
 
     kind: str = "?"
     capacity: int = 1
+    #: Workers already started by an earlier run (:class:`KeptAlive`): no start-up to announce.
+    warm: bool = False
     #: Set by :func:`execute` while it runs: ``progress(handle, EpisodeDone)`` for an executor that
     #: reports episodes inside a unit (None: nobody listens).
     progress: Callable[[Any, EpisodeDone], None] | None = None
@@ -268,10 +270,13 @@ class KeptAlive(Executor):
         if self._inner is not None:
             self._inner.close(failed=failed)
             self._inner = None
+        self.warm = False
 
     def submit(self, work: Work) -> Any:
         self.inner.progress = self.progress
-        return self.inner.submit(work)
+        handle = self.inner.submit(work)
+        self.warm = True
+        return handle
 
     def wait(self) -> tuple[Any, Outcome]:
         return self.inner.wait()

@@ -252,8 +252,14 @@ def test_kept_alive_lends_one_executor_to_several_runs():
         with shared as ex:
             assert ex is shared and shared.inner is made[0]
     assert len(made) == 1 and shared.describe() == made[0].describe()
+    assert not shared.warm
+    cell = campaign_from_dict({"campaign": {"name": "k", "seed": 1, "episodes": 1}}).cells[0]
+    with shared:
+        shared.submit(executors.Work(cell, (0,), 1, False, (), synth.episodes))
+        assert shared.wait()[1].error is None
+    assert shared.warm  # the next run has nothing to start up
     shared.release()
-    assert shared._inner is None
+    assert shared._inner is None and not shared.warm
     with pytest.raises(RuntimeError), shared:  # a failed run releases the workers
         shared.inner  # noqa: B018 - starts the inner executor
         raise RuntimeError("boom")

@@ -95,6 +95,9 @@ def test_splitting_finds_the_noise_driven_violation_and_it_replays(tmp_path):
     # a noise branch's prefix up to its branch step is its parent's, so it starts its fresh noise at the level
     branches = [r for r in table if r["move"] == "noise"]
     assert branches
+    report = (tmp_path / "s" / "report.md").read_text(encoding="utf-8")
+    # the report gives the best one's lineage, back to a fresh draw
+    assert f"evaluation {worst['evaluation']} (" in report and "(fresh)" in report
     for r in branches:
         h_parent, h_child, step = margins(table[r["parent"] - 1]), margins(r), r["branch_after_step"]
         assert np.array_equal(h_parent[: step + 1], h_child[: step + 1]) and h_parent[step + 1] != h_child[step + 1]
