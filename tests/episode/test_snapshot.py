@@ -113,6 +113,7 @@ def test_scheduled_noise_branches_from_step_0_equal_snapshot_branches(whole):
         run_episodes(twice, [1], camp.seed, planner, branching=Branching(start=br.snapshots[3], branch_id=5))
 
 
+@pytest.mark.slow  # two more closed-loop episodes; the fake episodes of tests/falsify cover the keying too
 def test_noise_key_seed_replaces_the_campaign_seed_and_cell(whole):
     camp, cell, planner, plain, _, _ = whole
     keyed = _scheduled_cell({"key_seed": 11})

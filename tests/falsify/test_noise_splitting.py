@@ -115,12 +115,12 @@ def test_splitting_beats_random_on_the_noise_driven_walk(tmp_path):
 
 
 def test_resume_mid_search_equals_an_uninterrupted_splitting_search(tmp_path):
-    cfg = _config(budget=28)
+    cfg = _config(budget=16)
     cfg = search.SearchConfig(**{**cfg.__dict__, "raw": {**cfg.raw, "falsify": {**cfg.raw["falsify"],
                                                                                "stop_at_first": False}}})
     search.start(cfg, tmp_path / "whole", **_kw())
     with pytest.raises(RunError, match="test hook"):
-        search.start(cfg, tmp_path / "cut", stop_after_generations=2, **_kw())
+        search.start(cfg, tmp_path / "cut", stop_after_generations=1, **_kw())
     search.resume(tmp_path / "cut", **_kw())
     assert pq.read_table(tmp_path / "whole" / search.SEARCH).equals(pq.read_table(tmp_path / "cut" / search.SEARCH))
 
