@@ -103,15 +103,16 @@ def test_splitting_finds_the_noise_driven_violation_and_it_replays(tmp_path):
         assert np.array_equal(h_parent[: step + 1], h_child[: step + 1]) and h_parent[step + 1] != h_child[step + 1]
 
 
-@pytest.mark.slow
+@pytest.mark.slow  # 32 short searches, about two minutes
 def test_splitting_beats_random_on_the_noise_driven_walk(tmp_path):
-    """The walk's violation is rare for random candidates (a few per cent) and driven by the noise."""
+    """The walk's violation is rare for random candidates (1.1 % of episodes) and driven by the
+    noise: within 40 episodes splitting succeeds in 14 of 16 seeds, random search in 8."""
     found = {m: 0 for m in ("splitting", "random")}
-    for seed in range(4):
+    for seed in range(16):
         for method in found:
             res = search.start(_config(method, budget=40, seed=seed), tmp_path / f"{method}{seed}", **_kw())
             found[method] += res.first_counterexample is not None
-    assert found["splitting"] >= 3 and found["splitting"] > found["random"], found
+    assert found["splitting"] >= 12 and found["splitting"] >= found["random"] + 4, found
 
 
 def test_resume_mid_search_equals_an_uninterrupted_splitting_search(tmp_path):
