@@ -303,8 +303,9 @@ def _parser() -> argparse.ArgumentParser:
 
     fal = sub.add_parser("falsify", help="search for counterexamples (robustness-guided; mcverify.falsify)")
     fal.add_argument("campaign", nargs="?", type=Path, help="campaign TOML file with a [falsify] table")
-    fal.add_argument("--method", choices=("cma", "cross-entropy", "random", "bo"),
-                     help="search method (default cma; bo: Bayesian optimisation, needs the extra mcverify[bo])")
+    fal.add_argument("--method", choices=("cma", "cross-entropy", "random", "bo", "splitting"),
+                     help="search method (default cma; bo: Bayesian optimisation, needs the extra mcverify[bo]; "
+                          "splitting: branches the best episodes with fresh per-step noise, for noise-driven failures)")
     fal.add_argument("--budget", type=_positive_int, help="episodes the search may spend")
     fal.add_argument("--requirement", help="requirement to falsify (default: the file's, else safe)")
     fal.add_argument("--seed", type=_nonneg_int, help="search seed (default: the campaign's seed)")

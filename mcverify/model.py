@@ -129,6 +129,8 @@ KKT_FACTORIZATIONS = ("lu", "ldlt", "ldlt_curvature")
 ABANDON_RULES = ("first_failure", "consecutive", "certified")
 #: Most piecewise-constant segments of one structured disturbance (:attr:`Noise.front_x_segments`).
 MAX_SEGMENTS = 8
+#: Most noise branches of one episode (:attr:`Noise.branch_after_steps`).
+MAX_BRANCHES = 64
 #: The requirements of :mod:`mcverify.analysis.robustness` (kept here so the campaign and episode
 #: layers need not import the analysis layer; tests/falsify checks the lists agree). Each is also a
 #: valid :attr:`Simulation.stop_at`.
@@ -309,6 +311,17 @@ class Noise:
     opp_v_segments: tuple[float, ...] = ()
     """Piecewise-constant offsets of veh_o's speed disturbance (see front_x_segments). Valid: up to 8 values in [-1,
     1]. Paper: ()."""
+    key_seed: int = -1
+    """Root of the episodes' noise: -1 draws it from (campaign seed, cell, episode id); a seed >= 0 from (key_seed,
+    episode id) only, whatever the cell (a splitting search re-runs a parent's noise in a child's cell). Valid: -1 or
+    0 to 2^31 - 1. Paper: -1."""
+    branch_after_steps: tuple[float, ...] = ()
+    """Noise branches (splitting falsification): after control step branch_after_steps[i] the per-step noise comes from
+    branch branch_ids[i] of the episode key (as a snapshot branch of mcverify.episode.snapshot). Valid: up to 64
+    increasing integer steps >= 0. Paper: () (none)."""
+    branch_ids: tuple[float, ...] = ()
+    """The branch id of each of branch_after_steps. Valid: as many integers in [0, 2^31) as branch_after_steps. Paper:
+    ()."""
 
 
 @dataclass(frozen=True)

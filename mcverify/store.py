@@ -344,10 +344,15 @@ def _table_from_rows(rows: list[dict]) -> pa.Table:
 # ------------------------------------------------------------------------------ trajectories
 
 
+def trajectory_path(run_dir: Path, episode_id: int, suffix: str = "") -> Path:
+    """Where a run keeps episode ``episode_id``'s recorded trajectory (``suffix``: its other tables)."""
+    return Path(run_dir) / TRAJECTORY_DIR / f"episode-{episode_id:06d}{suffix}.parquet"
+
+
 def write_trajectory(run_dir: Path, episode_id: int, columns: Mapping[str, Any], *, suffix: str = "") -> Path:
     """Write one episode's trajectory (column name -> 1-D array of equal lengths, e.g. one row per
     sub-step) atomically to ``trajectories/episode-NNNNNN<suffix>.parquet``."""
-    path = Path(run_dir) / TRAJECTORY_DIR / f"episode-{episode_id:06d}{suffix}.parquet"
+    path = trajectory_path(run_dir, episode_id, suffix)
     path.parent.mkdir(parents=True, exist_ok=True)
     _atomic_parquet(pa.table(dict(columns)), path)
     return path

@@ -153,3 +153,44 @@ def violated(rows: Sequence[Row], name: str) -> np.ndarray:
     """Boolean mask, shape (len(rows),): the rows that violate requirement ``name``."""
     rob = np.array([robustness(r, name) for r in rows], dtype=np.float64)
     return np.asarray(rob < 0.0, dtype=bool)
+
+
+#: Requirements whose robustness is the minimum of a signal of the stored trajectory, per sub-step:
+#: what a splitting search branches on (:func:`running_robustness`).
+STEPWISE: tuple[str, ...] = ("collision_front", "collision_opp", "ellipse", "invariance", "safe")
+
+
+def _substep_signal(trajectory: Mapping[str, np.ndarray], name: str, epsilon: float, h0: float) -> np.ndarray:
+    def gap(key: str, flag: str) -> np.ndarray:
+        g = np.asarray(trajectory[key], dtype=np.float64)
+        g = np.where(np.isnan(g), math.inf, g)  # no veh_o (yet): nothing to touch
+        return np.where(np.asarray(trajectory[flag]) > 0, COLLISION_ROBUSTNESS_M, g)
+
+    h = np.asarray(trajectory["h_front"], dtype=np.float64)
+    signals = {
+        "collision_front": lambda: gap("gap_front_m", "collision_front"),
+        "collision_opp": lambda: gap("gap_opp_m", "collision_opp"),
+        "ellipse": lambda: h,
+        "invariance": lambda: h - epsilon if h0 >= epsilon else np.full_like(h, math.inf),
+        "safe": lambda: np.minimum(np.minimum(gap("gap_front_m", "collision_front"), gap("gap_opp_m", "collision_opp")),
+                                   h),
+    }
+    if name not in signals:
+        raise ValueError(f"requirement {name!r} has no per-step robustness; stepwise: {', '.join(STEPWISE)}")
+    return signals[name]()
+
+
+def running_robustness(trajectory: Mapping[str, np.ndarray], name: str, control_period_s: float, *,
+                       epsilon: float = 0.0, h0: float = math.inf) -> np.ndarray:
+    """Shape (steps,): the lowest robustness of requirement ``name`` (one of :data:`STEPWISE`) reached
+    by the end of each control step, from a recorded trajectory (columns of
+    :mod:`mcverify.episode.recording`, one row per sub-step at ``t_s`` in (k dt, (k + 1) dt] for
+    control step k). Its last value is the episode's robustness; ``epsilon`` and ``h0`` (the row's
+    ``epsilon`` and ``h0_front``) are needed for ``invariance`` only."""
+    t = np.asarray(trajectory["t_s"], dtype=np.float64)
+    if not t.size:
+        return np.zeros(0)
+    step = np.maximum(np.ceil(t / control_period_s - 1e-6).astype(np.int64) - 1, 0)
+    per_step = np.full(int(step[-1]) + 1, math.inf)
+    np.minimum.at(per_step, step, _substep_signal(trajectory, name, epsilon, h0))
+    return np.minimum.accumulate(per_step)

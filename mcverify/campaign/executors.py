@@ -29,7 +29,7 @@ from __future__ import annotations
 
 from mcverify.campaign.local import MAX_STARTUP_FAILURES, LocalExecutor
 from mcverify.campaign.ray_executor import RayExecutor, probe_address
-from mcverify.campaign.scheduler import MAX_ATTEMPTS, ChunkOutput, Executor, SerialExecutor, execute
+from mcverify.campaign.scheduler import MAX_ATTEMPTS, ChunkOutput, Executor, KeptAlive, SerialExecutor, execute
 from mcverify.campaign.work import (
     MAX_MESSAGE,
     ChunkResultLike,
@@ -48,7 +48,8 @@ from mcverify.schema import ERROR_OUTCOME
 
 __all__ = [
     "ERROR_OUTCOME", "MAX_ATTEMPTS", "MAX_MESSAGE", "MAX_STARTUP_FAILURES", "ChunkOutput", "ChunkResultLike",
-    "EpisodeFn", "Executor", "ExecutorError", "LocalExecutor", "Outcome", "RayExecutor", "SerialExecutor", "Work",
+    "EpisodeFn", "Executor", "ExecutorError", "KeptAlive", "LocalExecutor", "Outcome", "RayExecutor",
+    "SerialExecutor", "Work",
     "default_workers", "error_row", "execute", "make_executor", "one_line", "probe_address", "run_work",
     "simulate", "solver_for",
 ]

@@ -346,7 +346,7 @@ def _execute(
             log.warning("warning: %s", warning)
     done_episodes = sum(len(c.episode_ids) for c in chunks if c.name in done)
     record = [(c.index, 0) for c in campaign.cells if c.episodes > 0] if record_first else []
-    if todo and episode_fn is executors.simulate:
+    if todo and episode_fn is executors.simulate and not executor.warm:
         log.info("starting %s: each worker imports JAX and CasADi, loads the solver and compiles the plant once "
                  "(tens of seconds) before its first chunk; then the bar moves as episodes finish (chunks of up to %d "
                  "run together; with Ray, as whole chunks finish)",

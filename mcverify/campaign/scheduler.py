@@ -191,6 +191,8 @@ class Executor(ABC):
 
     kind: str = "?"
     capacity: int = 1
+    #: Workers already started by an earlier run (:class:`KeptAlive`): no start-up to announce.
+    warm: bool = False
     #: Set by :func:`execute` while it runs: ``progress(handle, EpisodeDone)`` for an executor that
     #: reports episodes inside a unit (None: nobody listens).
     progress: Callable[[Any, EpisodeDone], None] | None = None
@@ -235,3 +237,49 @@ class SerialExecutor(Executor):
         handle, work = self._pending.popleft()
         report = self.progress
         return handle, run_work(work, None if report is None else lambda msg: report(handle, msg))
+
+
+class KeptAlive(Executor):
+    """One executor lent to several runs in turn (the generations of a falsification search).
+
+    Leaving a run (``with``) keeps the inner executor and its workers, so they start (JAX imported,
+    solver loaded, plant compiled) once for all the runs rather than once per run; :meth:`release`
+    ends them, and so does a run that fails. The inner one is made by ``make`` on first entry."""
+
+    def __init__(self, make: Callable[[], Executor]) -> None:
+        self._make = make
+        self._inner: Executor | None = None
+
+    @property
+    def inner(self) -> Executor:
+        if self._inner is None:
+            self._inner = self._make().__enter__()
+        return self._inner
+
+    def __enter__(self) -> Executor:
+        inner = self.inner
+        self.kind, self.capacity = inner.kind, inner.capacity
+        return self
+
+    def close(self, failed: bool = False) -> None:
+        if failed:
+            self.release(failed=True)
+
+    def release(self, failed: bool = False) -> None:
+        """End the inner executor's workers (``failed``: without waiting for them)."""
+        if self._inner is not None:
+            self._inner.close(failed=failed)
+            self._inner = None
+        self.warm = False
+
+    def submit(self, work: Work) -> Any:
+        self.inner.progress = self.progress
+        handle = self.inner.submit(work)
+        self.warm = True
+        return handle
+
+    def wait(self) -> tuple[Any, Outcome]:
+        return self.inner.wait()
+
+    def describe(self) -> dict[str, Any]:
+        return self.inner.describe()

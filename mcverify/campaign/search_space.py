@@ -7,6 +7,7 @@
     population = 8                # candidates per generation (one batch), >= 2 (default 8)
     stop_at_first = true          # stop after the generation that found a counterexample (default true)
     stop_episodes = false         # end each episode at its first violation of the requirement (default false)
+    common_noise = false          # every candidate of a search sees the same per-step noise (default false)
 
     [falsify.bounds]              # one numeric model field per entry: [low, high], low < high
     "scenario.front_speed_mps" = [5.0, 9.0]
@@ -25,8 +26,10 @@ bounds.
 
 Every candidate is one episode of a one-episode cell whose overrides are the candidate's values (so
 its episode is an ordinary row and ``mcverify replay`` re-simulates it bit for bit); the per-step
-perception noise still acts as in any run. A campaign with a ``[falsify]`` table must define one
-target: no ``[grid]`` and no ``[axes]`` (checked by :func:`check_single_target`).
+perception noise still acts as in any run: each candidate draws its own, unless ``common_noise`` gives
+every candidate of a search the same noise realisation (``noise.key_seed`` from the search's seed),
+which makes the robustness a deterministic function of the searched values. A campaign with a
+``[falsify]`` table must define one target: no ``[grid]`` and no ``[axes]`` (checked by :func:`check_single_target`).
 Every problem is a :class:`CampaignError` of one line.
 """
 
@@ -46,7 +49,7 @@ from mcverify.model import REQUIREMENT_NAMES
 __all__ = ["MAX_POPULATION", "REQUIREMENT_NAMES", "SearchSpace", "check_single_target", "read_search_space",
            "split_element"]
 
-_KEYS = {"requirement", "population", "stop_at_first", "stop_episodes", "bounds", "nominal"}
+_KEYS = {"requirement", "population", "stop_at_first", "stop_episodes", "common_noise", "bounds", "nominal"}
 MAX_POPULATION = 1024
 _ELEMENT = re.compile(r"(.+)\[(\d+)\]")
 
@@ -62,6 +65,7 @@ class SearchSpace:
     bounds: tuple[tuple[str, float, float], ...]
     stop_episodes: bool = False
     nominal: tuple[tuple[str, float, float], ...] = ()
+    common_noise: bool = False
 
     @property
     def nominal_by_field(self) -> dict[str, tuple[float, float]]:
@@ -143,7 +147,8 @@ def read_search_space(table: Any, where: str, known_fields: Mapping[str, type]) 
         )
     stop = table.get("stop_at_first", True)
     stop_episodes = table.get("stop_episodes", False)
-    for key, flag in (("stop_at_first", stop), ("stop_episodes", stop_episodes)):
+    common_noise = table.get("common_noise", False)
+    for key, flag in (("stop_at_first", stop), ("stop_episodes", stop_episodes), ("common_noise", common_noise)):
         if not isinstance(flag, bool):
             raise CampaignError(f"{here}.{key}: must be true or false, got {_short(flag)}")
     bounds = table.get("bounds")
@@ -177,7 +182,7 @@ def read_search_space(table: Any, where: str, known_fields: Mapping[str, type]) 
             raise CampaignError(f"{here}.bounds: the searched elements of {field} must be [0] to [K-1] (they make "
                                 f"the whole list), got {sorted(indices)}")
     nominal = _read_nominal(table.get("nominal", {}), here, {name: (lo, hi) for name, lo, hi in out})
-    return SearchSpace(requirement, population, stop, tuple(out), stop_episodes, nominal)
+    return SearchSpace(requirement, population, stop, tuple(out), stop_episodes, nominal, common_noise)
 
 
 def _read_nominal(table: Any, here: str,

@@ -17,6 +17,7 @@ from mcverify.model import (
     BACKEND_NAMES,
     INFEASIBILITY_POLICIES,
     KKT_FACTORIZATIONS,
+    MAX_BRANCHES,
     MAX_SEGMENTS,
     REQUIREMENT_NAMES,
     ModelParams,
@@ -85,6 +86,7 @@ def validate_params(p: ModelParams, where: str) -> None:
         if len(v) > MAX_SEGMENTS or not all(-1.0 <= x <= 1.0 for x in v):
             raise bad(f"noise.{name}", f"must be at most {MAX_SEGMENTS} values in [-1, 1] (fractions of the noise "
                       f"bound), got {_short(list(v))}")
+    _check_branches(bad, n)
     nonneg = {
         "mpc.phi_s": m.phi_s,
         "mpc.smooth_weight": m.smooth_weight,
@@ -235,6 +237,23 @@ def _validate_front_and_opposing(p: ModelParams, bad) -> None:
         raise bad("opposing.spawn_delay_s", f"must be a finite number >= 0, got {_short(o.spawn_delay_s)}")
     _check_range(bad, "opposing.spawn_gap_range_m", o.spawn_gap_range_m, lo_min=p.geometry.length_m)
     _check_range(bad, "opposing.speed_range_mps", o.speed_range_mps, lo_min=0.0, hi_max=o.speed_limit_mps)
+
+
+def _check_branches(bad, n) -> None:
+    """noise.key_seed and the noise branches (set by a splitting search): integers in range, steps increasing."""
+    if not -1 <= n.key_seed < 2**31:
+        raise bad("noise.key_seed", f"must be -1 or an integer from 0 to 2^31 - 1, got {_short(n.key_seed)}")
+    steps, ids = n.branch_after_steps, n.branch_ids
+    if len(steps) != len(ids):
+        raise bad("noise.branch_ids", f"must have one id per noise.branch_after_steps ({len(steps)}), got {len(ids)}")
+    if len(steps) > MAX_BRANCHES:
+        raise bad("noise.branch_after_steps", f"at most {MAX_BRANCHES} branches, got {len(steps)}")
+    if not all(float(x).is_integer() and x >= 0 for x in steps) or any(
+            b <= a for a, b in zip(steps, steps[1:], strict=False)):
+        raise bad("noise.branch_after_steps",
+                  f"must be increasing integer control steps >= 0, got {_short(list(steps))}")
+    if not all(float(x).is_integer() and 0 <= x < 2**31 for x in ids):
+        raise bad("noise.branch_ids", f"must be integers in [0, 2^31), got {_short(list(ids))}")
 
 
 def _check_range(bad, key: str, rng: tuple[float, ...], *, lo_min: float, hi_max: float = math.inf) -> None:

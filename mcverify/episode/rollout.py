@@ -40,7 +40,7 @@ from mcverify.control.planner import EpisodeState, Planner, StepRecord
 from mcverify.episode import stop
 from mcverify.episode.recording import EpisodeRecording
 from mcverify.episode.row import EndState, Row, episode_row
-from mcverify.episode.snapshot import Branching
+from mcverify.episode.snapshot import Branching, branch_key
 from mcverify.sim.plant import LaneGroups, SafetyTrace, Substep, footprint_top_y_m, initial_plant
 
 Array = jax.Array
@@ -84,13 +84,23 @@ def _untimed(name: str) -> Iterator[None]:
 # --------------------------------------------------------------------------------------- keys
 
 
-def episode_key(seed: int, cell_index: int | None, episode_id: int) -> Array:
+def episode_key(seed: int, cell_index: int | None, episode_id: int, key_seed: int = -1) -> Array:
     """The root key of one episode: (seed, cell, episode id), or (seed, episode id) for common
-    random numbers across cells (paired comparisons)."""
+    random numbers across cells (paired comparisons); with ``key_seed`` >= 0 (``noise.key_seed``)
+    (key_seed, episode id) whatever the campaign seed and cell."""
+    if key_seed >= 0:
+        return jax.random.fold_in(jax.random.PRNGKey(key_seed), episode_id)
     key = jax.random.PRNGKey(seed)
     if cell_index is not None:
         key = jax.random.fold_in(key, cell_index)
     return jax.random.fold_in(key, episode_id)
+
+
+def noise_branches(params) -> dict[int, int]:
+    """``noise.branch_after_steps`` / ``noise.branch_ids`` as {control step: branch id}: after that
+    step the episode's noise comes from that branch of its root key (:func:`branch_key`)."""
+    n = params.noise
+    return {int(s): int(b) for s, b in zip(n.branch_after_steps, n.branch_ids, strict=True)}
 
 
 def sample_scenario(key: Array, params) -> dict[str, float]:
@@ -180,7 +190,7 @@ def run_episodes(
     p = cell.params
     ids = [int(e) for e in episode_ids]
     cell_key = None if common_random_numbers else cell.index
-    keys = jnp.stack([episode_key(seed, cell_key, e) for e in ids])
+    keys = jnp.stack([episode_key(seed, cell_key, e, p.noise.key_seed) for e in ids])
     samples = [sample_scenario(k, p) for k in keys]
     for b, e in enumerate(ids):
         samples[b].update((scenarios or {}).get(e, {}))
@@ -213,9 +223,15 @@ def run_episodes(
             settling.update({0: settle} if settle is not None else {})
             ends.update({0: end} if end is not None else {})
         first_step = branching.first_step()
+    switches = noise_branches(p)
+    if switches and branching is not None and branching.start is not None:
+        raise ValueError("a snapshot branch of an episode with scheduled noise branches (noise.branch_after_steps)")
 
     for step in range(first_step, n_steps):
         t_s = step * p.sim.control_period_s
+        if step - 1 in switches:  # the noise of the steps to come: a branch of each episode's root key
+            for b in range(len(ids)):
+                world.set_lane_key(b, branch_key(np.asarray(keys[b]), switches[step - 1]))
         with phase("plant"):
             ego = world.ego()
             if spawning:

@@ -17,6 +17,9 @@ exactly where an uninterrupted one would.
   one float parameter in [0, 1] per coordinate), the optional extra ``mcverify[bo]``; without optuna
   the method is refused with one line. A generation's points are asked before any is told, so
   they come from the same model (TPE's first ``BO_STARTUP`` points are its own random start).
+- ``splitting``: not a search over the cube alone but over the per-step noise as well: survivors
+  of each generation branched with fresh noise from where they crossed the current level
+  (:mod:`mcverify.falsify.splitting`, its own ask/tell with a noise lineage per candidate).
 """
 
 from __future__ import annotations
@@ -27,8 +30,9 @@ from abc import ABC, abstractmethod
 import numpy as np
 
 from mcverify.errors import RunError
+from mcverify.falsify.splitting import NoiseSplitting
 
-METHODS: tuple[str, ...] = ("cma", "cross-entropy", "random", "bo")
+METHODS: tuple[str, ...] = ("cma", "cross-entropy", "random", "bo", "splitting")
 #: Fraction of a generation refitted by cross-entropy.
 ELITE_FRACTION = 0.25
 #: Weight of the new fit in cross-entropy's update (the rest is the previous distribution).
@@ -149,9 +153,10 @@ class Bayesian(Searcher):
             self._study.tell(trial, float(value))
 
 
-def searcher(method: str, dimension: int, population: int, seed: int) -> Searcher:
+def searcher(method: str, dimension: int, population: int, seed: int) -> Searcher | NoiseSplitting:
     """A fresh searcher of ``method`` (one of :data:`METHODS`)."""
-    classes = {"cma": Cma, "cross-entropy": CrossEntropy, "random": RandomSearch, "bo": Bayesian}
+    classes = {"cma": Cma, "cross-entropy": CrossEntropy, "random": RandomSearch, "bo": Bayesian,
+               "splitting": NoiseSplitting}
     if method not in classes:
         raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
     return classes[method](dimension, population, seed)

@@ -10,6 +10,7 @@ renderer of run reports: tables that fit, figures embedded, unsafe rows marked).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -74,7 +75,29 @@ def facts(result: SearchResult, records: Sequence[Mapping[str, Any]]) -> list[tu
         ("first counterexample", f"episode {first} of the search" if first else
          f"none found within {result.episodes} episodes"),
         ("counterexamples", f"{len(records)} (see `counterexamples.parquet`)"),
-    ]
+    ] + _noise_facts(result)
+
+
+def _noise_facts(result: SearchResult) -> list[tuple[str, str]]:
+    """How the search treated the per-step noise: common to all candidates, or split (the best's lineage)."""
+    if result.space.common_noise:
+        return [("noise", "one realisation for every candidate (`[falsify] common_noise`)")]
+    if result.config.method != "splitting" or not result.evaluations:
+        return []
+    ev = result.evaluations
+    best = min(range(len(ev)), key=lambda i: (math.isnan(ev[i].robustness), ev[i].robustness))
+    return [("lineage of the best", lineage(ev, best + 1))]
+
+
+def lineage(evaluations: Sequence[Any], number: int) -> str:
+    """``evaluation N (how it came) <- its parent (...) <- ...`` back to a fresh draw (1-based numbers)."""
+    how = {"fresh": "fresh", "scenario": "scenario step"}
+    steps = []
+    while number > 0:
+        e = evaluations[number - 1]
+        steps.append(f"{number} ({how.get(e.move, f'noise branch after step {e.branch_after_step}')})")
+        number = e.parent
+    return "evaluation " + " ← ".join(steps)
 
 
 def write(result: SearchResult, records: Sequence[Mapping[str, Any]]) -> Path:

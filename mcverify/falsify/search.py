@@ -42,6 +42,7 @@ from mcverify.campaign.search_space import SearchSpace, check_single_target
 from mcverify.campaign.spec import Campaign, campaign_from_dict
 from mcverify.errors import CampaignError, RunError
 from mcverify.falsify import methods
+from mcverify.falsify.splitting import Candidate, NoiseSplitting
 
 CONFIG = "falsify.json"
 GENERATIONS = "generations"
@@ -84,6 +85,9 @@ class Evaluation:
     values: dict[str, float]
     row: dict[str, Any]
     robustness: float
+    parent: int = 0  # splitting: the 1-based evaluation number of the particle it branched from (0: none)
+    branch_after_step: int = -1  # splitting: the control step after which its own noise starts (-1: fresh)
+    move: str = "fresh"  # splitting: how it came from its parent ("fresh", "noise" or "scenario")
 
 
 @dataclass(frozen=True)
@@ -149,6 +153,12 @@ def start(config: SearchConfig, out_dir: Path, **kw: Any) -> SearchResult:
     out_dir = Path(out_dir)
     target(config)  # validates before anything is written
     methods.searcher(config.method, 1, 2, 0)  # a bad method name fails here, with one line
+    if config.method == "splitting" and target(config)[1].common_noise:
+        raise RunError("--method splitting draws fresh noise for its branches; [falsify] common_noise = true "
+                       "is for the other methods")
+    if config.method == "splitting" and config.requirement not in rb.STEPWISE:
+        raise RunError(f"--method splitting branches on a per-step robustness; requirement {config.requirement!r} "
+                       f"has none (choose one of {', '.join(rb.STEPWISE)})")
     if out_dir.exists() and any(out_dir.iterdir()):
         raise RunError(f"{out_dir} exists and is not empty; choose another --out or use --resume {out_dir}")
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -173,20 +183,32 @@ def _search(
     progress: Callable[[str], None] | None = None,
     stop_after_generations: int | None = None,
 ) -> SearchResult:
-    """The search loop. make_executor: a fresh executor per generation; episode_fn: the episode
+    """The search loop. make_executor: the executor, made once and kept alive across the generations
+    (:class:`~mcverify.campaign.executors.KeptAlive`: its workers start once); episode_fn: the episode
     simulation (tests inject cheap ones); progress: called with one line per generation;
     stop_after_generations: stop (as if killed) after running that many generations in this call."""
+    shared = executors.KeptAlive(make_executor)
+    try:
+        return _generations(config, out_dir, lambda: shared, episode_fn, progress, stop_after_generations)
+    finally:
+        shared.release()
+
+
+def _generations(config: SearchConfig, out_dir: Path, make_executor: Callable[[], Executor], episode_fn: EpisodeFn,
+                 progress: Callable[[str], None] | None, stop_after_generations: int | None) -> SearchResult:
     campaign, space = target(config)
     search = methods.searcher(config.method, space.dimension, space.population, config.seed)
     evaluations: list[Evaluation] = []
     ran = 0
     generation = 0
+    common_seed = noise_seed(campaign.seed, config.seed) if space.common_noise else -1
     while len(evaluations) < config.budget:
-        points = search.ask()
-        n = min(space.population, config.budget - len(evaluations))
-        values = [space.values(list(p)) for p in points[:n]]
-        gen_campaign = generation_campaign(config, [space.overrides(v) for v in values], generation,
-                                           space.stop_episodes)
+        candidates = _ask(search, common_seed)
+        n = min(len(candidates), config.budget - len(evaluations))
+        values = [space.values(list(c.point)) for c in candidates[:n]]
+        gen_campaign = generation_campaign(
+            config, [space.overrides(v) | c.noise_overrides() for v, c in zip(values, candidates, strict=False)],
+            generation, space.stop_episodes)
         gen_dir = out_dir / GENERATIONS / f"g{generation:03d}"
         finished = _finished(gen_dir)
         if not finished:
@@ -198,20 +220,56 @@ def _search(
             _check_same(gen_dir, gen_campaign)
         rows = {int(r["cell_index"]): r for r in store.read_episodes(gen_dir).to_pylist()}
         robs = np.array([rb.robustness(rows[k], config.requirement) for k in range(n)])
-        evaluations += [Evaluation(generation, k, tuple(float(x) for x in points[k]), values[k], rows[k],
-                                   float(robs[k])) for k in range(n)]
+        evaluations += [Evaluation(generation, k, candidates[k].point, values[k], rows[k], float(robs[k]),
+                                   candidates[k].parent, candidates[k].branch_after_step, candidates[k].move)
+                        for k in range(n)]
         if progress is not None:
             best = np.nanmin(robs) if np.isfinite(robs).any() else math.nan
             progress(f"generation {generation}: {n} episodes, best robustness {best:.4g}, "
                      f"{len(evaluations)}/{config.budget} episodes")
-        if n == space.population:
-            search.tell(points, robs)
+        if n == len(candidates):
+            _tell(search, candidates, robs, gen_dir, [rows[k] for k in range(n)], config.requirement,
+                  [cell.params.sim.control_period_s for cell in gen_campaign.cells])
         generation += 1
         if space.stop_at_first and (robs < 0.0).any():
             break
     result = SearchResult(out_dir, config, space, tuple(evaluations))
     write_outputs(result)
     return result
+
+
+def _ask(search: methods.Searcher | NoiseSplitting, common_seed: int = -1) -> list[Candidate]:
+    if isinstance(search, NoiseSplitting):
+        return search.ask()
+    return [Candidate(tuple(float(x) for x in p), common_seed) for p in search.ask()]
+
+
+def noise_seed(campaign_seed: int, search_seed: int) -> int:
+    """``noise.key_seed`` of every candidate of a ``common_noise`` search: one noise realisation per
+    (campaign seed, search seed), so independent trials see independent noise."""
+    digest = hashlib.sha256(f"common-noise:{campaign_seed}:{search_seed}".encode()).digest()
+    return int.from_bytes(digest[:8], "big") % 2**31
+
+
+def _tell(search: methods.Searcher | NoiseSplitting, candidates: list[Candidate], robs: np.ndarray, gen_dir: Path,
+          rows: list[dict[str, Any]], requirement: str, periods_s: list[float]) -> None:
+    if not isinstance(search, NoiseSplitting):
+        search.tell(np.array([c.point for c in candidates]), robs)
+        return
+    search.tell(candidates, [_running(gen_dir, row, requirement, dt) for row, dt in zip(rows, periods_s, strict=True)])
+
+
+def _running(gen_dir: Path, row: dict[str, Any], requirement: str, control_period_s: float) -> np.ndarray:
+    """A candidate's running robustness per control step, from its stored trajectory (empty for an
+    episode that could not be simulated: it is never a survivor)."""
+    if rb.is_error_row(row):
+        return np.zeros(0)
+    path = store.trajectory_path(gen_dir, int(row["episode_id"]))
+    if not path.is_file():
+        raise RunError(f"{path} is missing: --method splitting branches on each candidate's stored trajectory")
+    return rb.running_robustness({k: np.asarray(v) for k, v in pq.read_table(path).to_pydict().items()},
+                                 requirement, control_period_s, epsilon=float(row["epsilon"]),
+                                 h0=float(row["h0_front"]))
 
 
 def _finished(gen_dir: Path) -> bool:
@@ -254,6 +312,9 @@ def search_table(result: SearchResult) -> pa.Table:
     for i, name in enumerate(result.space.fields):
         cols[f"u:{name}"] = [e.point[i] for e in ev]
         cols[name] = [e.values[name] for e in ev]
+    cols["parent"] = [e.parent for e in ev]  # splitting: the evaluation it branched from (0: none)
+    cols["branch_after_step"] = [e.branch_after_step for e in ev]  # splitting: where its last noise branch starts
+    cols["move"] = [e.move for e in ev]  # splitting: fresh, noise (branch) or scenario (step)
     cols["robustness"] = [e.robustness for e in ev]
     cols["violated"] = [bool(e.robustness < 0.0) for e in ev]
     cols["best_so_far"] = list(np.fmin.accumulate([e.robustness for e in ev])) if ev else []

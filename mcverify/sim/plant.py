@@ -429,6 +429,11 @@ class LaneGroups:
         self.traces[g] = SafetyTrace(*(put(a, v) for a, v in zip(self.traces[g], trace, strict=True)))
         self.keys[g] = put(self.keys[g], key)
 
+    def set_lane_key(self, b: int, key: np.ndarray) -> None:
+        """Switch episode ``b``'s noise root key for the steps to come (a scheduled noise branch)."""
+        g, lane = divmod(b, LANES)
+        self.keys[g] = self.keys[g].at[lane].set(jnp.asarray(key, dtype=self.keys[g].dtype))
+
     def trace(self) -> SafetyTrace:
         """(n,) final safety metrics as numpy arrays."""
         return SafetyTrace(*(self._gather([getattr(t, f) for t in self.traces]) for f in SafetyTrace._fields))

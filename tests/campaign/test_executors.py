@@ -238,3 +238,29 @@ def test_a_nan_plant_in_a_real_episode_becomes_an_error_row(tiny):
     for r in rows.values():
         assert r["outcome"] == "error"
         assert r[schema.ERROR_COLUMN].startswith("non-finite result: min_h_front = nan")
+
+
+def test_kept_alive_lends_one_executor_to_several_runs():
+    made = []
+
+    def make():
+        made.append(executors.SerialExecutor())
+        return made[-1]
+
+    shared = executors.KeptAlive(make)
+    for _ in range(2):
+        with shared as ex:
+            assert ex is shared and shared.inner is made[0]
+    assert len(made) == 1 and shared.describe() == made[0].describe()
+    assert not shared.warm
+    cell = campaign_from_dict({"campaign": {"name": "k", "seed": 1, "episodes": 1}}).cells[0]
+    with shared:
+        shared.submit(executors.Work(cell, (0,), 1, False, (), synth.episodes))
+        assert shared.wait()[1].error is None
+    assert shared.warm  # the next run has nothing to start up
+    shared.release()
+    assert shared._inner is None and not shared.warm
+    with pytest.raises(RuntimeError), shared:  # a failed run releases the workers
+        shared.inner  # noqa: B018 - starts the inner executor
+        raise RuntimeError("boom")
+    assert shared._inner is None and len(made) == 2

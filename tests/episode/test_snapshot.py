@@ -89,3 +89,35 @@ def test_branching_is_for_one_episode(whole):
         run_episodes(cell, [0, 1], camp.seed, planner, branching=Branching())
     with pytest.raises(ValueError, match="snapshot of episode 1"):
         run_episodes(cell, [0], camp.seed, planner, branching=Branching(start=br.snapshots[3]))
+
+
+def _scheduled_cell(noise: dict):
+    model = {**MODEL, "noise": {**MODEL["noise"], **noise}}
+    return campaign_from_dict({"campaign": {"name": "snap", "seed": 3, "episodes": 2}, "model": model}).cells[0]
+
+
+def test_scheduled_noise_branches_from_step_0_equal_snapshot_branches(whole):
+    """noise.branch_after_steps / branch_ids re-simulate a branch (and a branch of a branch) from
+    step 0, exactly as the snapshot branches of a splitting run continue it: what makes a splitting
+    counterexample an ordinary, replayable episode."""
+    camp, cell, planner, _, _, br = whole
+    once = Branching(start=br.snapshots[3], branch_id=5, keep=lambda step, trace: step == 12)
+    first = run_episodes(cell, [1], camp.seed, planner, branching=once).rows[0]
+    second = run_episodes(cell, [1], camp.seed, planner,
+                          branching=Branching(start=once.snapshots[12], branch_id=7)).rows[0]
+    scheduled = _scheduled_cell({"branch_after_steps": [3], "branch_ids": [5]})
+    assert_same(first, run_episodes(scheduled, [1], camp.seed, planner).rows[0])
+    twice = _scheduled_cell({"branch_after_steps": [3, 12], "branch_ids": [5, 7]})
+    assert_same(second, run_episodes(twice, [1], camp.seed, planner).rows[0])
+    with pytest.raises(ValueError, match="scheduled noise branches"):
+        run_episodes(twice, [1], camp.seed, planner, branching=Branching(start=br.snapshots[3], branch_id=5))
+
+
+@pytest.mark.slow  # two more closed-loop episodes; the fake episodes of tests/falsify cover the keying too
+def test_noise_key_seed_replaces_the_campaign_seed_and_cell(whole):
+    camp, cell, planner, plain, _, _ = whole
+    keyed = _scheduled_cell({"key_seed": 11})
+    a = run_episodes(keyed, [1], camp.seed, planner).rows[0]
+    b = run_episodes(keyed, [1], camp.seed + 1, planner).rows[0]  # another campaign seed: the same noise
+    assert strip(a) | {"seed": 0} == strip(b) | {"seed": 0}
+    assert a["min_h_front"] != plain["min_h_front"]

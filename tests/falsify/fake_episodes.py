@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 
+from mcverify.episode.recording import EpisodeRecording
 from tests import synthetic_episodes
 
 
@@ -21,4 +22,46 @@ def episodes(cell, episode_ids, seed, common_random_numbers, record):
                   "min_gap_front_m": 1.0, "safe": min_h >= 0, "opposing_kind": "none",
                   "first_unsafe_s": 3.0 if min_h < 0 else math.nan,
                   "first_unsafe_cause": "planned" if min_h < 0 else ""})
+    return out
+
+
+#: Control steps of a :func:`noisy_walk` episode.
+WALK_STEPS = 60
+
+
+def walk_margins(cell, seed: int, episode: int) -> np.ndarray:
+    """h_ef after each control step of a noise-driven random walk keyed as the real engine keys its
+    noise: the root is (noise.key_seed, episode) or (seed, cell, episode), and after each step of
+    noise.branch_after_steps the increments come from that branch of the root."""
+    n = cell.params.noise
+    root = [n.key_seed, episode] if n.key_seed >= 0 else [seed, cell.index, episode]
+    switches = dict(zip((int(s) for s in n.branch_after_steps), (int(b) for b in n.branch_ids), strict=True))
+    branch, xi = -1, np.empty(WALK_STEPS)
+    for t in range(WALK_STEPS):
+        if t - 1 in switches:
+            branch = switches[t - 1]
+        xi[t] = np.random.default_rng([*root, branch + 1, t]).standard_normal()
+    v = cell.params.scenario.front_speed_mps
+    return 0.9 + 0.4 * abs(v - 7.0) + np.cumsum(-0.004 + 0.05 * xi)
+
+
+def noisy_walk(cell, episode_ids, seed, common_random_numbers, record):
+    """Rows and trajectories (one sub-step per control step) of :func:`walk_margins`: an ellipse
+    violation is rare for random candidates and driven by the per-step noise."""
+    out = synthetic_episodes.episodes(cell, episode_ids, seed, common_random_numbers, record)
+    dt = cell.params.sim.control_period_s
+    out.recordings = {}
+    for r in out.rows:
+        e = int(r["cell_episode"])
+        h = walk_margins(cell, seed, e)
+        min_h = float(h.min())
+        r.update({"min_h_front": min_h, "collision_front": False, "ellipse_violation": min_h < 0,
+                  "min_gap_front_m": 1.0, "safe": min_h >= 0, "opposing_kind": "none",
+                  "first_unsafe_s": float(dt * (1 + np.flatnonzero(h < 0)[0])) if min_h < 0 else math.nan,
+                  "first_unsafe_cause": "planned" if min_h < 0 else ""})
+        if e in record:
+            ones = np.ones(WALK_STEPS)
+            out.recordings[e] = EpisodeRecording({
+                "t_s": dt * np.arange(1, WALK_STEPS + 1), "h_front": h, "gap_front_m": ones,
+                "collision_front": 0 * ones, "gap_opp_m": np.nan * ones, "collision_opp": 0 * ones})
     return out

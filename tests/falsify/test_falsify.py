@@ -52,6 +52,7 @@ def test_requirement_lists_agree():
         ({"bounds": {"scenario.front_speed_mps": [1, 2]}, "requirement": "fast"}, "unknown requirement"),
         ({"bounds": {"scenario.front_speed_mps": [1, 2]}, "stop_at_first": "yes"}, "stop_at_first"),
         ({"bounds": {"scenario.front_speed_mps": [1, 2]}, "stop_episodes": 1}, "stop_episodes"),
+        ({"bounds": {"scenario.front_speed_mps": [1, 2]}, "common_noise": "yes"}, "common_noise"),
         ({"bounds": {"noise.opp_x_segments": [-1, 1]}}, 'search its elements as "noise.opp_x_segments[0]"'),
         ({"bounds": {"scenario.front_speed_mps[0]": [1, 2]}}, "selects an element of a list field"),
         ({"bounds": {"noise.opp_x_segments[1]": [-1, 1]}}, "must be [0] to [K-1]"),
@@ -100,7 +101,7 @@ def _needs(method):
         pytest.importorskip("optuna")
 
 
-@pytest.mark.parametrize("method", methods.METHODS)
+@pytest.mark.parametrize("method", [m for m in methods.METHODS if m != "splitting"])
 def test_methods_are_deterministic_for_a_seed(method):
     _needs(method)
     def run(seed):

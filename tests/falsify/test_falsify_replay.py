@@ -27,3 +27,20 @@ def test_a_searched_episode_with_disturbances_replays_bit_for_bit(tmp_path):
     gen_dir = tmp_path / "s" / search.GENERATIONS / f"g{ev.generation:03d}"
     out = replay(gen_dir, int(ev.row["episode_id"]))  # raises ReplayMismatch unless every metric agrees
     assert out.row["min_h_front"] == ev.row["min_h_front"]
+
+
+@pytest.mark.slow  # four short closed-loop episodes and a replay
+def test_a_splitting_branch_replays_bit_for_bit(tmp_path):
+    rare = CAMPAIGN.with_name("falsify_vlcbf_eps0_noise2_ellipse.toml")  # no violation in 4 episodes
+    raw = copy.deepcopy(tomllib.loads(rare.read_text(encoding="utf-8")))
+    raw["model"]["sim"] = {"control_period_s": 0.1, "substeps": 20}
+    raw["falsify"].update(population=2, stop_at_first=False)  # one survivor, one noise branch per generation
+    config = search.SearchConfig(raw, str(rare), "splitting", budget=4, seed=1, requirement="ellipse")
+    res = search.start(config, tmp_path / "s", make_executor=executors.SerialExecutor)
+    last = res.evaluations[-1]
+    assert last.move == "noise" and last.parent > 0 and last.branch_after_step >= 0
+    gen_dir = tmp_path / "s" / search.GENERATIONS / f"g{last.generation:03d}"
+    cell = search.store.read_json(gen_dir / search.store.MANIFEST)["cells"][last.candidate]
+    assert cell["overrides"]["noise.branch_after_steps"][-1] == last.branch_after_step
+    out = replay(gen_dir, int(last.row["episode_id"]))  # raises ReplayMismatch unless every metric agrees
+    assert out.row["min_h_front"] == last.row["min_h_front"]
