@@ -34,6 +34,7 @@ def test_open_run_of_a_folder_that_is_no_run_is_one_clear_error(tmp_path: Path) 
         mcverify.open_run(tmp_path)
 
 
+@pytest.mark.slow  # a subprocess that starts two JAX/CasADi workers; about 20 s
 def test_a_script_without_a_main_guard_runs_a_campaign_on_worker_processes(tmp_path: Path) -> None:
     """Spawned workers must not re-import the caller's script (it would run the campaign again)."""
     script = tmp_path / "study.py"

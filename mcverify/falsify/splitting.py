@@ -13,11 +13,21 @@ unbiased estimate ("go with the winners"):
 2. the particles are the survivors and the candidates just evaluated; the level L is the robustness
    of the ``population // 2 + 1``-th best particle; the particles strictly below L survive, the
    others are dropped (all of them when no particle is below L: a fresh generation 0 follows);
-3. each dropped slot is refilled by a *child* of a survivor drawn uniformly: the same point and
-   noise root, and fresh per-step noise (a new branch id) after the first control step at which the
-   survivor's running robustness went below L (``noise.branch_after_steps`` / ``noise.branch_ids``);
-   the child's prefix is the survivor's exactly, so it starts its fresh noise already at level L;
+3. each dropped slot is refilled by a *child* of a survivor drawn uniformly; the slots alternate
+   between two moves:
+
+   - a *noise branch*: the same point and noise root, and fresh per-step noise (a new branch id)
+     after the first control step at which the survivor's running robustness went below L
+     (``noise.branch_after_steps`` / ``noise.branch_ids``); its prefix is the survivor's exactly,
+     so it starts its fresh noise already at level L;
+   - a *scenario step*: the survivor's noise exactly (root and branches) at a point a Gaussian step
+     of :data:`SCENARIO_STEP` away on the unit cube (common random numbers: the change in robustness
+     is the scenario's, not the noise's);
 4. repeat: the level falls generation by generation towards the violation.
+
+Where the searched scenario misleads (the overtakes' robustness points away from the turn-backs
+that violate: results/BENCHMARKS.md, "The rare target, three methods") the method does no better
+than random search; it is made for failures the per-step noise drives.
 
 A child is an ordinary episode re-simulated from step 0 (its cell's overrides carry its noise
 lineage), so it costs a whole episode in the search's budget, lands in its generation's run folder
@@ -141,17 +151,17 @@ class NoiseSplitting:
         children = []
         for slot in range(self.population - len(survivors)):
             parent = survivors[int(self._rng.integers(len(survivors)))]
-            children.append(self._child(parent, level) if slot % 2 == 0 else self._step(parent))
+            children.append(self._noise_branch(parent, level) if slot % 2 == 0 else self._scenario_step(parent))
         return children
 
-    def _step(self, parent: _Particle) -> Candidate:
+    def _scenario_step(self, parent: _Particle) -> Candidate:
         """A scenario step: the parent's noise (root and branches) at a point a Gaussian step away."""
         c = parent.candidate
         point = np.clip(np.asarray(c.point) + SCENARIO_STEP * self._rng.standard_normal(self.dimension), 0.0, 1.0)
         return Candidate(tuple(float(x) for x in point), c.key_seed, c.branch_after_steps, c.branch_ids,
                          parent.evaluation, "scenario")
 
-    def _child(self, parent: _Particle, level: float) -> Candidate:
+    def _noise_branch(self, parent: _Particle, level: float) -> Candidate:
         step = first_step_below(parent.running, level)
         c = parent.candidate
         kept = [(s, b) for s, b in zip(c.branch_after_steps, c.branch_ids, strict=True) if s < step]

@@ -132,6 +132,7 @@ def _short_cell():
     return campaign_from_dict(raw).cells[0]
 
 
+@pytest.mark.slow  # a timed closed-loop run; a benchmark tool, not the engine
 def test_engine_phases_add_up_to_the_measured_cpu():
     from mcverify.bench.solver_bench import stub_planner
     from mcverify.episode.rollout import PhaseClock, run_episodes

@@ -27,6 +27,7 @@ def test_opti_and_the_compiled_kernel_solve_the_same_problem(direction):
     assert naive.total_time_s == pytest.approx(engine.total_time_s, rel=1e-4, abs=1e-4)
 
 
+@pytest.mark.slow  # closed-loop episodes through the naive loop; a benchmark tool, not the engine
 def test_naive_loop_runs_the_same_controller():
     from mcverify.campaign.spec import campaign_from_dict
 

@@ -6,6 +6,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
+
 from mcverify.cli import main
 
 FIXTURE = Path(__file__).resolve().parents[1] / "fixtures" / "tiny.toml"
@@ -40,6 +42,7 @@ def test_splitting_bad_input_is_one_line(capsys):
         assert message in err and len(err.splitlines()) == 1, err
 
 
+@pytest.mark.slow  # starts two worker processes (JAX, CasADi); the runs' local-worker determinism is tested by default
 def test_splitting_runs_on_local_workers_give_the_same_estimate(tmp_path: Path):
     base = ["estimate", str(FIXTURE), "--method", "splitting", "--particles", "2", "--replicates", "2",
             "--max-iterations", "2", "--cell", "front_speed_kmh=36"]
