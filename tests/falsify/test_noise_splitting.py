@@ -152,7 +152,7 @@ def test_running_robustness_of_a_trajectory():
 
 
 def _common(seed=3, method="cma"):
-    cfg = _config(method, budget=16, seed=seed)
+    cfg = _config(method, budget=8, seed=seed)
     raw = {**cfg.raw, "falsify": {**cfg.raw["falsify"], "common_noise": True, "stop_at_first": False}}
     return search.SearchConfig(**{**cfg.__dict__, "raw": raw})
 
