@@ -151,9 +151,9 @@ def generation_campaign(config: SearchConfig, values: list[dict[str, Any]], gene
 def start(config: SearchConfig, out_dir: Path, **kw: Any) -> SearchResult:
     """A new search into the new folder ``out_dir`` (see :func:`_search` for the keywords)."""
     out_dir = Path(out_dir)
-    target(config)  # validates before anything is written
+    _, space = target(config)  # validates before anything is written
     methods.searcher(config.method, 1, 2, 0)  # a bad method name fails here, with one line
-    if config.method == "splitting" and target(config)[1].common_noise:
+    if config.method == "splitting" and space.common_noise:
         raise RunError("--method splitting draws fresh noise for its branches; [falsify] common_noise = true "
                        "is for the other methods")
     if config.method == "splitting" and config.requirement not in rb.STEPWISE:
