@@ -135,7 +135,8 @@ EPISODE_COLUMNS: tuple[Column, ...] = (
     _c("steps", _INT, "", "control steps run"),
     _c("opp_detected_steps", _INT, "", "control steps with veh_o detected"),
     _c("q1_fail_steps", _INT, "", "control steps where Q1 was solved and failed"),
-    _c("q2_fail_steps", _INT, "", "control steps where Q2 failed"),
+    _c("q2_fail_steps", _INT, "", "control steps where Q2 was solved and failed (mpc.q2_solve = when_needed: Q2 is "
+       "not solved while overtaking with Q1 solved)"),
     _c("both_infeasible_steps", _INT, "", "control steps with neither Q1 nor Q2 solved (Theorem 5)"),
     _c("fallback_steps", _INT, "", "control steps with no plan at all: brake in lane"),
     _c("held_steps", _INT, "", "control steps that applied the rest of the last plan (no problem solved)"),

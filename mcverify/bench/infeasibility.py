@@ -1,4 +1,4 @@
-"""The ``mpc.infeasibility`` policies compared: paired closed loops and replayed recorded solves.
+"""Solver policies compared (``mpc.infeasibility`` and others): paired closed loops and replayed recorded solves.
 
 Two measurements, written together into a generated section of results/BENCHMARKS.md
 (:func:`mcverify.store.replace_section`):
@@ -7,7 +7,8 @@ Two measurements, written together into a generated section of results/BENCHMARK
    (:func:`mcverify.bench.engine.run`, no baseline) on the same (seed, cell, episode id) with the
    default settings and with one :data:`VARIANTS` entry: "phase1" (``mpc.infeasibility``: the C
    phase-1 certificate from every start, IPOPT as scheduled auditor), "restoration"
-   (``mpc.ipm_restoration``: the IPM attempts with the restoration phase), or both: CPU per episode
+   (``mpc.ipm_restoration``: the IPM attempts with the restoration phase), both, or "q2_when_needed"
+   (``mpc.q2_solve``: Q2 solved only at the steps whose decision reads it): CPU per episode
    by solve class, the audit counters, and the episode-by-episode agreement of safety verdicts and
    outcomes.
 2. **Recorded solves** (:func:`replay_verdicts`): every solve of a recording
@@ -42,6 +43,7 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "phase1": {"mpc.infeasibility": "phase1"},
     "restoration": {"mpc.ipm_restoration": True},
     "phase1+restoration": {"mpc.infeasibility": "phase1", "mpc.ipm_restoration": True},
+    "q2_when_needed": {"mpc.q2_solve": "when_needed"},
 }
 #: The default side's label.
 DEFAULT = "default"

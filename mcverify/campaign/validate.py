@@ -19,6 +19,7 @@ from mcverify.model import (
     KKT_FACTORIZATIONS,
     MAX_BRANCHES,
     MAX_SEGMENTS,
+    Q2_SOLVE_POLICIES,
     REQUIREMENT_NAMES,
     ModelParams,
 )
@@ -127,6 +128,8 @@ def validate_params(p: ModelParams, where: str) -> None:
                   "(set both; equal: a fixed period)")
     if m.abandon_rule not in ABANDON_RULES:
         raise bad("mpc.abandon_rule", f"unknown rule {_short(m.abandon_rule)}; valid: {', '.join(ABANDON_RULES)}")
+    if m.q2_solve not in Q2_SOLVE_POLICIES:
+        raise bad("mpc.q2_solve", f"unknown policy {_short(m.q2_solve)}; valid: {', '.join(Q2_SOLVE_POLICIES)}")
     if type(m.abandon_after_failures) is not int or m.abandon_after_failures < 1:
         raise bad("mpc.abandon_after_failures", f"must be an integer >= 1 (consecutive failed Q1 solves), "
                   f"got {_short(m.abandon_after_failures)}")

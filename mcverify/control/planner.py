@@ -8,7 +8,7 @@ a planner serves any number of episodes and its output depends only on that epis
 Controllers (``params.mpc.controller``):
 
 * "vlcbf", the paper's dual TO-CBF-MPC: Q1 and Q2 every step (with eq.tompcAdd once veh_o is
-  detected); Algorithm 1 for no or an autonomous veh_o, Table I for a human driver
+  detected; with :attr:`Mpc.q2_solve` = "when_needed", Q2 only at the steps whose decision reads it); Algorithm 1 for no or an autonomous veh_o, Table I for a human driver
   (:mod:`mcverify.control.decision`). Going back, Q2 alone is solved; when it fails, Q1 is solved as well
   (Theorem 5 is then checked exactly) and, if Q1 has a plan, the ego follows it for that step
   instead of braking blindly (``q1_rescue_steps``, a deviation from Algorithm 1, which has no
@@ -117,10 +117,11 @@ class EpisodeState:
         else:
             self.q1_fail_other_steps += 1
 
-    def count_theorem_five(self, q1: MpcSolution | None, q2: MpcSolution) -> None:
+    def count_theorem_five(self, q1: MpcSolution | None, q2: MpcSolution | None) -> None:
         """Theorem 5's check of one dual-planner step: neither Q1 nor Q2 solved, split by whether
-        both failures are certificates of infeasibility, and the runs of such steps."""
-        both = (q1 is None or not q1.success) and not q2.success
+        both failures are certificates of infeasibility, and the runs of such steps. ``q2`` is None
+        when it was not solved because Q1 was (:attr:`Mpc.q2_solve`)."""
+        both = (q1 is None or not q1.success) and q2 is not None and not q2.success
         self.both_infeasible_steps += int(both)
         if not both:
             self.both_infeasible_run = 0
@@ -226,16 +227,16 @@ class Planner:
         solver = self.with_opp if detected else self.plain
         opp = opp_meas if detected else None
         q1 = self._solve(state, solver, ego, front_meas, Q1, lambda0, opp) if state.mode is Mode.OVERTAKE else None
-        q2 = self._solve(state, solver, ego, front_meas, Q2, lambda0, opp)
+        q2 = None if self._skips_q2(state, q1, detected) else self._solve(state, solver, ego, front_meas, Q2, lambda0, opp)
         if q1 is None and not q2.success:
             # Going back and Q2 failed: solve Q1 too, so that "both unsolved" (Theorem 5) is counted
             # exactly and the ego can follow a feasible plan instead of braking blindly.
             q1 = self._solve(state, solver, ego, front_meas, Q1, lambda0, opp)
-        q1_ok, q2_ok = q1 is not None and q1.success, q2.success
+        q1_ok, q2_ok = q1 is not None and q1.success, q2 is not None and q2.success
         q1_failed = q1 is not None and not q1_ok
         if q1_failed:
             state.count_q1_failure(q1)
-        state.q2_fail_steps += int(not q2_ok)
+        state.q2_fail_steps += int(q2 is not None and not q2_ok)
         state.count_theorem_five(q1, q2)
         if state.mode is Mode.OVERTAKE:
             state.q1_failures_in_a_row = state.q1_failures_in_a_row + 1 if q1_failed else 0
@@ -276,6 +277,13 @@ class Planner:
         applied = q1 if source is Source.Q1 else q2
         state.held = (applied.u_plan, applied.dt_plan, t_s)
         return applied.u_plan[0], StepRecord(source, mode, detected, q1, q2, row)
+
+    def _skips_q2(self, state: EpisodeState, q1: MpcSolution | None, detected: bool) -> bool:
+        """Is Q2 left unsolved this step (:attr:`Mpc.q2_solve` = "when_needed")? Only while overtaking
+        with Q1 solved and no Table I to consult: Algorithm 1 then applies Q1 whatever Q2 says."""
+        if self.params.mpc.q2_solve != "when_needed" or q1 is None or not q1.success:
+            return False
+        return not (detected and self.params.opposing.kind == "human")
 
     def _abandons(self, state: EpisodeState, q1: MpcSolution, t_s: float) -> bool:
         """Does this step's failed Q1 solve (overtaking) abandon the overtake? The rule of
