@@ -128,7 +128,7 @@ KKT_FACTORIZATIONS = ("lu", "ldlt", "ldlt_curvature")
 #: The evidence that makes the ego abandon the overtake (:attr:`Mpc.abandon_rule`).
 ABANDON_RULES = ("first_failure", "consecutive", "certified")
 #: When the dual planner solves Q2 while overtaking (:attr:`Mpc.q2_solve`).
-Q2_SOLVE_POLICIES = ("every_step", "when_needed")
+Q2_SOLVE_POLICIES = ("every_step", "fast_when_unneeded", "when_needed")
 #: Most piecewise-constant segments of one structured disturbance (:attr:`Noise.front_x_segments`).
 MAX_SEGMENTS = 8
 #: Most noise branches of one episode (:attr:`Noise.branch_after_steps`).
@@ -195,14 +195,22 @@ class Mpc:
     none) the rule no longer waits and Algorithm 1 goes on as in "first_failure". Everything else
     of Algorithm 1 and Table I is unchanged.
 
-    ``q2_solve``: when the dual planner solves Q2 while overtaking. "every_step" (the default, the
-    paper's Algorithm 1, which solves both problems at every step) or "when_needed": only at the
-    steps whose decision reads Q2, i.e. when Q1 was not solved, or when Table I compares the two
-    plans (a human-driven veh_o detected). With no or an autonomous veh_o, Algorithm 1 applies Q1
-    whenever Q1 is solved, so Q2's plan is then never used; skipping it changes only Q2's warm start
-    and infeasibility memo at the next step that needs it (the last Q2 solution, however old). Going
-    back, Q2 is solved every step under either policy. ``q2_fail_steps`` and Theorem 5 count only
-    the steps where Q2 was solved (a step with Q1 solved satisfies Theorem 5 either way).
+    ``q2_solve``: how the dual planner solves Q2 at the steps whose decision does not read it. With
+    no or an autonomous veh_o, Algorithm 1 applies Q1 whenever Q1 is solved, so Q2's plan is then
+    unused; it is read when Q1 was not solved, while going back, and whenever Table I compares the
+    two plans (a human-driven veh_o detected). The policies:
+
+    * "every_step" (the default, Algorithm 1 as written: both problems at every step);
+    * "fast_when_unneeded": an unread Q2 gets the fast path only (the ipm backend's IPM attempts, no
+      IPOPT; a failure leaves the infeasibility memo as it was). Where the fast path converges, Q2's
+      solution and warm start are those of "every_step"; the difference is confined to the steps where
+      only IPOPT would have solved or certified it;
+    * "when_needed": an unread Q2 is not solved at all; the next step that reads Q2 starts from its
+      last solution, however old (cold at the first one), and may converge to another local solution
+      of Q2 than "every_step" does (measured: same decisions, other turn-back paths; docs/engine.md).
+
+    ``q2_fail_steps`` and Theorem 5 count the steps where Q2 was solved and failed (a step with Q1
+    solved satisfies Theorem 5 whatever Q2 does).
     """
 
     controller: str = "vlcbf"
@@ -247,8 +255,8 @@ class Mpc:
     """How the ipm backend factorises its KKT system: lu (banded LU, the default), ldlt (banded LDL^T with the inertia
     test) or ldlt_curvature (banded LDL^T with the LU's curvature test); docs/engine.md, "The LDL^T path"."""
     q2_solve: str = "every_step"
-    """When Q2 is solved while overtaking: every_step (Algorithm 1) or when_needed (only when Q1 failed or Table I
-    compares the plans)."""
+    """How Q2 is solved at the steps whose decision does not read it: every_step (Algorithm 1: in full),
+    fast_when_unneeded (the fast path only) or when_needed (not at all)."""
     infeasibility_audit_every: int = 10
     """With infeasibility = phase1: about one C certificate in this many is re-checked by IPOPT (1: every one).
     Valid: >= 1."""

@@ -45,6 +45,8 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "phase1+restoration": {"mpc.infeasibility": "phase1", "mpc.ipm_restoration": True},
     "q2_when_needed": {"mpc.q2_solve": "when_needed"},
 }
+#: The heading of a variant's section (default: the infeasibility certificates').
+HEADINGS: dict[str, str] = {"q2_when_needed": "Q2 solved only when Algorithm 1 reads it (`mpc.q2_solve`)"}
 #: The default side's label.
 DEFAULT = "default"
 BEGIN_MARK = "<!-- BEGIN mcverify bench infeasibility (generated) -->"
@@ -107,7 +109,8 @@ def markdown(paired: dict[str, Any] | None, replay: dict[str, Any] | None, comma
     variant = paired["variant"] if paired is not None else "replay"
     begin, end = marks(variant)
     title = "recorded solves replayed" if paired is None else f"{variant} against the default settings"
-    lines = [begin, "", f"## The C restoration phase and infeasibility certificates: {title}", "",
+    heading = HEADINGS.get(variant, "The C restoration phase and infeasibility certificates")
+    lines = [begin, "", f"## {heading}: {title}", "",
              f"### {datetime.now(timezone.utc):%Y-%m-%d}: `{command}`", "",
              f"{engine.machine()}, load average {engine._load()}."]
     if paired is not None:

@@ -25,6 +25,7 @@ class SolveClass(enum.Enum):
     CERTIFIED_INFEASIBLE = "certified infeasible"  # failed; IPOPT's full attempt reported local infeasibility
     PRESUMED_INFEASIBLE = "presumed infeasible"  # failed on the short attempt while the memo presumes it
     OTHER_FAILURE = "other failure"  # failed otherwise (iteration limit, line search, exception ...)
+    UNREAD_FAILURE = "unread Q2 failed"  # the fast path alone failed on a Q2 the decision ignored (Mpc.q2_solve)
 
 
 def classify(sol: MpcSolution) -> SolveClass:
@@ -32,6 +33,8 @@ def classify(sol: MpcSolution) -> SolveClass:
         return SolveClass.RESCUED if (sol.status.fallback or sol.retried_cold) else SolveClass.CONVERGED
     if sol.status.presumed_infeasible:
         return SolveClass.PRESUMED_INFEASIBLE
+    if sol.status.unread:
+        return SolveClass.UNREAD_FAILURE
     if sol.status.outcome is SolveOutcome.INFEASIBLE:
         return SolveClass.CERTIFIED_INFEASIBLE
     return SolveClass.OTHER_FAILURE

@@ -8,7 +8,8 @@ a planner serves any number of episodes and its output depends only on that epis
 Controllers (``params.mpc.controller``):
 
 * "vlcbf", the paper's dual TO-CBF-MPC: Q1 and Q2 every step (with eq.tompcAdd once veh_o is
-  detected; with :attr:`Mpc.q2_solve` = "when_needed", Q2 only at the steps whose decision reads it); Algorithm 1 for no or an autonomous veh_o, Table I for a human driver
+  detected; :attr:`Mpc.q2_solve` can give the steps whose decision ignores Q2 only the fast path, or
+  skip Q2 there); Algorithm 1 for no or an autonomous veh_o, Table I for a human driver
   (:mod:`mcverify.control.decision`). Going back, Q2 alone is solved; when it fails, Q1 is solved as well
   (Theorem 5 is then checked exactly) and, if Q1 has a plan, the ego follows it for that step
   instead of braking blindly (``q1_rescue_steps``, a deviation from Algorithm 1, which has no
@@ -38,7 +39,7 @@ from mcverify.control.decision import Mode, Source, TableOneInput, abandon_overt
 from mcverify.model import ModelParams
 from mcverify.ocp.problem import OcpStructure
 from mcverify.solver.mpc import MpcSolution, MpcSolver, WarmStart
-from mcverify.solver.status import SolveOutcome
+from mcverify.solver.status import SolveOutcome, SolveRoute
 
 Q1, Q2 = +1, -1  # the OCP's direction parameter: goal ahead of / behind the front vehicle
 
@@ -227,7 +228,10 @@ class Planner:
         solver = self.with_opp if detected else self.plain
         opp = opp_meas if detected else None
         q1 = self._solve(state, solver, ego, front_meas, Q1, lambda0, opp) if state.mode is Mode.OVERTAKE else None
-        q2 = None if self._skips_q2(state, q1, detected) else self._solve(state, solver, ego, front_meas, Q2, lambda0, opp)
+        unread = self._q2_unread(q1, detected)
+        q2 = (None if unread and self.params.mpc.q2_solve == "when_needed" else
+              self._solve(state, solver, ego, front_meas, Q2, lambda0, opp,
+                          fast_path_only=unread and self.params.mpc.q2_solve == "fast_when_unneeded"))
         if q1 is None and not q2.success:
             # Going back and Q2 failed: solve Q1 too, so that "both unsolved" (Theorem 5) is counted
             # exactly and the ego can follow a feasible plan instead of braking blindly.
@@ -278,10 +282,10 @@ class Planner:
         state.held = (applied.u_plan, applied.dt_plan, t_s)
         return applied.u_plan[0], StepRecord(source, mode, detected, q1, q2, row)
 
-    def _skips_q2(self, state: EpisodeState, q1: MpcSolution | None, detected: bool) -> bool:
-        """Is Q2 left unsolved this step (:attr:`Mpc.q2_solve` = "when_needed")? Only while overtaking
-        with Q1 solved and no Table I to consult: Algorithm 1 then applies Q1 whatever Q2 says."""
-        if self.params.mpc.q2_solve != "when_needed" or q1 is None or not q1.success:
+    def _q2_unread(self, q1: MpcSolution | None, detected: bool) -> bool:
+        """Will this step's decision ignore Q2 (:attr:`Mpc.q2_solve`)? Overtaking with Q1 solved and no
+        Table I to consult: Algorithm 1 then applies Q1 whatever Q2 says."""
+        if q1 is None or not q1.success:
             return False
         return not (detected and self.params.opposing.kind == "human")
 
@@ -319,9 +323,12 @@ class Planner:
         record = StepRecord(Source.FALLBACK, state.mode, detected, q1, None, -1)
         return self._no_plan(state, t_s, ego, front_meas, record)
 
-    def _solve(self, state, solver, ego, front_meas, direction, lambda0, opp, presume: bool = True) -> MpcSolution:
+    def _solve(self, state, solver, ego, front_meas, direction, lambda0, opp, presume: bool = True,
+               fast_path_only: bool = False) -> MpcSolution:
         """One problem, warm-started from its last solution; ``presume``: may a problem IPOPT certified
-        infeasible get only the fast path for a while (the infeasibility memo)?"""
+        infeasible get only the fast path for a while (the infeasibility memo)? ``fast_path_only``: an
+        unread Q2 (:attr:`Mpc.q2_solve` = "fast_when_unneeded"): the fast path alone, and a failure
+        teaches the memo nothing (IPOPT was not asked)."""
         key = (direction, opp is not None)
         guess = None
         if opp is not None and key not in state.warm:
@@ -333,15 +340,20 @@ class Planner:
                 state.warm[(direction, False)] = plain.warm
             guess = solver.guess_from_plan(plain, opp)
         memo = state.infeasible.get(key) if presume else None
-        fast_only = memo is not None and memo[0] + 1 < memo[1]
-        extra = {"fast_only": True} if fast_only else {}
+        presumed = memo is not None and memo[0] + 1 < memo[1]
+        extra = {"fast_only": True} if presumed or fast_path_only else {}
         sol = solver.solve(ego, front_meas, direction, lambda0, state.warm.get(key), opp_xv=opp, guess=guess, **extra)
+        unread_failure = fast_path_only and not presumed and not sol.success
+        if unread_failure:
+            sol = dataclasses.replace(sol, status=sol.status.via(SolveRoute.UNREAD))
         state.record_solve(sol)
         if sol.success:
             state.warm[key] = sol.warm
         else:
             state.warm.pop(key, None)  # never restart from a stale point
-        memo = self._next_memo(memo, sol, fast_only) if presume else None
+        if unread_failure:
+            return sol  # the memo stays as it was: only a full attempt can certify or end it
+        memo = self._next_memo(memo, sol, presumed) if presume else None
         if memo is None:
             state.infeasible.pop(key, None)
         else:

@@ -8,6 +8,7 @@ backend's own status text (``raw``: IPOPT's ``return_status``, ``"IPM_<status>"`
 ``str(status)`` renders the form stored in episode rows (the keys of ``solver_statuses``) and shown
 in benchmarks: ``raw`` for the backend's own path, ``"fallback:<raw>"`` for a solve the fast path
 handed to the IPOPT reference, ``"presumed_infeasible:<raw>"`` for a fast-path-only failure,
+``"unread:<raw>"`` for a fast-path-only failure of a Q2 the step's decision ignored (``Mpc.q2_solve``),
 ``"audited:<raw>"`` / ``"audit_disagreed:<raw>"`` for a C certificate of infeasibility that IPOPT
 re-checked as the scheduled auditor (``Mpc.infeasibility = "phase1"``) and failed on too / solved.
 """
@@ -41,6 +42,7 @@ class SolveRoute(enum.Enum):
     PRIMARY = "primary"  # the backend's own path: IPOPT for "ipopt", the IPM for "ipm"
     FALLBACK = "fallback"  # the IPM failed and the IPOPT reference path answered
     PRESUMED = "presumed"  # fast path only (a problem IPOPT certified infeasible): no reference tried
+    UNREAD = "unread"  # fast path only (a Q2 the step's decision ignores, Mpc.q2_solve): no reference tried
     # Mpc.infeasibility = "phase1": a C certificate that IPOPT re-checked as the scheduled auditor and
     # also failed on (AUDITED), or solved (AUDIT_DISAGREED: the result is IPOPT's solution)
     AUDITED = "audited"
@@ -67,6 +69,7 @@ ROUTE_PREFIXES: dict[SolveRoute, str] = {
     SolveRoute.PRIMARY: "",
     SolveRoute.FALLBACK: "fallback:",
     SolveRoute.PRESUMED: "presumed_infeasible:",
+    SolveRoute.UNREAD: "unread:",
     SolveRoute.AUDITED: "audited:",
     SolveRoute.AUDIT_DISAGREED: "audit_disagreed:",
 }
@@ -117,6 +120,11 @@ class SolveStatus:
         return self.route is SolveRoute.PRESUMED
 
     @property
+    def unread(self) -> bool:
+        """A fast-path-only failure of a Q2 that the step's decision ignored (``Mpc.q2_solve``)."""
+        return self.route is SolveRoute.UNREAD
+
+    @property
     def audited(self) -> bool:
         """A C certificate of infeasibility that IPOPT re-checked (agreeing or not)."""
         return self.route in (SolveRoute.AUDITED, SolveRoute.AUDIT_DISAGREED)
@@ -130,7 +138,7 @@ class SolveStatus:
     def certified_infeasible(self) -> bool:
         """Local infeasibility certified: by IPOPT (directly or as the fast path's fallback) or, with
         ``Mpc.infeasibility = "phase1"``, by the C restoration phase from every start it was given."""
-        return self.outcome is SolveOutcome.INFEASIBLE and self.route is not SolveRoute.PRESUMED
+        return self.outcome is SolveOutcome.INFEASIBLE and self.route not in (SolveRoute.PRESUMED, SolveRoute.UNREAD)
 
     def __str__(self) -> str:
         return ROUTE_PREFIXES[self.route] + self.raw
