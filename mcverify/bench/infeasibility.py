@@ -7,8 +7,9 @@ Two measurements, written together into a generated section of results/BENCHMARK
    (:func:`mcverify.bench.engine.run`, no baseline) on the same (seed, cell, episode id) with the
    default settings and with one :data:`VARIANTS` entry: "phase1" (``mpc.infeasibility``: the C
    phase-1 certificate from every start, IPOPT as scheduled auditor), "restoration"
-   (``mpc.ipm_restoration``: the IPM attempts with the restoration phase), both, or "q2_when_needed"
-   (``mpc.q2_solve``: Q2 solved only at the steps whose decision reads it): CPU per episode
+   (``mpc.ipm_restoration``: the IPM attempts with the restoration phase), both, "q2_when_needed" or
+   "q2_fast_when_unneeded" (``mpc.q2_solve``: a Q2 the step's decision ignores not solved, or given
+   the fast path only): CPU per episode
    by solve class, the audit counters, and the episode-by-episode agreement of safety verdicts and
    outcomes.
 2. **Recorded solves** (:func:`replay_verdicts`): every solve of a recording
@@ -44,9 +45,11 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "restoration": {"mpc.ipm_restoration": True},
     "phase1+restoration": {"mpc.infeasibility": "phase1", "mpc.ipm_restoration": True},
     "q2_when_needed": {"mpc.q2_solve": "when_needed"},
+    "q2_fast_when_unneeded": {"mpc.q2_solve": "fast_when_unneeded"},
 }
 #: The heading of a variant's section (default: the infeasibility certificates').
-HEADINGS: dict[str, str] = {"q2_when_needed": "Q2 solved only when Algorithm 1 reads it (`mpc.q2_solve`)"}
+HEADINGS: dict[str, str] = {"q2_when_needed": "Q2 solved only when Algorithm 1 reads it (`mpc.q2_solve`)",
+                            "q2_fast_when_unneeded": "An unread Q2 on the fast path only (`mpc.q2_solve`)"}
 #: The default side's label.
 DEFAULT = "default"
 BEGIN_MARK = "<!-- BEGIN mcverify bench infeasibility (generated) -->"
