@@ -139,6 +139,11 @@ MAX_BRANCHES = 64
 REQUIREMENT_NAMES: tuple[str, ...] = (
     "collision_front", "collision_opp", "ellipse", "invariance", "h_eo", "theorem5", "theorem5_certified", "safe",
 )
+#: What a falsification search may minimise instead of its requirement (``[falsify] guide``): any
+#: requirement, or a per-step requirement restricted to the sub-steps where the ego goes back
+#: ("<requirement>@go_back", :func:`mcverify.analysis.robustness.guide_value`).
+GUIDE_NAMES: tuple[str, ...] = REQUIREMENT_NAMES + tuple(
+    f"{name}@go_back" for name in ("collision_front", "collision_opp", "ellipse", "invariance", "safe"))
 
 
 @dataclass(frozen=True)

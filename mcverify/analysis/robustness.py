@@ -20,6 +20,12 @@ Requirements (:data:`REQUIREMENTS`; units differ, so a minimum over a set compar
 - ``safe``: the minimum of ``collision_front``, ``collision_opp`` and ``ellipse`` (the row's ``safe``).
 
 An error row (an episode that could not be simulated) has NaN robustness for every requirement.
+
+Guides (:data:`GUIDES`, what a search may minimise instead of its requirement, ``[falsify] guide``):
+every requirement, and ``"<r>@go_back"`` for each per-step requirement r (:data:`STEPWISE`): the
+minimum of r's per-sub-step signal over the sub-steps where the ego goes back (Q2's mode), +inf if
+it never did (:func:`guide_value`, from the stored trajectory). Going back is part of the episode,
+so a negative ``r@go_back`` is a violation of r too; the converse is not true.
 """
 
 from __future__ import annotations
@@ -158,6 +164,8 @@ def violated(rows: Sequence[Row], name: str) -> np.ndarray:
 #: Requirements whose robustness is the minimum of a signal of the stored trajectory, per sub-step:
 #: what a splitting search branches on (:func:`running_robustness`).
 STEPWISE: tuple[str, ...] = ("collision_front", "collision_opp", "ellipse", "invariance", "safe")
+#: Everything ``[falsify] guide`` accepts.
+GUIDES: tuple[str, ...] = tuple(REQUIREMENTS) + tuple(f"{n}@go_back" for n in STEPWISE)
 
 
 def _substep_signal(trajectory: Mapping[str, np.ndarray], name: str, epsilon: float, h0: float) -> np.ndarray:
@@ -178,6 +186,30 @@ def _substep_signal(trajectory: Mapping[str, np.ndarray], name: str, epsilon: fl
     if name not in signals:
         raise ValueError(f"requirement {name!r} has no per-step robustness; stepwise: {', '.join(STEPWISE)}")
     return signals[name]()
+
+
+#: The trajectory's ``mode`` of a step going back (:class:`mcverify.control.decision.Mode` GO_BACK;
+#: the analysis layer does not import the control layer, tests/falsify checks they agree).
+GO_BACK_MODE = 1
+#: The suffix of a guide restricted to the sub-steps going back.
+GO_BACK_SUFFIX = "@go_back"
+
+
+def guide_value(row: Row, trajectory: Mapping[str, np.ndarray] | None, name: str) -> float:
+    """The value of guide ``name`` (:data:`GUIDES`) for one episode: its row's robustness for a
+    requirement, else (``"<r>@go_back"``) the minimum of r's per-sub-step signal over the sub-steps of
+    the stored ``trajectory`` with ``mode`` == :data:`GO_BACK_MODE` (+inf if none; NaN for an error row)."""
+    if name in REQUIREMENTS:
+        return robustness(row, name)
+    if name not in GUIDES:
+        raise ValueError(f"unknown guide {name!r}; known: {', '.join(GUIDES)}")
+    if is_error_row(row):
+        return math.nan
+    if trajectory is None:
+        raise ValueError(f"guide {name!r} needs the episode's stored trajectory")
+    signal = _substep_signal(trajectory, name.removesuffix(GO_BACK_SUFFIX), _num(row, "epsilon"), _num(row, "h0_front"))
+    going_back = np.asarray(trajectory["mode"]) == GO_BACK_MODE
+    return float(np.min(signal[going_back])) if going_back.any() else math.inf
 
 
 def running_robustness(trajectory: Mapping[str, np.ndarray], name: str, control_period_s: float, *,

@@ -23,9 +23,10 @@ class SolveClass(enum.Enum):
     CONVERGED = "converged"  # solved by the first path (engine: the IPM; IPOPT loops: the first attempt)
     RESCUED = "rescued"  # solved, but only by IPOPT after the first path failed (fallback or cold retry)
     CERTIFIED_INFEASIBLE = "certified infeasible"  # failed; IPOPT's full attempt reported local infeasibility
-    PRESUMED_INFEASIBLE = "presumed infeasible"  # failed on the short attempt while the memo presumes it
+    # failed on the short attempt while the memo presumes it (or, booked by the solver before the planner
+    # names it "unread:", a Q2 the step's decision ignored, Mpc.q2_solve = "fast_when_unneeded")
+    PRESUMED_INFEASIBLE = "presumed infeasible"
     OTHER_FAILURE = "other failure"  # failed otherwise (iteration limit, line search, exception ...)
-    UNREAD_FAILURE = "unread Q2 failed"  # the fast path alone failed on a Q2 the decision ignored (Mpc.q2_solve)
 
 
 def classify(sol: MpcSolution) -> SolveClass:
@@ -33,8 +34,6 @@ def classify(sol: MpcSolution) -> SolveClass:
         return SolveClass.RESCUED if (sol.status.fallback or sol.retried_cold) else SolveClass.CONVERGED
     if sol.status.presumed_infeasible:
         return SolveClass.PRESUMED_INFEASIBLE
-    if sol.status.unread:
-        return SolveClass.UNREAD_FAILURE
     if sol.status.outcome is SolveOutcome.INFEASIBLE:
         return SolveClass.CERTIFIED_INFEASIBLE
     return SolveClass.OTHER_FAILURE

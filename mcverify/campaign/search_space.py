@@ -8,6 +8,7 @@
     stop_at_first = true          # stop after the generation that found a counterexample (default true)
     stop_episodes = false         # end each episode at its first violation of the requirement (default false)
     common_noise = false          # every candidate of a search sees the same per-step noise (default false)
+    guide = "ellipse@go_back"     # what the method minimises instead of the requirement (default: the requirement)
 
     [falsify.bounds]              # one numeric model field per entry: [low, high], low < high
     "scenario.front_speed_mps" = [5.0, 9.0]
@@ -31,6 +32,13 @@ every candidate of a search the same noise realisation (``noise.key_seed`` from 
 which makes the robustness a deterministic function of the searched values. A campaign with a
 ``[falsify]`` table must define one target: no ``[grid]`` and no ``[axes]`` (checked by :func:`check_single_target`).
 Every problem is a :class:`CampaignError` of one line.
+
+``guide`` (one of :data:`~mcverify.model.GUIDE_NAMES`): the value the method is told and minimises,
+when the requirement's own robustness points the search the wrong way; counterexamples, success and
+the early stops are still judged by the requirement. Besides any requirement, ``"<r>@go_back"`` is
+requirement r over the sub-steps where the ego goes back (+inf for an episode that never turned
+back), e.g. to compare scenarios by how close their turn-backs come, where the overtakes' margins
+would lure the search elsewhere (docs/falsification.md).
 """
 
 from __future__ import annotations
@@ -44,12 +52,12 @@ from typing import Any
 
 from mcverify.campaign.validate import _short
 from mcverify.errors import CampaignError
-from mcverify.model import REQUIREMENT_NAMES
+from mcverify.model import GUIDE_NAMES, REQUIREMENT_NAMES
 
 __all__ = ["MAX_POPULATION", "REQUIREMENT_NAMES", "SearchSpace", "check_single_target", "read_search_space",
            "split_element"]
 
-_KEYS = {"requirement", "population", "stop_at_first", "stop_episodes", "common_noise", "bounds", "nominal"}
+_KEYS = {"requirement", "population", "stop_at_first", "stop_episodes", "common_noise", "guide", "bounds", "nominal"}
 MAX_POPULATION = 1024
 _ELEMENT = re.compile(r"(.+)\[(\d+)\]")
 
@@ -66,6 +74,12 @@ class SearchSpace:
     stop_episodes: bool = False
     nominal: tuple[tuple[str, float, float], ...] = ()
     common_noise: bool = False
+    guide: str = ""  # "" : the requirement itself
+
+    @property
+    def objective(self) -> str:
+        """What the method minimises: the guide, or the requirement when there is none."""
+        return self.guide or self.requirement
 
     @property
     def nominal_by_field(self) -> dict[str, tuple[float, float]]:
@@ -140,6 +154,9 @@ def read_search_space(table: Any, where: str, known_fields: Mapping[str, type]) 
     if requirement not in REQUIREMENT_NAMES:
         raise CampaignError(f"{here}.requirement: unknown requirement {_short(requirement)}; known: "
                             f"{', '.join(REQUIREMENT_NAMES)}")
+    guide = table.get("guide", "")
+    if guide != "" and guide not in GUIDE_NAMES:
+        raise CampaignError(f"{here}.guide: unknown guide {_short(guide)}; known: {', '.join(GUIDE_NAMES)}")
     population = table.get("population", 8)
     if isinstance(population, bool) or not isinstance(population, int) or not 2 <= population <= MAX_POPULATION:
         raise CampaignError(
@@ -182,7 +199,8 @@ def read_search_space(table: Any, where: str, known_fields: Mapping[str, type]) 
             raise CampaignError(f"{here}.bounds: the searched elements of {field} must be [0] to [K-1] (they make "
                                 f"the whole list), got {sorted(indices)}")
     nominal = _read_nominal(table.get("nominal", {}), here, {name: (lo, hi) for name, lo, hi in out})
-    return SearchSpace(requirement, population, stop, tuple(out), stop_episodes, nominal, common_noise)
+    return SearchSpace(requirement, population, stop, tuple(out), stop_episodes, nominal, common_noise,
+                       "" if guide == requirement else guide)
 
 
 def _read_nominal(table: Any, here: str,

@@ -75,7 +75,19 @@ def facts(result: SearchResult, records: Sequence[Mapping[str, Any]]) -> list[tu
         ("first counterexample", f"episode {first} of the search" if first else
          f"none found within {result.episodes} episodes"),
         ("counterexamples", f"{len(records)} (see `counterexamples.parquet`)"),
-    ] + _noise_facts(result)
+    ] + _guide_facts(result) + _noise_facts(result)
+
+
+def _guide_facts(result: SearchResult) -> list[tuple[str, str]]:
+    """What the method minimised when it was not the requirement ([falsify] guide)."""
+    guide = result.space.guide
+    if not guide:
+        return []
+    values = [e.guide for e in result.evaluations if not math.isnan(e.guide)]
+    finite = [v for v in values if math.isfinite(v)]
+    lowest = fmt_num(min(finite), 4, signed=True) if finite else "none finite"
+    return [("guide", f"the method minimised `{guide}` instead of the requirement (lowest {lowest}; finite for "
+                      f"{len(finite)} of {len(result.evaluations)} episodes, column `guide` of `search.parquet`)")]
 
 
 def _noise_facts(result: SearchResult) -> list[tuple[str, str]]:

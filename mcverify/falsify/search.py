@@ -88,6 +88,7 @@ class Evaluation:
     parent: int = 0  # splitting: the 1-based evaluation number of the particle it branched from (0: none)
     branch_after_step: int = -1  # splitting: the control step after which its own noise starts (-1: fresh)
     move: str = "fresh"  # splitting: how it came from its parent ("fresh", "noise" or "scenario")
+    guide: float = math.nan  # the value the method was told ([falsify] guide; NaN: none, it was told the robustness)
 
 
 @dataclass(frozen=True)
@@ -156,6 +157,9 @@ def start(config: SearchConfig, out_dir: Path, **kw: Any) -> SearchResult:
     if config.method == "splitting" and space.common_noise:
         raise RunError("--method splitting draws fresh noise for its branches; [falsify] common_noise = true "
                        "is for the other methods")
+    if config.method == "splitting" and space.guide:
+        raise RunError("--method splitting branches on the requirement's own running robustness; [falsify] guide "
+                       "is for cma, cross-entropy, random and bo")
     if config.method == "splitting" and config.requirement not in rb.STEPWISE:
         raise RunError(f"--method splitting branches on a per-step robustness; requirement {config.requirement!r} "
                        f"has none (choose one of {', '.join(rb.STEPWISE)})")
@@ -220,16 +224,19 @@ def _generations(config: SearchConfig, out_dir: Path, make_executor: Callable[[]
             _check_same(gen_dir, gen_campaign)
         rows = {int(r["cell_index"]): r for r in store.read_episodes(gen_dir).to_pylist()}
         robs = np.array([rb.robustness(rows[k], config.requirement) for k in range(n)])
+        guides = np.array([_guide(gen_dir, rows[k], space.guide) for k in range(n)]) if space.guide else None
         evaluations += [Evaluation(generation, k, candidates[k].point, values[k], rows[k], float(robs[k]),
-                                   candidates[k].parent, candidates[k].branch_after_step, candidates[k].move)
+                                   candidates[k].parent, candidates[k].branch_after_step, candidates[k].move,
+                                   math.nan if guides is None else float(guides[k]))
                         for k in range(n)]
         if progress is not None:
             best = np.nanmin(robs) if np.isfinite(robs).any() else math.nan
-            progress(f"generation {generation}: {n} episodes, best robustness {best:.4g}, "
+            told = "" if guides is None else f", best {space.guide} {_lowest(guides):.4g}"
+            progress(f"generation {generation}: {n} episodes, best robustness {best:.4g}{told}, "
                      f"{len(evaluations)}/{config.budget} episodes")
         if n == len(candidates):
-            _tell(search, candidates, robs, gen_dir, [rows[k] for k in range(n)], config.requirement,
-                  [cell.params.sim.control_period_s for cell in gen_campaign.cells])
+            _tell(search, candidates, robs if guides is None else guides, gen_dir, [rows[k] for k in range(n)],
+                  config.requirement, [cell.params.sim.control_period_s for cell in gen_campaign.cells])
         generation += 1
         if space.stop_at_first and (robs < 0.0).any():
             break
@@ -270,6 +277,21 @@ def _running(gen_dir: Path, row: dict[str, Any], requirement: str, control_perio
     return rb.running_robustness({k: np.asarray(v) for k, v in pq.read_table(path).to_pydict().items()},
                                  requirement, control_period_s, epsilon=float(row["epsilon"]),
                                  h0=float(row["h0_front"]))
+
+
+def _guide(gen_dir: Path, row: dict[str, Any], guide: str) -> float:
+    """The guide's value for one candidate (a ``@go_back`` guide reads its stored trajectory)."""
+    if not guide.endswith(rb.GO_BACK_SUFFIX) or rb.is_error_row(row):
+        return rb.guide_value(row, None, guide)
+    path = store.trajectory_path(gen_dir, int(row["episode_id"]))
+    if not path.is_file():
+        raise RunError(f"{path} is missing: [falsify] guide = {guide!r} reads each candidate's stored trajectory")
+    return rb.guide_value(row, {k: np.asarray(v) for k, v in pq.read_table(path).to_pydict().items()}, guide)
+
+
+def _lowest(values: np.ndarray) -> float:
+    finite = values[~np.isnan(values)]
+    return float(finite.min()) if finite.size else math.nan
 
 
 def _finished(gen_dir: Path) -> bool:
@@ -316,6 +338,8 @@ def search_table(result: SearchResult) -> pa.Table:
     cols["branch_after_step"] = [e.branch_after_step for e in ev]  # splitting: where its last noise branch starts
     cols["move"] = [e.move for e in ev]  # splitting: fresh, noise (branch) or scenario (step)
     cols["robustness"] = [e.robustness for e in ev]
+    if result.space.guide:  # what the method was told instead of the robustness
+        cols["guide"] = [e.guide for e in ev]
     cols["violated"] = [bool(e.robustness < 0.0) for e in ev]
     cols["best_so_far"] = list(np.fmin.accumulate([e.robustness for e in ev])) if ev else []
     return pa.table(cols)

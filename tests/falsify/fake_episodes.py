@@ -65,3 +65,40 @@ def noisy_walk(cell, episode_ids, seed, common_random_numbers, record):
                 "t_s": dt * np.arange(1, WALK_STEPS + 1), "h_front": h, "gap_front_m": ones,
                 "collision_front": 0 * ones, "gap_opp_m": np.nan * ones, "collision_opp": 0 * ones})
     return out
+
+
+def turnback_margins(v: float, noise: float) -> tuple[np.ndarray, np.ndarray]:
+    """(h_ef per control step, mode per control step) of a deceptive target: below 7.5 m/s veh_f is
+    slow enough that the ego turns back at step 30 and the turn-back's margin dips to
+    0.15 |v - 6| - 0.01 (violated only within 0.07 m/s of 6 m/s); faster, it overtakes with a margin
+    that falls towards 10 m/s but stays >= 0.02. So the requirement's robustness (min h_ef) points to
+    10 m/s everywhere but next to the violations."""
+    t = np.arange(WALK_STEPS)
+    if v < 7.5:
+        dip = 0.1 * abs(v - 6.0) - 0.005 + 0.001 * noise
+        h = np.where(t < 30, 0.9, 0.2 + (dip - 0.2) * np.exp(-0.5 * ((t - 45) / 5.0) ** 2))
+        return h, np.where(t < 30, 0, 1)
+    return 0.9 - (0.898 - 0.002 * (10.0 - v)) * np.exp(-0.5 * ((t - 30) / 5.0) ** 2), np.zeros(WALK_STEPS, dtype=int)
+
+
+def turnback(cell, episode_ids, seed, common_random_numbers, record):
+    """Rows and trajectories (``mode`` included) of :func:`turnback_margins` for the guide tests."""
+    out = synthetic_episodes.episodes(cell, episode_ids, seed, common_random_numbers, record)
+    dt = cell.params.sim.control_period_s
+    out.recordings = {}
+    for r in out.rows:
+        e = int(r["cell_episode"])
+        noise = np.random.default_rng([seed, cell.index, e]).random()
+        h, mode = turnback_margins(cell.params.scenario.front_speed_mps, noise)
+        min_h = float(h.min())
+        r.update({"min_h_front": min_h, "collision_front": False, "ellipse_violation": min_h < 0,
+                  "min_gap_front_m": 1.0, "safe": min_h >= 0, "opposing_kind": "none",
+                  "first_unsafe_s": float(dt * (1 + np.flatnonzero(h < 0)[0])) if min_h < 0 else math.nan,
+                  "first_unsafe_cause": "planned" if min_h < 0 else ""})
+        if e in record:
+            ones = np.ones(WALK_STEPS)
+            out.recordings[e] = EpisodeRecording({
+                "t_s": dt * np.arange(1, WALK_STEPS + 1), "h_front": h, "gap_front_m": ones,
+                "collision_front": 0 * ones, "gap_opp_m": np.nan * ones, "collision_opp": 0 * ones,
+                "mode": mode.astype(np.float64)})
+    return out
