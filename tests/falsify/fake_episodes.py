@@ -53,18 +53,23 @@ def noisy_walk(cell, episode_ids, seed, common_random_numbers, record):
     out.recordings = {}
     for r in out.rows:
         e = int(r["cell_episode"])
-        h = walk_margins(cell, seed, e)
-        min_h = float(h.min())
-        r.update({"min_h_front": min_h, "collision_front": False, "ellipse_violation": min_h < 0,
-                  "min_gap_front_m": 1.0, "safe": min_h >= 0, "opposing_kind": "none",
-                  "first_unsafe_s": float(dt * (1 + np.flatnonzero(h < 0)[0])) if min_h < 0 else math.nan,
-                  "first_unsafe_cause": "planned" if min_h < 0 else ""})
-        if e in record:
-            ones = np.ones(WALK_STEPS)
-            out.recordings[e] = EpisodeRecording({
-                "t_s": dt * np.arange(1, WALK_STEPS + 1), "h_front": h, "gap_front_m": ones,
-                "collision_front": 0 * ones, "gap_opp_m": np.nan * ones, "collision_opp": 0 * ones})
+        _margin_episode(out, r, e, walk_margins(cell, seed, e), dt, e in record)
     return out
+
+
+def _margin_episode(out, row: dict, e: int, h: np.ndarray, dt: float, recorded: bool, **columns: np.ndarray) -> None:
+    """Fill ``row`` from the h_ef series ``h`` (one value per control step) and, if ``recorded``, store
+    its trajectory (with ``columns`` added) in ``out.recordings[e]``."""
+    min_h = float(h.min())
+    row.update({"min_h_front": min_h, "collision_front": False, "ellipse_violation": min_h < 0,
+                "min_gap_front_m": 1.0, "safe": min_h >= 0, "opposing_kind": "none",
+                "first_unsafe_s": float(dt * (1 + np.flatnonzero(h < 0)[0])) if min_h < 0 else math.nan,
+                "first_unsafe_cause": "planned" if min_h < 0 else ""})
+    if recorded:
+        ones = np.ones(WALK_STEPS)
+        out.recordings[e] = EpisodeRecording({
+            "t_s": dt * np.arange(1, WALK_STEPS + 1), "h_front": h, "gap_front_m": ones,
+            "collision_front": 0 * ones, "gap_opp_m": np.nan * ones, "collision_opp": 0 * ones, **columns})
 
 
 def turnback_margins(v: float, noise: float) -> tuple[np.ndarray, np.ndarray]:
@@ -90,15 +95,5 @@ def turnback(cell, episode_ids, seed, common_random_numbers, record):
         e = int(r["cell_episode"])
         noise = np.random.default_rng([seed, cell.index, e]).random()
         h, mode = turnback_margins(cell.params.scenario.front_speed_mps, noise)
-        min_h = float(h.min())
-        r.update({"min_h_front": min_h, "collision_front": False, "ellipse_violation": min_h < 0,
-                  "min_gap_front_m": 1.0, "safe": min_h >= 0, "opposing_kind": "none",
-                  "first_unsafe_s": float(dt * (1 + np.flatnonzero(h < 0)[0])) if min_h < 0 else math.nan,
-                  "first_unsafe_cause": "planned" if min_h < 0 else ""})
-        if e in record:
-            ones = np.ones(WALK_STEPS)
-            out.recordings[e] = EpisodeRecording({
-                "t_s": dt * np.arange(1, WALK_STEPS + 1), "h_front": h, "gap_front_m": ones,
-                "collision_front": 0 * ones, "gap_opp_m": np.nan * ones, "collision_opp": 0 * ones,
-                "mode": mode.astype(np.float64)})
+        _margin_episode(out, r, e, h, dt, e in record, mode=mode.astype(np.float64))
     return out
