@@ -271,22 +271,25 @@ def _running(gen_dir: Path, row: dict[str, Any], requirement: str, control_perio
     episode that could not be simulated: it is never a survivor)."""
     if rb.is_error_row(row):
         return np.zeros(0)
+    trajectory = _trajectory(gen_dir, row, "--method splitting branches on each candidate's stored trajectory")
+    return rb.running_robustness(trajectory, requirement, control_period_s, epsilon=float(row["epsilon"]),
+                                 h0=float(row["h0_front"]))
+
+
+def _trajectory(gen_dir: Path, row: dict[str, Any], why: str) -> dict[str, np.ndarray]:
+    """The stored trajectory of a candidate's episode; RunError naming ``why`` it is needed if missing."""
     path = store.trajectory_path(gen_dir, int(row["episode_id"]))
     if not path.is_file():
-        raise RunError(f"{path} is missing: --method splitting branches on each candidate's stored trajectory")
-    return rb.running_robustness({k: np.asarray(v) for k, v in pq.read_table(path).to_pydict().items()},
-                                 requirement, control_period_s, epsilon=float(row["epsilon"]),
-                                 h0=float(row["h0_front"]))
+        raise RunError(f"{path} is missing: {why}")
+    return {k: np.asarray(v) for k, v in pq.read_table(path).to_pydict().items()}
 
 
 def _guide(gen_dir: Path, row: dict[str, Any], guide: str) -> float:
     """The guide's value for one candidate (a ``@go_back`` guide reads its stored trajectory)."""
     if not guide.endswith(rb.GO_BACK_SUFFIX) or rb.is_error_row(row):
         return rb.guide_value(row, None, guide)
-    path = store.trajectory_path(gen_dir, int(row["episode_id"]))
-    if not path.is_file():
-        raise RunError(f"{path} is missing: [falsify] guide = {guide!r} reads each candidate's stored trajectory")
-    return rb.guide_value(row, {k: np.asarray(v) for k, v in pq.read_table(path).to_pydict().items()}, guide)
+    return rb.guide_value(row, _trajectory(gen_dir, row, f"[falsify] guide = {guide!r} reads each candidate's "
+                                                         "stored trajectory"), guide)
 
 
 def _lowest(values: np.ndarray) -> float:
