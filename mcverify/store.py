@@ -358,6 +358,15 @@ def write_trajectory(run_dir: Path, episode_id: int, columns: Mapping[str, Any],
     return path
 
 
+def read_trajectory(run_dir: Path, episode_id: int) -> dict[str, Any] | None:
+    """Episode ``episode_id``'s stored trajectory (column name -> numpy array), None if not stored."""
+    path = trajectory_path(run_dir, episode_id)
+    if not path.is_file():
+        return None
+    table = pq.read_table(path)
+    return {name: table.column(name).to_numpy() for name in table.column_names}
+
+
 # ---------------------------------------------------------------------------------- manifest
 
 

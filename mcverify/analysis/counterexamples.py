@@ -11,6 +11,9 @@ the chosen requirement, then episode id):
 - ``robustness`` (the chosen requirement) and ``rob:<name>`` for every requirement;
 - the minimum margins ``min_gap_front_m``, ``min_h_front``, ``min_gap_opp_any_m``, ``min_h_opp``;
 - ``first_unsafe_s`` and ``first_unsafe_cause`` (what drove the ego then), ``outcome``;
+- ``first_violation_s``: when the chosen requirement was first violated
+  (:func:`mcverify.analysis.robustness.first_violation_s`, from the stored trajectory when the caller
+  passes ``trajectory``; NaN where it cannot be located);
 - ``failure_mode``: the most violated member requirement and the driver at the first unsafe
   instant (e.g. ``collision_opp/planned``), to group distinct failures;
 - ``region``: the failure region, i.e. the group of counterexamples of the same failure mode that
@@ -23,9 +26,10 @@ from __future__ import annotations
 import json
 import math
 from collections import Counter
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
+import numpy as np
 import pyarrow as pa
 
 from mcverify.analysis import failure_regions
@@ -61,9 +65,12 @@ def counterexamples(
     manifest: Mapping[str, Any],
     run_dir: str,
     requirement: str = "safe",
+    trajectory: Callable[[int], Mapping[str, np.ndarray] | None] | None = None,
 ) -> list[dict[str, Any]]:
     """The rows of ``table`` that violate ``requirement``, worst first, as counterexample records
-    (see the module docstring); ``run_dir`` is written into the replay commands as given."""
+    (see the module docstring); ``run_dir`` is written into the replay commands as given;
+    ``trajectory(episode_id)`` gives an episode's stored trajectory (None if not stored), read only
+    for the counterexamples, to locate their first violation."""
     rb.requirement(requirement)
     cells = {int(c["index"]): c for c in manifest.get("cells", [])}
     rows = [r for r in table.to_pylist() if rb.robustness(r, requirement) < 0.0]
@@ -80,11 +87,20 @@ def counterexamples(
         rec.update({f"rob:{n}": rb.robustness(r, n) for n in REPORTED})
         rec.update({m: r.get(m) for m in MARGIN_COLUMNS})
         rec.update({c: r.get(c) for c in ROW_COLUMNS})
+        rec["first_violation_s"] = _first_violation_s(r, cells.get(int(r["cell_index"]), {}), requirement, trajectory)
         rec["failure_mode"] = failure_mode(r, requirement)
         rec["replay"] = replay_command(run_dir, int(r["episode_id"]))
         out.append(rec)
     failure_regions.assign(out, run_bounds(out, table, cells.values()))
     return out
+
+
+def _first_violation_s(row: Mapping[str, Any], cell: Mapping[str, Any], requirement: str,
+                       trajectory: Callable[[int], Mapping[str, np.ndarray] | None] | None) -> float:
+    sim = (cell.get("params") or {}).get("sim", {})
+    traj = trajectory(int(row["episode_id"])) if trajectory is not None else None
+    return rb.first_violation_s(row, traj, requirement, control_period_s=float(sim.get("control_period_s", math.nan)),
+                                stopped_at=str(sim.get("stop_at") or ""))
 
 
 def run_bounds(records: Sequence[Mapping[str, Any]], table: pa.Table,

@@ -26,6 +26,12 @@ every requirement, and ``"<r>@go_back"`` for each per-step requirement r (:data:
 minimum of r's per-sub-step signal over the sub-steps where the ego goes back (Q2's mode), +inf if
 it never did (:func:`guide_value`, from the stored trajectory). Going back is part of the episode,
 so a negative ``r@go_back`` is a violation of r too; the converse is not true.
+
+When a violation begins (:func:`first_violation_s`, the ``first_violation_s`` of every counterexample):
+the first stored sub-step at which it shows, from the trajectory for the per-step requirements and
+``theorem5`` (the first control step whose recorded decision solved neither Q1 nor Q2), and for any
+requirement an episode was stopped at (``sim.stop_at``) from the stop: the first sub-step of its last
+control period.
 """
 
 from __future__ import annotations
@@ -210,6 +216,45 @@ def guide_value(row: Row, trajectory: Mapping[str, np.ndarray] | None, name: str
     signal = _substep_signal(trajectory, name.removesuffix(GO_BACK_SUFFIX), _num(row, "epsilon"), _num(row, "h0_front"))
     going_back = np.asarray(trajectory["mode"]) == GO_BACK_MODE
     return float(np.min(signal[going_back])) if going_back.any() else math.inf
+
+
+def first_violation_s(row: Row, trajectory: Mapping[str, np.ndarray] | None, name: str, *,
+                      control_period_s: float, stopped_at: str = "") -> float:
+    """Time (s) of the first stored sub-step at which the episode violates requirement ``name``;
+    NaN if it does not violate it (or is an error row) or the time cannot be located.
+
+    Located from the stored ``trajectory`` for the per-step requirements (:data:`STEPWISE`) and for
+    ``theorem5`` (the first sub-step of the first control step whose decision solved neither Q1 nor Q2:
+    ``q1_solved`` not 1 and ``q2_solved`` 0, as the planner counts it); and, for any requirement, from
+    the stop when the episode was ended at it (``stopped_at`` is the cell's ``sim.stop_at`` and the
+    row's ``stopped_at_violation`` is set): the first sub-step of its last control period, since the
+    rollout ends an episode at the end of the control period in which it first violated. Without a
+    trajectory, ``safe`` falls back to the row's ``first_unsafe_s``. ``theorem5_certified`` and
+    ``h_eo`` of an episode that ran on are not located (the trajectory records neither the
+    certificates nor which sub-steps count for h_eo), nor is a requirement whose columns the
+    trajectory lacks."""
+    rob = robustness(row, name)
+    if not rob < 0.0:
+        return math.nan
+    if trajectory is not None and "t_s" in trajectory and len(trajectory["t_s"]):
+        t = np.asarray(trajectory["t_s"], dtype=np.float64)
+        if name in STEPWISE:
+            try:
+                hit = _substep_signal(trajectory, name, _num(row, "epsilon"), _num(row, "h0_front")) < 0.0
+            except KeyError:  # a trajectory without the columns this requirement reads
+                hit = None
+            if hit is not None:
+                return float(t[np.argmax(hit)]) if hit.any() else math.nan
+        if name == "theorem5" and "q1_solved" in trajectory and "q2_solved" in trajectory:
+            q1, q2 = (np.asarray(trajectory[k], dtype=np.float64) for k in ("q1_solved", "q2_solved"))
+            hit = (q1 != 1.0) & (q2 == 0.0)
+            return float(t[np.argmax(hit)]) if hit.any() else math.nan
+        if stopped_at == name and bool(row.get("stopped_at_violation")):
+            last_period = t > t[-1] - control_period_s + 1e-9
+            return float(t[np.argmax(last_period)])
+    if name == "safe":
+        return _num(row, "first_unsafe_s")
+    return math.nan
 
 
 def running_robustness(trajectory: Mapping[str, np.ndarray], name: str, control_period_s: float, *,

@@ -358,7 +358,8 @@ def counterexample_records(result: SearchResult) -> list[dict[str, Any]]:
         gen_dir = result.out_dir / GENERATIONS / f"g{generation:03d}"
         manifest = store.read_json(gen_dir / store.MANIFEST)
         for rec in cx.counterexamples(store.read_episodes(gen_dir), manifest, str(gen_dir),
-                                      result.config.requirement):
+                                      result.config.requirement,
+                                      trajectory=lambda eid, d=gen_dir: store.read_trajectory(d, eid)):
             searched = values.get((generation, int(rec["episode_id"])), {})
             rec.update({f"param:{name}": float(searched[name]) for name in result.space.fields if name in searched})
             records.append({"generation": generation, **rec})

@@ -30,12 +30,12 @@ MAX_REGIONS = 10
 def table(records: Sequence[Mapping[str, Any]], requirement: str, total_episodes: int) -> Table:
     """The counterexample table: one row per violating episode, worst first."""
     params = [k for k in (records[0] if records else {}) if k.startswith("param:") or k.startswith("sample_")]
-    columns = ["episode", "cell", *[p.removeprefix("param:") for p in params], "robustness", "first unsafe (s)",
+    columns = ["episode", "cell", *[p.removeprefix("param:") for p in params], "robustness", "first violation (s)",
                "cause", "min gap veh_f (m)", "min h_ef", "min gap veh_o, any time (m)", "min h_eo (m)", "replay"]
     rows = []
     for r in records[:MAX_ROWS]:
         rows.append([str(r["episode_id"]), str(r["cell"]), *[_value(r.get(p)) for p in params],
-                     fmt_num(r["robustness"], 3, signed=True), fmt_num(r.get("first_unsafe_s"), 2),
+                     fmt_num(r["robustness"], 3, signed=True), fmt_num(_first_violation(r), 2),
                      r["failure_mode"], fmt_num(r.get("min_gap_front_m"), 2), fmt_num(r.get("min_h_front"), 3),
                      fmt_num(r.get("min_gap_opp_any_m"), 2), fmt_num(r.get("min_h_opp"), 2), r["replay"]])
     notes = [f"Episodes violating `{requirement}` (robustness < 0), worst first: {len(records)} of "
@@ -74,6 +74,11 @@ def regions_table(records: Sequence[Mapping[str, Any]]) -> Table:
                  align="l" * 2 + "r" * (len(columns) - 3) + "l")
 
 
+def _first_violation(record: Mapping[str, Any]) -> float:
+    """When the record's requirement was first violated (older tables have only ``first_unsafe_s``)."""
+    return record.get("first_violation_s", record.get("first_unsafe_s"))
+
+
 def _region_text(g: failure_regions.Region) -> str:
     """One region for the notes; the box only for regions of two or more (a single counterexample's
     values are its row of the table)."""
@@ -104,12 +109,13 @@ def figures(run_dir: Path, records: Sequence[Mapping[str, Any]], manifest: Mappi
         plans_path = path.with_name(f"episode-{eid:06d}-plans.parquet")
         plans = figure_common.load_table(plans_path) if plans_path.is_file() else None
         key = f"counterexample-{eid:06d}"
-        head = (f"counterexample · episode {eid} · {r['failure_mode']} at {fmt_num(r.get('first_unsafe_s'), 2)} s"
+        head = (f"counterexample · episode {eid} · {r['failure_mode']} at {fmt_num(_first_violation(r), 2)} s"
                 f" · robustness {fmt_num(r['robustness'], 3, signed=True)}")
         (Path(run_dir) / FIGURES_DIR).mkdir(exist_ok=True)
         try:
             drawn = episode_figures.snapshots(traj, plans, figure_common.params_dict(params.get(int(r["cell_index"]))),
-                                              Path(run_dir) / FIGURES_DIR / f"{key}.png", title=head)
+                                              Path(run_dir) / FIGURES_DIR / f"{key}.png", title=head,
+                                              moment=_first_violation(r))
         except (KeyError, ValueError) as err:
             out.append(FigureResult(key, f"Counterexample {eid}", "", None, f"not drawn: {err}"))
             continue

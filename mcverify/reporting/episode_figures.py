@@ -47,6 +47,16 @@ def snapshot_times(traj: Trajectory, plans: Mapping[str, np.ndarray] | None, n: 
     return [float(times[i]) for i in pick]
 
 
+def _with_moment(times: list[float], moment: float | None, event: UnsafeEvent | None) -> list[float]:
+    """``times`` with ``moment`` added (in order) when it is finite and no panel is at it already."""
+    if moment is None or not np.isfinite(moment):
+        return times
+    shown = [*times, *([event.t_s] if event is not None else [])]
+    if any(abs(w - moment) < 1e-9 for w in shown):
+        return times
+    return sorted([*times, float(moment)])
+
+
 def _with_event(times: list[float], event: UnsafeEvent | None) -> list[tuple[float, UnsafeEvent | None]]:
     """The snapshot times in order, the first unsafe moment added as its own panel."""
     moments: list[tuple[float, UnsafeEvent | None]] = [(w, None) for w in times]
@@ -91,16 +101,18 @@ def snapshots(
     *,
     title: str,
     n_snapshots: int = 5,
+    moment: float | None = None,
 ) -> dict[str, int]:
     """Road snapshots stacked top to bottom (the paper's Figs. 5-7), drawn to scale: the ego, veh_f
     with its safety ellipse h_ef = 0 (dashed) and veh_o when there is one, each as its footprint and
     named, the ego's path so far (black), the planned Q1 (green dots) and Q2 (orange dots)
     trajectories and veh_o's predicted positions (blue dots). An unsafe episode gets one more panel
     at its first unsafe moment, framed in red with the cause written in
-    (:mod:`mcverify.reporting.road_panels`)."""
+    (:mod:`mcverify.reporting.road_panels`), and one at ``moment`` (s; e.g. when a counterexample
+    first violated its requirement, which need not be a safety event) unless a panel shows it already."""
     p = params_dict(params)
     event = unsafe_event.first_unsafe_event(traj)
-    times = snapshot_times(traj, plans, n_snapshots)
+    times = _with_moment(snapshot_times(traj, plans, n_snapshots), moment, event)
     fig, _, _ = _road_stack(0.0, traj, plans, p, times, event)
     fig.text(0.5, 1 - 0.12 / fig.get_size_inches()[1], title, ha="center", va="top", fontsize=9)
     return save(fig, path)

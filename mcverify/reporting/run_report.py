@@ -115,7 +115,8 @@ def write(
     with figure_common.exporting(figure_formats, figure_dpi):
         figs = run_figures.write_figures(run_dir, summ, table, manifest)
     # Counterexamples (issue 19.4): every unsafe episode, worst first, with its replay command.
-    cx_records = counterexamples.counterexamples(table, manifest, str(run_dir))
+    cx_records = counterexamples.counterexamples(table, manifest, str(run_dir),
+                                                 trajectory=lambda eid: store.read_trajectory(run_dir, eid))
     tables.append(counterexample_report.table(cx_records, "safe", table.num_rows))
     with figure_common.exporting(figure_formats, figure_dpi):
         figs = [*figs, *counterexample_report.figures(run_dir, cx_records, manifest)]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
 from mcverify.analysis import robustness as rb
@@ -76,3 +77,61 @@ def test_min_over_a_set_and_error_rows():
     with pytest.raises(ValueError, match="unknown requirement"):
         rb.robustness(row, "nope")
 
+
+
+# ----------------------------------------------------------------- when a violation begins
+
+def _trajectory(h, gap=None, q1=None, q2=None, dt=0.01):
+    """Sub-step columns at t = dt, 2 dt, ... (one sub-step per control step of ``dt``)."""
+    n = len(h)
+    nan = [math.nan] * n
+    return {"t_s": np.arange(1, n + 1) * dt, "h_front": np.array(h, float),
+            "gap_front_m": np.array(gap if gap is not None else [1.0] * n, float),
+            "collision_front": np.array([0.0 if g is None or g > 0 else 1.0 for g in (gap or [1.0] * n)]),
+            "gap_opp_m": np.array(nan), "collision_opp": np.zeros(n),
+            "q1_solved": np.array(q1 if q1 is not None else [1.0] * n, float),
+            "q2_solved": np.array(q2 if q2 is not None else [1.0] * n, float)}
+
+
+def test_first_violation_is_the_first_substep_below_zero():
+    traj = _trajectory([0.5, 0.2, -0.1, -0.3, 0.1])
+    row = _row(min_h_front=-0.3)
+    assert rb.first_violation_s(row, traj, "ellipse", control_period_s=0.01) == pytest.approx(0.03)
+    assert rb.first_violation_s(row, traj, "safe", control_period_s=0.01) == pytest.approx(0.03)
+    # invariance at eps 0.3: h < 0.3 first at the second sub-step
+    assert rb.first_violation_s(_row(min_h_front=-0.3, epsilon=0.3), traj, "invariance",
+                                control_period_s=0.01) == pytest.approx(0.02)
+    # a requirement the episode keeps: NaN
+    assert math.isnan(rb.first_violation_s(row, traj, "collision_front", control_period_s=0.01))
+
+
+def test_first_violation_of_a_collision_is_the_first_contact():
+    traj = _trajectory([0.5, 0.4, 0.3, 0.3], gap=[0.8, 0.2, 0.0, 0.0])
+    row = _row(min_gap_front_m=0.0, collision_front=True)
+    assert rb.first_violation_s(row, traj, "collision_front", control_period_s=0.01) == pytest.approx(0.03)
+
+
+def test_first_violation_of_theorem5_is_the_first_step_with_neither_solved():
+    # step 2: Q1 failed, Q2 solved (fine); step 3: Q1 not attempted (NaN, going back) and Q2 failed
+    traj = _trajectory([1.0] * 5, q1=[1, 0, math.nan, 0, 1], q2=[1, 1, 0, 0, 1])
+    row = _row(both_infeasible_steps=2, both_certified_infeasible_steps=1)
+    assert rb.first_violation_s(row, traj, "theorem5", control_period_s=0.01) == pytest.approx(0.03)
+    # the certificates are not in the trajectory: located only through a stop at that requirement
+    assert math.isnan(rb.first_violation_s(row, traj, "theorem5_certified", control_period_s=0.01))
+    stopped = _row(both_infeasible_steps=1, both_certified_infeasible_steps=1, stopped_at_violation=True)
+    two_substeps = {k: np.repeat(v, 2) for k, v in _trajectory([1.0] * 3).items()}
+    two_substeps["t_s"] = np.arange(1, 7) * 0.005  # control period 0.01 s, 2 sub-steps
+    assert rb.first_violation_s(stopped, two_substeps, "theorem5_certified", control_period_s=0.01,
+                                stopped_at="theorem5_certified") == pytest.approx(0.025)
+    assert math.isnan(rb.first_violation_s(stopped, two_substeps, "theorem5_certified", control_period_s=0.01,
+                                           stopped_at="ellipse"))
+
+
+def test_first_violation_without_a_trajectory():
+    row = _row(min_h_front=-0.2, safe=False, first_unsafe_s=4.2)
+    assert rb.first_violation_s(row, None, "safe", control_period_s=0.02) == 4.2
+    assert math.isnan(rb.first_violation_s(row, None, "ellipse", control_period_s=0.02))
+    # a trajectory without the columns a requirement reads counts as none
+    bare = {"t_s": np.array([0.01, 0.02])}
+    assert math.isnan(rb.first_violation_s(row, bare, "ellipse", control_period_s=0.02))
+    assert rb.first_violation_s(row, bare, "safe", control_period_s=0.02) == 4.2
