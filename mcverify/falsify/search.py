@@ -278,10 +278,10 @@ def _running(gen_dir: Path, row: dict[str, Any], requirement: str, control_perio
 
 def _trajectory(gen_dir: Path, row: dict[str, Any], why: str) -> dict[str, np.ndarray]:
     """The stored trajectory of a candidate's episode; RunError naming ``why`` it is needed if missing."""
-    path = store.trajectory_path(gen_dir, int(row["episode_id"]))
-    if not path.is_file():
-        raise RunError(f"{path} is missing: {why}")
-    return {k: np.asarray(v) for k, v in pq.read_table(path).to_pydict().items()}
+    trajectory = store.read_trajectory(gen_dir, int(row["episode_id"]))
+    if trajectory is None:
+        raise RunError(f"{store.trajectory_path(gen_dir, int(row['episode_id']))} is missing: {why}")
+    return trajectory
 
 
 def _guide(gen_dir: Path, row: dict[str, Any], guide: str) -> float:
