@@ -326,7 +326,9 @@ def _parser() -> argparse.ArgumentParser:
     bf = sub.add_parser("bench-falsify", help="success rate and median episodes to the first counterexample per "
                         "search method and target (written into results/BENCHMARKS.md)")
     bf.add_argument("targets", nargs="*", type=Path,
-                    help="campaign files with [falsify] (default: campaigns/falsify_*)")
+                    help="campaign files with [falsify] (default: the five benchmark targets falsify_mpcdc_table4b, "
+                    "falsify_vlcbf_eps0_noise2, falsify_theorem5_opposing, falsify_theorem5_certified_opposing, "
+                    "falsify_vlcbf_eps03_paper_noise in campaigns/)")
     bf.add_argument("--methods", default="cma,cross-entropy,random", help="comma-separated methods")
     bf.add_argument("--trials", type=_positive_int, default=10, help="independent trials per method and target")
     bf.add_argument("--budget", type=_positive_int, default=100, help="episodes per trial")

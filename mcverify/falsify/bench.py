@@ -117,6 +117,7 @@ DEFAULT_TARGETS = (
     "campaigns/falsify_mpcdc_table4b.toml",
     "campaigns/falsify_vlcbf_eps0_noise2.toml",
     "campaigns/falsify_theorem5_opposing.toml",
+    "campaigns/falsify_theorem5_certified_opposing.toml",
     "campaigns/falsify_vlcbf_eps03_paper_noise.toml",
 )
 ALL_METHODS = methods.METHODS
