@@ -225,13 +225,14 @@ def episode_overview(
     *,
     title: str,
     plans: Mapping[str, np.ndarray] | None = None,
+    moment: float | None = None,
 ) -> dict[str, int]:
     """One episode on one page (the figure ``mcverify replay`` writes): road panels to scale at
-    four moments (and at the first unsafe one, marked with its cause), h_ef(t) against ε, and the
-    speeds, the first unsafe moment marked in both."""
+    four moments (and at the first unsafe one, marked with its cause, and at ``moment`` as in
+    :func:`snapshots`), h_ef(t) against ε, and the speeds, the first unsafe moment marked in both."""
     p = params_dict(params)
     event = unsafe_event.first_unsafe_event(traj)
-    times = snapshot_times(traj, plans, 4)
+    times = _with_moment(snapshot_times(traj, plans, 4), moment, event)
     series_in = 2 * 2.4 + 0.5
     fig, _, free_top = _road_stack(series_in, traj, plans, p, times, event, bottom_in=0.3)
     height = fig.get_size_inches()[1]

@@ -33,5 +33,9 @@ def episode_figure(
         f"{cell.name} · episode {row.get('episode_id')} · {row.get('outcome')} · {safety} · "
         f"min dist. to ellipse {dist:.2f} m · min h_ef {h:.3f}{opp}"
     )
-    episode_figures.episode_overview(traj, cell.params, cell.epsilon, Path(path), title=title, plans=plans)
+    # an episode ended at its first violation (falsify's stop_episodes) gets a panel at its end: the
+    # violating step, which need not be a safety event (a Theorem 5 step)
+    stop = float(np.asarray(traj["t_s"])[-1]) if row.get("stopped_at_violation") and len(traj["t_s"]) else None
+    episode_figures.episode_overview(traj, cell.params, cell.epsilon, Path(path), title=title, plans=plans,
+                                     moment=stop)
     return Path(path)

@@ -33,3 +33,15 @@ def test_replay_figure_with_opposing_vehicle_and_missing_heading(tmp_path):
     path = episode_plot.episode_figure(traj, _cell(), ROW, tmp_path / "o.png")
     assert mpimg.imread(path).shape[1] == 1200
     assert path.read_bytes() == episode_plot.episode_figure(traj, _cell(), ROW, tmp_path / "o2.png").read_bytes()
+
+
+def test_a_stopped_episode_gets_a_panel_at_its_stop(tmp_path):
+    # falsify's stop_episodes: the episode ended at its first violation, which the last panel shows
+    # (the panels sit at plan times, and the last plan comes before the trajectory's end)
+    traj = synthetic.trajectory(opposing=True)
+    plans = synthetic.plans(traj)
+    assert plans["t_s"].max() < traj["t_s"][-1]
+    plain = mpimg.imread(episode_plot.episode_figure(traj, _cell(), ROW, tmp_path / "a.png", plans=plans))
+    stopped = mpimg.imread(episode_plot.episode_figure(traj, _cell(), {**ROW, "stopped_at_violation": True},
+                                                       tmp_path / "b.png", plans=plans))
+    assert stopped.shape[0] > plain.shape[0]  # one more road panel

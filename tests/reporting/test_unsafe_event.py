@@ -98,3 +98,14 @@ def test_snapshots_and_the_replay_figure_add_the_unsafe_moment(tmp_path):
     over = episode_figures.episode_overview(unsafe, None, 0.3, tmp_path / "o.png", title="o",
                                             plans=synthetic.plans(unsafe))
     assert over["axes"] == 5 + 2  # four moments + the unsafe one, then h_ef(t) and the speeds
+
+
+def test_a_moment_gets_its_own_panel_in_both_figures(tmp_path):
+    safe = synthetic.trajectory(opposing=True)
+    plans = synthetic.plans(safe)
+    last = float(safe["t_s"][-1])
+    a = episode_figures.snapshots(safe, plans, None, tmp_path / "a.png", title="safe", moment=last)
+    assert a["axes"] == 5 + 1  # the moment (e.g. a counterexample's first violation) as one more panel
+    over = episode_figures.episode_overview(safe, None, 0.3, tmp_path / "o.png", title="o", plans=plans,
+                                            moment=last)
+    assert over["axes"] == 4 + 1 + 2
