@@ -9,6 +9,7 @@
     stop_episodes = false         # end each episode at its first violation of the requirement (default false)
     common_noise = false          # every candidate of a search sees the same per-step noise (default false)
     guide = "ellipse@go_back"     # what the method minimises instead of the requirement (default: the requirement)
+    extremes = ["noise.front_x_bias"]   # searched fields taken at their low or high bound only (default none)
 
     [falsify.bounds]              # one numeric model field per entry: [low, high], low < high
     "scenario.front_speed_mps" = [5.0, 9.0]
@@ -39,6 +40,13 @@ the early stops are still judged by the requirement. Besides any requirement, ``
 requirement r over the sub-steps where the ego goes back (+inf for an episode that never turned
 back), e.g. to compare scenarios by how close their turn-backs come, where the overtakes' margins
 would lure the search elsewhere (docs/falsification.md).
+
+``extremes``: searched fields that take only their two bounds (bang-bang): a coordinate u < 1/2 is
+the field's low bound, u >= 1/2 its high bound, so ``random`` draws each end with probability 1/2 and
+the other methods move the odds. A bounded disturbance that enters additively does its worst at its
+bounds (as in Breach's corner-first search, which evaluates the domain's corners before anything else),
+so declaring the disturbance fields extreme searches its corners and the scenario together. Such a
+field has no ``[falsify.nominal]`` entry.
 """
 
 from __future__ import annotations
@@ -57,7 +65,8 @@ from mcverify.model import GUIDE_NAMES, REQUIREMENT_NAMES
 __all__ = ["MAX_POPULATION", "REQUIREMENT_NAMES", "SearchSpace", "check_single_target", "read_search_space",
            "split_element"]
 
-_KEYS = {"requirement", "population", "stop_at_first", "stop_episodes", "common_noise", "guide", "bounds", "nominal"}
+_KEYS = {"requirement", "population", "stop_at_first", "stop_episodes", "common_noise", "guide", "bounds", "nominal",
+         "extremes"}
 MAX_POPULATION = 1024
 _ELEMENT = re.compile(r"(.+)\[(\d+)\]")
 
@@ -75,6 +84,7 @@ class SearchSpace:
     nominal: tuple[tuple[str, float, float], ...] = ()
     common_noise: bool = False
     guide: str = ""  # "" : the requirement itself
+    extremes: tuple[str, ...] = ()  # fields taken at their low or high bound only
 
     @property
     def objective(self) -> str:
@@ -114,16 +124,25 @@ class SearchSpace:
         out = {}
         for (name, lo, hi), u in zip(self.bounds, unit_point, strict=True):
             u = min(1.0, max(0.0, float(u)))
-            uniform = float(lo + u * (hi - lo))
-            out[name] = truncated_normal_ppf(u, *nominal[name], lo, hi) if name in nominal else uniform
+            if name in self.extremes:
+                out[name] = lo if u < 0.5 else hi
+            elif name in nominal:
+                out[name] = truncated_normal_ppf(u, *nominal[name], lo, hi)
+            else:
+                out[name] = float(lo + u * (hi - lo))
         return out
 
     def describe(self) -> str:
         """One line: each field's bounds and, where given, its nominal distribution."""
         nominal = self.nominal_by_field
-        return ", ".join(f"{n} in [{lo:g}, {hi:g}]" + (f" (nominal N({nominal[n][0]:g}, {nominal[n][1]:g}²) "
-                                                        "truncated)" if n in nominal else "")
-                         for n, lo, hi in self.bounds)
+        def one(name: str, lo: float, hi: float) -> str:
+            if name in self.extremes:
+                return f"{name} in {{{lo:g}, {hi:g}}} (extremes)"
+            if name in nominal:
+                return f"{name} in [{lo:g}, {hi:g}] (nominal N({nominal[name][0]:g}, {nominal[name][1]:g}²) truncated)"
+            return f"{name} in [{lo:g}, {hi:g}]"
+
+        return ", ".join(one(n, lo, hi) for n, lo, hi in self.bounds)
 
 
 _STANDARD_NORMAL = statistics.NormalDist()
@@ -199,8 +218,26 @@ def read_search_space(table: Any, where: str, known_fields: Mapping[str, type]) 
             raise CampaignError(f"{here}.bounds: the searched elements of {field} must be [0] to [K-1] (they make "
                                 f"the whole list), got {sorted(indices)}")
     nominal = _read_nominal(table.get("nominal", {}), here, {name: (lo, hi) for name, lo, hi in out})
+    extremes = _read_extremes(table.get("extremes", []), here, [name for name, _, _ in out],
+                              [name for name, _, _ in nominal])
     return SearchSpace(requirement, population, stop, tuple(out), stop_episodes, nominal, common_noise,
-                       "" if guide == requirement else guide)
+                       "" if guide == requirement else guide, extremes)
+
+
+def _read_extremes(names: Any, here: str, searched: list[str], with_nominal: list[str]) -> tuple[str, ...]:
+    """``extremes = ["field", ...]``: distinct searched fields without a nominal distribution."""
+    if not isinstance(names, list) or any(not isinstance(n, str) for n in names):
+        raise CampaignError(f"{here}.extremes: expected a list of searched field names, got {_short(names)}")
+    for name in names:
+        if name not in searched:
+            raise CampaignError(f"{here}.extremes: {_short(name)} is not a searched field (give its [low, high] in "
+                                "[falsify.bounds] first)")
+        if name in with_nominal:
+            raise CampaignError(f"{here}.extremes: {_short(name)} has a [falsify.nominal] entry; a field taken at "
+                                "its bounds only has none")
+    if len(set(names)) != len(names):
+        raise CampaignError(f"{here}.extremes: a field is named twice in {_short(names)}")
+    return tuple(names)
 
 
 def _read_nominal(table: Any, here: str,
