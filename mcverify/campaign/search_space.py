@@ -133,8 +133,9 @@ class SearchSpace:
         return out
 
     def describe(self) -> str:
-        """One line: each field's bounds and, where given, its nominal distribution."""
+        """One line: each field's bounds and, where given, its nominal distribution or ``(extremes)``."""
         nominal = self.nominal_by_field
+
         def one(name: str, lo: float, hi: float) -> str:
             if name in self.extremes:
                 return f"{name} in {{{lo:g}, {hi:g}}} (extremes)"

@@ -62,7 +62,7 @@ def test_bad_extremes_are_one_line(extremes, nominal, message):
     assert "\n" not in str(info.value)
 
 
-def test_a_search_runs_its_extreme_fields_at_the_bounds_and_replays(tmp_path):
+def test_a_search_runs_its_extreme_fields_at_the_bounds_and_repeats(tmp_path):
     config = search.SearchConfig(raw=copy.deepcopy(RAW), source="<test>", method="cross-entropy", budget=18,
                                  seed=3, requirement="ellipse")
     result = search.start(config, tmp_path / "ce", make_executor=executors.SerialExecutor,
