@@ -353,6 +353,21 @@ def _parser() -> argparse.ArgumentParser:
     rare.add_argument("--no-write", action="store_true", help="do not write into results/BENCHMARKS.md")
     rare.set_defaults(func=_cmd_bench_rare)
 
+    val = sub.add_parser("bench-validate", help="the rare-event estimators against a crude Monte Carlo reference on "
+                         "one closed-loop cell: coverage, bias, relative error, cost (section written into "
+                         "results/BENCHMARKS.md)")
+    val.add_argument("reference", type=Path, help="crude Monte Carlo estimate folder (mcverify estimate --method mc)")
+    val.add_argument("--splitting", type=Path, nargs="+", default=[], metavar="DIR",
+                     help="splitting estimate folders of the same cell and target, distinct seeds")
+    val.add_argument("--importance", type=Path, nargs="+", default=[], metavar="DIR",
+                     help="importance estimate folders of the same cell and target, distinct seeds")
+    val.add_argument("--group", type=_positive_int, default=4,
+                     help="splitting: AMS runs per repetition (the estimator's --replicates; default 4)")
+    val.add_argument("--write", type=Path, default=Path("results/BENCHMARKS.md"), help="Markdown file to update")
+    val.add_argument("--no-write", action="store_true", help="print the section only")
+    val.add_argument("--json", type=Path, default=None, help="also write every figure as JSON to this file")
+    val.set_defaults(func=_cmd_bench_validate)
+
     fld = sub.add_parser("fields", help="every model field a campaign can set: type, unit, default, meaning")
     fld.add_argument("pattern", nargs="?", default="", help="only fields whose name contains this text")
     fld.set_defaults(func=_cmd_fields)
@@ -656,6 +671,23 @@ def _cmd_bench_rare(args) -> int:
     if not args.no_write:
         rare.write(res, command, Path("results/BENCHMARKS.md"))
         print("written: results/BENCHMARKS.md (section)", file=sys.stderr)
+    return 0
+
+
+def _cmd_bench_validate(args) -> int:
+    from mcverify import store
+    from mcverify.bench import validation
+
+    res = validation.run(args.reference, splitting_dirs=args.splitting, importance_dirs=args.importance,
+                         group=args.group)
+    command = "mcverify " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["bench-validate"] else "mcverify bench-validate"
+    text = validation.markdown(res, command)
+    print(text)
+    if args.json:
+        store.write_json_atomic(args.json, res)
+    if not args.no_write:
+        validation.write(res, command, args.write)
+        print(f"written: {args.write} (section)", file=sys.stderr)
     return 0
 
 

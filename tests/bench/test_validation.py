@@ -1,0 +1,105 @@
+"""``mcverify bench-validate``: the reference is the gap-free prefix of a crude estimate folder, the
+splitting runs are pooled into repetitions that equal the estimator's own interval, and folders that
+do not belong together are refused with one line."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from mcverify import store
+from mcverify.bench import validation
+from mcverify.errors import RunError
+from mcverify.estimate import splitting
+from mcverify.estimate.folder import ESTIMATE
+
+CAMPAIGN = "toy"
+
+
+def _manifest(out: Path, method: str, seed: int, target: str = "ellipse") -> None:
+    out.mkdir(parents=True)
+    store.write_json_atomic(out / store.MANIFEST, {
+        "campaign": {"name": CAMPAIGN, "seed": seed}, "cells": [{"index": 0, "name": "all"}],
+        "estimate": {"method": method, "target": target}})
+
+
+def _reference(out: Path, events: list[list[bool]]) -> None:
+    """A crude estimate folder whose chunk i holds 4 episodes with the given ellipse violations; a
+    None chunk is left missing (a gap in the pre-assigned order)."""
+    _manifest(out, "mc", seed=1)
+    for i, chunk_events in enumerate(events):
+        if chunk_events is None:
+            continue
+        chunk = store.Chunk(0, tuple(range(4 * i, 4 * i + 4)))
+        rows = [{"cell_index": 0, "cell_episode": e, "outcome": "overtake", "ellipse_violation": v, "steps": 80}
+                for e, v in zip(chunk.episode_ids, chunk_events, strict=True)]
+        store.append_record(out, store.write_chunk(out, chunk, rows))
+
+
+def _splitting(out: Path, seed: int, runs: list[float], target: str = "ellipse") -> None:
+    _manifest(out, "splitting", seed=seed, target=target)
+    store.write_json_atomic(out / ESTIMATE, {"spec": {"particles": 4}, "cells": [
+        {"cell": "all", "runs": runs, "steps": 100 * len(runs), "cpu_s": 5.0 * len(runs)}]})
+
+
+def test_reference_is_the_gap_free_prefix(tmp_path):
+    _reference(tmp_path / "ref", [[True, False, False, False], [False, False, True, False], None,
+                                  [True, True, True, True]])
+    ref = validation.reference(tmp_path / "ref")
+    # the fourth chunk lies after the gap: not part of the pre-assigned prefix
+    assert (ref.n, ref.k, ref.p) == (8, 2, 0.25)
+    assert ref.low < 0.25 < ref.high and ref.mean_episode_steps == 80
+
+
+def test_pooled_runs_give_the_estimators_own_intervals(tmp_path):
+    _reference(tmp_path / "ref", [[True, False, False, False]] * 5)
+    _splitting(tmp_path / "s1", 11, [0.1, 0.3, 0.2])
+    _splitting(tmp_path / "s2", 12, [0.25, 0.0, 0.4, 0.9])
+    ref = validation.reference(tmp_path / "ref")
+    reps = validation.splitting_repetitions([tmp_path / "s1", tmp_path / "s2"], ref, group=2)
+    pooled = [0.1, 0.3, 0.2, 0.25, 0.0, 0.4, 0.9]
+    assert len(reps) == 3  # the seventh run is a short remainder, dropped
+    for rep, start in zip(reps, (0, 2, 4), strict=True):
+        runs = [splitting.AMSRun(v, 1, [], 4, 1, 10, False, 1) for v in pooled[start:start + 2]]
+        own = splitting.from_runs(runs, 0.95)
+        assert (rep.estimate, rep.high) == pytest.approx((own.estimate, own.high))
+        assert rep.low == pytest.approx(own.low) and rep.steps == 200
+    summary = validation.summarise(reps, ref)
+    covered = sum(r.low <= 0.25 <= r.high for r in reps)
+    assert summary["covered"] == covered and summary["repetitions"] == 3
+    assert summary["bias"] == pytest.approx((0.2 + 0.225 + 0.2) / 3 / 0.25 - 1)
+
+
+def test_folders_that_do_not_belong_together_are_refused(tmp_path):
+    _reference(tmp_path / "ref", [[True, False, False, False]])
+    _splitting(tmp_path / "a", 5, [0.1, 0.2])
+    _splitting(tmp_path / "b", 5, [0.1, 0.2])
+    _splitting(tmp_path / "c", 6, [0.1, 0.2], target="collision")
+    ref = validation.reference(tmp_path / "ref")
+    with pytest.raises(RunError, match="same seed 5"):
+        validation.splitting_repetitions([tmp_path / "a", tmp_path / "b"], ref, group=2)
+    with pytest.raises(RunError, match="estimates 'collision'"):
+        validation.splitting_repetitions([tmp_path / "c"], ref, group=2)
+    with pytest.raises(RunError, match="not a crude Monte Carlo estimate"):
+        validation.reference(tmp_path / "a")
+    with pytest.raises(RunError, match="at least 2"):
+        validation.splitting_repetitions([tmp_path / "a"], ref, group=1)
+
+
+def test_cli_writes_the_section_and_refuses_bad_input_in_one_line(tmp_path, capsys):
+    from mcverify.cli import main
+
+    _reference(tmp_path / "ref", [[True, False, False, False]] * 3)
+    _splitting(tmp_path / "s1", 11, [0.1, 0.3, 0.2, 0.25])
+    bench = tmp_path / "BENCH.md"
+    bench.write_text("# Benchmarks\n\nhand-written\n")
+    assert main(["bench-validate", str(tmp_path / "ref"), "--splitting", str(tmp_path / "s1"), "--group", "2",
+                 "--write", str(bench)]) == 0
+    text = bench.read_text()
+    assert "hand-written" in text and validation.BEGIN_MARK in text
+    assert "| splitting, 2 runs of 4 particles | 2 |" in text
+    capsys.readouterr()
+    assert main(["bench-validate", str(tmp_path / "nowhere"), "--splitting", str(tmp_path / "s1")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "nowhere" in err[0]
