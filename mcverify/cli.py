@@ -361,8 +361,9 @@ def _parser() -> argparse.ArgumentParser:
                      help="splitting estimate folders of the same cell and target, distinct seeds")
     val.add_argument("--importance", type=Path, nargs="+", default=[], metavar="DIR",
                      help="importance estimate folders of the same cell and target, distinct seeds")
-    val.add_argument("--group", type=_positive_int, default=4,
-                     help="splitting: AMS runs per repetition (the estimator's --replicates; default 4)")
+    val.add_argument("--group", type=_positive_int, nargs="+", default=[4], metavar="R",
+                     help="splitting: AMS runs per repetition (the estimator's --replicates), one row per value "
+                     "(default 4)")
     val.add_argument("--write", type=Path, default=Path("results/BENCHMARKS.md"), help="Markdown file to update")
     val.add_argument("--no-write", action="store_true", help="print the section only")
     val.add_argument("--json", type=Path, default=None, help="also write every figure as JSON to this file")
@@ -679,7 +680,7 @@ def _cmd_bench_validate(args) -> int:
     from mcverify.bench import validation
 
     res = validation.run(args.reference, splitting_dirs=args.splitting, importance_dirs=args.importance,
-                         group=args.group)
+                         groups=args.group)
     command = "mcverify " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["bench-validate"] else "mcverify bench-validate"
     text = validation.markdown(res, command)
     print(text)

@@ -31,7 +31,6 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
-import scipy.stats as sps
 
 from mcverify import provenance, store
 from mcverify.analysis.columns import Columns, floats
@@ -114,14 +113,15 @@ def _estimate_folder(run_dir: Path, method: str, ref: Reference) -> tuple[dict[s
     spec = manifest.get("estimate") or {}
     if spec.get("method") != method:
         raise RunError(f"{run_dir} is not a {method} estimate")
-    if manifest["campaign"]["name"] != ref.campaign or spec.get("target") != ref.target:
-        raise RunError(f"{run_dir} estimates {spec.get('target')!r} of {manifest['campaign']['name']!r}; the "
-                       f"reference is {ref.target!r} of {ref.campaign!r}")
     path = Path(run_dir) / ESTIMATE
     cells = store.read_json(path)["cells"] if path.exists() else []
     mine = [c for c in cells if c["cell"] == ref.cell]
     if not mine:
         raise RunError(f"{run_dir} has no finished result for cell {ref.cell!r} (resume it first)")
+    target = mine[0].get("target", spec.get("target"))
+    if manifest["campaign"]["name"] != ref.campaign or target != ref.target:
+        raise RunError(f"{run_dir} estimates {target!r} of {manifest['campaign']['name']!r}; the "
+                       f"reference is {ref.target!r} of {ref.campaign!r}")
     return manifest, mine[0]
 
 
@@ -134,30 +134,51 @@ def _check_seeds(manifests: Sequence[dict[str, Any]], dirs: Sequence[Path]) -> N
         seen[seed] = d
 
 
+def pooled_runs(dirs: Sequence[Path], ref: Reference) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """(estimate, control steps, CPU seconds) of every AMS run of the splitting folders ``dirs``
+    (folders in the order given, runs in replicate order; a folder's cost is split evenly over its
+    runs) and the particles per run."""
+    values, steps, cpu, manifests, particles = [], [], [], [], set()
+    for d in dirs:
+        manifest, cell = _estimate_folder(d, "splitting", ref)
+        manifests.append(manifest)
+        runs = cell["runs"]
+        values.extend(runs)
+        steps.extend([cell["steps"] / len(runs)] * len(runs))
+        cpu.extend([cell["cpu_s"] / len(runs)] * len(runs))
+        particles.add(int(store.read_json(Path(d) / ESTIMATE)["spec"]["particles"]))
+    _check_seeds(manifests, dirs)
+    if len(particles) != 1:
+        raise RunError(f"the splitting folders use different particle counts ({sorted(particles)}); pool one at a time")
+    return np.asarray(values, float), np.asarray(steps, float), np.asarray(cpu, float), particles.pop()
+
+
 def splitting_repetitions(dirs: Sequence[Path], ref: Reference, group: int, level: float = 0.95
                           ) -> list[Repetition]:
     """The pooled AMS runs of ``dirs`` cut into consecutive repetitions of ``group`` runs (a short
     remainder is dropped), each with the Student t interval of :func:`splitting.from_runs`."""
     if group < 2:
         raise RunError(f"--group must be at least 2 (a t interval needs 2 runs), got {group}")
-    values, steps, cpu = [], [], []
-    manifests = []
-    for d in dirs:
-        manifest, cell = _estimate_folder(d, "splitting", ref)
-        manifests.append(manifest)
-        runs = cell["runs"]
-        values.extend(runs)
-        steps.extend([cell["steps"] / len(runs)] * len(runs))  # the folder's mean per run
-        cpu.extend([cell["cpu_s"] / len(runs)] * len(runs))
-    _check_seeds(manifests, dirs)
+    values, steps, cpu, _ = pooled_runs(dirs, ref)
+    if values.size < group:
+        raise RunError(f"--group {group} is more than the {values.size} runs the splitting folders hold")
     reps = []
-    tq = float(sps.t.ppf(0.5 + level / 2, group - 1))
-    for start in range(0, len(values) - group + 1, group):
-        v = np.asarray(values[start:start + group], dtype=float)
-        mean, half = float(v.mean()), tq * float(v.std(ddof=1)) / math.sqrt(group)
-        reps.append(Repetition(mean, max(0.0, mean - half), mean + half, float(np.sum(steps[start:start + group])),
-                               float(np.sum(cpu[start:start + group]))))
+    for start in range(0, values.size - group + 1, group):
+        part = slice(start, start + group)
+        mean, low, high, _, warnings = splitting.t_interval(values[part], level)
+        reps.append(Repetition(mean, low, high, float(steps[part].sum()), float(cpu[part].sum()), warnings))
     return reps
+
+
+def pooled_summary(dirs: Sequence[Path], ref: Reference) -> dict[str, Any]:
+    """The runs taken one by one: each is unbiased, so their mean, with its standard error, checks the
+    bias of splitting on this cell without any interval; and how many runs estimate 0."""
+    values, steps, cpu, particles = pooled_runs(dirs, ref)
+    se = float(values.std(ddof=1) / math.sqrt(values.size)) if values.size > 1 else math.nan
+    return {"runs": int(values.size), "particles": particles, "mean": float(values.mean()), "standard_error": se,
+            "bias": float(values.mean() / ref.p - 1), "bias_standard_error": se / ref.p,
+            "zero_runs": int(np.sum(values == 0)), "steps_per_run": float(steps.mean()),
+            "cpu_s_per_run": float(cpu.mean())}
 
 
 def importance_repetitions(dirs: Sequence[Path], ref: Reference) -> list[Repetition]:
@@ -177,7 +198,7 @@ def summarise(reps: Sequence[Repetition], ref: Reference, level: float = 0.95) -
     """Coverage (of p, and of either end of the reference's interval), bias, relative error, width and
     cost of the repetitions of one estimator."""
     if not reps:
-        return {"repetitions": 0}
+        raise ValueError("no repetition to summarise")
     est = np.array([r.estimate for r in reps])
     low, high = np.array([r.low for r in reps]), np.array([r.high for r in reps])
 
@@ -209,19 +230,23 @@ def _interval(k: int, n: int, level: float) -> list[float]:
 
 
 def run(reference_dir: Path, *, splitting_dirs: Sequence[Path] = (), importance_dirs: Sequence[Path] = (),
-        group: int = 4, level: float = 0.95) -> dict[str, Any]:
-    """The measurements described in the module docstring, as plain data."""
+        groups: Sequence[int] = (4,), level: float = 0.95) -> dict[str, Any]:
+    """The measurements described in the module docstring, as plain data: ``estimators`` holds one
+    row per (estimator, runs per repetition)."""
     ref = reference(reference_dir, level)
-    out: dict[str, Any] = {"reference": asdict(ref), "level": level, "group": group, "estimators": {},
+    out: dict[str, Any] = {"reference": asdict(ref), "level": level, "estimators": [],
                            "commit": provenance.environment_info().get("git_commit")}
     if splitting_dirs:
-        reps = splitting_repetitions(splitting_dirs, ref, group, level)
-        first = store.read_json(Path(splitting_dirs[0]) / ESTIMATE)["spec"]
-        out["estimators"]["splitting"] = {**summarise(reps, ref, level), "particles": first.get("particles"),
-                                          "runs_per_repetition": group, "folders": len(splitting_dirs)}
+        pooled = pooled_summary(splitting_dirs, ref)
+        out["splitting_runs"] = pooled
+        for group in groups:
+            reps = splitting_repetitions(splitting_dirs, ref, group, level)
+            out["estimators"].append({"estimator": f"splitting, {group} runs of {pooled['particles']} particles",
+                                      "method": "splitting", "runs_per_repetition": group,
+                                      **summarise(reps, ref, level)})
     if importance_dirs:
-        out["estimators"]["importance"] = {**summarise(importance_repetitions(importance_dirs, ref), ref, level),
-                                           "folders": len(importance_dirs)}
+        out["estimators"].append({"estimator": "importance", "method": "importance",
+                                  **summarise(importance_repetitions(importance_dirs, ref), ref, level)})
     if not out["estimators"]:
         raise RunError("give at least one --splitting or --importance folder to check against the reference")
     return out
@@ -241,19 +266,25 @@ def markdown(res: dict[str, Any], command: str) -> str:
              f"[{ref['low']:.4f}, {ref['high']:.4f}]; {ref['mean_episode_steps']:.0f} control steps per episode", "",
              "| estimator | repetitions | coverage of p (95 % CI) "
              "| coverage if p were at the reference's low / high end "
-             "| bias (± s.e.) | relative error | mean rel. half-width | steps per repetition | CPU-s per repetition "
-             "| crude steps, same width |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
-    for name, s in res["estimators"].items():
-        label = (f"splitting, {s['runs_per_repetition']} runs of {s['particles']} particles" if name == "splitting"
-                 else name)
+             "| bias (± s.e.) | relative error | mean rel. half-width (estimates > 0) | repetitions warned "
+             "| steps per repetition | CPU-s per repetition | crude steps, same width |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for s in res["estimators"]:
         lo, hi = s["coverage_interval"]
         lines.append(
-            f"| {label} | {s['repetitions']} | {s['covered']}/{s['repetitions']} = {_pct(s['coverage'])} "
+            f"| {s['estimator']} | {s['repetitions']} | {s['covered']}/{s['repetitions']} = {_pct(s['coverage'])} "
             f"({_pct(lo)}-{_pct(hi)}) | {_pct(s['coverage_at_reference_low'])} / "
             f"{_pct(s['coverage_at_reference_high'])} | {s['bias']:+.1%} (± {s['bias_standard_error']:.1%}) | "
-            f"{s['relative_error']:.2f} | {s['mean_relative_halfwidth']:.2f} | {s['steps_per_repetition']:,.0f} | "
-            f"{s['cpu_s_per_repetition']:.0f} | {s['crude_steps_same_width']:,.0f} |")
+            f"{s['relative_error']:.2f} | {s['mean_relative_halfwidth']:.2f} | {s['with_warnings']} | "
+            f"{s['steps_per_repetition']:,.0f} | {s['cpu_s_per_repetition']:.0f} | "
+            f"{s['crude_steps_same_width']:,.0f} |")
+    pooled = res.get("splitting_runs")
+    if pooled:
+        lines += ["", f"- splitting, the {pooled['runs']} AMS runs of {pooled['particles']} particles one by one "
+                  f"(each unbiased): mean {pooled['mean']:.4f} ± {pooled['standard_error']:.4f} (s.e.), bias "
+                  f"{pooled['bias']:+.1%} ± {pooled['bias_standard_error']:.1%} against the reference; "
+                  f"{pooled['zero_runs']} runs estimate 0; {pooled['steps_per_run']:,.0f} control steps and "
+                  f"{pooled['cpu_s_per_run']:.0f} CPU-s per run"]
     lines += ["", END_MARK, ""]
     return "\n".join(lines)
 

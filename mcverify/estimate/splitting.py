@@ -168,20 +168,28 @@ def estimate(process: BranchingProcess, *, n: int, k: int = 1, failure_level: fl
 def from_runs(runs: list[AMSRun], level: float = 0.95) -> SplittingEstimate:
     """The t interval of independent AMS runs, with warnings when it should not be trusted."""
     values = np.array([r.estimate for r in runs])
+    mean, low, high, rel, warnings = t_interval(values, level)
+    capped = sum(r.capped for r in runs)
+    if capped:
+        warnings.insert(0, f"{capped} run(s) hit the iteration cap before the failure level: not an estimate")
+    return SplittingEstimate(mean, low, high, level, rel, int(values.size), runs[0].n,
+                             runs[0].k, sum(r.steps for r in runs), [float(v) for v in values], warnings=warnings)
+
+
+def t_interval(values: np.ndarray, level: float = 0.95) -> tuple[float, float, float, float, list[str]]:
+    """(mean, low, high, relative half-width, warnings) of independent AMS runs' estimates ``values``
+    (at least 2): the Student t interval, its low end clipped at 0."""
+    values = np.asarray(values, dtype=float)
     mean = float(values.mean())
     se = float(values.std(ddof=1) / math.sqrt(values.size))
     half = float(sps.t.ppf(0.5 + level / 2, values.size - 1)) * se
     rel = half / mean if mean > 0 else math.inf
     warnings = []
-    capped = sum(r.capped for r in runs)
-    if capped:
-        warnings.append(f"{capped} run(s) hit the iteration cap before the failure level: not an estimate")
     zero = int(np.sum(values == 0))
     if zero > values.size // 2:
         warnings.append(f"{zero} of {values.size} runs estimate 0 (extinction or no particle at the failure level): "
                         "the t interval is unreliable; use more particles")
-    return SplittingEstimate(mean, max(0.0, mean - half), mean + half, level, rel, int(values.size), runs[0].n,
-                             runs[0].k, sum(r.steps for r in runs), [float(v) for v in values], warnings=warnings)
+    return mean, max(0.0, mean - half), mean + half, rel, warnings
 
 
 def crude_steps_for(p: float, relative_halfwidth: float, steps_per_episode: float, level: float = 0.95) -> float:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from mcverify import store
@@ -38,9 +39,9 @@ def _reference(out: Path, events: list[list[bool]]) -> None:
 
 
 def _splitting(out: Path, seed: int, runs: list[float], target: str = "ellipse") -> None:
-    _manifest(out, "splitting", seed=seed, target=target)
+    _manifest(out, "splitting", seed=seed, target=None)  # as the estimator writes it: the target is per cell
     store.write_json_atomic(out / ESTIMATE, {"spec": {"particles": 4}, "cells": [
-        {"cell": "all", "runs": runs, "steps": 100 * len(runs), "cpu_s": 5.0 * len(runs)}]})
+        {"cell": "all", "target": target, "runs": runs, "steps": 100 * len(runs), "cpu_s": 5.0 * len(runs)}]})
 
 
 def test_reference_is_the_gap_free_prefix(tmp_path):
@@ -69,6 +70,11 @@ def test_pooled_runs_give_the_estimators_own_intervals(tmp_path):
     covered = sum(r.low <= 0.25 <= r.high for r in reps)
     assert summary["covered"] == covered and summary["repetitions"] == 3
     assert summary["bias"] == pytest.approx((0.2 + 0.225 + 0.2) / 3 / 0.25 - 1)
+    # the runs one by one: all seven count, the remainder included
+    pooled = validation.pooled_summary([tmp_path / "s1", tmp_path / "s2"], ref)
+    assert (pooled["runs"], pooled["zero_runs"], pooled["particles"]) == (7, 1, 4)
+    assert pooled["mean"] == pytest.approx(sum(pooled_values := [0.1, 0.3, 0.2, 0.25, 0.0, 0.4, 0.9]) / 7)
+    assert pooled["standard_error"] == pytest.approx(float(np.std(pooled_values, ddof=1)) / 7**0.5)
 
 
 def test_folders_that_do_not_belong_together_are_refused(tmp_path):
@@ -85,6 +91,8 @@ def test_folders_that_do_not_belong_together_are_refused(tmp_path):
         validation.reference(tmp_path / "a")
     with pytest.raises(RunError, match="at least 2"):
         validation.splitting_repetitions([tmp_path / "a"], ref, group=1)
+    with pytest.raises(RunError, match="more than the 2 runs"):
+        validation.splitting_repetitions([tmp_path / "a"], ref, group=3)
 
 
 def test_cli_writes_the_section_and_refuses_bad_input_in_one_line(tmp_path, capsys):
@@ -94,11 +102,12 @@ def test_cli_writes_the_section_and_refuses_bad_input_in_one_line(tmp_path, caps
     _splitting(tmp_path / "s1", 11, [0.1, 0.3, 0.2, 0.25])
     bench = tmp_path / "BENCH.md"
     bench.write_text("# Benchmarks\n\nhand-written\n")
-    assert main(["bench-validate", str(tmp_path / "ref"), "--splitting", str(tmp_path / "s1"), "--group", "2",
+    assert main(["bench-validate", str(tmp_path / "ref"), "--splitting", str(tmp_path / "s1"), "--group", "2", "4",
                  "--write", str(bench)]) == 0
     text = bench.read_text()
     assert "hand-written" in text and validation.BEGIN_MARK in text
-    assert "| splitting, 2 runs of 4 particles | 2 |" in text
+    assert "| splitting, 2 runs of 4 particles | 2 |" in text and "| splitting, 4 runs of 4 particles | 1 |" in text
+    assert "the 4 AMS runs of 4 particles one by one" in text
     capsys.readouterr()
     assert main(["bench-validate", str(tmp_path / "nowhere"), "--splitting", str(tmp_path / "s1")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
