@@ -221,8 +221,9 @@ def _parser() -> argparse.ArgumentParser:
     est.add_argument("--workers", type=_positive_int, default=None, help="worker processes or Ray tasks in flight")
     est.add_argument("--chunk-size", type=_positive_int, default=None, metavar="K",
                      help="episodes per chunk, the unit of work and of the stopping checks (default 8)")
-    est.add_argument("--score", choices=("gap", "h_ef"), default=None,
-                     help="splitting: footprint gap (target collision, the default) or h_ef (target ellipse)")
+    est.add_argument("--score", choices=("gap", "h_ef", "h_ef_held"), default=None,
+                     help="splitting: footprint gap (target collision, the default), h_ef or h_ef_held (h_ef brought "
+                     "forward by the steps with neither problem solved; both target ellipse)")
     est.add_argument("--particles", type=_positive_int, default=20, help="splitting: particles per run (default 20)")
     est.add_argument("--replicates", type=_positive_int, default=5,
                      help="splitting: independent runs whose spread gives the interval (default 5)")

@@ -21,7 +21,7 @@ from __future__ import annotations
 import copy
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import numpy as np
@@ -61,20 +61,30 @@ class EpisodeSnapshot:
         return float(self.trace.min_h_front)
 
 
+class StepView(NamedTuple):
+    """What a :class:`Branching` callback sees after control step ``step``: the episode's running
+    safety trace and the planner's count so far of steps at which neither Q1 nor Q2 was solved."""
+
+    step: int
+    trace: SafetyTrace
+    both_infeasible_steps: int
+
+
 @dataclass
 class Branching:
     """Controls of a one-episode run: ``start`` (restore this snapshot, continue after its step),
     ``branch_id`` (continue with this branch's noise; None: the snapshot's key, i.e. the same noise),
-    ``keep(step, trace)`` (take a snapshot after this step?), ``stop(step, trace)`` (end the episode
-    after this step, e.g. once a splitting score reached its failure level?). Filled by the run: ``traces`` (the
-    episode's running safety trace after every step it simulated, as (step, trace)), ``snapshots``
-    (step -> snapshot), ``steps`` (control steps simulated) and ``stopped`` (``stop`` ended it)."""
+    ``keep(view)`` (take a snapshot after this step?), ``stop(view)`` (end the episode after this
+    step, e.g. once a splitting score reached its failure level?), each given the step's
+    :class:`StepView`. Filled by the run: ``views`` (a :class:`StepView` after every step it
+    simulated), ``snapshots`` (step -> snapshot), ``steps`` (control steps simulated) and
+    ``stopped`` (``stop`` ended it)."""
 
     start: EpisodeSnapshot | None = None
     branch_id: int | None = None
-    keep: Callable[[int, SafetyTrace], bool] | None = None
-    stop: Callable[[int, SafetyTrace], bool] | None = None
-    traces: list[tuple[int, SafetyTrace]] = field(default_factory=list)
+    keep: Callable[[StepView], bool] | None = None
+    stop: Callable[[StepView], bool] | None = None
+    views: list[StepView] = field(default_factory=list)
     snapshots: dict[int, EpisodeSnapshot] = field(default_factory=dict)
     steps: int = 0
     stopped: bool = False
@@ -91,11 +101,11 @@ class Branching:
     def after_step(self, step: int, world: LaneGroups, episode_key: np.ndarray, state: EpisodeState,
                    entered_s: float, u_last: np.ndarray, settling: Any, end: Any) -> None:
         self.steps += 1
-        trace = world.lane_state(0)[1]
-        self.traces.append((step, trace))
-        if self.keep is not None and self.keep(step, trace):
+        view = StepView(step, world.lane_state(0)[1], int(state.both_infeasible_steps))
+        self.views.append(view)
+        if self.keep is not None and self.keep(view):
             self.snapshots[step] = self.capture(step, world, episode_key, state, entered_s, u_last, settling, end)
-        self.stopped = self.stop is not None and bool(self.stop(step, trace))
+        self.stopped = self.stop is not None and bool(self.stop(view))
 
     def restore(self, world: LaneGroups) -> tuple[EpisodeState, float, np.ndarray, Any, Any]:
         """Put the start snapshot into ``world`` (lane 0, with the branch's key when branching) and

@@ -10,7 +10,18 @@ Scores (non-decreasing along an episode, the target event is score >= 0):
 - ``"h_ef"``: minus the running minimum of h_ef; >= 0 means the ego c.g. reached the safety ellipse
   (target ``ellipse``, up to the measure-zero h_ef = 0);
 - ``"gap"``: minus the running minimum footprint gap to veh_f and veh_o (gaps are 0 on contact);
-  >= 0 means a collision (target ``collision``).
+  >= 0 means a collision (target ``collision``);
+- ``"h_ef_held"``: the h_ef score brought forward by the planner's trouble. With m the running
+  minimum of h_ef and B the steps so far at which neither Q1 nor Q2 was solved (the ego then holds
+  its last plan), the score is -m (1 - λ min(1, B / B_REF)) while m > 0 and -m once m <= 0 (so it is
+  >= 0 exactly at the ellipse event, as "h_ef"; target ``ellipse``). Why: on the validation cell the
+  episodes that cross the ellipse are not the tail of the ordinary approach (their min h_ef is about
+  -0.5, the others' about +0.38) but the ones whose planner lost both problems for several steps
+  (4-19, median 8, against 0.5 on average for the others), from about 5 s; the plain h_ef score
+  reaches its level at the closest approach (about 6.6-7 s), when the outcome is already decided,
+  so its branches tie with their parent and most runs go extinct. Any such score keeps AMS
+  unbiased (it is a function of the episode's state, whose snapshot the branch restores); only the
+  variance depends on it.
 
 Cost: control steps simulated (settling steps included) and the CPU seconds of this process.
 """
@@ -25,17 +36,24 @@ import numpy as np
 from mcverify.cell import Cell
 from mcverify.control.planner import Planner
 from mcverify.episode.rollout import run_episodes
-from mcverify.episode.snapshot import Branching, EpisodeSnapshot
-from mcverify.sim.plant import SafetyTrace
+from mcverify.episode.snapshot import Branching, EpisodeSnapshot, StepView
 
 #: Score name -> the target event it reaches at level 0.
-SCORES: dict[str, str] = {"h_ef": "ellipse", "gap": "collision"}
+SCORES: dict[str, str] = {"h_ef": "ellipse", "h_ef_held": "ellipse", "gap": "collision"}
+#: "h_ef_held": weight λ of the planner's trouble and the count of unsolved steps at which it is full
+#: (the median over the validation cell's ellipse violations).
+HELD_WEIGHT = 0.9
+HELD_REF_STEPS = 8
 
 
-def score_of(trace: SafetyTrace, score: str) -> float:
-    """The running score of one episode's safety trace (see the module docstring)."""
-    if score == "h_ef":
-        return -float(trace.min_h_front)
+def score_of(view: StepView, score: str) -> float:
+    """The running score after one control step (see the module docstring)."""
+    trace = view.trace
+    if score in ("h_ef", "h_ef_held"):
+        m = float(trace.min_h_front)
+        if score == "h_ef" or m <= 0.0:
+            return -m
+        return -m * (1.0 - HELD_WEIGHT * min(1.0, view.both_infeasible_steps / HELD_REF_STEPS))
     gaps = [float(trace.min_gap_front_m), float(trace.min_gap_opp_any_m)]
     return -min(g for g in gaps if np.isfinite(g)) if any(np.isfinite(g) for g in gaps) else -np.inf
 
@@ -87,8 +105,8 @@ class ClosedLoopProcess:
         """A fresh episode ``branch_id`` (start None) or a branch from ``start`` with the noise of
         ``branch_id``. Ends the episode after the first step at which the score reaches ``stop_level``
         (the failure set is absorbing: the rest of the episode cannot change the estimate)."""
-        def reached(step: int, trace: SafetyTrace) -> bool:
-            return score_of(trace, self.score) >= stop_level
+        def reached(view: StepView) -> bool:
+            return score_of(view, self.score) >= stop_level
 
         if start is None:
             episode, prefix, snaps = int(branch_id), np.zeros(0), {}
@@ -100,7 +118,7 @@ class ClosedLoopProcess:
         t0 = time.process_time()
         run_episodes(self.cell, [episode], self.seed, self.planner, branching=branching)
         cpu = time.process_time() - t0
-        raw = np.array([score_of(trace, self.score) for _, trace in branching.traces])
+        raw = np.array([score_of(view, self.score) for view in branching.views])
         scores = np.maximum.accumulate(np.concatenate([prefix, raw])) if raw.size or prefix.size else np.zeros(1)
         snaps.update(branching.snapshots)
         self.cpu_s += cpu
@@ -113,8 +131,8 @@ class ClosedLoopProcess:
     def _keep_rule(score: str, best: float):
         state = {"best": best}
 
-        def keep(step: int, trace: SafetyTrace) -> bool:
-            value = score_of(trace, score)
+        def keep(view: StepView) -> bool:
+            value = score_of(view, score)
             if value > state["best"]:
                 state["best"] = value
                 return True

@@ -43,7 +43,7 @@ def assert_same(a: dict, b: dict) -> None:
 def whole():
     camp, cell, planner = _cell()
     plain = run_episodes(cell, [1], camp.seed, planner).rows[0]
-    br = Branching(keep=lambda step, trace: step in (3, 12))
+    br = Branching(keep=lambda view: view.step in (3, 12))
     row = run_episodes(cell, [1], camp.seed, planner, branching=br).rows[0]
     return camp, cell, planner, plain, row, br
 
@@ -52,9 +52,11 @@ def test_branching_without_a_start_leaves_the_episode_unchanged(whole):
     _, _, _, plain, row, br = whole
     assert_same(plain, row)
     # control steps simulated: the planner's steps (row["steps"]) and the settling steps after the goal
-    assert sorted(br.snapshots) == [3, 12] and br.steps == len(br.traces) >= row["steps"]
-    mins = [float(t.min_h_front) for _, t in br.traces]
+    assert sorted(br.snapshots) == [3, 12] and br.steps == len(br.views) >= row["steps"]
+    mins = [float(t.min_h_front) for _, t, _ in br.views]
     assert mins == sorted(mins, reverse=True) and mins[-1] == row["min_h_front"]
+    # the planner's count of steps with neither problem solved, as the run's row reports it
+    assert [v.both_infeasible_steps for v in br.views][-1] == row["both_infeasible_steps"]
 
 
 @pytest.mark.parametrize("step", [3, 12])
@@ -101,7 +103,7 @@ def test_scheduled_noise_branches_from_step_0_equal_snapshot_branches(whole):
     step 0, exactly as the snapshot branches of a splitting run continue it: what makes a splitting
     counterexample an ordinary, replayable episode."""
     camp, cell, planner, _, _, br = whole
-    once = Branching(start=br.snapshots[3], branch_id=5, keep=lambda step, trace: step == 12)
+    once = Branching(start=br.snapshots[3], branch_id=5, keep=lambda view: view.step == 12)
     first = run_episodes(cell, [1], camp.seed, planner, branching=once).rows[0]
     second = run_episodes(cell, [1], camp.seed, planner,
                           branching=Branching(start=once.snapshots[12], branch_id=7)).rows[0]

@@ -1,7 +1,8 @@
 """Adaptive multilevel splitting on the real closed loop (mcverify.estimate.closed_loop): branches
 start from the parent's snapshot at the first step above the level, inherit its score prefix, and
-the whole run replays exactly. A short noisy episode keeps this to seconds; the estimate's coverage
-is tested on the synthetic walk (test_splitting.py)."""
+the whole run replays exactly; the scores reach 0 exactly at their target event. A short noisy
+episode keeps this to seconds; the estimate's coverage is tested on the synthetic walk
+(test_splitting.py)."""
 
 from __future__ import annotations
 
@@ -10,8 +11,10 @@ import pytest
 
 from mcverify.campaign import executors
 from mcverify.campaign.spec import campaign_from_dict
+from mcverify.episode.snapshot import StepView
 from mcverify.estimate import splitting
-from mcverify.estimate.closed_loop import ClosedLoopProcess
+from mcverify.estimate.closed_loop import HELD_REF_STEPS, HELD_WEIGHT, ClosedLoopProcess, score_of
+from mcverify.sim.plant import SafetyTrace
 
 MODEL = {"sim": {"control_period_s": 0.1, "substeps": 20, "max_time_s": 1.5}, "noise": {"kind": "paper", "scale": 3.0}}
 
@@ -58,3 +61,25 @@ def test_a_path_ends_once_its_score_reaches_the_stop_level(process):
     stopped = proc.run(None, 4, level)
     np.testing.assert_array_equal(stopped.scores, whole.scores[: hit + 1])
     assert stopped.steps == hit + 1 < whole.steps
+
+
+def _view(min_h: float, unsolved: int) -> StepView:
+    trace = SafetyTrace(*([np.float64(np.inf)] * len(SafetyTrace._fields)))._replace(min_h_front=np.float64(min_h))
+    return StepView(0, trace, unsolved)
+
+
+def test_the_held_score_reaches_zero_exactly_at_the_ellipse_and_never_decreases():
+    """h_ef_held is brought forward by the steps with neither problem solved, but it is >= 0 exactly
+    when h_ef is <= 0 (the same target event as h_ef), and it cannot fall along an episode (min h_ef
+    only falls, the count only rises)."""
+    for m in (0.4, 0.05, 1e-9):
+        for unsolved in (0, 3, 8, 30):
+            assert score_of(_view(m, unsolved), "h_ef_held") < 0
+            assert score_of(_view(m, unsolved), "h_ef_held") >= score_of(_view(m, 0), "h_ef")
+    for m in (0.0, -1e-9, -0.5):
+        assert score_of(_view(m, 0), "h_ef_held") == score_of(_view(m, 12), "h_ef_held") == -m
+    path = [(0.45, 0), (0.40, 0), (0.40, 2), (0.31, 2), (0.31, 9), (0.12, 9), (-0.3, 9), (-0.3, 10)]
+    scores = [score_of(_view(m, b), "h_ef_held") for m, b in path]
+    assert scores == sorted(scores) and scores[2] > scores[1]  # an unsolved step alone raises it
+    # full weight from HELD_REF_STEPS on: the score is then -m (1 - HELD_WEIGHT)
+    assert score_of(_view(0.4, HELD_REF_STEPS), "h_ef_held") == pytest.approx(-0.4 * (1 - HELD_WEIGHT))
