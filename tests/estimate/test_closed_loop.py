@@ -13,7 +13,7 @@ from mcverify.campaign import executors
 from mcverify.campaign.spec import campaign_from_dict
 from mcverify.episode.snapshot import StepView
 from mcverify.estimate import splitting
-from mcverify.estimate.closed_loop import HELD_REF_STEPS, HELD_WEIGHT, ClosedLoopProcess, score_of
+from mcverify.estimate.closed_loop import HELD_FACTOR, ClosedLoopProcess, score_of
 from mcverify.sim.plant import SafetyTrace
 
 MODEL = {"sim": {"control_period_s": 0.1, "substeps": 20, "max_time_s": 1.5}, "noise": {"kind": "paper", "scale": 3.0}}
@@ -81,5 +81,6 @@ def test_the_held_score_reaches_zero_exactly_at_the_ellipse_and_never_decreases(
     path = [(0.45, 0), (0.40, 0), (0.40, 2), (0.31, 2), (0.31, 9), (0.12, 9), (-0.3, 9), (-0.3, 10)]
     scores = [score_of(_view(m, b), "h_ef_held") for m, b in path]
     assert scores == sorted(scores) and scores[2] > scores[1]  # an unsolved step alone raises it
-    # full weight from HELD_REF_STEPS on: the score is then -m (1 - HELD_WEIGHT)
-    assert score_of(_view(0.4, HELD_REF_STEPS), "h_ef_held") == pytest.approx(-0.4 * (1 - HELD_WEIGHT))
+    # one more unsolved step outranks an ordinary approach's closer min h_ef
+    assert score_of(_view(0.45, 1), "h_ef_held") > score_of(_view(0.2, 0), "h_ef_held")
+    assert score_of(_view(0.4, 3), "h_ef_held") == pytest.approx(-0.4 * HELD_FACTOR**3)
