@@ -358,8 +358,9 @@ def _parser() -> argparse.ArgumentParser:
                          "one closed-loop cell: coverage, bias, relative error, cost (section written into "
                          "results/BENCHMARKS.md)")
     val.add_argument("reference", type=Path, help="crude Monte Carlo estimate folder (mcverify estimate --method mc)")
-    val.add_argument("--splitting", type=Path, nargs="+", default=[], metavar="DIR",
-                     help="splitting estimate folders of the same cell and target, distinct seeds")
+    val.add_argument("--splitting", type=Path, nargs="+", action="append", default=[], metavar="DIR",
+                     help="splitting estimate folders of the same cell, target, particles and score, distinct seeds "
+                     "(repeat the option for another pool, e.g. another score)")
     val.add_argument("--importance", type=Path, nargs="+", default=[], metavar="DIR",
                      help="importance estimate folders of the same cell and target, distinct seeds")
     val.add_argument("--group", type=_positive_int, nargs="+", default=[4], metavar="R",
@@ -680,7 +681,7 @@ def _cmd_bench_validate(args) -> int:
     from mcverify import store
     from mcverify.bench import validation
 
-    res = validation.run(args.reference, splitting_dirs=args.splitting, importance_dirs=args.importance,
+    res = validation.run(args.reference, splitting_pools=args.splitting, importance_dirs=args.importance,
                          groups=args.group)
     command = "mcverify " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["bench-validate"] else "mcverify bench-validate"
     text = validation.markdown(res, command)

@@ -7,9 +7,10 @@ Inputs, all of one cell and one target event:
   finished or stopped). Its gap-free prefix of episodes, in their pre-assigned order, gives k events
   in n episodes; n was set by the clock or the budget, not by the outcomes, so its interval is the
   fixed-n Clopper-Pearson one;
-- **splitting** folders (``mcverify estimate --method splitting``, distinct seeds): their AMS runs are
-  pooled (folders in the order given, runs in replicate order) and cut into consecutive repetitions
-  of ``group`` runs. Each repetition is exactly the estimate ``--replicates group`` would return (the
+- **splitting** folders (``mcverify estimate --method splitting``, distinct seeds, one setting of
+  particles and score per pool; several pools give several rows): a pool's AMS runs are pooled
+  (folders in the order given, runs in replicate order) and cut into consecutive repetitions of
+  ``group`` runs. Each repetition is exactly the estimate ``--replicates group`` would return (the
   mean of independent unbiased runs with its Student t interval), so the pool gives many independent
   repetitions of that estimator;
 - **importance** folders (``mcverify estimate --method importance``, distinct seeds): one estimate each.
@@ -134,11 +135,11 @@ def _check_seeds(manifests: Sequence[dict[str, Any]], dirs: Sequence[Path]) -> N
         seen[seed] = d
 
 
-def pooled_runs(dirs: Sequence[Path], ref: Reference) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+def pooled_runs(dirs: Sequence[Path], ref: Reference) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
     """(estimate, control steps, CPU seconds) of every AMS run of the splitting folders ``dirs``
     (folders in the order given, runs in replicate order; a folder's cost is split evenly over its
-    runs) and the particles per run."""
-    values, steps, cpu, manifests, particles = [], [], [], [], set()
+    runs) and the runs' settings (particles, score), which must be the same in every folder."""
+    values, steps, cpu, manifests, settings = [], [], [], [], set()
     for d in dirs:
         manifest, cell = _estimate_folder(d, "splitting", ref)
         manifests.append(manifest)
@@ -146,11 +147,14 @@ def pooled_runs(dirs: Sequence[Path], ref: Reference) -> tuple[np.ndarray, np.nd
         values.extend(runs)
         steps.extend([cell["steps"] / len(runs)] * len(runs))
         cpu.extend([cell["cpu_s"] / len(runs)] * len(runs))
-        particles.add(int(store.read_json(Path(d) / ESTIMATE)["spec"]["particles"]))
+        spec = store.read_json(Path(d) / ESTIMATE)["spec"]
+        settings.add((int(spec["particles"]), str(spec.get("score"))))
     _check_seeds(manifests, dirs)
-    if len(particles) != 1:
-        raise RunError(f"the splitting folders use different particle counts ({sorted(particles)}); pool one at a time")
-    return np.asarray(values, float), np.asarray(steps, float), np.asarray(cpu, float), particles.pop()
+    if len(settings) != 1:
+        raise RunError(f"the splitting folders differ in (particles, score): {sorted(settings)}; pool one at a time")
+    particles, score = settings.pop()
+    return (np.asarray(values, float), np.asarray(steps, float), np.asarray(cpu, float),
+            {"particles": particles, "score": score})
 
 
 def splitting_repetitions(dirs: Sequence[Path], ref: Reference, group: int, level: float = 0.95
@@ -173,9 +177,9 @@ def splitting_repetitions(dirs: Sequence[Path], ref: Reference, group: int, leve
 def pooled_summary(dirs: Sequence[Path], ref: Reference) -> dict[str, Any]:
     """The runs taken one by one: each is unbiased, so their mean, with its standard error, checks the
     bias of splitting on this cell without any interval; and how many runs estimate 0."""
-    values, steps, cpu, particles = pooled_runs(dirs, ref)
+    values, steps, cpu, settings = pooled_runs(dirs, ref)
     se = float(values.std(ddof=1) / math.sqrt(values.size)) if values.size > 1 else math.nan
-    return {"runs": int(values.size), "particles": particles, "mean": float(values.mean()), "standard_error": se,
+    return {"runs": int(values.size), **settings, "mean": float(values.mean()), "standard_error": se,
             "bias": float(values.mean() / ref.p - 1), "bias_standard_error": se / ref.p,
             "zero_runs": int(np.sum(values == 0)), "steps_per_run": float(steps.mean()),
             "cpu_s_per_run": float(cpu.mean())}
@@ -229,19 +233,20 @@ def _interval(k: int, n: int, level: float) -> list[float]:
     return [ci.low, ci.high]
 
 
-def run(reference_dir: Path, *, splitting_dirs: Sequence[Path] = (), importance_dirs: Sequence[Path] = (),
-        groups: Sequence[int] = (4,), level: float = 0.95) -> dict[str, Any]:
+def run(reference_dir: Path, *, splitting_pools: Sequence[Sequence[Path]] = (),
+        importance_dirs: Sequence[Path] = (), groups: Sequence[int] = (4,), level: float = 0.95) -> dict[str, Any]:
     """The measurements described in the module docstring, as plain data: ``estimators`` holds one
-    row per (estimator, runs per repetition)."""
+    row per (estimator, runs per repetition); each splitting pool (folders of one setting) gives its rows."""
     ref = reference(reference_dir, level)
-    out: dict[str, Any] = {"reference": asdict(ref), "level": level, "estimators": [],
+    out: dict[str, Any] = {"reference": asdict(ref), "level": level, "estimators": [], "splitting_runs": [],
                            "commit": provenance.environment_info().get("git_commit")}
-    if splitting_dirs:
-        pooled = pooled_summary(splitting_dirs, ref)
-        out["splitting_runs"] = pooled
+    for dirs in splitting_pools:
+        pooled = pooled_summary(dirs, ref)
+        out["splitting_runs"].append(pooled)
         for group in groups:
-            reps = splitting_repetitions(splitting_dirs, ref, group, level)
-            out["estimators"].append({"estimator": f"splitting, {group} runs of {pooled['particles']} particles",
+            reps = splitting_repetitions(dirs, ref, group, level)
+            out["estimators"].append({"estimator": f"splitting ({pooled['score']}), {group} runs of "
+                                                   f"{pooled['particles']} particles",
                                       "method": "splitting", "runs_per_repetition": group,
                                       **summarise(reps, ref, level)})
     if importance_dirs:
@@ -278,13 +283,15 @@ def markdown(res: dict[str, Any], command: str) -> str:
             f"{s['relative_error']:.2f} | {s['mean_relative_halfwidth']:.2f} | {s['with_warnings']} | "
             f"{s['steps_per_repetition']:,.0f} | {s['cpu_s_per_repetition']:.0f} | "
             f"{s['crude_steps_same_width']:,.0f} |")
-    pooled = res.get("splitting_runs")
-    if pooled:
-        lines += ["", f"- splitting, the {pooled['runs']} AMS runs of {pooled['particles']} particles one by one "
-                  f"(each unbiased): mean {pooled['mean']:.4f} ± {pooled['standard_error']:.4f} (s.e.), bias "
-                  f"{pooled['bias']:+.1%} ± {pooled['bias_standard_error']:.1%} against the reference; "
-                  f"{pooled['zero_runs']} runs estimate 0; {pooled['steps_per_run']:,.0f} control steps and "
-                  f"{pooled['cpu_s_per_run']:.0f} CPU-s per run"]
+    if res["splitting_runs"]:
+        lines.append("")
+    for pooled in res["splitting_runs"]:
+        lines.append(f"- splitting ({pooled['score']}), the {pooled['runs']} AMS runs of {pooled['particles']} "
+                     f"particles one by one (each unbiased): mean {pooled['mean']:.4f} "
+                     f"± {pooled['standard_error']:.4f} (s.e.), bias {pooled['bias']:+.1%} "
+                     f"± {pooled['bias_standard_error']:.1%} against the reference; "
+                     f"{pooled['zero_runs']} runs estimate 0; {pooled['steps_per_run']:,.0f} control steps and "
+                     f"{pooled['cpu_s_per_run']:.0f} CPU-s per run")
     lines += ["", END_MARK, ""]
     return "\n".join(lines)
 

@@ -38,9 +38,9 @@ def _reference(out: Path, events: list[list[bool]]) -> None:
         store.append_record(out, store.write_chunk(out, chunk, rows))
 
 
-def _splitting(out: Path, seed: int, runs: list[float], target: str = "ellipse") -> None:
+def _splitting(out: Path, seed: int, runs: list[float], target: str = "ellipse", score: str = "h_ef") -> None:
     _manifest(out, "splitting", seed=seed, target=None)  # as the estimator writes it: the target is per cell
-    store.write_json_atomic(out / ESTIMATE, {"spec": {"particles": 4}, "cells": [
+    store.write_json_atomic(out / ESTIMATE, {"spec": {"particles": 4, "score": score}, "cells": [
         {"cell": "all", "target": target, "runs": runs, "steps": 100 * len(runs), "cpu_s": 5.0 * len(runs)}]})
 
 
@@ -91,6 +91,9 @@ def test_folders_that_do_not_belong_together_are_refused(tmp_path):
         validation.reference(tmp_path / "a")
     with pytest.raises(RunError, match="at least 2"):
         validation.splitting_repetitions([tmp_path / "a"], ref, group=1)
+    _splitting(tmp_path / "d", 7, [0.1, 0.2], score="h_ef_held")
+    with pytest.raises(RunError, match="differ in"):
+        validation.splitting_repetitions([tmp_path / "a", tmp_path / "d"], ref, group=2)
     with pytest.raises(RunError, match="more than the 2 runs"):
         validation.splitting_repetitions([tmp_path / "a"], ref, group=3)
 
@@ -106,8 +109,9 @@ def test_cli_writes_the_section_and_refuses_bad_input_in_one_line(tmp_path, caps
                  "--write", str(bench)]) == 0
     text = bench.read_text()
     assert "hand-written" in text and validation.BEGIN_MARK in text
-    assert "| splitting, 2 runs of 4 particles | 2 |" in text and "| splitting, 4 runs of 4 particles | 1 |" in text
-    assert "the 4 AMS runs of 4 particles one by one" in text
+    assert "| splitting (h_ef), 2 runs of 4 particles | 2 |" in text
+    assert "| splitting (h_ef), 4 runs of 4 particles | 1 |" in text
+    assert "(h_ef), the 4 AMS runs of 4 particles one by one" in text
     capsys.readouterr()
     assert main(["bench-validate", str(tmp_path / "nowhere"), "--splitting", str(tmp_path / "s1")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
