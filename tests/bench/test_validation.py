@@ -75,6 +75,9 @@ def test_pooled_runs_give_the_estimators_own_intervals(tmp_path):
     assert (pooled["runs"], pooled["zero_runs"], pooled["particles"]) == (7, 1, 4)
     assert pooled["mean"] == pytest.approx(sum(pooled_values := [0.1, 0.3, 0.2, 0.25, 0.0, 0.4, 0.9]) / 7)
     assert pooled["standard_error"] == pytest.approx(float(np.std(pooled_values, ddof=1)) / 7**0.5)
+    # crude: (1 - p) / p x 80 steps per episode; a run: (sd / p)^2 x 100 steps
+    crude, run = 0.75 / 0.25 * 80, (float(np.std(pooled_values, ddof=1)) / 0.25) ** 2 * 100
+    assert pooled["steps_ratio_vs_crude"] == pytest.approx(crude / run)
 
 
 def test_folders_that_do_not_belong_together_are_refused(tmp_path):
