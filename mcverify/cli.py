@@ -369,6 +369,8 @@ def _parser() -> argparse.ArgumentParser:
     val.add_argument("--write", type=Path, default=Path("results/BENCHMARKS.md"), help="Markdown file to update")
     val.add_argument("--no-write", action="store_true", help="print the section only")
     val.add_argument("--json", type=Path, default=None, help="also write every figure as JSON to this file")
+    val.add_argument("--figure", type=Path, default=None, metavar="PNG",
+                     help="also draw every repetition's interval against the reference into this PNG")
     val.set_defaults(func=_cmd_bench_validate)
 
     fld = sub.add_parser("fields", help="every model field a campaign can set: type, unit, default, meaning")
@@ -688,6 +690,8 @@ def _cmd_bench_validate(args) -> int:
     print(text)
     if args.json:
         store.write_json_atomic(args.json, res)
+    if args.figure:
+        print(f"figure: {validation.figure(res, args.figure)}", file=sys.stderr)
     if not args.no_write:
         validation.write(res, command, args.write)
         print(f"written: {args.write} (section)", file=sys.stderr)

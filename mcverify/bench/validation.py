@@ -232,6 +232,7 @@ def summarise(reps: Sequence[Repetition], ref: Reference, level: float = 0.95) -
         "steps_per_repetition": steps, "cpu_s_per_repetition": float(np.mean([r.cpu_s for r in reps])),
         "crude_steps_same_width": crude, "steps_ratio_vs_crude": crude / steps if steps else math.nan,
         "with_warnings": int(sum(bool(r.warnings) for r in reps)),
+        "intervals": [[r.estimate, r.low, r.high] for r in reps],
     }
 
 
@@ -303,6 +304,38 @@ def markdown(res: dict[str, Any], command: str) -> str:
                      f"{pooled['steps_ratio_vs_crude']:.2f}x the control steps (from the runs' variance)")
     lines += ["", END_MARK, ""]
     return "\n".join(lines)
+
+
+def figure(res: dict[str, Any], path: Path) -> Path:
+    """One panel per estimator row: every repetition's interval (sorted by estimate; red where it
+    misses the reference's p) against the reference's p and its interval (grey band)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ref, rows = res["reference"], res["estimators"]
+    fig, axes = plt.subplots(1, len(rows), figsize=(3.2 * len(rows), 4.2), sharex=True, squeeze=False)
+    for ax, row in zip(axes[0], rows, strict=True):
+        reps = sorted(row["intervals"])
+        for i, (est, low, high) in enumerate(reps):
+            colour = "tab:blue" if low <= ref["p"] <= high else "tab:red"
+            ax.plot([low, high], [i, i], color=colour, lw=1.2)
+            ax.plot([est], [i], "o", color=colour, ms=2.5)
+        ax.axvspan(ref["low"], ref["high"], color="0.85", zorder=0)
+        ax.axvline(ref["p"], color="k", lw=1)
+        ax.set_title(f"{row['estimator']}\ncoverage {row['covered']}/{row['repetitions']}", fontsize=8)
+        ax.set_xlabel(f"P({ref['target']})")
+        ax.set_yticks([])
+    axes[0][0].set_ylabel("repetitions, sorted by estimate")
+    fig.suptitle(f"{ref['campaign']}: intervals against the crude reference "
+                 f"({ref['k']}/{ref['n']}, grey: its 95 % interval)", fontsize=9)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
 
 
 def write(res: dict[str, Any], command: str, path: Path) -> None:

@@ -109,7 +109,8 @@ def test_cli_writes_the_section_and_refuses_bad_input_in_one_line(tmp_path, caps
     bench = tmp_path / "BENCH.md"
     bench.write_text("# Benchmarks\n\nhand-written\n")
     assert main(["bench-validate", str(tmp_path / "ref"), "--splitting", str(tmp_path / "s1"), "--group", "2", "4",
-                 "--write", str(bench)]) == 0
+                 "--write", str(bench), "--figure", str(tmp_path / "fig.png")]) == 0
+    assert (tmp_path / "fig.png").stat().st_size > 0
     text = bench.read_text()
     assert "hand-written" in text and validation.BEGIN_MARK in text
     assert "| splitting (h_ef), 2 runs of 4 particles | 2 |" in text
