@@ -354,6 +354,24 @@ def _parser() -> argparse.ArgumentParser:
     rare.add_argument("--no-write", action="store_true", help="do not write into results/BENCHMARKS.md")
     rare.set_defaults(func=_cmd_bench_rare)
 
+    plant = sub.add_parser("bench-plant", help="the JAX side alone (plant, noise, safety checks) per batch size, on "
+                           "CPU and on a GPU where one is present (section written into results/BENCHMARKS.md)")
+    plant.add_argument("--campaign", type=Path, default=Path("campaigns/table4.toml"),
+                       help="campaign whose first cell is simulated (default campaigns/table4.toml)")
+    plant.add_argument("--batches", type=_int_list, default=(8, 64, 512, 4096, 32768),
+                       help="comma-separated batch sizes (default 8,64,512,4096,32768)")
+    plant.add_argument("--steps", type=_positive_int, default=None,
+                       help="control steps per episode (default: the cell's sim.max_time_s)")
+    plant.add_argument("--repeats", type=_positive_int, default=3, help="timed rollouts per batch (default 3)")
+    plant.add_argument("--platforms", default="cpu,gpu", help="JAX backends to measure where present (default cpu,gpu)")
+    plant.add_argument("--include", type=Path, action="append", default=[], metavar="JSON",
+                       help="results of this bench from another machine (its --json file), shown beside this run's")
+    plant.add_argument("--only-include", action="store_true",
+                       help="measure nothing here: write the section from the --include files alone")
+    plant.add_argument("--json", type=Path, default=None, help="also write this run's results as JSON")
+    plant.add_argument("--no-write", action="store_true", help="do not write into results/BENCHMARKS.md")
+    plant.set_defaults(func=_cmd_bench_plant)
+
     val = sub.add_parser("bench-validate", help="the rare-event estimators against a crude Monte Carlo reference on "
                          "one closed-loop cell: coverage, bias, relative error, cost (section written into "
                          "results/BENCHMARKS.md)")
@@ -679,6 +697,36 @@ def _cmd_bench_rare(args) -> int:
     return 0
 
 
+def _cmd_bench_plant(args) -> int:
+    import json
+
+    from mcverify import store
+    from mcverify.bench import plant_scaling
+    from mcverify.errors import UserError
+
+    included = []
+    for path in args.include:
+        try:
+            included += json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as err:
+            raise UserError(f"--include {path}: not a bench-plant JSON file ({err})") from None
+    if args.only_include and not included:
+        raise UserError("--only-include needs at least one --include JSON file")
+    platforms = [p.strip() for p in args.platforms.split(",") if p.strip()]
+    results = [] if args.only_include else plant_scaling.run(
+        args.campaign, args.batches, args.steps, args.repeats, platforms,
+        progress=lambda line: print(line, file=sys.stderr))
+    if args.json:
+        store.atomic_write_bytes(args.json, json.dumps(results, indent=1).encode())
+    command = "mcverify " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["bench-plant"] else "mcverify bench-plant"
+    text = plant_scaling.markdown(included + results, command)
+    print(text)
+    if not args.no_write:
+        store.replace_section(Path("results/BENCHMARKS.md"), text, plant_scaling.BEGIN, plant_scaling.END)
+        print("written: results/BENCHMARKS.md (section)", file=sys.stderr)
+    return 0
+
+
 def _cmd_bench_validate(args) -> int:
     from mcverify import store
     from mcverify.bench import validation
@@ -742,6 +790,16 @@ class _VersionAction(argparse.Action):
         commit = provenance.git_commit(short=True)
         print(f"mcverify {__version__}" + (f" (git {commit})" if commit else ""))
         parser.exit(0)
+
+
+def _int_list(text: str) -> tuple[int, ...]:
+    try:
+        values = tuple(int(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        values = ()
+    if not values or min(values) < 1:
+        raise argparse.ArgumentTypeError(f"expected comma-separated positive integers, got {text!r}")
+    return values
 
 
 def _positive_int(text: str) -> int:
