@@ -384,6 +384,11 @@ def _parser() -> argparse.ArgumentParser:
     val.add_argument("--group", type=_positive_int, nargs="+", default=[4], metavar="R",
                      help="splitting: AMS runs per repetition (the estimator's --replicates), one row per value "
                      "(default 4)")
+    val.add_argument("--sequential", type=_halfwidth, nargs="+", default=[], metavar="H",
+                     help="crude Monte Carlo with sequential stopping: the reference's episodes cut into consecutive "
+                     "runs of --until-halfwidth H (absolute, e.g. 0.08, or relative, e.g. 50%%), each checked against "
+                     "the reference without its episodes; one row per H, and the invalid fixed-n Clopper-Pearson "
+                     "stopping beside it")
     val.add_argument("--write", type=Path, default=Path("results/BENCHMARKS.md"), help="Markdown file to update")
     val.add_argument("--no-write", action="store_true", help="print the section only")
     val.add_argument("--json", type=Path, default=None, help="also write every figure as JSON to this file")
@@ -732,7 +737,7 @@ def _cmd_bench_validate(args) -> int:
     from mcverify.bench import validation
 
     res = validation.run(args.reference, splitting_pools=args.splitting, importance_dirs=args.importance,
-                         groups=args.group)
+                         groups=args.group, sequential=args.sequential)
     command = "mcverify " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["bench-validate"] else "mcverify bench-validate"
     text = validation.markdown(res, command)
     print(text)

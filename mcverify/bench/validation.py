@@ -13,7 +13,14 @@ Inputs, all of one cell and one target event:
   ``group`` runs. Each repetition is exactly the estimate ``--replicates group`` would return (the
   mean of independent unbiased runs with its Student t interval), so the pool gives many independent
   repetitions of that estimator;
-- **importance** folders (``mcverify estimate --method importance``, distinct seeds): one estimate each.
+- **importance** folders (``mcverify estimate --method importance``, distinct seeds): one estimate each;
+- **crude Monte Carlo with sequential stopping** (``--sequential H``): the reference's own episodes,
+  in their pre-assigned order, cut into consecutive runs of ``mcverify estimate --method mc
+  --until-halfwidth H``: each run walks the next episodes until its anytime-valid interval is H wide
+  (half-width) and stops; the next run starts at the following episode; an unfinished last run is
+  dropped. The runs use disjoint sets of i.i.d. episodes, so they are independent repetitions, and
+  each is checked against the reference *without its own episodes* (leave-out), which is independent
+  of it.
 
 Reported per estimator: repetitions, coverage of the reference's p by the intervals, bias and relative
 error (standard deviation over p) of the estimates, mean relative half-width, cost in control steps and
@@ -37,6 +44,7 @@ from mcverify import provenance, store
 from mcverify.analysis.columns import Columns, floats
 from mcverify.analysis.estimates import ordered_prefix, target_events
 from mcverify.analysis.intervals import proportion_interval
+from mcverify.analysis.sequential import StopRule, sequential_estimate
 from mcverify.errors import RunError
 from mcverify.estimate import splitting
 from mcverify.estimate.folder import ESTIMATE
@@ -73,6 +81,8 @@ class Repetition:
     steps: float
     cpu_s: float
     warnings: list[str] = field(default_factory=list)
+    #: the reference p this repetition is checked against, when not the whole reference's (leave-out)
+    reference_p: float | None = None
 
 
 def _manifest(run_dir: Path) -> dict[str, Any]:
@@ -83,6 +93,16 @@ def _manifest(run_dir: Path) -> dict[str, Any]:
 
 def reference(run_dir: Path, level: float = 0.95) -> Reference:
     """The reference of a crude Monte Carlo estimate folder with one cell (see the module docstring)."""
+    manifest, target, events, steps, errors = reference_sequence(run_dir)
+    n, k = int(events.size), int(events.sum())
+    ci = proportion_interval(k, n, level)
+    return Reference(str(run_dir), manifest["campaign"]["name"], manifest["cells"][0]["name"], target, n, k,
+                     k / n, ci.low, ci.high, errors, float(np.mean(steps)))
+
+
+def reference_sequence(run_dir: Path) -> tuple[dict[str, Any], str, np.ndarray, np.ndarray, int]:
+    """(manifest, target, events, control steps, errors left out) of a crude reference folder: the
+    valid episodes of its gap-free prefix, in their pre-assigned order."""
     manifest = _manifest(run_dir)
     spec = manifest.get("estimate") or {}
     if spec.get("method") != "mc":
@@ -101,11 +121,44 @@ def reference(run_dir: Path, level: float = 0.95) -> Reference:
     m = ordered_prefix(floats(cols, "cell_episode").astype(np.int64))
     event, valid = target_events(cols, spec["target"])
     event, valid = event[:m], valid[:m]
-    n, k = int(valid.sum()), int(event.sum())
-    ci = proportion_interval(k, n, level)
     steps = floats(cols, "steps")[:m][valid]
-    return Reference(str(run_dir), manifest["campaign"]["name"], manifest["cells"][0]["name"], spec["target"], n, k,
-                     k / n, ci.low, ci.high, int(m - n), float(np.mean(steps)))
+    return manifest, spec["target"], event[valid], steps, int(m - valid.sum())
+
+
+def sequential_repetitions(events: np.ndarray, steps: np.ndarray, halfwidth: float, relative: bool = False,
+                           level: float = 0.95) -> list[Repetition]:
+    """Consecutive runs of ``mcverify estimate --method mc --until-halfwidth`` over the ordered
+    reference ``events`` (see the module docstring), each stopped when its anytime-valid interval's
+    half-width is <= ``halfwidth`` (of the estimate when ``relative``). Each repetition carries the
+    leave-out reference p: the reference without the run's own episodes."""
+    events = np.asarray(events, dtype=bool)
+    total_k, total_n = int(events.sum()), int(events.size)
+    stop = StopRule(halfwidth, relative)
+    reps, start = [], 0
+    while start < total_n:
+        found = _first_stop(events[start:], stop, level)
+        if found is None:
+            break  # the last run did not finish: dropped
+        n, est, low, high = found
+        used = slice(start, start + n)
+        k_out, n_out = total_k - int(events[used].sum()), total_n - n
+        reps.append(Repetition(est, low, high, float(steps[used].sum()), math.nan,
+                               reference_p=k_out / n_out if n_out else math.nan))
+        start += n
+    return reps
+
+
+def _first_stop(rest: np.ndarray, stop: StopRule, level: float) -> tuple[int, float, float, float] | None:
+    """(n, estimate, low, high) where a sequential run over ``rest`` stops, or None if it does not.
+    Looks at growing windows (256, 512, ...) so that cutting a long sequence costs what the runs use."""
+    window = 256
+    while True:
+        res = sequential_estimate(rest[:window], stop, level)
+        if res.status == "halfwidth":
+            return res.n, res.estimate, res.low, res.high
+        if window >= rest.size:
+            return None
+        window *= 2
 
 
 def _estimate_folder(run_dir: Path, method: str, ref: Reference) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -220,7 +273,8 @@ def summarise(reps: Sequence[Repetition], ref: Reference, level: float = 0.95) -
     mean_rel = float(np.nanmean(rel)) if np.any(est > 0) else math.inf
     steps = float(np.mean([r.steps for r in reps]))
     crude = splitting.crude_steps_for(ref.p, mean_rel, ref.mean_episode_steps, level) if ref.p > 0 else math.nan
-    covered = int(np.sum((low <= ref.p) & (ref.p <= high)))
+    target_p = np.array([ref.p if r.reference_p is None else r.reference_p for r in reps])
+    covered = int(np.sum((low <= target_p) & (target_p <= high)))
     return {
         "repetitions": len(reps), "covered": covered,
         "coverage": covered / len(reps), "coverage_interval": _interval(covered, len(reps), level),
@@ -232,7 +286,9 @@ def summarise(reps: Sequence[Repetition], ref: Reference, level: float = 0.95) -
         "steps_per_repetition": steps, "cpu_s_per_repetition": float(np.mean([r.cpu_s for r in reps])),
         "crude_steps_same_width": crude, "steps_ratio_vs_crude": crude / steps if steps else math.nan,
         "with_warnings": int(sum(bool(r.warnings) for r in reps)),
+        "leave_out_reference": any(r.reference_p is not None for r in reps),
         "intervals": [[r.estimate, r.low, r.high] for r in reps],
+        "reference_ps": target_p.tolist(),
     }
 
 
@@ -242,7 +298,8 @@ def _interval(k: int, n: int, level: float) -> list[float]:
 
 
 def run(reference_dir: Path, *, splitting_pools: Sequence[Sequence[Path]] = (),
-        importance_dirs: Sequence[Path] = (), groups: Sequence[int] = (4,), level: float = 0.95) -> dict[str, Any]:
+        importance_dirs: Sequence[Path] = (), groups: Sequence[int] = (4,), level: float = 0.95,
+        sequential: Sequence[tuple[float, bool]] = ()) -> dict[str, Any]:
     """The measurements described in the module docstring, as plain data: ``estimators`` holds one
     row per (estimator, runs per repetition); each splitting pool (folders of one setting) gives its rows."""
     ref = reference(reference_dir, level)
@@ -260,9 +317,23 @@ def run(reference_dir: Path, *, splitting_pools: Sequence[Sequence[Path]] = (),
     if importance_dirs:
         out["estimators"].append({"estimator": "importance", "method": "importance",
                                   **summarise(importance_repetitions(importance_dirs, ref), ref, level)})
+    if sequential:
+        _, _, events, steps, _ = reference_sequence(reference_dir)
+    for halfwidth, relative in sequential:
+        reps = sequential_repetitions(events, steps, halfwidth, relative, level)
+        if not reps:
+            raise RunError(f"--sequential {halfwidth:g}: the reference's {ref.n} episodes are too few for one run "
+                           f"to reach that half-width")
+        width = f"{halfwidth:.0%} of the estimate" if relative else f"{halfwidth:g}"
+        out["estimators"].append({"estimator": f"mc, stopped at half-width {width}", "method": "mc",
+                                  "halfwidth": halfwidth, "relative": relative, **summarise(reps, ref, level)})
     if not out["estimators"]:
-        raise RunError("give at least one --splitting or --importance folder to check against the reference")
+        raise RunError("give at least one --splitting, --importance or --sequential to check against the reference")
     return out
+
+
+def _num(x: float, fmt: str) -> str:
+    return format(x, fmt) if math.isfinite(x) else "-"
 
 
 def _pct(x: float) -> str:
@@ -289,8 +360,12 @@ def markdown(res: dict[str, Any], command: str) -> str:
             f"({_pct(lo)}-{_pct(hi)}) | {_pct(s['coverage_at_reference_low'])} / "
             f"{_pct(s['coverage_at_reference_high'])} | {s['bias']:+.1%} (± {s['bias_standard_error']:.1%}) | "
             f"{s['relative_error']:.2f} | {s['mean_relative_halfwidth']:.2f} | {s['with_warnings']} | "
-            f"{s['steps_per_repetition']:,.0f} | {s['cpu_s_per_repetition']:.0f} | "
+            f"{s['steps_per_repetition']:,.0f} | {_num(s['cpu_s_per_repetition'], '.0f')} | "
             f"{s['crude_steps_same_width']:,.0f} |")
+    if any(s.get("leave_out_reference") for s in res["estimators"]):
+        lines += ["", "- mc rows: consecutive runs of `mcverify estimate --method mc --until-halfwidth H` over the "
+                  "reference's own episodes in their pre-assigned order, each checked against the reference without "
+                  "its episodes (leave-out, independent of it); CPU is not split per run (-)."]
     if res["splitting_runs"]:
         lines.append("")
     for pooled in res["splitting_runs"]:
@@ -317,9 +392,10 @@ def figure(res: dict[str, Any], path: Path) -> Path:
     ref, rows = res["reference"], res["estimators"]
     fig, axes = plt.subplots(1, len(rows), figsize=(3.2 * len(rows), 4.2), sharex=True, squeeze=False)
     for ax, row in zip(axes[0], rows, strict=True):
-        reps = sorted(row["intervals"])
-        for i, (est, low, high) in enumerate(reps):
-            colour = "tab:blue" if low <= ref["p"] <= high else "tab:red"
+        targets = row.get("reference_ps") or [ref["p"]] * len(row["intervals"])
+        reps = sorted(zip(row["intervals"], targets, strict=True))
+        for i, ((est, low, high), target) in enumerate(reps):
+            colour = "tab:blue" if low <= target <= high else "tab:red"
             ax.plot([low, high], [i, i], color=colour, lw=1.2)
             ax.plot([est], [i], "o", color=colour, ms=2.5)
         ax.axvspan(ref["low"], ref["high"], color="0.85", zorder=0)

@@ -120,3 +120,47 @@ def test_cli_writes_the_section_and_refuses_bad_input_in_one_line(tmp_path, caps
     assert main(["bench-validate", str(tmp_path / "nowhere"), "--splitting", str(tmp_path / "s1")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "nowhere" in err[0]
+
+
+def test_sequential_runs_are_consecutive_disjoint_and_checked_against_the_rest():
+    rng = np.random.default_rng(5)
+    events = rng.random(3000) < 0.05
+    steps = np.full(events.size, 80.0)
+    reps = validation.sequential_repetitions(events, steps, 0.08)
+    assert len(reps) > 10
+    start = 0
+    for r in reps:
+        n = int(round(r.steps / 80))
+        block = events[start:start + n]
+        # the run is exactly `mcverify estimate --until-halfwidth 0.08` on its own episodes
+        res = validation.sequential_estimate(block, validation.StopRule(0.08))
+        assert res.status == "halfwidth" and res.n == n and (res.low, res.high) == (r.low, r.high)
+        assert r.reference_p == pytest.approx((events.sum() - block.sum()) / (events.size - n))
+        start += n
+    assert start <= events.size  # the unfinished last run is dropped
+
+
+def test_sequential_runs_cut_from_one_stream_keep_their_coverage():
+    """On i.i.d. episodes at p = 0.05, runs stopped at a relative half-width of 50 % (each with its
+    leave-out reference, as on the closed loop) cover in at least 95 % of 200+ runs."""
+    rng = np.random.default_rng(0)
+    events = rng.random(200_000) < 0.05
+    reps = validation.sequential_repetitions(events, np.ones(events.size), 0.5, relative=True)
+    assert len(reps) >= 200
+    assert np.mean([r.low <= r.reference_p <= r.high for r in reps]) >= 0.95
+    assert np.mean([r.low <= 0.05 <= r.high for r in reps]) >= 0.95
+
+
+def test_cli_sequential_rows_use_the_reference_episodes(tmp_path, capsys):
+    from mcverify.cli import main
+
+    _reference(tmp_path / "ref", [[False] * 4] * 40 + [[True, False, False, False]] * 10)
+    assert main(["bench-validate", str(tmp_path / "ref"), "--sequential", "0.2", "--no-write",
+                 "--json", str(tmp_path / "v.json")]) == 0
+    res = store.read_json(tmp_path / "v.json")
+    (row,) = res["estimators"]
+    assert row["leave_out_reference"] and row["repetitions"] >= 1 and row["method"] == "mc"
+    assert "| mc, stopped at half-width 0.2 |" in capsys.readouterr().out
+    assert main(["bench-validate", str(tmp_path / "ref"), "--sequential", "0.0001", "--no-write"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "too few" in err[0]
