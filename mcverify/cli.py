@@ -222,8 +222,9 @@ def _parser() -> argparse.ArgumentParser:
     est.add_argument("--chunk-size", type=_positive_int, default=None, metavar="K",
                      help="episodes per chunk, the unit of work and of the stopping checks (default 8)")
     est.add_argument("--score", choices=("gap", "h_ef", "h_ef_held"), default=None,
-                     help="splitting: footprint gap (target collision, the default), h_ef or h_ef_held (h_ef brought "
-                     "forward by the steps with neither problem solved; both target ellipse)")
+                     help="splitting, importance: footprint gap (target collision, the default), h_ef or h_ef_held "
+                     "(h_ef brought forward by the steps with neither problem solved; both target ellipse); for "
+                     "importance it steers the cross-entropy stages only")
     est.add_argument("--particles", type=_positive_int, default=20, help="splitting: particles per run (default 20)")
     est.add_argument("--replicates", type=_positive_int, default=5,
                      help="splitting: independent runs whose spread gives the interval (default 5)")
@@ -574,7 +575,7 @@ def _cmd_estimate_in_process(args, method: str) -> int:
                     raise RunError(f"--score {score} estimates {spec.target}, not --target {args.target}")
             else:
                 spec = importance_run.ImportanceSpec(args.target, args.samples, args.ce_samples, level=args.level,
-                                                     max_ce_iterations=args.ce_iterations)
+                                                     max_ce_iterations=args.ce_iterations, score=args.score)
         except ValueError as err:
             raise RunError(str(err)) from None
         campaign = load_campaign(args.campaign, seed=args.seed, settings=args.settings)

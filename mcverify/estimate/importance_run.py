@@ -6,8 +6,12 @@ The parameters are the cell's scenario draws that have a range: alpha_f
 (``opposing.spawn_gap_range_m``); each is uniform on its range under the campaign, which is the
 nominal distribution. The perception noise stays nominal (drawn from the episode key). Every
 evaluation is one episode with the given values (``run_episodes(scenarios=...)``), run in batches of
-8 lanes in this process; its score is minus min h_ef (target ellipse) or minus the footprint gap
-(target collision), >= 0 at the event. Episode ids count the evaluations from 0, so the estimate
+8 lanes in this process; its score is the final value of one of the splitting scores
+(:mod:`mcverify.estimate.closed_loop`): minus min h_ef (``h_ef``, target ellipse), that brought
+forward by the steps with neither Q1 nor Q2 solved (``h_ef_held``, target ellipse) or minus the
+footprint gap (``gap``, target collision), >= 0 exactly at the event. The score only steers the
+cross-entropy stages; the estimate counts the event itself, so any score leaves it unbiased.
+Episode ids count the evaluations from 0, so the estimate
 replays from (campaign seed, cell, the estimator's seed).
 """
 
@@ -28,6 +32,7 @@ from mcverify.control.planner import Planner
 from mcverify.episode.rollout import run_episodes
 from mcverify.errors import RunError
 from mcverify.estimate import folder, importance
+from mcverify.estimate.closed_loop import HELD_FACTOR, SCORES
 from mcverify.estimate.folder import num
 
 #: Scenario key of :func:`mcverify.episode.rollout.sample_scenario` -> how to read its range from a cell.
@@ -60,6 +65,7 @@ class ClosedLoopScore:
     planner: Planner
     names: list[str]
     target: str = "collision"
+    score: str | None = None  # None: "gap" for target collision, "h_ef" for ellipse
     episodes: int = 0
     steps: int = 0
     cpu_s: float = 0.0
@@ -83,8 +89,12 @@ class ClosedLoopScore:
     def _score(self, row: dict) -> float:
         if row.get("outcome") == "error":
             return -math.inf  # an episode that could not be simulated never counts as the event
-        if self.target == "ellipse":
-            return -float(row["min_h_front"])
+        score = self.score or ("gap" if self.target == "collision" else "h_ef")
+        if score in ("h_ef", "h_ef_held"):
+            m = float(row["min_h_front"])
+            if score == "h_ef" or m <= 0.0:
+                return -m
+            return -m * HELD_FACTOR ** int(row.get("both_infeasible_steps") or 0)
         gaps = [float(row.get(k, math.nan)) for k in ("min_gap_front_m", "min_gap_opp_any_m")]
         collided = bool(row.get("collision_front")) or bool(row.get("collision_opp"))
         finite = [g for g in gaps if math.isfinite(g)]
@@ -94,7 +104,8 @@ class ClosedLoopScore:
 @dataclass(frozen=True)
 class ImportanceSpec:
     """target: collision or ellipse; samples: final draws from the defensive mixture; ce_samples:
-    draws per cross-entropy iteration; rho: elite share; alpha: defensive (nominal) share; level."""
+    draws per cross-entropy iteration; rho: elite share; alpha: defensive (nominal) share; level;
+    score: what steers the cross-entropy stages (None: ``gap`` for collision, ``h_ef`` for ellipse)."""
 
     target: str = "collision"
     samples: int = 400
@@ -103,10 +114,15 @@ class ImportanceSpec:
     alpha: float = 0.1
     level: float = 0.95
     max_ce_iterations: int = 10
+    score: str | None = None
 
     def __post_init__(self) -> None:
         if self.target not in ("collision", "ellipse"):
             raise ValueError("importance sampling estimates --target collision or ellipse")
+        if self.score is not None and SCORES.get(self.score) != self.target:
+            fitting = ", ".join(k for k, v in SCORES.items() if v == self.target)
+            raise ValueError(f"--score {self.score} does not steer towards --target {self.target} "
+                             f"(scores of {self.target}: {fitting})")
         if not 0.0 < self.alpha < 1.0 or not 0.0 < self.rho < 1.0:
             raise ValueError("alpha and rho must be in (0, 1)")
         if self.samples < 2 or self.ce_samples < 2:
@@ -139,7 +155,9 @@ def _cells(campaign: Campaign, spec: ImportanceSpec, out: Path, done: dict[int, 
         ("episodes", lambda c: str(c["episodes"])), ("CPU (s)", lambda c: num(c["cpu_s"], ".0f")),
         ("warnings", lambda c: "; ".join(c["warnings"]) or "-"),
     ]
-    intro = (f"Target: {spec.target}. Cross-entropy importance sampling over the cell's scenario ranges "
+    steer = spec.score or ("gap" if spec.target == "collision" else "h_ef")
+    intro = (f"Target: {spec.target}, cross-entropy steered by the score {steer}. Cross-entropy importance "
+             "sampling over the cell's scenario ranges "
              f"({spec.ce_samples} episodes per CE iteration, elite share {spec.rho:g}), then {spec.samples} episodes "
              f"from the defensive mixture ({spec.alpha:g} nominal); the noise stays nominal. The interval is "
              f"asymptotic ({spec.level:.0%} normal); read it with the ESS and the largest weight's share. The "
@@ -157,7 +175,8 @@ def _cells(campaign: Campaign, spec: ImportanceSpec, out: Path, done: dict[int, 
             raise RunError(f"cell {cell.name} draws no scenario parameter from a range: nothing to sample "
                            "(give e.g. scenario.front_accel_range_mps2)")
         progress(f"cell {cell.name}: importance sampling over {', '.join(bounds)}")
-        score = ClosedLoopScore(cell, campaign.seed, executors.solver_for(cell.params), list(bounds), spec.target)
+        score = ClosedLoopScore(cell, campaign.seed, executors.solver_for(cell.params), list(bounds), spec.target,
+                                spec.score)
         est = importance.estimate(score, list(bounds.values()), samples=spec.samples, alpha=spec.alpha,
                                   level=spec.level, seed=0, per_iteration=spec.ce_samples, rho=spec.rho,
                                   max_iterations=spec.max_ce_iterations)

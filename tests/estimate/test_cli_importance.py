@@ -57,3 +57,26 @@ def test_importance_cli_writes_its_estimate_and_resumes(tmp_path: Path, campaign
 def test_a_cell_without_ranges_is_refused(tmp_path: Path, capsys):
     assert main(["estimate", str(FIXTURE), "--method", "importance", "--run-dir", str(tmp_path / "x")]) == 2
     assert "draws no scenario parameter from a range" in capsys.readouterr().err
+
+
+def test_the_score_that_steers_cross_entropy_is_the_splitting_score_at_the_episode_end():
+    from mcverify.estimate.closed_loop import HELD_FACTOR
+    from mcverify.estimate.importance_run import ClosedLoopScore
+
+    held = ClosedLoopScore(None, 0, None, [], target="ellipse", score="h_ef_held")
+    plain = ClosedLoopScore(None, 0, None, [], target="ellipse")
+    row = {"outcome": "overtook", "min_h_front": 0.4, "both_infeasible_steps": 3}
+    assert plain._score(row) == -0.4
+    assert held._score(row) == pytest.approx(-0.4 * HELD_FACTOR ** 3)
+    # the event itself scores the same (>= 0) under both: the estimate counts the same episodes
+    inside = {"outcome": "overtook", "min_h_front": -0.2, "both_infeasible_steps": 6}
+    assert held._score(inside) == plain._score(inside) == 0.2
+    assert held._score({"outcome": "error"}) == -float("inf")
+
+
+def test_importance_score_must_fit_the_target(tmp_path: Path, campaign_file: Path, capsys):
+    argv = ["estimate", str(campaign_file), "--method", "importance", "--target", "collision", "--score", "h_ef_held",
+            "--run-dir", str(tmp_path / "x")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "does not steer towards --target collision" in err[0]
