@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mcverify import sim  # noqa: F401 - configures JAX (float64, CPU ISA) before any array exists
+from mcverify import provenance, sim  # noqa: F401 - configures JAX (float64, CPU ISA) before any array exists
 from mcverify.campaign.spec import load_campaign
 from mcverify.cell import Cell
 from mcverify.sim import plant as plant_mod
@@ -113,18 +113,8 @@ def steps_of(cell: Cell) -> int:
 
 def device_label(device: jax.Device) -> str:
     if device.platform == "cpu":
-        return f"CPU ({cpu_model()}, {os.cpu_count()} cores)"
+        return f"CPU ({provenance.cpu_model()}, {os.cpu_count()} cores)"
     return f"{device.platform.upper()} ({getattr(device, 'device_kind', '?')})"
-
-
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
 
 
 def measure_batch(cell: Cell, seed: int, batch: int, steps: int, repeats: int, device: jax.Device) -> dict[str, Any]:
