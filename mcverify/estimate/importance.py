@@ -40,6 +40,10 @@ from mcverify.analysis import betting
 
 #: score(theta) for an (m, d) array of parameter vectors: (m,) scores, failure where >= 0.
 ScoreFn = Callable[[np.ndarray], np.ndarray]
+#: Fewest elite samples per cross-entropy iteration below which the fitted proposal is flagged: with
+#: 2 elites (16 samples at rho 0.1) the closed loop's Beta fit over alpha_f collapsed to a standard
+#: deviation of about 0.03 m/s^2 on a 1.5 m/s^2 range.
+MIN_ELITE = 10
 
 
 @dataclass(frozen=True)
@@ -157,6 +161,11 @@ def estimate(score: ScoreFn, bounds: Sequence[tuple[float, float]], *, samples: 
     ess = total**2 / float(np.sum(x**2)) if total > 0 else 0.0
     share = float(x.max() / total) if total > 0 else math.nan
     warnings = []
+    elite = math.ceil(rho * per_iteration)
+    if elite < MIN_ELITE:
+        warnings.append(f"each cross-entropy elite holds about {elite} samples (elite share x samples per "
+                        f"iteration); a proposal fitted to so few collapses onto them: give at least "
+                        f"{math.ceil(MIN_ELITE / rho)} per iteration")
     if levels[-1] < 0.0:
         warnings.append(f"the cross-entropy levels stopped at {levels[-1]:.3g} < 0: the proposal may miss failures")
     if fail.sum() < 10:

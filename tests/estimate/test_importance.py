@@ -58,3 +58,10 @@ def test_the_anytime_lower_bound_holds():
     assert all(e.anytime_lower <= e.estimate for e in ests)
     assert np.mean([e.anytime_lower > P for e in ests]) <= 0.1
     assert np.mean([e.anytime_lower for e in ests]) > 0.3 * P  # informative, not just 0
+
+
+def test_warns_when_the_cross_entropy_elite_is_too_small_to_fit():
+    small = importance.estimate(score, BOUNDS, samples=200, seed=1, per_iteration=16, rho=0.1)
+    assert any("elite holds about 2 samples" in w and "at least 100 per iteration" in w for w in small.warnings)
+    enough = importance.estimate(score, BOUNDS, samples=200, seed=1, per_iteration=100, rho=0.1)
+    assert not any("elite" in w for w in enough.warnings)
