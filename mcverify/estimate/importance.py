@@ -40,9 +40,8 @@ from mcverify.analysis import betting
 
 #: score(theta) for an (m, d) array of parameter vectors: (m,) scores, failure where >= 0.
 ScoreFn = Callable[[np.ndarray], np.ndarray]
-#: Fewest elite samples per cross-entropy iteration below which the fitted proposal is flagged: with
-#: 2 elites (16 samples at rho 0.1) the closed loop's Beta fit over alpha_f collapsed to a standard
-#: deviation of about 0.03 m/s^2 on a 1.5 m/s^2 range.
+#: Fewest elite samples per cross-entropy iteration below which the fitted proposal is flagged: a
+#: Beta fitted to a handful of points collapses onto them (seen on the closed loop, docs/rare_events.md).
 MIN_ELITE = 10
 
 
