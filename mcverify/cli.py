@@ -359,10 +359,10 @@ def _parser() -> argparse.ArgumentParser:
                            "CPU and on a GPU where one is present (section written into results/BENCHMARKS.md)")
     plant.add_argument("--campaign", type=Path, default=Path("campaigns/table4.toml"),
                        help="campaign whose first cell is simulated (default campaigns/table4.toml)")
-    plant.add_argument("--batches", type=_int_list, default=(8, 64, 512, 4096, 32768),
-                       help="comma-separated batch sizes (default 8,64,512,4096,32768)")
+    plant.add_argument("--batches", type=_int_list, default=None,
+                       help="comma-separated batch sizes (default: CPU 8,64,512,4096; GPU up to 262144)")
     plant.add_argument("--steps", type=_positive_int, default=None,
-                       help="control steps per episode (default: the cell's sim.max_time_s)")
+                       help="control steps per timed rollout (default 250, at most the cell's episode)")
     plant.add_argument("--repeats", type=_positive_int, default=3, help="timed rollouts per batch (default 3)")
     plant.add_argument("--platforms", default="cpu,gpu", help="JAX backends to measure where present (default cpu,gpu)")
     plant.add_argument("--include", type=Path, action="append", default=[], metavar="JSON",
