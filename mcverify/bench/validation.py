@@ -93,7 +93,12 @@ def _manifest(run_dir: Path) -> dict[str, Any]:
 
 def reference(run_dir: Path, level: float = 0.95) -> Reference:
     """The reference of a crude Monte Carlo estimate folder with one cell (see the module docstring)."""
-    manifest, target, events, steps, errors = reference_sequence(run_dir)
+    return _reference(run_dir, reference_sequence(run_dir), level)
+
+
+def _reference(run_dir: Path, sequence: tuple[dict[str, Any], str, np.ndarray, np.ndarray, int],
+               level: float) -> Reference:
+    manifest, target, events, steps, errors = sequence
     n, k = int(events.size), int(events.sum())
     ci = proportion_interval(k, n, level)
     return Reference(str(run_dir), manifest["campaign"]["name"], manifest["cells"][0]["name"], target, n, k,
@@ -302,7 +307,8 @@ def run(reference_dir: Path, *, splitting_pools: Sequence[Sequence[Path]] = (),
         sequential: Sequence[tuple[float, bool]] = ()) -> dict[str, Any]:
     """The measurements described in the module docstring, as plain data: ``estimators`` holds one
     row per (estimator, runs per repetition); each splitting pool (folders of one setting) gives its rows."""
-    ref = reference(reference_dir, level)
+    sequence = reference_sequence(reference_dir)
+    ref = _reference(reference_dir, sequence, level)
     out: dict[str, Any] = {"reference": asdict(ref), "level": level, "estimators": [], "splitting_runs": [],
                            "commit": provenance.environment_info().get("git_commit")}
     for dirs in splitting_pools:
@@ -317,8 +323,7 @@ def run(reference_dir: Path, *, splitting_pools: Sequence[Sequence[Path]] = (),
     if importance_dirs:
         out["estimators"].append({"estimator": "importance", "method": "importance",
                                   **summarise(importance_repetitions(importance_dirs, ref), ref, level)})
-    if sequential:
-        _, _, events, steps, _ = reference_sequence(reference_dir)
+    _, _, events, steps, _ = sequence
     for halfwidth, relative in sequential:
         reps = sequential_repetitions(events, steps, halfwidth, relative, level)
         if not reps:

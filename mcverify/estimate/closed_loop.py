@@ -48,14 +48,20 @@ SCORES: dict[str, str] = {"h_ef": "ellipse", "h_ef_held": "ellipse", "gap": "col
 HELD_FACTOR = 0.3
 
 
+def h_ef_score(score: str, min_h_front: float, both_infeasible_steps: int) -> float:
+    """The ``"h_ef"`` or ``"h_ef_held"`` score of a running min h_ef and count of steps with neither
+    problem solved (see the module docstring); >= 0 exactly at the ellipse event."""
+    m = float(min_h_front)
+    if score == "h_ef" or m <= 0.0:
+        return -m
+    return -m * HELD_FACTOR ** int(both_infeasible_steps)
+
+
 def score_of(view: StepView, score: str) -> float:
     """The running score after one control step (see the module docstring)."""
     trace = view.trace
     if score in ("h_ef", "h_ef_held"):
-        m = float(trace.min_h_front)
-        if score == "h_ef" or m <= 0.0:
-            return -m
-        return -m * HELD_FACTOR ** view.both_infeasible_steps
+        return h_ef_score(score, trace.min_h_front, view.both_infeasible_steps)
     gaps = [float(trace.min_gap_front_m), float(trace.min_gap_opp_any_m)]
     return -min(g for g in gaps if np.isfinite(g)) if any(np.isfinite(g) for g in gaps) else -np.inf
 

@@ -32,7 +32,7 @@ from mcverify.control.planner import Planner
 from mcverify.episode.rollout import run_episodes
 from mcverify.errors import RunError
 from mcverify.estimate import folder, importance
-from mcverify.estimate.closed_loop import HELD_FACTOR, SCORES
+from mcverify.estimate.closed_loop import SCORES, h_ef_score
 from mcverify.estimate.folder import num
 
 #: Scenario key of :func:`mcverify.episode.rollout.sample_scenario` -> how to read its range from a cell.
@@ -91,10 +91,7 @@ class ClosedLoopScore:
             return -math.inf  # an episode that could not be simulated never counts as the event
         score = self.score or ("gap" if self.target == "collision" else "h_ef")
         if score in ("h_ef", "h_ef_held"):
-            m = float(row["min_h_front"])
-            if score == "h_ef" or m <= 0.0:
-                return -m
-            return -m * HELD_FACTOR ** int(row.get("both_infeasible_steps") or 0)
+            return h_ef_score(score, row["min_h_front"], row.get("both_infeasible_steps") or 0)
         gaps = [float(row.get(k, math.nan)) for k in ("min_gap_front_m", "min_gap_opp_any_m")]
         collided = bool(row.get("collision_front")) or bool(row.get("collision_opp"))
         finite = [g for g in gaps if math.isfinite(g)]
