@@ -63,11 +63,13 @@ class EpisodeSnapshot:
 
 class StepView(NamedTuple):
     """What a :class:`Branching` callback sees after control step ``step``: the episode's running
-    safety trace and the planner's count so far of steps at which neither Q1 nor Q2 was solved."""
+    safety trace, the planner's count so far of steps at which neither Q1 nor Q2 was solved, and the
+    current run of such steps (0 after a step at which one was solved)."""
 
     step: int
     trace: SafetyTrace
     both_infeasible_steps: int
+    both_infeasible_run: int = 0
 
 
 @dataclass
@@ -101,7 +103,7 @@ class Branching:
     def after_step(self, step: int, world: LaneGroups, episode_key: np.ndarray, state: EpisodeState,
                    entered_s: float, u_last: np.ndarray, settling: Any, end: Any) -> None:
         self.steps += 1
-        view = StepView(step, world.lane_state(0)[1], int(state.both_infeasible_steps))
+        view = StepView(step, world.lane_state(0)[1], int(state.both_infeasible_steps), int(state.both_infeasible_run))
         self.views.append(view)
         if self.keep is not None and self.keep(view):
             self.snapshots[step] = self.capture(step, world, episode_key, state, entered_s, u_last, settling, end)

@@ -32,7 +32,7 @@ from mcverify.control.planner import Planner
 from mcverify.episode.rollout import run_episodes
 from mcverify.errors import RunError
 from mcverify.estimate import folder, importance
-from mcverify.estimate.closed_loop import SCORES, h_ef_score
+from mcverify.estimate.closed_loop import H_EF_SCORES, SCORES, h_ef_score
 from mcverify.estimate.folder import num
 
 #: Scenario key of :func:`mcverify.episode.rollout.sample_scenario` -> how to read its range from a cell.
@@ -90,8 +90,9 @@ class ClosedLoopScore:
         if row.get("outcome") == "error":
             return -math.inf  # an episode that could not be simulated never counts as the event
         score = self.score or ("gap" if self.target == "collision" else "h_ef")
-        if score in ("h_ef", "h_ef_held"):
-            return h_ef_score(score, row["min_h_front"], row.get("both_infeasible_steps") or 0)
+        if score in H_EF_SCORES:  # h_ef_run from the longest run: the row has no per-step runs
+            unsolved = row.get("both_infeasible_longest_run" if score == "h_ef_run" else "both_infeasible_steps")
+            return h_ef_score(score, row["min_h_front"], unsolved or 0)
         gaps = [float(row.get(k, math.nan)) for k in ("min_gap_front_m", "min_gap_opp_any_m")]
         collided = bool(row.get("collision_front")) or bool(row.get("collision_opp"))
         finite = [g for g in gaps if math.isfinite(g)]

@@ -53,7 +53,7 @@ def test_branching_without_a_start_leaves_the_episode_unchanged(whole):
     assert_same(plain, row)
     # control steps simulated: the planner's steps (row["steps"]) and the settling steps after the goal
     assert sorted(br.snapshots) == [3, 12] and br.steps == len(br.views) >= row["steps"]
-    mins = [float(t.min_h_front) for _, t, _ in br.views]
+    mins = [float(v.trace.min_h_front) for v in br.views]
     assert mins == sorted(mins, reverse=True) and mins[-1] == row["min_h_front"]
     # the planner's count of steps with neither problem solved, as the run's row reports it
     assert [v.both_infeasible_steps for v in br.views][-1] == row["both_infeasible_steps"]

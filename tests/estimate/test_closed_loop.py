@@ -63,9 +63,9 @@ def test_a_path_ends_once_its_score_reaches_the_stop_level(process):
     assert stopped.steps == hit + 1 < whole.steps
 
 
-def _view(min_h: float, unsolved: int) -> StepView:
+def _view(min_h: float, unsolved: int, run: int = 0) -> StepView:
     trace = SafetyTrace(*([np.float64(np.inf)] * len(SafetyTrace._fields)))._replace(min_h_front=np.float64(min_h))
-    return StepView(0, trace, unsolved)
+    return StepView(0, trace, unsolved, run)
 
 
 def test_the_held_score_reaches_zero_exactly_at_the_ellipse_and_never_decreases():
@@ -84,3 +84,38 @@ def test_the_held_score_reaches_zero_exactly_at_the_ellipse_and_never_decreases(
     # one more unsolved step outranks an ordinary approach's closer min h_ef
     assert score_of(_view(0.45, 1), "h_ef_held") > score_of(_view(0.2, 0), "h_ef_held")
     assert score_of(_view(0.4, 3), "h_ef_held") == pytest.approx(-0.4 * HELD_FACTOR**3)
+
+
+def test_the_run_score_follows_the_current_run_and_falls_back_when_it_ends():
+    """h_ef_run is brought forward by the current run of steps with neither problem solved only: the
+    state's value falls back to -m when a run ends (so an episode that recovered is not kept near 0
+    for good, unlike h_ef_held), and it is >= 0 exactly when h_ef is <= 0."""
+    for m in (0.4, 0.05, 1e-9):
+        for run in (0, 3, 8, 30):
+            assert score_of(_view(m, 99, run), "h_ef_run") < 0
+            assert score_of(_view(m, 99, run), "h_ef_run") == pytest.approx(-m * HELD_FACTOR**run)
+    for m in (0.0, -1e-9, -0.5):
+        assert score_of(_view(m, 12, 5), "h_ef_run") == -m
+    # a run of 4 that ended: the held score stays brought forward, the run score falls back to -m
+    assert score_of(_view(0.3, 4, 0), "h_ef_held") == pytest.approx(-0.3 * HELD_FACTOR**4)
+    assert score_of(_view(0.3, 4, 0), "h_ef_run") == -0.3
+
+
+def test_the_step_views_carry_the_planners_current_run(repo_root):
+    """On the validation cell's episode 40 (its planner solved neither problem for several steps in a
+    row) the views' run restarts at 0 after a solved step and adds 1 after an unsolved one, and it
+    sums up to the row's counts."""
+    from mcverify.campaign.spec import load_campaign
+    from mcverify.episode.rollout import run_episodes
+    from mcverify.episode.snapshot import Branching
+
+    camp = load_campaign(repo_root / "campaigns/rare_validation_10hz.toml")
+    cell = camp.cells[0]
+    br = Branching()
+    row = run_episodes(cell, [40], camp.seed, executors.solver_for(cell.params), branching=br).rows[0]
+    runs = np.array([v.both_infeasible_run for v in br.views])
+    totals = np.array([v.both_infeasible_steps for v in br.views])
+    assert row["both_infeasible_steps"] >= 3
+    assert np.all((runs[1:] == 0) | (runs[1:] == runs[:-1] + 1))
+    assert np.array_equal(np.diff(totals), (runs[1:] > 0).astype(int))
+    assert runs.max() == row["both_infeasible_longest_run"] and totals[-1] == row["both_infeasible_steps"]
