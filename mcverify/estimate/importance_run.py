@@ -8,8 +8,9 @@ nominal distribution. The perception noise stays nominal (drawn from the episode
 evaluation is one episode with the given values (``run_episodes(scenarios=...)``), run in batches of
 8 lanes in this process; its score is the final value of one of the splitting scores
 (:mod:`mcverify.estimate.closed_loop`): minus min h_ef (``h_ef``, target ellipse), that brought
-forward by the steps with neither Q1 nor Q2 solved (``h_ef_held``, target ellipse) or minus the
-footprint gap (``gap``, target collision), >= 0 exactly at the event. The score only steers the
+forward by the steps with neither Q1 nor Q2 solved (``h_ef_held``, target ellipse), by the
+episode's longest run of such steps (``h_ef_run``, target ellipse: a row has no per-step runs) or
+minus the footprint gap (``gap``, target collision), >= 0 exactly at the event. The score only steers the
 cross-entropy stages; the estimate counts the event itself, so any score leaves it unbiased.
 Episode ids count the evaluations from 0, so the estimate
 replays from (campaign seed, cell, the estimator's seed).

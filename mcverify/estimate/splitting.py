@@ -176,6 +176,12 @@ def from_runs(runs: list[AMSRun], level: float = 0.95) -> SplittingEstimate:
                              runs[0].k, sum(r.steps for r in runs), [float(v) for v in values], warnings=warnings)
 
 
+#: Warn when the largest positive run estimate exceeds the smallest by this factor: an AMS run's
+#: relative spread is about sqrt(-log p / n) with a good score, so runs orders of magnitude apart
+#: mean a score with traps (docs/rare_events.md, "A score that traps").
+SPREAD_WARNING = 100.0
+
+
 def t_interval(values: np.ndarray, level: float = 0.95) -> tuple[float, float, float, float, list[str]]:
     """(mean, low, high, relative half-width, warnings) of independent AMS runs' estimates ``values``
     (at least 2): the Student t interval, its low end clipped at 0."""
@@ -189,6 +195,11 @@ def t_interval(values: np.ndarray, level: float = 0.95) -> tuple[float, float, f
     if zero > values.size // 2:
         warnings.append(f"{zero} of {values.size} runs estimate 0 (extinction or no particle at the failure level): "
                         "the t interval is unreliable; use more particles")
+    positive = values[values > 0]
+    if positive.size >= 2 and positive.max() > SPREAD_WARNING * positive.min():
+        warnings.append(f"the runs' estimates span {positive.max() / positive.min():.0f}x "
+                        f"({positive.min():.2g} to {positive.max():.2g}): the score may trap runs in states that "
+                        "rarely fail (docs/rare_events.md); the mean may read low and the t interval miss")
     return mean, max(0.0, mean - half), mean + half, rel, warnings
 
 

@@ -88,3 +88,13 @@ def test_coverage_large_rare():
     mean_rel = float(np.mean([r.relative_halfwidth for r in results]))
     crude = splitting.crude_steps_for(p, mean_rel, WALK.horizon)
     assert crude / np.mean([r.steps for r in results]) > 5
+
+
+def test_runs_orders_of_magnitude_apart_are_flagged():
+    """A score with traps shows as run estimates orders of magnitude apart (11 of 44 closed-loop runs
+    with h_ef_held read 1e-4 to 3e-3 beside others at 0.05-0.13): the interval then carries a warning;
+    runs within the spread a good score gives do not."""
+    spread = splitting.t_interval(np.array([0.0001, 0.04, 0.13, 0.05]))[4]
+    assert len(spread) == 1 and "1300x" in spread[0] and "trap" in spread[0]
+    assert splitting.t_interval(np.array([0.013, 0.128, 0.05, 0.011]))[4] == []
+    assert splitting.t_interval(np.array([0.0, 0.0, 0.0, 0.05]))[4][0].startswith("3 of 4 runs estimate 0")
