@@ -141,9 +141,12 @@ REQUIREMENT_NAMES: tuple[str, ...] = (
 )
 #: What a falsification search may minimise instead of its requirement (``[falsify] guide``): any
 #: requirement, or a per-step requirement restricted to the sub-steps where the ego goes back
-#: ("<requirement>@go_back", :func:`mcverify.analysis.robustness.guide_value`).
+#: ("<requirement>@go_back", :func:`mcverify.analysis.robustness.guide_value`), or one brought forward
+#: by the current run of steps with neither problem solved ("<requirement>@run",
+#: :func:`mcverify.analysis.robustness.running_robustness`).
 GUIDE_NAMES: tuple[str, ...] = REQUIREMENT_NAMES + tuple(
-    f"{name}@go_back" for name in ("collision_front", "collision_opp", "ellipse", "invariance", "safe"))
+    f"{name}{suffix}" for suffix in ("@go_back", "@run")
+    for name in ("collision_front", "collision_opp", "ellipse", "invariance", "safe"))
 
 
 @dataclass(frozen=True)

@@ -170,8 +170,14 @@ def violated(rows: Sequence[Row], name: str) -> np.ndarray:
 #: Requirements whose robustness is the minimum of a signal of the stored trajectory, per sub-step:
 #: what a splitting search branches on (:func:`running_robustness`).
 STEPWISE: tuple[str, ...] = ("collision_front", "collision_opp", "ellipse", "invariance", "safe")
+#: The suffix of a guide brought forward by the planner's trouble (:func:`running_robustness`).
+RUN_SUFFIX = "@run"
+#: ``"<r>@run"``: the factor on r's remaining (positive) running robustness per control step of the
+#: current run of steps at which the planner solved neither Q1 nor Q2.
+RUN_FACTOR = 0.3
 #: Everything ``[falsify] guide`` accepts.
-GUIDES: tuple[str, ...] = tuple(REQUIREMENTS) + tuple(f"{n}@go_back" for n in STEPWISE)
+GUIDES: tuple[str, ...] = (tuple(REQUIREMENTS) + tuple(f"{n}@go_back" for n in STEPWISE)
+                           + tuple(f"{n}{RUN_SUFFIX}" for n in STEPWISE))
 
 
 def _substep_signal(trajectory: Mapping[str, np.ndarray], name: str, epsilon: float, h0: float) -> np.ndarray:
@@ -201,10 +207,12 @@ GO_BACK_MODE = 1
 GO_BACK_SUFFIX = "@go_back"
 
 
-def guide_value(row: Row, trajectory: Mapping[str, np.ndarray] | None, name: str) -> float:
+def guide_value(row: Row, trajectory: Mapping[str, np.ndarray] | None, name: str, *,
+                control_period_s: float = math.nan) -> float:
     """The value of guide ``name`` (:data:`GUIDES`) for one episode: its row's robustness for a
-    requirement, else (``"<r>@go_back"``) the minimum of r's per-sub-step signal over the sub-steps of
-    the stored ``trajectory`` with ``mode`` == :data:`GO_BACK_MODE` (+inf if none; NaN for an error row)."""
+    requirement; for ``"<r>@go_back"`` the minimum of r's per-sub-step signal over the sub-steps of
+    the stored ``trajectory`` with ``mode`` == :data:`GO_BACK_MODE` (+inf if none); for ``"<r>@run"``
+    the last value of its :func:`running_robustness` (needs ``control_period_s``). NaN for an error row."""
     if name in REQUIREMENTS:
         return robustness(row, name)
     if name not in GUIDES:
@@ -213,6 +221,10 @@ def guide_value(row: Row, trajectory: Mapping[str, np.ndarray] | None, name: str
         return math.nan
     if trajectory is None:
         raise ValueError(f"guide {name!r} needs the episode's stored trajectory")
+    if name.endswith(RUN_SUFFIX):
+        running = running_robustness(trajectory, name, control_period_s, epsilon=_num(row, "epsilon"),
+                                     h0=_num(row, "h0_front"))
+        return float(running[-1]) if running.size else math.inf
     signal = _substep_signal(trajectory, name.removesuffix(GO_BACK_SUFFIX), _num(row, "epsilon"), _num(row, "h0_front"))
     going_back = np.asarray(trajectory["mode"]) == GO_BACK_MODE
     return float(np.min(signal[going_back])) if going_back.any() else math.inf
@@ -263,11 +275,39 @@ def running_robustness(trajectory: Mapping[str, np.ndarray], name: str, control_
     by the end of each control step, from a recorded trajectory (columns of
     :mod:`mcverify.episode.recording`, one row per sub-step at ``t_s`` in (k dt, (k + 1) dt] for
     control step k). Its last value is the episode's robustness; ``epsilon`` and ``h0`` (the row's
-    ``epsilon`` and ``h0_front``) are needed for ``invariance`` only."""
+    ``epsilon`` and ``h0_front``) are needed for ``invariance`` only.
+
+    ``"<r>@run"``: r's running robustness rho_k brought forward by the planner's trouble, the running
+    minimum of rho_k c^(n_k) while rho_k > 0 and of rho_k once it is <= 0, with n_k the current run of
+    control steps (k included) at which neither Q1 nor Q2 was solved (``q1_solved`` not 1 and
+    ``q2_solved`` 0, as the planner counts them) and c = :data:`RUN_FACTOR`. It is negative exactly
+    when r is violated, and one more unsolved step outranks ordinary differences in margin: on the
+    closed loop a violation of the ellipse follows a run of 4-5 such steps (docs/rare_events.md, "A
+    score that traps"), the turn-backs that precede it are reached by climbing that run, and a run
+    that ends takes the value back to rho_k."""
     t = np.asarray(trajectory["t_s"], dtype=np.float64)
     if not t.size:
         return np.zeros(0)
     step = np.maximum(np.ceil(t / control_period_s - 1e-6).astype(np.int64) - 1, 0)
+    base = name.removesuffix(RUN_SUFFIX)
     per_step = np.full(int(step[-1]) + 1, math.inf)
-    np.minimum.at(per_step, step, _substep_signal(trajectory, name, epsilon, h0))
-    return np.minimum.accumulate(per_step)
+    np.minimum.at(per_step, step, _substep_signal(trajectory, base, epsilon, h0))
+    running = np.minimum.accumulate(per_step)
+    if base == name:
+        return running
+    runs = _unsolved_runs(trajectory, step, running.size)
+    with np.errstate(invalid="ignore"):  # inf * c^n stays inf
+        brought = np.where(running > 0.0, running * RUN_FACTOR ** runs.astype(np.float64), running)
+    return np.minimum.accumulate(brought)
+
+
+def _unsolved_runs(trajectory: Mapping[str, np.ndarray], step: np.ndarray, steps: int) -> np.ndarray:
+    """Shape (steps,): the current run of control steps at which neither Q1 nor Q2 was solved, after
+    each step (0 after a solved step), from the sub-steps' ``q1_solved``/``q2_solved``."""
+    q1, q2 = (np.asarray(trajectory[k], dtype=np.float64) for k in ("q1_solved", "q2_solved"))
+    unsolved = np.zeros(steps, dtype=bool)
+    unsolved[step[(q1 != 1.0) & (q2 == 0.0)]] = True
+    runs = np.zeros(steps, dtype=np.int64)
+    for k in range(steps):
+        runs[k] = runs[k - 1] + 1 if unsolved[k] and k else int(unsolved[k])
+    return runs

@@ -39,7 +39,9 @@ when the requirement's own robustness points the search the wrong way; counterex
 the early stops are still judged by the requirement. Besides any requirement, ``"<r>@go_back"`` is
 requirement r over the sub-steps where the ego goes back (+inf for an episode that never turned
 back), e.g. to compare scenarios by how close their turn-backs come, where the overtakes' margins
-would lure the search elsewhere (docs/falsification.md).
+would lure the search elsewhere, and ``"<r>@run"`` is r's running robustness brought forward by the
+current run of steps at which the planner solved neither problem (what ``--method splitting`` can
+climb where a violation follows such a run; docs/falsification.md).
 
 ``extremes``: searched fields that take only their two bounds (bang-bang): a coordinate u < 1/2 is
 the field's low bound, u >= 1/2 its high bound, so ``random`` draws each end with probability 1/2 and

@@ -47,6 +47,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from mcverify.analysis.robustness import RUN_FACTOR
 from mcverify.cell import Cell
 from mcverify.control.planner import Planner
 from mcverify.episode.rollout import run_episodes
@@ -54,8 +55,9 @@ from mcverify.episode.snapshot import Branching, EpisodeSnapshot, StepView
 
 #: Score name -> the target event it reaches at level 0.
 SCORES: dict[str, str] = {"h_ef": "ellipse", "h_ef_held": "ellipse", "h_ef_run": "ellipse", "gap": "collision"}
-#: "h_ef_held", "h_ef_run": the factor on the remaining min h_ef per step with neither problem solved.
-HELD_FACTOR = 0.3
+#: "h_ef_held", "h_ef_run": the factor on the remaining min h_ef per step with neither problem solved
+#: (the falsifier's ``"<r>@run"`` guides use the same one).
+HELD_FACTOR = RUN_FACTOR
 
 
 #: The scores built on h_ef (the others: "gap").

@@ -157,9 +157,9 @@ def start(config: SearchConfig, out_dir: Path, **kw: Any) -> SearchResult:
     if config.method == "splitting" and space.common_noise:
         raise RunError("--method splitting draws fresh noise for its branches; [falsify] common_noise = true "
                        "is for the other methods")
-    if config.method == "splitting" and space.guide:
-        raise RunError("--method splitting branches on the requirement's own running robustness; [falsify] guide "
-                       "is for cma, cross-entropy, random and bo")
+    if config.method == "splitting" and space.guide and not space.guide.endswith(rb.RUN_SUFFIX):
+        raise RunError(f"--method splitting branches on a running robustness: [falsify] guide {space.guide!r} has "
+                       f"none (splitting takes the requirement itself or a guide ending in {rb.RUN_SUFFIX!r})")
     if config.method == "splitting" and config.requirement not in rb.STEPWISE:
         raise RunError(f"--method splitting branches on a per-step robustness; requirement {config.requirement!r} "
                        f"has none (choose one of {', '.join(rb.STEPWISE)})")
@@ -224,7 +224,9 @@ def _generations(config: SearchConfig, out_dir: Path, make_executor: Callable[[]
             _check_same(gen_dir, gen_campaign)
         rows = {int(r["cell_index"]): r for r in store.read_episodes(gen_dir).to_pylist()}
         robs = np.array([rb.robustness(rows[k], config.requirement) for k in range(n)])
-        guides = np.array([_guide(gen_dir, rows[k], space.guide) for k in range(n)]) if space.guide else None
+        periods_s = [cell.params.sim.control_period_s for cell in gen_campaign.cells]
+        guides = (np.array([_guide(gen_dir, rows[k], space.guide, periods_s[k]) for k in range(n)])
+                  if space.guide else None)
         evaluations += [Evaluation(generation, k, candidates[k].point, values[k], rows[k], float(robs[k]),
                                    candidates[k].parent, candidates[k].branch_after_step, candidates[k].move,
                                    math.nan if guides is None else float(guides[k]))
@@ -236,7 +238,7 @@ def _generations(config: SearchConfig, out_dir: Path, make_executor: Callable[[]
                      f"{len(evaluations)}/{config.budget} episodes")
         if n == len(candidates):
             _tell(search, candidates, robs if guides is None else guides, gen_dir, [rows[k] for k in range(n)],
-                  config.requirement, [cell.params.sim.control_period_s for cell in gen_campaign.cells])
+                  space.guide or config.requirement, periods_s)
         generation += 1
         if space.stop_at_first and (robs < 0.0).any():
             break
@@ -259,20 +261,22 @@ def noise_seed(campaign_seed: int, search_seed: int) -> int:
 
 
 def _tell(search: methods.Searcher | NoiseSplitting, candidates: list[Candidate], robs: np.ndarray, gen_dir: Path,
-          rows: list[dict[str, Any]], requirement: str, periods_s: list[float]) -> None:
+          rows: list[dict[str, Any]], steered_by: str, periods_s: list[float]) -> None:
+    """Tell the method its candidates' values ``robs``; splitting is told the running values of
+    ``steered_by`` (the requirement, or its ``@run`` guide) per control step instead."""
     if not isinstance(search, NoiseSplitting):
         search.tell(np.array([c.point for c in candidates]), robs)
         return
-    search.tell(candidates, [_running(gen_dir, row, requirement, dt) for row, dt in zip(rows, periods_s, strict=True)])
+    search.tell(candidates, [_running(gen_dir, row, steered_by, dt) for row, dt in zip(rows, periods_s, strict=True)])
 
 
-def _running(gen_dir: Path, row: dict[str, Any], requirement: str, control_period_s: float) -> np.ndarray:
-    """A candidate's running robustness per control step, from its stored trajectory (empty for an
-    episode that could not be simulated: it is never a survivor)."""
+def _running(gen_dir: Path, row: dict[str, Any], name: str, control_period_s: float) -> np.ndarray:
+    """A candidate's running robustness (of a requirement or an ``@run`` guide) per control step, from
+    its stored trajectory (empty for an episode that could not be simulated: it is never a survivor)."""
     if rb.is_error_row(row):
         return np.zeros(0)
     trajectory = _trajectory(gen_dir, row, "--method splitting branches on each candidate's stored trajectory")
-    return rb.running_robustness(trajectory, requirement, control_period_s, epsilon=float(row["epsilon"]),
+    return rb.running_robustness(trajectory, name, control_period_s, epsilon=float(row["epsilon"]),
                                  h0=float(row["h0_front"]))
 
 
@@ -284,12 +288,13 @@ def _trajectory(gen_dir: Path, row: dict[str, Any], why: str) -> dict[str, np.nd
     return trajectory
 
 
-def _guide(gen_dir: Path, row: dict[str, Any], guide: str) -> float:
-    """The guide's value for one candidate (a ``@go_back`` guide reads its stored trajectory)."""
-    if not guide.endswith(rb.GO_BACK_SUFFIX) or rb.is_error_row(row):
+def _guide(gen_dir: Path, row: dict[str, Any], guide: str, control_period_s: float) -> float:
+    """The guide's value for one candidate (``@go_back`` and ``@run`` guides read its stored trajectory)."""
+    if not guide.endswith((rb.GO_BACK_SUFFIX, rb.RUN_SUFFIX)) or rb.is_error_row(row):
         return rb.guide_value(row, None, guide)
     return rb.guide_value(row, _trajectory(gen_dir, row, f"[falsify] guide = {guide!r} reads each candidate's "
-                                                         "stored trajectory"), guide)
+                                                         "stored trajectory"), guide,
+                          control_period_s=control_period_s)
 
 
 def _lowest(values: np.ndarray) -> float:

@@ -97,3 +97,37 @@ def turnback(cell, episode_ids, seed, common_random_numbers, record):
         h, mode = turnback_margins(cell.params.scenario.front_speed_mps, noise)
         _margin_episode(out, r, e, h, dt, e in record, mode=mode.astype(np.float64))
     return out
+
+
+def ladder_margins(cell, seed: int, episode: int) -> tuple[np.ndarray, np.ndarray]:
+    """(h_ef, unsolved) per control step of a violation reached by a ladder of unsolved steps, as on
+    the closed loop (docs/rare_events.md, "A score that traps"): from step 10 the planner fails both
+    problems with probability 0.05 after a solved step and 0.3 after an unsolved one; h_ef stays near
+    0.5 (its small noise says nothing of the ladder) until a run of 5 unsolved steps, then falls to
+    -0.2 for good. Keyed by the noise root and branches as :func:`walk_margins`."""
+    n = cell.params.noise
+    root = [n.key_seed, episode] if n.key_seed >= 0 else [seed, cell.index, episode]
+    switches = dict(zip((int(s) for s in n.branch_after_steps), (int(b) for b in n.branch_ids), strict=True))
+    branch, h, unsolved, run, fell = -1, np.empty(WALK_STEPS), np.zeros(WALK_STEPS, dtype=bool), 0, False
+    for t in range(WALK_STEPS):
+        if t - 1 in switches:
+            branch = switches[t - 1]
+        u, xi = np.random.default_rng([*root, branch + 1, t]).random(2)
+        unsolved[t] = t >= 10 and u < (0.3 if run else 0.05)
+        run = run + 1 if unsolved[t] else 0
+        fell = fell or run >= 5
+        h[t] = -0.2 if fell else 0.5 + 0.02 * xi
+    return h, unsolved
+
+
+def ladder(cell, episode_ids, seed, common_random_numbers, record):
+    """Rows and trajectories (``q1_solved``, ``q2_solved`` included) of :func:`ladder_margins`."""
+    out = synthetic_episodes.episodes(cell, episode_ids, seed, common_random_numbers, record)
+    dt = cell.params.sim.control_period_s
+    out.recordings = {}
+    for r in out.rows:
+        e = int(r["cell_episode"])
+        h, unsolved = ladder_margins(cell, seed, e)
+        solved = (~unsolved).astype(np.float64)
+        _margin_episode(out, r, e, h, dt, e in record, q1_solved=solved, q2_solved=solved)
+    return out

@@ -64,8 +64,8 @@ def test_a_bad_guide_is_one_line():
     assert text.startswith("c.toml [falsify].guide: unknown guide 'ellipse@overtake'; known: ") and "\n" not in text
 
 
-def test_splitting_refuses_a_guide(tmp_path):
-    with pytest.raises(RunError, match="guide is for cma"):
+def test_splitting_refuses_a_guide_without_a_running_value(tmp_path):
+    with pytest.raises(RunError, match="'ellipse@go_back' has none"):
         _search(tmp_path, "ellipse@go_back", 0, method="splitting")
 
 
