@@ -198,8 +198,9 @@ def t_interval(values: np.ndarray, level: float = 0.95) -> tuple[float, float, f
     positive = values[values > 0]
     if positive.size >= 2 and positive.max() > SPREAD_WARNING * positive.min():
         warnings.append(f"the runs' estimates span {positive.max() / positive.min():.0f}x "
-                        f"({positive.min():.2g} to {positive.max():.2g}): the score may trap runs in states that "
-                        "rarely fail (docs/rare_events.md); the mean may read low and the t interval miss")
+                        f"({positive.min():.2g} to {positive.max():.2g}): their distribution is heavy-tailed (a score "
+                        "that traps runs, or ties; docs/rare_events.md), so the mean of few runs may read low "
+                        "and the t interval miss; add runs or particles")
     return mean, max(0.0, mean - half), mean + half, rel, warnings
 
 

@@ -95,6 +95,6 @@ def test_runs_orders_of_magnitude_apart_are_flagged():
     with h_ef_held read 1e-4 to 3e-3 beside others at 0.05-0.13): the interval then carries a warning;
     runs within the spread a good score gives do not."""
     spread = splitting.t_interval(np.array([0.0001, 0.04, 0.13, 0.05]))[4]
-    assert len(spread) == 1 and "1300x" in spread[0] and "trap" in spread[0]
+    assert len(spread) == 1 and "1300x" in spread[0] and "heavy-tailed" in spread[0]
     assert splitting.t_interval(np.array([0.013, 0.128, 0.05, 0.011]))[4] == []
     assert splitting.t_interval(np.array([0.0, 0.0, 0.0, 0.05]))[4][0].startswith("3 of 4 runs estimate 0")
