@@ -22,7 +22,8 @@ close to (-log p)/n for k = 1 in the idealised case [GHM11], which is what the c
 crude Monte Carlo builds on.
 
 Determinism: every particle's noise comes from (seed, branch id) through the process, and the
-survivor draws from a generator seeded by (seed, replicate); the whole estimate replays exactly.
+survivor draws from a generator seeded by (run seed, selection key: the closed loop passes its campaign
+seed, so that no two estimates share a stream); the whole estimate replays exactly.
 Cost is counted in simulated control steps (what the process reports), not in episodes.
 
 [CG07] F. Cérou, A. Guyader, Adaptive multilevel splitting for rare event analysis, Stoch. Anal.
@@ -90,12 +91,16 @@ class AMSRun:
 
 
 def ams(process: BranchingProcess, *, n: int, k: int = 1, failure_level: float, seed: int,
-        max_iterations: int = 100_000) -> AMSRun:
+        max_iterations: int = 100_000, selection_key: int | None = None) -> AMSRun:
     """One generalised AMS run (see the module docstring) with ``n`` particles, ``k`` killed per
-    iteration at least; particle and branch ids are drawn from (seed, counter)."""
+    iteration at least; particle and branch ids are drawn from (seed, counter), the survivors to
+    branch from a generator keyed by (seed, ``selection_key``). A process whose noise has a key of
+    its own (the closed loop's campaign seed) passes it as ``selection_key``: runs with the same
+    ``seed`` and distinct process keys then share no random stream (with one shared stream the
+    choice among survivors in slot order would tie the runs together, weakly)."""
     if not 1 <= k < n:
         raise ValueError(f"need 1 <= k < n, got k={k}, n={n}")
-    rng = np.random.default_rng([seed, 0x5A5])
+    rng = np.random.default_rng([seed, 0x5A5] if selection_key is None else [seed, 0x5A5, selection_key])
     next_id = 0
 
     def fresh_id() -> int:

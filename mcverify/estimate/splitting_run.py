@@ -89,7 +89,7 @@ def replicate_unit(cell: Cell, episode_ids: tuple[int, ...], seed: int, common_r
     (replicate,) = episode_ids
     process = ClosedLoopProcess(cell, seed, executors.solver_for(cell.params), sp.score)
     run = splitting.ams(process, n=sp.particles, k=sp.k, failure_level=0.0, seed=replicate,
-                        max_iterations=sp.max_iterations)
+                        max_iterations=sp.max_iterations, selection_key=seed)
     return _UnitResult([{"cell_episode": replicate, "outcome": "ams", "run": asdict(run), "cpu_s": process.cpu_s,
                          "steps": process.steps, "fresh_steps": list(process.fresh_steps)}])
 

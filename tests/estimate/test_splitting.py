@@ -47,6 +47,17 @@ def test_an_estimate_replays_exactly_and_counts_its_cost():
     assert run.estimate == pytest.approx(weight * run.reached / 20)
 
 
+def test_the_selection_key_gives_the_survivor_draws_a_stream_of_their_own():
+    """Runs of distinct processes (the closed loop's campaign seeds) with the same replicate seed must
+    not share the survivor draws; without a key the stream is the seed's alone, as before."""
+    plain = splitting.ams(WALK, n=20, failure_level=2.5, seed=9)
+    assert splitting.ams(WALK, n=20, failure_level=2.5, seed=9, selection_key=None) == plain
+    keyed = [splitting.ams(WALK, n=20, failure_level=2.5, seed=9, selection_key=key) for key in (1, 2)]
+    # the walk's noise is keyed by the branch ids alone, so only the survivor draws differ here
+    assert keyed[0] != keyed[1] and plain not in keyed
+    assert splitting.ams(WALK, n=20, failure_level=2.5, seed=9, selection_key=1) == keyed[0]
+
+
 def test_a_level_reached_by_every_episode_gives_one():
     run = splitting.ams(WALK, n=10, failure_level=-10.0, seed=1)
     assert run.estimate == 1.0 and run.iterations == 0
