@@ -127,6 +127,8 @@ INFEASIBILITY_POLICIES = ("ipopt", "phase1")
 KKT_FACTORIZATIONS = ("lu", "ldlt", "ldlt_curvature")
 #: The evidence that makes the ego abandon the overtake (:attr:`Mpc.abandon_rule`).
 ABANDON_RULES = ("first_failure", "consecutive", "certified")
+#: Whose ipm backend tries the central warm attempt before IPOPT's rescue (:attr:`Mpc.ipm_central_attempt`).
+CENTRAL_ATTEMPT_POLICIES = ("off", "mpcdc", "all")
 #: When the dual planner solves Q2 while overtaking (:attr:`Mpc.q2_solve`).
 Q2_SOLVE_POLICIES = ("every_step", "fast_when_unneeded", "when_needed")
 #: Most piecewise-constant segments of one structured disturbance (:attr:`Noise.front_x_segments`).
@@ -259,6 +261,10 @@ class Mpc:
     ipm_restoration: bool = False
     """The ipm backend's cold IPM attempt of a full solve runs with the C restoration phase: a failed line search
     restores feasibility instead of ending the attempt (docs/engine.md)."""
+    ipm_central_attempt: str = "off"
+    """A last IPM attempt of a full solve, after the two warm and the cold one failed and before IPOPT: the warm
+    start again at barrier parameter 1e-2 (docs/engine.md, "A central attempt before the rescue"): off, mpcdc (the
+    MPC-DC baselines only) or all."""
     kkt_factorization: str = "lu"
     """How the ipm backend factorises its KKT system: lu (banded LU, the default), ldlt (banded LDL^T with the inertia
     test) or ldlt_curvature (banded LDL^T with the LU's curvature test); docs/engine.md, "The LDL^T path"."""

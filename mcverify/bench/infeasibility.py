@@ -9,7 +9,7 @@ Two measurements, written together into a generated section of results/BENCHMARK
    phase-1 certificate from every start, IPOPT as scheduled auditor), "restoration"
    (``mpc.ipm_restoration``: the IPM attempts with the restoration phase), both, "q2_when_needed" or
    "q2_fast_when_unneeded" (``mpc.q2_solve``: a Q2 the step's decision ignores not solved, or given
-   the fast path only): CPU per episode
+   the fast path only), "central_mpcdc" or "central_all" (``mpc.ipm_central_attempt``): CPU per episode
    by solve class, the audit counters, and the episode-by-episode agreement of safety verdicts and
    outcomes.
 2. **Recorded solves** (:func:`replay_verdicts`): every solve of a recording
@@ -46,10 +46,16 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "phase1+restoration": {"mpc.infeasibility": "phase1", "mpc.ipm_restoration": True},
     "q2_when_needed": {"mpc.q2_solve": "when_needed"},
     "q2_fast_when_unneeded": {"mpc.q2_solve": "fast_when_unneeded"},
+    "central_mpcdc": {"mpc.ipm_central_attempt": "mpcdc"},
+    "central_all": {"mpc.ipm_central_attempt": "all"},
 }
 #: The heading of a variant's section (default: the infeasibility certificates').
 HEADINGS: dict[str, str] = {"q2_when_needed": "Q2 solved only when Algorithm 1 reads it (`mpc.q2_solve`)",
-                            "q2_fast_when_unneeded": "An unread Q2 on the fast path only (`mpc.q2_solve`)"}
+                            "q2_fast_when_unneeded": "An unread Q2 on the fast path only (`mpc.q2_solve`)",
+                            "central_mpcdc": "A central IPM attempt before IPOPT's rescue, MPC-DC only "
+                                             "(`mpc.ipm_central_attempt`)",
+                            "central_all": "A central IPM attempt before IPOPT's rescue, every controller "
+                                           "(`mpc.ipm_central_attempt`)"}
 #: The default side's label.
 DEFAULT = "default"
 BEGIN_MARK = "<!-- BEGIN mcverify bench infeasibility (generated) -->"

@@ -15,6 +15,7 @@ from mcverify.errors import CampaignError
 from mcverify.model import (
     ABANDON_RULES,
     BACKEND_NAMES,
+    CENTRAL_ATTEMPT_POLICIES,
     INFEASIBILITY_POLICIES,
     KKT_FACTORIZATIONS,
     MAX_BRANCHES,
@@ -153,6 +154,9 @@ def validate_params(p: ModelParams, where: str) -> None:
     if m.kkt_factorization not in KKT_FACTORIZATIONS:
         raise bad("mpc.kkt_factorization",
                   f"unknown factorization {_short(m.kkt_factorization)}; valid: {', '.join(KKT_FACTORIZATIONS)}")
+    if m.ipm_central_attempt not in CENTRAL_ATTEMPT_POLICIES:
+        raise bad("mpc.ipm_central_attempt", f"unknown policy {_short(m.ipm_central_attempt)}; valid: "
+                  f"{', '.join(CENTRAL_ATTEMPT_POLICIES)}")
     if not isinstance(m.ipm_restoration, bool):
         raise bad("mpc.ipm_restoration", f"must be true or false, got {_short(m.ipm_restoration)}")
     if type(m.infeasibility_audit_every) is not int or m.infeasibility_audit_every < 1:

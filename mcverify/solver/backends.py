@@ -55,9 +55,9 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from mcverify.model import BACKEND_NAMES, KKT_FACTORIZATIONS, ModelParams
+from mcverify.model import BACKEND_NAMES, KKT_FACTORIZATIONS, ModelParams, Mpc
 from mcverify.solver.cfun import CFunction
-from mcverify.solver.ipm import COLD, KKT_FACTORISATIONS, WARM_ATTEMPTS, Ipm, IpmResult
+from mcverify.solver.ipm import CENTRAL_WARM, COLD, KKT_FACTORISATIONS, WARM_ATTEMPTS, Ipm, IpmResult
 from mcverify.solver.kernels import Kernel, get_runtime_library
 from mcverify.solver.status import SolveRoute, SolveStatus
 
@@ -265,6 +265,9 @@ class IpmBackend:
         # failures the cold start repairs cheaply, nor a presumed-infeasible fast-only solve, where a
         # restoration would mostly fail at a price)
         self.cold_full = dataclasses.replace(self.cold, restoration=params.mpc.ipm_restoration)
+        # mpc.ipm_central_attempt (off by default): the warm start once more, more central, before IPOPT
+        self.central = (dataclasses.replace(CENTRAL_WARM, tol=params.mpc.tol, **kkt)
+                        if uses_central_attempt(params.mpc) else None)
         self.ipm_outcomes: Counter[str] = Counter()
         self.ipm_cpu_s: Counter[str] = Counter()
         self.infeasibility = params.mpc.infeasibility
@@ -281,6 +284,8 @@ class IpmBackend:
         iterations = 0
         attempts = [] if warm is None else [(o, warm.x, warm.lam_x, warm.lam_g) for o in self.warm_attempts]
         attempts.append((self.cold if fast_only else self.cold_full, None, None, None))
+        if self.central is not None and warm is not None and not fast_only:
+            attempts.append((self.central, warm.x, warm.lam_x, warm.lam_g))
         for k, (opts, x0, lx0, lg0) in enumerate(attempts):
             cpu0 = time.process_time()
             r = self.ipm.solve(p, guess() if x0 is None else x0, lx0, lg0, opts)
@@ -353,6 +358,11 @@ if set(REGISTRY) != set(BACKEND_NAMES):  # a name the model accepts must have a 
 if set(KKT_FACTORIZATIONS) != set(KKT_FACTORISATIONS):  # likewise for mpc.kkt_factorization
     raise ImportError(f"mpc.kkt_factorization {KKT_FACTORIZATIONS} and the C solver's "
                       f"{tuple(KKT_FACTORISATIONS)} differ")
+
+
+def uses_central_attempt(mpc: Mpc) -> bool:
+    """Whether ``mpc.ipm_central_attempt`` gives this controller's full solves the central warm attempt."""
+    return mpc.ipm_central_attempt == "all" or (mpc.ipm_central_attempt == "mpcdc" and mpc.is_mpcdc)
 
 
 def create_backend(name: str, problem: Problem, params: ModelParams):

@@ -108,6 +108,12 @@ WARM_ATTEMPTS: tuple[IpmOptions, ...] = (
     IpmOptions(mu_init=1e-7, bound_push=1e-6, mult_push=1e-6, max_iter=30),
     IpmOptions(mu_init=1e-5, bound_push=1e-4, mult_push=1e-6, max_iter=30),
 )
+#: The central warm attempt (``mpc.ipm_central_attempt``): the warm start once more, after the cold
+#: attempt failed, at mu_init 1e-2 with the bound push of the cold start's tenth. Where the warm
+#: attempts crawl (a new measurement moved the goal row by metres, the point stays glued to its
+#: bounds at mu 1e-7 to 1e-5) and the cold one fails its line search, a barrier this large frees the
+#: point and keeps the warm start's shape (docs/engine.md, "A central attempt before the rescue").
+CENTRAL_WARM = IpmOptions(mu_init=1e-2, bound_push=1e-3, mult_push=1e-6, max_iter=60)
 #: Cold starts (no multipliers): IPOPT's defaults (mu_init 0.1, bound_push 0.01).
 COLD = IpmOptions(mu_init=0.1, bound_push=1e-2, mult_push=1e-2, max_iter=150)
 
