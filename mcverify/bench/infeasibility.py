@@ -150,13 +150,17 @@ def markdown(paired: dict[str, Any] | None, replay: dict[str, Any] | None, comma
                   "the solves the IPM did not converge on, by what the engine made of them, against the "
                   "start-independent phase-1 verdict (infeasible: phase 1 certified from the warm start and from "
                   "the cold guess; feasible: one found a feasible point; undecided: neither) and the engine's "
-                  "attempts rerun with the restoration phase on:", "",
+                  "attempts rerun with the restoration phase on, and the central warm attempt "
+                  "(`mpc.ipm_central_attempt`) on those with a warm start:", "",
                   "| engine (IPOPT as fallback) | solves | phase 1: infeasible | feasible | undecided | "
-                  "warm-only certificate | converged with restoration | phase-1 ms / solve |",
-                  "|---|---|---|---|---|---|---|---|"]
+                  "warm-only certificate | converged with restoration | converged by the central attempt "
+                  "(of warm-started) | phase-1 ms / solve |",
+                  "|---|---|---|---|---|---|---|---|---|"]
         for cls, d in replay["table"].items():
             lines.append(f"| {cls} | {d['solves']} | {d['infeasible']} | {d['feasible']} | {d['undecided']} | "
-                         f"{d['warm_only_infeasible']} | {d['resto_converged']} | {replay['phase1_ms'][cls]:.0f} |")
+                         f"{d['warm_only_infeasible']} | {d['resto_converged']} | "
+                         f"{d.get('central_converged', 0)} ({d.get('warm_started', 0)}) | "
+                         f"{replay['phase1_ms'][cls]:.0f} |")
     lines += ["", end, ""]
     return "\n".join(lines)
 

@@ -172,8 +172,9 @@ class Verdicts:
     """The C restoration phase on one recorded solve: phase 1 from the warm start (None: no warm
     start) and from the cold guess (status names), the start-independent verdict ("infeasible" if
     every phase 1 certified, "feasible" if one found a feasible point, else "undecided"), and the
-    engine's IPM attempts rerun with the restoration phase on (did one converge; its status list).
-    cpu_s: CPU seconds of the phase-1 runs and of the restoration attempts."""
+    engine's IPM attempts rerun with the restoration phase on (did one converge; its status list), and
+    the central warm attempt of ``mpc.ipm_central_attempt`` (did it converge; None without a warm
+    start). cpu_s: CPU seconds of the phase-1 runs, of the restoration attempts, of the central one."""
 
     engine: str
     phase1_warm: str | None
@@ -183,13 +184,15 @@ class Verdicts:
     resto_attempts: tuple[str, ...]
     phase1_cpu_s: float
     resto_cpu_s: float
+    central_converged: bool | None = None
+    central_cpu_s: float = 0.0
 
 
 def verdicts(rp: Replayer, s: RecordedSolve, tol: float) -> Verdicts:
     """Replay ``s`` under the phase-1 certificate and the restoration-enabled attempts."""
     import time
 
-    from mcverify.solver.ipm import COLD, WARM_ATTEMPTS
+    from mcverify.solver.ipm import CENTRAL_WARM, COLD, WARM_ATTEMPTS
 
     t0 = time.process_time()
     warm = None if s.warm is None else rp.solve(s, dataclasses.replace(WARM_ATTEMPTS[0], tol=tol, phase1=True), True)
@@ -205,17 +208,23 @@ def verdicts(rp: Replayer, s: RecordedSolve, tol: float) -> Verdicts:
     attempts = rp.engine_attempts(s, [dataclasses.replace(o, tol=tol, restoration=True) for o in WARM_ATTEMPTS],
                                   dataclasses.replace(COLD, tol=tol, restoration=True))
     t2 = time.process_time()
+    central = None if s.warm is None else rp.solve(s, dataclasses.replace(CENTRAL_WARM, tol=tol), True).success
     return Verdicts(engine_class(s), None if warm is None else warm.status, cold.status, verdict,
-                    attempts[-1].success, tuple(a.status for a in attempts), t1 - t0, t2 - t1)
+                    attempts[-1].success, tuple(a.status for a in attempts), t1 - t0, t2 - t1,
+                    central, time.process_time() - t2)
 
 
 def verdict_table(rows: Sequence[Verdicts]) -> dict[str, dict[str, int]]:
-    """engine class -> {start-independent verdict: count, "resto_converged": count, "solves": count}."""
+    """engine class -> {start-independent verdict: count, "resto_converged", "warm_started" (had a warm
+    start), "central_converged" (the central warm attempt converged): counts, "solves": count}."""
     out: dict[str, dict[str, int]] = {}
     for v in rows:
         d = out.setdefault(v.engine, {"solves": 0, "infeasible": 0, "feasible": 0, "undecided": 0,
-                                      "warm_only_infeasible": 0, "resto_converged": 0})
+                                      "warm_only_infeasible": 0, "resto_converged": 0, "warm_started": 0,
+                                      "central_converged": 0})
         d["solves"] += 1
+        d["warm_started"] += int(v.central_converged is not None)
+        d["central_converged"] += int(bool(v.central_converged))
         d[v.verdict] += 1
         d["resto_converged"] += int(v.resto_converged)
         warm_cert = v.phase1_warm == "Infeasible_Problem_Detected"

@@ -31,14 +31,15 @@ def test_section_holds_both_measurements_and_is_replaced(tmp_path):
               "audits": {"infeasibility_audits": 2, "infeasibility_audit_disagreements": 1}}
     replay = {"solves": 100, "cpu_s": 3.0, "phase1_ms": {"certified": 65.0},
               "table": {"certified": {"solves": 5, "infeasible": 2, "feasible": 1, "undecided": 2,
-                                      "warm_only_infeasible": 0, "resto_converged": 1}}}
+                                      "warm_only_infeasible": 0, "resto_converged": 1, "warm_started": 4,
+                                      "central_converged": 3}}}
     text = inf.markdown(paired, replay, "python -m mcverify.bench.infeasibility --episodes 1")
     begin, end = inf.marks("phase1")
     assert text.startswith(begin) and text.rstrip().endswith(end) and begin != inf.marks("replay")[0]
     assert "| default | 2 | 5.00 | 2.50 (0.5) |" in text and "| phase1 | 2 | 2.00 |" in text
     assert "safety verdicts 1/2" in text and "Audits by IPOPT: 2, disagreements 1" in text
     assert "- differs: c episode 1: safe True -> False, outcome overtook -> went_back" in text
-    assert "| certified | 5 | 2 | 1 | 2 | 0 | 1 | 65 |" in text
+    assert "| certified | 5 | 2 | 1 | 2 | 0 | 1 | 3 (4) | 65 |" in text
     path = tmp_path / "BENCHMARKS.md"
     path.write_text("# Benchmarks\n\nkept\n")
     store.replace_section(path, text, begin, end)

@@ -53,6 +53,8 @@ def test_verdicts_of_a_recorded_infeasible_solve():
     v = R.verdicts(R.Replayer(rec, kernels.get_runtime_library("ipm").so_path), s, params.mpc.tol)
     assert (v.phase1_warm, v.phase1_cold, v.verdict) == ("Infeasible_Problem_Detected",) * 2 + ("infeasible",)
     assert not v.resto_converged and v.phase1_cpu_s > 0
+    assert v.central_converged is False and v.central_cpu_s > 0  # infeasible: nothing converges
     table = R.verdict_table([v])
     assert table == {"certified": {"solves": 1, "infeasible": 1, "feasible": 0, "undecided": 0,
-                                   "warm_only_infeasible": 0, "resto_converged": 0}}
+                                   "warm_only_infeasible": 0, "resto_converged": 0, "warm_started": 1,
+                                   "central_converged": 0}}
