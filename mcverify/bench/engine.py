@@ -143,10 +143,11 @@ def plant_transfer_ms(cell: Cell, batch: int, seed: int, reps: int = 200) -> dic
 
 
 def pick_cells(campaign_path: str, cell_name: str, backend: str | None, infeasibility: str | None = None,
-               overrides: dict | None = None) -> tuple[list[Cell], int, bool]:
+               overrides: dict | None = None, seed: int | None = None) -> tuple[list[Cell], int, bool]:
     """The cells to run (``cell_name`` or every cell for ``"all"``), with ``backend``, the
-    ``mpc.infeasibility`` policy and other ``overrides`` (dotted keys) applied when given."""
-    camp = load_campaign(campaign_path)
+    ``mpc.infeasibility`` policy and other ``overrides`` (dotted keys) applied when given; ``seed``:
+    the campaign seed instead of the file's (other episodes, the same cells)."""
+    camp = load_campaign(campaign_path, seed=seed)
     cells = list(camp.cells) if cell_name == ALL_CELLS else [camp.cell(cell_name)]
     changes = [("mpc.backend", backend, "--backend"), ("mpc.infeasibility", infeasibility, "--infeasibility")]
     changes += [(k, v, "overrides") for k, v in (overrides or {}).items()]
@@ -209,6 +210,7 @@ def run(
     progress=print,
     infeasibility: str | None = None,
     overrides: dict | None = None,
+    seed: int | None = None,
 ) -> dict[str, Any]:
     """Run the sides on every chosen cell and return the figures (and append them to results/BENCHMARKS.md).
 
@@ -219,7 +221,7 @@ def run(
             baseline_episodes, naive_episodes) <= engine_episodes:
         raise ValueError("need engine_episodes >= 1 and 0 <= baseline_episodes, naive_episodes <= engine_episodes "
                          "(their episodes are paired with the engine's)")
-    cells, seed, crn = pick_cells(campaign, cell_name, backend, infeasibility, overrides)
+    cells, seed, crn = pick_cells(campaign, cell_name, backend, infeasibility, overrides, seed)
     counts = {"engine": engine_episodes, "baseline": baseline_episodes, "naive": naive_episodes}
     progress(f"bench: {campaign}, {len(cells)} cell(s); episodes per cell: engine {engine_episodes}, "
              f"compiled IPOPT loop {baseline_episodes}, naive {naive_episodes} (paired: the first ones)")

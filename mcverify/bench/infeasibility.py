@@ -69,7 +69,7 @@ def marks(variant: str) -> tuple[str, str]:
 
 
 def compare_policies(campaign: str, cell_name: str, episodes: int, variant: str = "phase1",
-                     progress=print) -> dict[str, Any]:
+                     progress=print, seed: int | None = None) -> dict[str, Any]:
     """The engine run on episodes 0 .. episodes - 1 of every chosen cell with the default settings
     and with ``variant``, and their agreement (rows paired by ``episode_id``, unique in a run)."""
     runs = {}
@@ -77,7 +77,7 @@ def compare_policies(campaign: str, cell_name: str, episodes: int, variant: str 
         progress(f"settings {name}")
         runs[name] = engine.run(campaign=campaign, cell_name=cell_name, engine_episodes=episodes,
                                 baseline_episodes=0, write=False, progress=progress,
-                                overrides=overrides)["sides"]["engine"]
+                                overrides=overrides, seed=seed)["sides"]["engine"]
     ref, new = runs[DEFAULT], runs[variant]
     ag = agreement(ref.rows, new.rows, key="episode_id", values=PAIRED_VALUES)
     per_cell = {}
@@ -175,11 +175,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--cell", default=engine.ALL_CELLS)
     ap.add_argument("--episodes", type=int, default=1, help="paired episodes per cell (0: replay only)")
     ap.add_argument("--variant", choices=tuple(VARIANTS), default="phase1", help="settings compared with the default")
+    ap.add_argument("--seed", type=int, help="campaign seed instead of the file's (episodes a recording has not seen)")
     ap.add_argument("--recording", action="append", default=[], help="a recorded_ipm pickle to replay")
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args(argv)
     say = lambda m: print(m, file=sys.stderr)  # noqa: E731
-    paired = compare_policies(args.campaign, args.cell, args.episodes, args.variant, say) if args.episodes else None
+    paired = (compare_policies(args.campaign, args.cell, args.episodes, args.variant, say, args.seed)
+              if args.episodes else None)
     from mcverify.model import ModelParams
 
     replay = replay_verdicts(args.recording, ModelParams().mpc.tol, say) if args.recording else None

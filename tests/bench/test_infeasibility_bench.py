@@ -48,3 +48,15 @@ def test_section_holds_both_measurements_and_is_replaced(tmp_path):
     out = path.read_text()
     assert out.count(begin) == 1 and "kept" in out and "`again`" in out and "`replayed`" in out
     assert out.count("| certified | 5 |") == 1  # the first write's replay table was replaced
+
+
+def test_the_cells_can_be_drawn_with_another_campaign_seed():
+    """``--seed``: the same cells with the campaign seed replaced (episodes a recording has not seen)."""
+    from mcverify.bench.engine import DEFAULT_CAMPAIGN, pick_cells
+
+    cells, seed, _ = pick_cells(DEFAULT_CAMPAIGN, "all", None)
+    other, other_seed, _ = pick_cells(DEFAULT_CAMPAIGN, "all", None, overrides={"mpc.ipm_central_attempt": "mpcdc"},
+                                      seed=seed + 1)
+    assert other_seed == seed + 1 and [c.name for c in other] == [c.name for c in cells]
+    assert all(c.params.mpc.ipm_central_attempt == "mpcdc" for c in other)
+    assert "central_mpcdc" in inf.VARIANTS and inf.VARIANTS["central_all"] == {"mpc.ipm_central_attempt": "all"}
