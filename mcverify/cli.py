@@ -227,8 +227,9 @@ def _parser() -> argparse.ArgumentParser:
                      "problem solved; all three target ellipse); for importance it steers the cross-entropy "
                      "stages only")
     est.add_argument("--particles", type=_positive_int, default=20, help="splitting: particles per run (default 20)")
-    est.add_argument("--replicates", type=_positive_int, default=5,
-                     help="splitting: independent runs whose spread gives the interval (default 5)")
+    est.add_argument("--replicates", type=_positive_int, default=8,
+                     help="splitting: independent runs whose spread gives the interval (default 8; "
+                          "fewer under-cover, docs/rare_events.md)")
     est.add_argument("--cell", action="append", default=[], metavar="NAME",
                      help="splitting, importance: only this cell (repeatable; default: every cell); splitting runs its "
                           "AMS runs in this process unless --workers (local) or --executor ray is given")

@@ -23,6 +23,7 @@ def test_splitting_cli_writes_its_estimate_and_resumes(tmp_path: Path, capsys):
     for c in est["cells"]:
         assert c["target"] == "collision" and c["steps"] > 0 and c["cpu_s"] > 0
         assert any("iteration cap" in w for w in c["warnings"])  # 1 iteration cannot reach a collision
+        assert any("only 2 AMS runs" in w and "--replicates 8" in w for w in c["warnings"])
     assert "| front_speed_kmh=25 |" in (out / "report.md").read_text()
     before = (out / "estimate.json").read_text()
     assert main(["estimate", "--resume", str(out)]) == 0
