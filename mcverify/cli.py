@@ -13,6 +13,8 @@ import signal
 import sys
 from pathlib import Path
 
+from mcverify import errors
+
 _log = logging.getLogger("mcverify.cli")
 
 EXIT_USAGE = 2
@@ -120,19 +122,27 @@ def _configure_logging(verbosity: int):
 @contextlib.contextmanager
 def _sigterm_as_interrupt():
     """While a command runs, SIGTERM raises :class:`Terminated` (a KeyboardInterrupt) in the main
-    thread, so it takes the same path as Ctrl-C. Only installed from the main thread."""
-    def handler(signum, frame):
-        raise Terminated()
+    thread, so it takes the same path as Ctrl-C. Both are noted (:func:`mcverify.errors.note_interrupt`)
+    so that one raised inside IPOPT, which CasADi swallows, is raised again by the solver instead of
+    becoming a failed solve. Only installed from the main thread."""
+    def on_term(signum, frame):
+        raise errors.note_interrupt(Terminated())
 
+    def on_int(signum, frame):
+        raise errors.note_interrupt(KeyboardInterrupt())
+
+    errors.clear_noted_interrupts()
     try:
-        previous = signal.signal(signal.SIGTERM, handler)
+        previous = signal.signal(signal.SIGTERM, on_term)
     except ValueError:  # not the main thread (e.g. called from a worker thread): leave signals alone
         yield
         return
+    previous_int = signal.signal(signal.SIGINT, on_int)
     try:
         yield
     finally:
         signal.signal(signal.SIGTERM, previous)
+        signal.signal(signal.SIGINT, previous_int)
 
 
 class _UsageError(Exception):

@@ -55,6 +55,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from mcverify.errors import raise_noted_interrupt
 from mcverify.model import BACKEND_NAMES, KKT_FACTORIZATIONS, ModelParams, Mpc
 from mcverify.solver.cfun import CFunction
 from mcverify.solver.ipm import CENTRAL_WARM, COLD, KKT_FACTORISATIONS, WARM_ATTEMPTS, Ipm, IpmResult
@@ -219,12 +220,19 @@ class IpoptBackend:
                 out = self._cold(x0=guess(), p=p, lbx=pr.lbx, ubx=pr.ubx, lbg=pr.lbg, ubg=pr.ubg)
                 stats = self._cold.stats()
         except Exception as exc:  # noqa: BLE001 - IPOPT/CasADi errors become a failed solve
+            raise_noted_interrupt(str(exc))  # ... unless CasADi wrapped an interrupt in its error
             return _failed(pr, SolveStatus.exception(str(exc)))
         w = np.asarray(out["x"], dtype=float).ravel()
         lam_x = np.asarray(out["lam_x"], dtype=float).ravel()
         lam_g = np.asarray(out["lam_g"], dtype=float).ravel()
+        if stats.get("return_status") == IPOPT_INTERRUPTED:
+            raise_noted_interrupt()  # Ctrl-C / SIGTERM inside IPOPT: stop, never a failed solve
         status = SolveStatus.ipopt(str(stats.get("return_status", "unknown")))
         return BackendResult(w, lam_x, lam_g, status, int(stats.get("iter_count", -1)), status.outcome.converged)
+
+
+#: IPOPT's status when CasADi caught an exception raised in its callbacks, e.g. a KeyboardInterrupt.
+IPOPT_INTERRUPTED = "NonIpopt_Exception_Thrown"
 
 
 def _failed(problem: Problem, status: SolveStatus) -> BackendResult:
