@@ -159,7 +159,7 @@ def markdown(paired: dict[str, Any] | None, replay: dict[str, Any] | None, comma
         for cls, d in replay["table"].items():
             lines.append(f"| {cls} | {d['solves']} | {d['infeasible']} | {d['feasible']} | {d['undecided']} | "
                          f"{d['warm_only_infeasible']} | {d['resto_converged']} | "
-                         f"{d.get('central_converged', 0)} ({d.get('warm_started', 0)}) | "
+                         f"{d['central_converged']} ({d['warm_started']}) | "
                          f"{replay['phase1_ms'][cls]:.0f} |")
     lines += ["", end, ""]
     return "\n".join(lines)

@@ -32,6 +32,12 @@ from mcverify.estimate.closed_loop import SCORES, ClosedLoopProcess
 from mcverify.estimate.folder import num
 from mcverify.schema import ERROR_COLUMN, ERROR_OUTCOME
 
+#: Fewer AMS runs than this get a warning: on the closed-loop validation cell (200 runs of 20
+#: particles with h_ef_run against 3,848 crude episodes) the 95 % t interval covered p in 43 of 50
+#: repetitions of 4 runs, 29 of 33 of 6 and 24 of 25 of 8 (docs/rare_events.md): the runs' estimates
+#: are skewed (a tenth of them 0), and a t interval on few skewed values is too narrow.
+FEW_RUNS = 8
+
 
 @dataclass(frozen=True)
 class SplittingSpec:
@@ -41,7 +47,7 @@ class SplittingSpec:
     score: str = "gap"
     particles: int = 20
     k: int = 1
-    replicates: int = 8
+    replicates: int = FEW_RUNS
     level: float = 0.95
     max_iterations: int = 2000
 
@@ -131,13 +137,6 @@ class _Cost:
     cpu_s: float
     steps: int
     fresh_steps: list[int]
-
-
-#: Fewer AMS runs than this get a warning: on the closed-loop validation cell (200 runs of 20
-#: particles with h_ef_run against 3,848 crude episodes) the 95 % t interval covered p in 43 of 50
-#: repetitions of 4 runs, 29 of 33 of 6 and 24 of 25 of 8 (docs/rare_events.md): the runs' estimates
-#: are skewed (a tenth of them 0), and a t interval on few skewed values is too narrow.
-FEW_RUNS = 8
 
 
 def cell_result(index: int, name: str, spec: SplittingSpec, est: splitting.SplittingEstimate,
