@@ -65,3 +65,17 @@ def test_warns_when_the_cross_entropy_elite_is_too_small_to_fit():
     assert any("elite holds about 2 samples" in w and "at least 100 per iteration" in w for w in small.warnings)
     enough = importance.estimate(score, BOUNDS, samples=200, seed=1, per_iteration=100, rho=0.1)
     assert not any("elite" in w for w in enough.warnings)
+
+
+def test_a_refit_never_gives_a_beta_with_a_pole():
+    """An elite spread over the whole range fits near Beta(1, 1); over-dispersing it must not take a
+    parameter below 1 (a U-shaped proposal piles its draws on the bounds), and the mean is kept."""
+    nominal = importance.Proposal.nominal([(0.5, 2.0)])
+    spread = np.random.default_rng(0).uniform(0.5, 2.0, size=(40, 1))
+    g = nominal.refit(spread, np.ones(40))
+    assert g.a[0] >= 1.0 and g.b[0] >= 1.0 and min(g.a[0], g.b[0]) == pytest.approx(1.0)
+    near_low = 0.5 + 1.5 * np.random.default_rng(1).beta(2.0, 8.0, size=(40, 1))
+    h = nominal.refit(near_low, np.ones(40))
+    unit_mean = (near_low[:, 0].mean() - 0.5) / 1.5
+    smoothed_mean = h.a[0] / (h.a[0] + h.b[0])
+    assert h.a[0] >= 1.0 and h.b[0] >= 1.0 and 0.15 < smoothed_mean < 0.5 and smoothed_mean > unit_mean
