@@ -503,7 +503,7 @@ def _cmd_estimate(args) -> int:
     from mcverify.campaign import executors, runner
     from mcverify.campaign.spec import load_campaign
     from mcverify.errors import RunError
-    from mcverify.estimate import mc
+    from mcverify.estimate import folder, mc
 
     method = _folder_method(args.resume) if args.resume else args.method
     if method in ("splitting", "importance"):
@@ -524,6 +524,7 @@ def _cmd_estimate(args) -> int:
         except ValueError as err:
             raise RunError(str(err)) from None
         campaign = load_campaign(args.campaign, episodes=args.budget, seed=args.seed, settings=args.settings)
+        folder.check_noise_is_drawn(campaign)
         out = args.run_dir = new_folder(args, lambda parent: runner.default_run_dir(campaign, parent))
         print(runner.describe(campaign), file=sys.stderr)
         print(f"estimate folder: {out}", file=sys.stderr)
@@ -558,7 +559,7 @@ def _cmd_estimate_in_process(args, method: str) -> int:
     from mcverify.campaign import runner
     from mcverify.campaign.spec import campaign_from_dict, load_campaign
     from mcverify.errors import RunError
-    from mcverify.estimate import importance_run, splitting_run
+    from mcverify.estimate import folder, importance_run, splitting_run
 
     module = splitting_run if method == "splitting" else importance_run
     log = lambda msg: print(msg, file=sys.stderr)  # noqa: E731
@@ -591,6 +592,7 @@ def _cmd_estimate_in_process(args, method: str) -> int:
         except ValueError as err:
             raise RunError(str(err)) from None
         campaign = load_campaign(args.campaign, seed=args.seed, settings=args.settings)
+        folder.check_noise_is_drawn(campaign)
         out = args.run_dir = new_folder(args, lambda parent: runner.default_run_dir(campaign, parent))
         log(runner.describe(campaign))
         log(f"estimate folder: {out}")

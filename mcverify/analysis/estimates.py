@@ -16,6 +16,7 @@ reader can judge.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
@@ -115,12 +116,19 @@ def cell_estimate(cols: Columns, spec: EstimateSpec) -> dict[str, Any]:
     order = np.argsort(floats(cols, "cell_episode"), kind="stable") if cols.num_rows else np.zeros(0, np.int64)
     cols = cols.take(order)
     ids = floats(cols, "cell_episode").astype(np.int64) if cols.num_rows else np.zeros(0, np.int64)
-    m = ordered_prefix(ids)
+    rule = spec.rule()
+    # the budget counts episodes, error rows included: the prefix ends there, and a cell whose budget
+    # is spent is finished even when error rows left fewer outcomes in the sequence
+    m = ordered_prefix(ids) if rule.budget is None else min(ordered_prefix(ids), rule.budget)
     event, valid = target_events(cols, spec.target)
     seq_valid = valid[:m]
-    res = sequential_estimate(event[:m][seq_valid], spec.rule(), spec.level, spec.prior)
+    res = sequential_estimate(event[:m][seq_valid], rule, spec.level, spec.prior)
+    if res.status == "running" and rule.budget is not None and m >= rule.budget:
+        res = dataclasses.replace(res, status="budget")
     # The episode index (cell-local) at which the sequence stopped: the res.n-th valid row.
     used_rows = int(np.flatnonzero(seq_valid)[res.n - 1]) + 1 if res.n else 0
+    if res.status == "budget":
+        used_rows = m  # the whole budget, error rows after the last outcome included
     steps = floats(cols, "steps") if "steps" in cols.column_names else np.full(cols.num_rows, math.nan)
     solver_s = _solver_seconds(cols)
     result = res.as_dict()

@@ -69,6 +69,8 @@ class Reference:
     high: float
     errors: int
     mean_episode_steps: float
+    seed: int = -1  # the reference's campaign seed: an estimator run with it would replay its episodes
+    params: dict[str, Any] = field(default_factory=dict)  # the cell's model, flattened (dotted keys)
 
 
 @dataclass
@@ -102,7 +104,18 @@ def _reference(run_dir: Path, sequence: tuple[dict[str, Any], str, np.ndarray, n
     n, k = int(events.size), int(events.sum())
     ci = proportion_interval(k, n, level)
     return Reference(str(run_dir), manifest["campaign"]["name"], manifest["cells"][0]["name"], target, n, k,
-                     k / n, ci.low, ci.high, errors, float(np.mean(steps)))
+                     k / n, ci.low, ci.high, errors, float(np.mean(steps)), int(manifest["campaign"]["seed"]),
+                     _flat(manifest["cells"][0].get("params", {})))
+
+
+def _flat(tree: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in tree.items():
+        if isinstance(value, dict):
+            out.update(_flat(value, f"{prefix}{key}."))
+        else:
+            out[prefix + key] = value
+    return out
 
 
 def reference_sequence(run_dir: Path) -> tuple[dict[str, Any], str, np.ndarray, np.ndarray, int]:
@@ -184,13 +197,26 @@ def _estimate_folder(run_dir: Path, method: str, ref: Reference) -> tuple[dict[s
     return manifest, mine[0]
 
 
-def _check_seeds(manifests: Sequence[dict[str, Any]], dirs: Sequence[Path]) -> None:
+def _check_seeds(manifests: Sequence[dict[str, Any]], dirs: Sequence[Path], ref: Reference) -> None:
+    """The estimator folders must be independent of each other and of the reference (distinct campaign
+    seeds: an estimator run with the reference's seed re-simulates its episodes), and estimate the
+    reference's cell: every model field both manifests have must agree (a field only one has was
+    added later, and new fields default to the earlier behaviour)."""
     seen: dict[int, Path] = {}
     for manifest, d in zip(manifests, dirs, strict=True):
         seed = int(manifest["campaign"]["seed"])
+        if seed == ref.seed:
+            raise RunError(f"{d} has the reference's seed {seed}: its episodes replay the reference's, so it is "
+                           "not an independent check; run the estimator with another --seed")
         if seed in seen:
             raise RunError(f"{d} and {seen[seed]} have the same seed {seed}: their runs are not independent")
         seen[seed] = d
+        cells = [c for c in manifest["cells"] if c["name"] == ref.cell]
+        mine = _flat(cells[0].get("params", {})) if cells else {}
+        differ = sorted(k for k in set(mine) & set(ref.params) if mine[k] != ref.params[k])
+        if differ:
+            shown = ", ".join(f"{k} = {mine[k]!r} (reference {ref.params[k]!r})" for k in differ[:3])
+            raise RunError(f"{d} estimates another model than the reference: {shown}")
 
 
 def pooled_runs(dirs: Sequence[Path], ref: Reference) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
@@ -207,7 +233,7 @@ def pooled_runs(dirs: Sequence[Path], ref: Reference) -> tuple[np.ndarray, np.nd
         cpu.extend([cell["cpu_s"] / len(runs)] * len(runs))
         spec = store.read_json(Path(d) / ESTIMATE)["spec"]
         settings.add((int(spec["particles"]), str(spec.get("score"))))
-    _check_seeds(manifests, dirs)
+    _check_seeds(manifests, dirs, ref)
     if len(settings) != 1:
         raise RunError(f"the splitting folders differ in (particles, score): {sorted(settings)}; pool one at a time")
     particles, score = settings.pop()
@@ -259,7 +285,7 @@ def importance_repetitions(dirs: Sequence[Path], ref: Reference) -> list[Repetit
         reps.append(Repetition(float(cell["estimate"]), float(cell["low"]), float(cell["high"]),
                                float(cell.get("steps", math.nan)), float(cell.get("cpu_s", math.nan)),
                                list(cell.get("warnings", []))))
-    _check_seeds(manifests, dirs)
+    _check_seeds(manifests, dirs, ref)
     return reps
 
 
@@ -309,7 +335,8 @@ def run(reference_dir: Path, *, splitting_pools: Sequence[Sequence[Path]] = (),
     row per (estimator, runs per repetition); each splitting pool (folders of one setting) gives its rows."""
     sequence = reference_sequence(reference_dir)
     ref = _reference(reference_dir, sequence, level)
-    out: dict[str, Any] = {"reference": asdict(ref), "level": level, "estimators": [], "splitting_runs": [],
+    reference = {k: v for k, v in asdict(ref).items() if k != "params"}  # the model is the manifest's
+    out: dict[str, Any] = {"reference": reference, "level": level, "estimators": [], "splitting_runs": [],
                            "commit": provenance.environment_info().get("git_commit")}
     for dirs in splitting_pools:
         pooled = pooled_summary(dirs, ref)

@@ -25,6 +25,18 @@ REPORT = "report.md"
 Column = tuple[str, Callable[[dict[str, Any]], str]]
 
 
+def check_noise_is_drawn(campaign: Campaign) -> None:
+    """Refuse a campaign whose cells fix the per-step noise (``noise.key_seed`` or noise branches, as
+    a falsification search's counterexample does): its episodes would ignore the campaign seed and
+    the cell, so estimates with distinct ``--seed`` would not be independent repetitions."""
+    for cell in campaign.cells:
+        n = cell.params.noise
+        if n.key_seed >= 0 or n.branch_after_steps:
+            field = "noise.key_seed" if n.key_seed >= 0 else "noise.branch_after_steps"
+            raise RunError(f"cell {cell.name} fixes the per-step noise ({field}): an estimate's episodes must draw "
+                           "their noise from the campaign seed; remove it to estimate this cell")
+
+
 def create(out: Path, campaign: Campaign, spec: dict[str, Any], cells: Sequence[str] | None) -> None:
     """A new estimate folder ``out`` (refused if it holds anything); ``cells``: only these cells."""
     out = Path(out)

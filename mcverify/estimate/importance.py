@@ -150,11 +150,15 @@ def cross_entropy(score: ScoreFn, nominal: Proposal, rng: np.random.Generator, *
 
 def estimate(score: ScoreFn, bounds: Sequence[tuple[float, float]], *, samples: int = 2000, alpha: float = 0.1,
              level: float = 0.95, seed: int = 0, per_iteration: int = 200, rho: float = 0.1,
-             max_iterations: int = 20) -> ISEstimate:
-    """Cross-entropy fit, then ``samples`` draws from the defensive mixture; see the module docstring."""
+             max_iterations: int = 20, stream: int = 0) -> ISEstimate:
+    """Cross-entropy fit, then ``samples`` draws from the defensive mixture; see the module docstring.
+
+    The draws come from a generator keyed by (``seed``, ``stream``): estimates that share a seed but
+    must be independent (the cells of one campaign) pass distinct streams. Stream 0 is the stream of
+    the seed alone (SeedSequence ignores a trailing 0), so single-cell estimates are unchanged."""
     if not 0.0 < alpha < 1.0:
         raise ValueError(f"the defensive share alpha must be in (0, 1), got {alpha}")
-    rng = np.random.default_rng([seed, 0xCE])
+    rng = np.random.default_rng([seed, 0xCE, stream])
     nominal = Proposal.nominal(bounds)
     g, levels, evaluations = cross_entropy(score, nominal, rng, per_iteration=per_iteration, rho=rho,
                                            max_iterations=max_iterations)

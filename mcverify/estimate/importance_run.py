@@ -176,11 +176,13 @@ def _cells(campaign: Campaign, spec: ImportanceSpec, out: Path, done: dict[int, 
         progress(f"cell {cell.name}: importance sampling over {', '.join(bounds)}")
         score = ClosedLoopScore(cell, campaign.seed, executors.solver_for(cell.params), list(bounds), spec.target,
                                 spec.score)
-        # the draws of the scenario parameters follow the campaign seed (as the noise does), so that
-        # estimates with distinct --seed are independent repetitions
+        # the draws of the scenario parameters follow the campaign seed and the cell (as the noise
+        # does), so that estimates with distinct --seed are independent repetitions and the cells of
+        # one campaign are independent estimates (shared draws only under common random numbers)
         est = importance.estimate(score, list(bounds.values()), samples=spec.samples, alpha=spec.alpha,
                                   level=spec.level, seed=campaign.seed, per_iteration=spec.ce_samples, rho=spec.rho,
-                                  max_iterations=spec.max_ce_iterations)
+                                  max_iterations=spec.max_ce_iterations,
+                                  stream=0 if campaign.common_random_numbers else cell.index)
         results[cell.index] = {"cell_index": cell.index, "cell": cell.name, "method": "importance",
                                "target": spec.target, "parameters": list(bounds), **est.as_dict(),
                                "episodes": score.episodes, "steps": score.steps, "cpu_s": score.cpu_s}

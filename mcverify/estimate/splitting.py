@@ -23,7 +23,8 @@ crude Monte Carlo builds on.
 
 Determinism: every particle's noise comes from (seed, branch id) through the process, and the
 survivor draws from a generator seeded by (run seed, selection key: the closed loop passes its campaign
-seed, so that no two estimates share a stream); the whole estimate replays exactly.
+seed and the cell index, so that no two estimates or cells share a stream); the whole estimate replays
+exactly.
 Cost is counted in simulated control steps (what the process reports), not in episodes.
 
 [CG07] F. Cérou, A. Guyader, Adaptive multilevel splitting for rare event analysis, Stoch. Anal.
@@ -91,16 +92,18 @@ class AMSRun:
 
 
 def ams(process: BranchingProcess, *, n: int, k: int = 1, failure_level: float, seed: int,
-        max_iterations: int = 100_000, selection_key: int | None = None) -> AMSRun:
+        max_iterations: int = 100_000, selection_key: int | tuple[int, ...] | None = None) -> AMSRun:
     """One generalised AMS run (see the module docstring) with ``n`` particles, ``k`` killed per
     iteration at least; particle and branch ids are drawn from (seed, counter), the survivors to
     branch from a generator keyed by (seed, ``selection_key``). A process whose noise has a key of
     its own (the closed loop's campaign seed) passes it as ``selection_key``: runs with the same
     ``seed`` and distinct process keys then share no random stream (with one shared stream the
-    choice among survivors in slot order would tie the runs together, weakly)."""
+    choice among survivors in slot order would tie the runs together, weakly). A tuple key (the
+    campaign seed and the cell index) separates the cells of one campaign as well."""
     if not 1 <= k < n:
         raise ValueError(f"need 1 <= k < n, got k={k}, n={n}")
-    rng = np.random.default_rng([seed, 0x5A5] if selection_key is None else [seed, 0x5A5, selection_key])
+    key = () if selection_key is None else (selection_key,) if isinstance(selection_key, int) else selection_key
+    rng = np.random.default_rng([seed, 0x5A5, *key])
     next_id = 0
 
     def fresh_id() -> int:
@@ -162,7 +165,11 @@ class SplittingEstimate:
 
 def estimate(process: BranchingProcess, *, n: int, k: int = 1, failure_level: float, replicates: int = 10,
              level: float = 0.95, seed: int = 0, max_iterations: int = 100_000) -> SplittingEstimate:
-    """``replicates`` independent AMS runs (seeds ``seed * replicates + r``) and their t interval."""
+    """``replicates`` independent AMS runs (seeds ``seed * replicates + r``) and their t interval.
+
+    Independent estimates need seeds whose ranges [seed * replicates, (seed + 1) * replicates) do not
+    overlap: calls with different ``replicates`` can share runs (seed 1 with 4 replicates runs seeds
+    4-7, seed 2 with 2 replicates seeds 4-5)."""
     if replicates < 2:
         raise ValueError(f"an interval needs at least 2 replicates, got {replicates}")
     runs = [ams(process, n=n, k=k, failure_level=failure_level, seed=seed * replicates + r,

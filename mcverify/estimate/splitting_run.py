@@ -95,8 +95,12 @@ def replicate_unit(cell: Cell, episode_ids: tuple[int, ...], seed: int, common_r
     sp = SplittingSpec(**spec)
     (replicate,) = episode_ids
     process = ClosedLoopProcess(cell, seed, executors.solver_for(cell.params), sp.score)
+    # the survivor draws are keyed by the replicate, the campaign seed and the cell (cell 0: the key of
+    # the seed alone, as SeedSequence ignores a trailing 0), shared between cells only under common
+    # random numbers
+    key = (seed,) if common_random_numbers else (seed, cell.index)
     run = splitting.ams(process, n=sp.particles, k=sp.k, failure_level=0.0, seed=replicate,
-                        max_iterations=sp.max_iterations, selection_key=seed)
+                        max_iterations=sp.max_iterations, selection_key=key)
     return _UnitResult([{"cell_episode": replicate, "outcome": "ams", "run": asdict(run), "cpu_s": process.cpu_s,
                          "steps": process.steps, "fresh_steps": list(process.fresh_steps)}])
 

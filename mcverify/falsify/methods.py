@@ -153,10 +153,14 @@ class Bayesian(Searcher):
             self._study.tell(trial, float(value))
 
 
-def searcher(method: str, dimension: int, population: int, seed: int) -> Searcher | NoiseSplitting:
-    """A fresh searcher of ``method`` (one of :data:`METHODS`)."""
+def searcher(method: str, dimension: int, population: int, seed: int,
+             campaign_seed: int | None = None) -> Searcher | NoiseSplitting:
+    """A fresh searcher of ``method`` (one of :data:`METHODS`). ``campaign_seed`` keys the noise
+    roots that ``splitting`` draws (the other methods' noise follows the campaign seed already)."""
     classes = {"cma": Cma, "cross-entropy": CrossEntropy, "random": RandomSearch, "bo": Bayesian,
                "splitting": NoiseSplitting}
     if method not in classes:
         raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    if method == "splitting":
+        return NoiseSplitting(dimension, population, seed, noise_key=campaign_seed)
     return classes[method](dimension, population, seed)

@@ -201,7 +201,7 @@ def _search(
 def _generations(config: SearchConfig, out_dir: Path, make_executor: Callable[[], Executor], episode_fn: EpisodeFn,
                  progress: Callable[[str], None] | None, stop_after_generations: int | None) -> SearchResult:
     campaign, space = target(config)
-    search = methods.searcher(config.method, space.dimension, space.population, config.seed)
+    search = methods.searcher(config.method, space.dimension, space.population, config.seed, campaign.seed)
     evaluations: list[Evaluation] = []
     ran = 0
     generation = 0

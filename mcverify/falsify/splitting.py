@@ -112,6 +112,7 @@ class NoiseSplitting:
     dimension: int
     population: int
     seed: int
+    noise_key: int | None = None  # the campaign seed: searches of two campaigns draw distinct noise roots
     particles: list[_Particle] = field(default_factory=list)
     levels: list[float] = field(default_factory=list)
     _told: int = 0
@@ -121,7 +122,10 @@ class NoiseSplitting:
     def __post_init__(self) -> None:
         if self.dimension < 1 or self.population < 2:
             raise ValueError(f"dimension >= 1 and population >= 2 required, got {self.dimension}, {self.population}")
-        self._rng = np.random.default_rng([self.seed, _STREAM])
+        # the noise roots (noise.key_seed) replace the campaign seed in the episodes' keys, so the
+        # stream that draws them is keyed by the campaign seed as well as the search seed
+        key = () if self.noise_key is None else (self.noise_key,)
+        self._rng = np.random.default_rng([self.seed, _STREAM, *key])
 
     def ask(self) -> list[Candidate]:
         if not self._pending:

@@ -18,10 +18,11 @@ from mcverify.estimate.folder import ESTIMATE
 CAMPAIGN = "toy"
 
 
-def _manifest(out: Path, method: str, seed: int, target: str = "ellipse") -> None:
+def _manifest(out: Path, method: str, seed: int, target: str = "ellipse", params: dict | None = None) -> None:
     out.mkdir(parents=True)
+    cell = {"index": 0, "name": "all", "params": params or {"barrier": {"epsilon": 0.1}, "noise": {"scale": 2.0}}}
     store.write_json_atomic(out / store.MANIFEST, {
-        "campaign": {"name": CAMPAIGN, "seed": seed}, "cells": [{"index": 0, "name": "all"}],
+        "campaign": {"name": CAMPAIGN, "seed": seed}, "cells": [cell],
         "estimate": {"method": method, "target": target}})
 
 
@@ -38,8 +39,10 @@ def _reference(out: Path, events: list[list[bool]]) -> None:
         store.append_record(out, store.write_chunk(out, chunk, rows))
 
 
-def _splitting(out: Path, seed: int, runs: list[float], target: str = "ellipse", score: str = "h_ef") -> None:
-    _manifest(out, "splitting", seed=seed, target=None)  # as the estimator writes it: the target is per cell
+def _splitting(out: Path, seed: int, runs: list[float], target: str = "ellipse", score: str = "h_ef",
+              params: dict | None = None) -> None:
+    # as the estimator writes it: the target is per cell
+    _manifest(out, "splitting", seed=seed, target=None, params=params)
     store.write_json_atomic(out / ESTIMATE, {"spec": {"particles": 4, "score": score}, "cells": [
         {"cell": "all", "target": target, "runs": runs, "steps": 100 * len(runs), "cpu_s": 5.0 * len(runs)}]})
 
@@ -99,6 +102,17 @@ def test_folders_that_do_not_belong_together_are_refused(tmp_path):
         validation.splitting_repetitions([tmp_path / "a", tmp_path / "d"], ref, group=2)
     with pytest.raises(RunError, match="more than the 2 runs"):
         validation.splitting_repetitions([tmp_path / "a"], ref, group=3)
+    # the reference's own seed: the estimator's episodes would replay the reference's
+    _splitting(tmp_path / "e", 1, [0.1, 0.2])
+    with pytest.raises(RunError, match="reference's seed 1"):
+        validation.splitting_repetitions([tmp_path / "e"], ref, group=2)
+    # another model (a --set change): refused; a field the reference lacks (added later) is not compared
+    _splitting(tmp_path / "f", 8, [0.1, 0.2], params={"barrier": {"epsilon": 0.3}, "noise": {"scale": 2.0}})
+    with pytest.raises(RunError, match=r"another model than the reference: barrier.epsilon = 0.3 \(reference 0.1\)"):
+        validation.splitting_repetitions([tmp_path / "f"], ref, group=2)
+    _splitting(tmp_path / "g", 9, [0.1, 0.2], params={"barrier": {"epsilon": 0.1}, "noise": {"scale": 2.0},
+                                                      "mpc": {"ipm_central_attempt": "off"}})
+    assert len(validation.splitting_repetitions([tmp_path / "g"], ref, group=2)) == 1
 
 
 def test_cli_writes_the_section_and_refuses_bad_input_in_one_line(tmp_path, capsys):

@@ -104,3 +104,35 @@ def test_the_scenario_draws_follow_the_seed(tmp_path: Path, campaign_file: Path,
         runs[name] = np.concatenate(drawn)
     assert np.array_equal(runs["a"], runs["c"])
     assert not np.allclose(runs["a"], runs["b"])
+
+
+def test_the_cells_of_one_campaign_draw_their_own_scenarios(tmp_path: Path, monkeypatch):
+    """Two cells of one estimate (same --seed) are independent estimates: their cross-entropy and
+    mixture draws differ (they used to coincide: the draws were keyed by the seed alone)."""
+    from mcverify.estimate import importance_run
+
+    path = tmp_path / "two_cells.toml"
+    path.write_text(FIXTURE.read_text() + '\n[model.scenario]\nfront_accel_range_mps2 = [1.0, 3.0]\n')
+    drawn: dict[str, list[np.ndarray]] = {}
+
+    def no_episodes(self, theta):
+        drawn.setdefault(self.cell.name, []).append(np.array(theta))
+        return np.full(theta.shape[0], -1.0)
+
+    monkeypatch.setattr(importance_run.ClosedLoopScore, "__call__", no_episodes)
+    assert main(["estimate", str(path), "--method", "importance", "--target", "ellipse", "--samples", "6",
+                 "--ce-samples", "10", "--ce-iterations", "1", "--seed", "5", "--run-dir", str(tmp_path / "o"),
+                 "-q"]) == 0
+    first, second = (np.concatenate(v) for v in drawn.values())
+    assert len(drawn) == 2 and not np.allclose(first, second)
+
+
+@pytest.mark.parametrize("method", ["mc", "splitting", "importance"])
+def test_a_campaign_that_fixes_the_noise_is_refused(tmp_path: Path, campaign_file: Path, capsys, method):
+    """noise.key_seed replaces the campaign seed in every episode key: such an estimate would ignore
+    --seed, so it is refused with one line before anything is written."""
+    rc = main(["estimate", str(campaign_file), "--method", method, "--target", "ellipse", "--set",
+               "noise.key_seed=5", "--run-dir", str(tmp_path / "o"), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "fixes the per-step noise (noise.key_seed)" in err[0]
+    assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())

@@ -79,3 +79,12 @@ def test_a_refit_never_gives_a_beta_with_a_pole():
     unit_mean = (near_low[:, 0].mean() - 0.5) / 1.5
     smoothed_mean = h.a[0] / (h.a[0] + h.b[0])
     assert h.a[0] >= 1.0 and h.b[0] >= 1.0 and 0.15 < smoothed_mean < 0.5 and smoothed_mean > unit_mean
+
+
+def test_the_stream_separates_estimates_that_share_a_seed():
+    """Stream 0 is the seed's own stream (single-cell estimates as before); another stream (another
+    cell) draws independently."""
+    base = importance.estimate(score, BOUNDS, samples=200, seed=4, per_iteration=100)
+    assert importance.estimate(score, BOUNDS, samples=200, seed=4, per_iteration=100, stream=0) == base
+    other = importance.estimate(score, BOUNDS, samples=200, seed=4, per_iteration=100, stream=1)
+    assert other.estimate != base.estimate

@@ -143,3 +143,19 @@ def test_the_report_draws_the_estimates_against_epsilon(tmp_path: Path):
                     progress=False, episode_fn=_fn(0.1))
     assert (tmp_path / "run" / "figures" / "estimate-vs-epsilon.png").stat().st_size > 1000
     assert "figures/estimate-vs-epsilon.png" in report.read_text()
+
+
+def test_a_spent_budget_with_error_rows_is_finished():
+    """The budget counts episodes: an error row is left out of the sequence but spends budget, so a
+    cell that ran its whole budget is finished (it used to stay "running" for ever)."""
+    import pyarrow as pa
+
+    from mcverify.analysis.columns import Columns
+    from mcverify.analysis.estimates import cell_estimate
+
+    rows = [{"cell_episode": i, "outcome": "error" if i == 3 else "overtook", "collision_front": False,
+             "collision_opp": False, "steps": 10} for i in range(20)]
+    res = cell_estimate(Columns.from_table(pa.Table.from_pylist(rows)), EstimateSpec(budget=20))
+    assert (res["status"], res["n"], res["episodes_used"], res["errors_used"]) == ("budget", 19, 20, 1)
+    early = cell_estimate(Columns.from_table(pa.Table.from_pylist(rows[:12])), EstimateSpec(budget=20))
+    assert early["status"] == "running" and early["n"] == 11

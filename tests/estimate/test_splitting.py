@@ -56,6 +56,9 @@ def test_the_selection_key_gives_the_survivor_draws_a_stream_of_their_own():
     # the walk's noise is keyed by the branch ids alone, so only the survivor draws differ here
     assert keyed[0] != keyed[1] and plain not in keyed
     assert splitting.ams(WALK, n=20, failure_level=2.5, seed=9, selection_key=1) == keyed[0]
+    # (campaign seed, cell index): cell 0 keeps the stream of the seed alone, another cell has its own
+    assert splitting.ams(WALK, n=20, failure_level=2.5, seed=9, selection_key=(1, 0)) == keyed[0]
+    assert splitting.ams(WALK, n=20, failure_level=2.5, seed=9, selection_key=(1, 1)) not in keyed
 
 
 def test_a_level_reached_by_every_episode_gives_one():
