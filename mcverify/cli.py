@@ -242,7 +242,8 @@ def _parser() -> argparse.ArgumentParser:
                           "fewer under-cover, docs/rare_events.md)")
     est.add_argument("--cell", action="append", default=[], metavar="NAME",
                      help="splitting, importance: only this cell (repeatable; default: every cell); splitting runs its "
-                          "AMS runs in this process unless --workers (local) or --executor ray is given")
+                          "AMS runs, importance its batches of 8 episodes, in this process unless --workers (local) "
+                          "or --executor ray is given")
     est.add_argument("--samples", type=_positive_int, default=400,
                      help="importance: episodes drawn from the defensive mixture (default 400)")
     est.add_argument("--ce-samples", type=_positive_int, default=100,
@@ -536,10 +537,11 @@ def _cmd_estimate(args) -> int:
 
 
 def _executor_for(args, method: str) -> dict:
-    """splitting: its AMS runs go to the executor named on the command line (default this process)."""
+    """splitting and importance: their work units (AMS runs; batches of episodes) go to the executor
+    named on the command line (default: this process)."""
     from mcverify.campaign import executors
 
-    if method != "splitting":
+    if method not in ("splitting", "importance"):
         return {}
     kind = "serial" if args.executor == "local" and args.workers is None else args.executor
     return {"executor": executors.make_executor(kind, workers=args.workers, address=args.address)}

@@ -6,7 +6,9 @@ The parameters are the cell's scenario draws that have a range: alpha_f
 (``opposing.spawn_gap_range_m``); each is uniform on its range under the campaign, which is the
 nominal distribution. The perception noise stays nominal (drawn from the episode key). Every
 evaluation is one episode with the given values (``run_episodes(scenarios=...)``), run in batches of
-8 lanes in this process; its score is the final value of one of the splitting scores
+8 lanes, in this process or, with an executor (``--workers``, Ray), one batch per work unit in
+parallel (an episode does not depend on its batch, so the estimate is the same);
+its score is the final value of one of the splitting scores
 (:mod:`mcverify.estimate.closed_loop`): minus min h_ef (``h_ef``, target ellipse), that brought
 forward by the steps with neither Q1 nor Q2 solved (``h_ef_held``, target ellipse), by the
 episode's longest run of such steps (``h_ef_run``, target ellipse: a row has no per-step runs) or
@@ -18,19 +20,23 @@ replays from (campaign seed, cell, the estimator's seed).
 
 from __future__ import annotations
 
+import functools
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from mcverify import store
 from mcverify.campaign import executors
+from mcverify.campaign.executors import Executor
 from mcverify.campaign.spec import Campaign
 from mcverify.cell import Cell
 from mcverify.control.planner import Planner
-from mcverify.episode.rollout import run_episodes
+from mcverify.episode.rollout import ChunkResult, run_episodes
 from mcverify.errors import RunError
 from mcverify.estimate import folder, importance
 from mcverify.estimate.closed_loop import H_EF_SCORES, SCORES, h_ef_score
@@ -57,13 +63,31 @@ def scenario_bounds(cell: Cell) -> dict[str, tuple[float, float]]:
     return out
 
 
+def scenario_unit(cell: Cell, episode_ids: tuple[int, ...], seed: int, common_random_numbers: bool,
+                  record: tuple[int, ...], *, names: Sequence[str],
+                  values: Mapping[int, Sequence[float]]) -> ChunkResult:
+    """One batch of evaluations as an executor work unit (the
+    :data:`~mcverify.campaign.executors.EpisodeFn` interface): episodes ``episode_ids`` with the
+    scenario ``values[e]`` (in the order of ``names``); each row carries its share of the unit's CPU
+    seconds (``unit_cpu_s``). The noise is the episode's own, as in this process."""
+    t0 = time.process_time()
+    over = {e: dict(zip(names, map(float, values[e]), strict=True)) for e in episode_ids}
+    res = run_episodes(cell, list(episode_ids), seed, executors.solver_for(cell.params), scenarios=over)
+    share = (time.process_time() - t0) / max(1, len(res.rows))
+    for row in res.rows:
+        row["unit_cpu_s"] = share
+    return res
+
+
 @dataclass
 class ClosedLoopScore:
-    """score(theta) on the closed loop: theta (m, d) in the order of ``names``; cost counted."""
+    """score(theta) on the closed loop: theta (m, d) in the order of ``names``; cost counted.
+    With ``executor`` (and ``campaign``, whose cell this is) the batches run as parallel work units;
+    otherwise one after the other with ``planner`` in this process."""
 
     cell: Cell
     seed: int
-    planner: Planner
+    planner: Planner | None
     names: list[str]
     target: str = "collision"
     score: str | None = None  # None: "gap" for target collision, "h_ef" for ellipse
@@ -71,21 +95,42 @@ class ClosedLoopScore:
     steps: int = 0
     cpu_s: float = 0.0
     rows: list[dict] = field(default_factory=list)
+    executor: Executor | None = None
+    campaign: Campaign | None = None
 
     def __call__(self, theta: np.ndarray) -> np.ndarray:
-        scores = []
-        for start in range(0, theta.shape[0], BATCH):
-            part = theta[start:start + BATCH]
-            ids = list(range(self.episodes, self.episodes + part.shape[0]))
-            over = {e: dict(zip(self.names, map(float, t), strict=True)) for e, t in zip(ids, part, strict=True)}
+        ids = list(range(self.episodes, self.episodes + theta.shape[0]))
+        values = {e: tuple(map(float, t)) for e, t in zip(ids, theta, strict=True)}
+        rows = self._parallel(ids, values) if self.executor is not None else self._here(ids, values)
+        self.episodes += theta.shape[0]
+        self.steps += sum(int(r.get("steps") or 0) for r in rows)
+        return np.array([self._score(r) for r in rows])
+
+    def _here(self, ids: list[int], values: dict[int, tuple[float, ...]]) -> list[dict[str, Any]]:
+        rows = []
+        for start in range(0, len(ids), BATCH):
+            part = ids[start:start + BATCH]
+            over = {e: dict(zip(self.names, values[e], strict=True)) for e in part}
             t0 = time.process_time()
-            rows = run_episodes(self.cell, ids, self.seed, self.planner, scenarios=over).rows
+            rows += run_episodes(self.cell, part, self.seed, self.planner, scenarios=over).rows
             self.cpu_s += time.process_time() - t0
-            self.episodes += part.shape[0]
-            for r in rows:
-                self.steps += int(r.get("steps") or 0)
-                scores.append(self._score(r))
-        return np.array(scores)
+        return rows
+
+    def _parallel(self, ids: list[int], values: dict[int, tuple[float, ...]]) -> list[dict[str, Any]]:
+        if self.campaign is None:
+            raise ValueError("a ClosedLoopScore with an executor needs its campaign")
+        got: dict[int, dict[str, Any]] = {}
+
+        def on_done(chunk: store.Chunk, output) -> None:
+            for row in output.rows:
+                got[int(row["cell_episode"])] = row
+
+        chunks = [store.Chunk(self.cell.index, tuple(ids[i:i + BATCH])) for i in range(0, len(ids), BATCH)]
+        unit = functools.partial(scenario_unit, names=tuple(self.names), values=values)
+        executors.execute(self.campaign, chunks, on_done, executor=self.executor, episode_fn=unit)
+        rows = [got[e] for e in ids]  # in episode order, whatever order the units finished in
+        self.cpu_s += sum(float(r.get("unit_cpu_s") or 0.0) for r in rows)
+        return rows
 
     def _score(self, row: dict) -> float:
         if row.get("outcome") == "error":
@@ -129,21 +174,30 @@ class ImportanceSpec:
 
 
 def run(campaign: Campaign, spec: ImportanceSpec, out: Path, *, progress=print,
-        cells: list[str] | None = None) -> Path:
-    """Estimate every cell of ``campaign`` (or those named in ``cells``) into the new folder ``out``."""
+        cells: list[str] | None = None, executor: Executor | None = None) -> Path:
+    """Estimate every cell of ``campaign`` (or those named in ``cells``) into the new folder ``out``.
+    executor: where the batches of episodes go (default: this process, one after the other)."""
     folder.create(out, campaign, {"method": "importance", **asdict(spec)}, cells)
-    return _cells(campaign, spec, Path(out), {}, progress, cells)
+    return _cells(campaign, spec, Path(out), {}, progress, cells, executor)
 
 
-def resume(out: Path, campaign: Campaign, *, progress=print) -> Path:
+def resume(out: Path, campaign: Campaign, *, progress=print, executor: Executor | None = None) -> Path:
     """Finish an interrupted importance-sampling estimate (finished cells are kept)."""
     manifest, done = folder.load(out, "importance")
     spec = ImportanceSpec(**{k: v for k, v in manifest["estimate"].items() if k != "method"})
-    return _cells(campaign, spec, Path(out), done, progress, manifest.get("only_cells"))
+    return _cells(campaign, spec, Path(out), done, progress, manifest.get("only_cells"), executor)
 
 
 def _cells(campaign: Campaign, spec: ImportanceSpec, out: Path, done: dict[int, dict], progress,
-           only: list[str] | None) -> Path:
+           only: list[str] | None, executor: Executor | None = None) -> Path:
+    if executor is None:
+        return _cells_on(campaign, spec, out, done, progress, only, None)
+    with executor as ex:
+        return _cells_on(campaign, spec, out, done, progress, only, ex)
+
+
+def _cells_on(campaign: Campaign, spec: ImportanceSpec, out: Path, done: dict[int, dict], progress,
+              only: list[str] | None, executor: Executor | None) -> Path:
     results = dict(done)
     columns: list[folder.Column] = [
         ("cell", lambda c: c["cell"]), ("parameters", lambda c: ", ".join(c["parameters"])),
@@ -174,8 +228,9 @@ def _cells(campaign: Campaign, spec: ImportanceSpec, out: Path, done: dict[int, 
             raise RunError(f"cell {cell.name} draws no scenario parameter from a range: nothing to sample "
                            "(give e.g. scenario.front_accel_range_mps2)")
         progress(f"cell {cell.name}: importance sampling over {', '.join(bounds)}")
-        score = ClosedLoopScore(cell, campaign.seed, executors.solver_for(cell.params), list(bounds), spec.target,
-                                spec.score)
+        planner = executors.solver_for(cell.params) if executor is None else None
+        score = ClosedLoopScore(cell, campaign.seed, planner, list(bounds), spec.target, spec.score,
+                                executor=executor, campaign=campaign)
         # the draws of the scenario parameters follow the campaign seed and the cell (as the noise
         # does), so that estimates with distinct --seed are independent repetitions and the cells of
         # one campaign are independent estimates (shared draws only under common random numbers)

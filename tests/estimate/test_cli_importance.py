@@ -136,3 +136,16 @@ def test_a_campaign_that_fixes_the_noise_is_refused(tmp_path: Path, campaign_fil
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "fixes the per-step noise (noise.key_seed)" in err[0]
     assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
+
+
+def test_parallel_batches_give_the_same_estimate(tmp_path: Path, campaign_file: Path):
+    """--workers 2 runs the batches of episodes as parallel work units; an episode does not depend
+    on its batch or on the order the units finish in, so the estimate is the one of this process."""
+    args = ["estimate", str(campaign_file), "--method", "importance", "--target", "ellipse", "--samples", "16",
+            "--ce-samples", "10", "--ce-iterations", "1", "--seed", "3", "-q"]
+    assert main([*args, "--run-dir", str(tmp_path / "here")]) == 0
+    assert main([*args, "--workers", "2", "--run-dir", str(tmp_path / "two")]) == 0
+    here, two = (json.loads((tmp_path / d / "estimate.json").read_text())["cells"][0] for d in ("here", "two"))
+    same = ("estimate", "low", "high", "failures", "ess", "proposal_a", "proposal_b", "ce_levels", "episodes", "steps")
+    assert {k: here[k] for k in same} == {k: two[k] for k in same}
+    assert two["cpu_s"] > 0
