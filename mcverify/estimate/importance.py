@@ -131,10 +131,14 @@ class ISEstimate:
 
 
 def cross_entropy(score: ScoreFn, nominal: Proposal, rng: np.random.Generator, *, per_iteration: int = 200,
-                  rho: float = 0.1, max_iterations: int = 20) -> tuple[Proposal, list[float], int]:
-    """Fit the proposal (see the module docstring); returns (proposal, levels, score evaluations)."""
+                  rho: float = 0.1, max_iterations: int = 20,
+                  progress: Callable[[str], None] | None = None) -> tuple[Proposal, list[float], int]:
+    """Fit the proposal (see the module docstring); returns (proposal, levels, score evaluations).
+    ``progress`` is told of each iteration's level and the refitted proposal."""
     g, levels, evaluations = nominal, [], 0
-    for _ in range(max_iterations):
+    for it in range(max_iterations):
+        if progress:
+            progress(f"  cross-entropy iteration {it + 1} (at most {max_iterations}): {per_iteration} evaluations")
         theta = g.sample(rng, per_iteration)
         s = np.asarray(score(theta), dtype=float)
         evaluations += per_iteration
@@ -143,6 +147,9 @@ def cross_entropy(score: ScoreFn, nominal: Proposal, rng: np.random.Generator, *
         elite = s >= gamma
         w = np.exp(nominal.logpdf(theta[elite]) - g.logpdf(theta[elite]))
         g = g.refit(theta[elite], w)
+        if progress:
+            betas = ", ".join(f"Beta({a:.2g}, {b:.2g})" for a, b in zip(g.a, g.b, strict=True))
+            progress(f"    level {gamma:.4g} (the failure level is 0), elite {int(elite.sum())}, proposal {betas}")
         if gamma >= 0.0:
             break
     return g, levels, evaluations
@@ -150,7 +157,8 @@ def cross_entropy(score: ScoreFn, nominal: Proposal, rng: np.random.Generator, *
 
 def estimate(score: ScoreFn, bounds: Sequence[tuple[float, float]], *, samples: int = 2000, alpha: float = 0.1,
              level: float = 0.95, seed: int = 0, per_iteration: int = 200, rho: float = 0.1,
-             max_iterations: int = 20, stream: int = 0) -> ISEstimate:
+             max_iterations: int = 20, stream: int = 0,
+             progress: Callable[[str], None] | None = None) -> ISEstimate:
     """Cross-entropy fit, then ``samples`` draws from the defensive mixture; see the module docstring.
 
     The draws come from a generator keyed by (``seed``, ``stream``): estimates that share a seed but
@@ -161,7 +169,9 @@ def estimate(score: ScoreFn, bounds: Sequence[tuple[float, float]], *, samples: 
     rng = np.random.default_rng([seed, 0xCE, stream])
     nominal = Proposal.nominal(bounds)
     g, levels, evaluations = cross_entropy(score, nominal, rng, per_iteration=per_iteration, rho=rho,
-                                           max_iterations=max_iterations)
+                                           max_iterations=max_iterations, progress=progress)
+    if progress:
+        progress(f"  {samples} evaluations from the defensive mixture ({alpha:g} nominal)")
     from_nominal = rng.random(samples) < alpha
     theta = np.where(from_nominal[:, None], nominal.sample(rng, samples), g.sample(rng, samples))
     log_p = nominal.logpdf(theta)

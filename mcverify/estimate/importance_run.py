@@ -237,7 +237,7 @@ def _cells_on(campaign: Campaign, spec: ImportanceSpec, out: Path, done: dict[in
         est = importance.estimate(score, list(bounds.values()), samples=spec.samples, alpha=spec.alpha,
                                   level=spec.level, seed=campaign.seed, per_iteration=spec.ce_samples, rho=spec.rho,
                                   max_iterations=spec.max_ce_iterations,
-                                  stream=0 if campaign.common_random_numbers else cell.index)
+                                  stream=0 if campaign.common_random_numbers else cell.index, progress=progress)
         results[cell.index] = {"cell_index": cell.index, "cell": cell.name, "method": "importance",
                                "target": spec.target, "parameters": list(bounds), **est.as_dict(),
                                "episodes": score.episodes, "steps": score.steps, "cpu_s": score.cpu_s}
