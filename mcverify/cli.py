@@ -231,11 +231,11 @@ def _parser() -> argparse.ArgumentParser:
     est.add_argument("--workers", type=_positive_int, default=None, help="worker processes or Ray tasks in flight")
     est.add_argument("--chunk-size", type=_positive_int, default=None, metavar="K",
                      help="episodes per chunk, the unit of work and of the stopping checks (default 8)")
-    est.add_argument("--score", choices=("gap", "h_ef", "h_ef_held", "h_ef_run"), default=None,
-                     help="splitting, importance: footprint gap (target collision, the default), h_ef, h_ef_held "
-                     "or h_ef_run (h_ef brought forward by all steps, or by the current run of steps, with neither "
-                     "problem solved; all three target ellipse); for importance it steers the cross-entropy "
-                     "stages only")
+    est.add_argument("--score", choices=("gap", "gap_run", "h_ef", "h_ef_held", "h_ef_run"), default=None,
+                     help="splitting, importance: footprint gap (target collision, the default) or gap_run (the gap "
+                     "brought forward by the current run of steps with neither problem solved; target collision), "
+                     "h_ef, h_ef_held or h_ef_run (h_ef brought forward by all such steps, or by the current run; "
+                     "all three target ellipse); for importance it steers the cross-entropy stages only")
     est.add_argument("--particles", type=_positive_int, default=20, help="splitting: particles per run (default 20)")
     est.add_argument("--replicates", type=_positive_int, default=8,
                      help="splitting: independent runs whose spread gives the interval (default 8; "

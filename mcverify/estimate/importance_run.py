@@ -39,7 +39,7 @@ from mcverify.control.planner import Planner
 from mcverify.episode.rollout import ChunkResult, run_episodes
 from mcverify.errors import RunError
 from mcverify.estimate import folder, importance
-from mcverify.estimate.closed_loop import H_EF_SCORES, SCORES, h_ef_score
+from mcverify.estimate.closed_loop import H_EF_SCORES, SCORES, gap_score, h_ef_score
 from mcverify.estimate.folder import num
 
 #: Scenario key of :func:`mcverify.episode.rollout.sample_scenario` -> how to read its range from a cell.
@@ -142,7 +142,10 @@ class ClosedLoopScore:
         gaps = [float(row.get(k, math.nan)) for k in ("min_gap_front_m", "min_gap_opp_any_m")]
         collided = bool(row.get("collision_front")) or bool(row.get("collision_opp"))
         finite = [g for g in gaps if math.isfinite(g)]
-        return 0.0 if collided else (-min(finite) if finite else -math.inf)
+        if collided:
+            return 0.0
+        # gap_run from the longest run, as h_ef_run: the row has no per-step runs
+        return gap_score(score, min(finite) if finite else math.inf, row.get("both_infeasible_longest_run") or 0)
 
 
 @dataclass(frozen=True)

@@ -101,6 +101,25 @@ def test_the_run_score_follows_the_current_run_and_falls_back_when_it_ends():
     assert score_of(_view(0.3, 4, 0), "h_ef_run") == -0.3
 
 
+def _gap_view(gap_front: float, gap_opp: float, run: int) -> StepView:
+    trace = SafetyTrace(*([np.float64(np.inf)] * len(SafetyTrace._fields)))._replace(
+        min_gap_front_m=np.float64(gap_front), min_gap_opp_any_m=np.float64(gap_opp))
+    return StepView(0, trace, 99, run)
+
+
+def test_the_gap_run_score_is_the_collision_event_brought_forward_by_the_current_run():
+    """gap_run: -g 0.3^r while the smaller footprint gap g is positive, 0 at a contact (gap 0), so it
+    is >= 0 exactly at a collision, as gap; a run that ends takes it back to -g."""
+    for g in (2.0, 0.3, 1e-9):
+        for run in (0, 2, 7):
+            assert score_of(_gap_view(g, np.inf, run), "gap_run") == pytest.approx(-g * HELD_FACTOR**run)
+            assert score_of(_gap_view(g, np.inf, run), "gap_run") < 0
+    assert score_of(_gap_view(0.0, 3.0, 4), "gap_run") == 0.0 == score_of(_gap_view(5.0, 0.0, 0), "gap_run")
+    assert score_of(_gap_view(1.0, 0.4, 2), "gap_run") == pytest.approx(-0.4 * HELD_FACTOR**2)  # the smaller gap
+    assert score_of(_gap_view(0.8, np.inf, 0), "gap_run") == score_of(_gap_view(0.8, np.inf, 0), "gap") == -0.8
+    assert score_of(_gap_view(np.inf, np.inf, 3), "gap_run") == -np.inf
+
+
 def test_the_step_views_carry_the_planners_current_run(repo_root):
     """On the validation cell's episode 40 (its planner solved neither problem for several steps in a
     row) the views' run restarts at 0 after a solved step and adds 1 after an unsolved one, and it
