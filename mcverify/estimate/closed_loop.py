@@ -38,9 +38,11 @@ Scores (non-decreasing along an episode, the target event is score >= 0):
   with 5; a run that ends takes its score back down to -m.
 - ``"gap_run"``: the same construction on the footprint gap (target ``collision``): -g c^r while
   g > 0, g the running minimum footprint gap to veh_f and veh_o, r the current run; >= 0 exactly at
-  a contact. Why: with the plain ``"gap"`` score, two 20-particle runs on the 10 Hz cell at the
-  paper's noise and eps = 0.3 both went extinct after 31 and 46 iterations: a clone that does not
-  come closer than its parent keeps its parent's minimum gap exactly, and the clones tie.
+  a contact: the construction of ``"h_ef_run"`` for the collision target, for cells where the
+  planner loses both problems for runs of steps (the 10 Hz cell at twice the paper's noise). Not yet
+  shown to help: on the 10 Hz cell at the paper's noise and eps = 0.3 the planner had no such runs,
+  and two 20-particle runs went extinct with either score (31-46 iterations, the clones tied at
+  their parents' minimum gap, 0.15-0.97 m).
 
 Cost: control steps simulated (settling steps included) and the CPU seconds of this process.
 """
