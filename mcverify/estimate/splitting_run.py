@@ -121,6 +121,10 @@ def _cells(campaign: Campaign, spec: SplittingSpec, out: Path, done: dict[int, d
                 if row.get("outcome") == ERROR_OUTCOME:
                     raise RunError(f"AMS run {chunk.episode_ids[0]} of {cell.name} failed: {row.get(ERROR_COLUMN)}")
                 got[chunk.episode_ids[0]] = row
+                run = row["run"]
+                fate = "extinct" if run["extinct"] else f"estimate {run['estimate']:.3g}"
+                progress(f"  AMS run {chunk.episode_ids[0] + 1} done ({len(got)} of {spec.replicates}): {fate}, "
+                         f"{run['iterations']} iterations, {row['steps']} control steps, {row['cpu_s']:.0f} CPU-s")
 
             chunks = [store.Chunk(cell.index, (r,)) for r in range(spec.replicates)]
             executors.execute(campaign, chunks, on_done, executor=ex, episode_fn=unit)
