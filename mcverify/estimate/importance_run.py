@@ -24,7 +24,7 @@ import functools
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -94,7 +94,6 @@ class ClosedLoopScore:
     episodes: int = 0
     steps: int = 0
     cpu_s: float = 0.0
-    rows: list[dict] = field(default_factory=list)
     executor: Executor | None = None
     campaign: Campaign | None = None
 
