@@ -62,23 +62,34 @@ BEGIN_MARK = "<!-- BEGIN mcverify bench infeasibility (generated) -->"
 END_MARK = "<!-- END mcverify bench infeasibility -->"
 
 
+def section_key(paired: dict[str, Any] | None) -> str:
+    """Whose generated section a result fills: "replay", the variant, or "VARIANT over BASE"."""
+    if paired is None:
+        return "replay"
+    base = paired.get("base", DEFAULT)
+    return paired["variant"] if base == DEFAULT else f"{paired['variant']} over {base}"
+
+
 def marks(variant: str) -> tuple[str, str]:
-    """The generated section's markers for one variant (or "replay")."""
+    """The generated section's markers for one variant (or "replay", or "VARIANT over BASE")."""
     return (BEGIN_MARK.replace("infeasibility", f"infeasibility {variant}"),
             END_MARK.replace("infeasibility", f"infeasibility {variant}"))
 
 
 def compare_policies(campaign: str, cell_name: str, episodes: int, variant: str = "phase1",
-                     progress=print, seed: int | None = None) -> dict[str, Any]:
-    """The engine run on episodes 0 .. episodes - 1 of every chosen cell with the default settings
-    and with ``variant``, and their agreement (rows paired by ``episode_id``, unique in a run)."""
+                     progress=print, seed: int | None = None, base: str = DEFAULT) -> dict[str, Any]:
+    """The engine run on episodes 0 .. episodes - 1 of every chosen cell with the ``base`` settings
+    (the default, or another variant) and with ``variant``, and their agreement (rows paired by
+    ``episode_id``, unique in a run)."""
+    if base == variant:
+        raise ValueError(f"the variant and its base are both {variant!r}")
     runs = {}
-    for name, overrides in ((DEFAULT, {}), (variant, VARIANTS[variant])):
+    for name, overrides in ((base, VARIANTS.get(base, {})), (variant, VARIANTS[variant])):
         progress(f"settings {name}")
         runs[name] = engine.run(campaign=campaign, cell_name=cell_name, engine_episodes=episodes,
                                 baseline_episodes=0, write=False, progress=progress,
                                 overrides=overrides, seed=seed)["sides"]["engine"]
-    ref, new = runs[DEFAULT], runs[variant]
+    ref, new = runs[base], runs[variant]
     ag = agreement(ref.rows, new.rows, key="episode_id", values=PAIRED_VALUES)
     per_cell = {}
     for cell in dict.fromkeys(r["cell"] for r in ref.rows):
@@ -87,7 +98,7 @@ def compare_policies(campaign: str, cell_name: str, episodes: int, variant: str 
         per_cell[cell] = {k: a[k] for k in ("paired", "safe_agree", "outcome_agree")}
     audits = {k: sum(int(r[k]) for r in new.rows) for k in ("infeasibility_audits",
                                                               "infeasibility_audit_disagreements")}
-    return {"variant": variant, "runs": runs, "agreement": ag, "per_cell": per_cell, "audits": audits}
+    return {"variant": variant, "base": base, "runs": runs, "agreement": ag, "per_cell": per_cell, "audits": audits}
 
 
 def replay_verdicts(paths: Sequence[str | Path], tol: float, progress=print) -> dict[str, Any]:
@@ -116,14 +127,16 @@ def _mean(xs: list[float]) -> float:
 def markdown(paired: dict[str, Any] | None, replay: dict[str, Any] | None, command: str) -> str:
     """The generated section (both markers of its variant included)."""
     variant = paired["variant"] if paired is not None else "replay"
-    begin, end = marks(variant)
-    title = "recorded solves replayed" if paired is None else f"{variant} against the default settings"
+    begin, end = marks(section_key(paired))
+    base = paired.get("base", DEFAULT) if paired is not None else DEFAULT
+    base_words = "the default settings" if base == DEFAULT else base
+    title = "recorded solves replayed" if paired is None else f"{variant} against {base_words}"
     heading = HEADINGS.get(variant, "The C restoration phase and infeasibility certificates")
     lines = [begin, "", f"## {heading}: {title}", "",
              f"### {datetime.now(timezone.utc):%Y-%m-%d}: `{command}`", "",
              f"{engine.machine()}, load average {engine._load()}."]
     if paired is not None:
-        lines += ["", f"Paired episodes, engine only, default settings against {variant} "
+        lines += ["", f"Paired episodes, engine only, {base_words} against {variant} "
                   f"({', '.join(f'`{k} = {v}`' for k, v in VARIANTS[variant].items())}). CPU-s per "
                   "episode by solve class (solves per episode):", "",
                   "| settings | episodes | CPU-s / episode | " + " | ".join(c.value for c in SolveClass) + " |",
@@ -134,7 +147,7 @@ def markdown(paired: dict[str, Any] | None, replay: dict[str, Any] | None, comma
                                for c in SolveClass)
             lines.append(f"| {policy} | {len(side.rows)} | {side.cpu_s_per_episode:.2f} | {cells} |")
         ag = paired["agreement"]
-        lines += ["", f"Agreement ({variant} against default): {ag['paired']} paired episodes, safety verdicts "
+        lines += ["", f"Agreement ({variant} against {base}): {ag['paired']} paired episodes, safety verdicts "
                   f"{ag['safe_agree']}/{ag['paired']} (95% CI {_ci(ag['safe_agree_ci'])}), outcomes "
                   f"{ag['outcome_agree']}/{ag['paired']} (95% CI {_ci(ag['outcome_agree_ci'])}); "
                   f"min distance to veh_f differs by at most {ag['min_dist_front_m_absdiff_max']:.3g} m. Per cell: "
@@ -175,12 +188,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--cell", default=engine.ALL_CELLS)
     ap.add_argument("--episodes", type=int, default=1, help="paired episodes per cell (0: replay only)")
     ap.add_argument("--variant", choices=tuple(VARIANTS), default="phase1", help="settings compared with the default")
+    ap.add_argument("--base", choices=(DEFAULT, *VARIANTS), default=DEFAULT,
+                    help="the settings the variant is paired with (default: the model's defaults)")
     ap.add_argument("--seed", type=int, help="campaign seed instead of the file's (episodes a recording has not seen)")
     ap.add_argument("--recording", action="append", default=[], help="a recorded_ipm pickle to replay")
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args(argv)
     say = lambda m: print(m, file=sys.stderr)  # noqa: E731
-    paired = (compare_policies(args.campaign, args.cell, args.episodes, args.variant, say, args.seed)
+    if args.base == args.variant:
+        ap.error(f"--base and --variant are both {args.variant}")
+    paired = (compare_policies(args.campaign, args.cell, args.episodes, args.variant, say, args.seed, args.base)
               if args.episodes else None)
     from mcverify.model import ModelParams
 
@@ -189,7 +206,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     text = markdown(paired, replay, command.strip())
     print(text)
     if not args.no_write:
-        store.replace_section(Path(BENCHMARKS_MD), text, *marks(paired["variant"] if paired else "replay"))
+        store.replace_section(Path(BENCHMARKS_MD), text, *marks(section_key(paired)))
         say(f"wrote {BENCHMARKS_MD}")
     return 0
 

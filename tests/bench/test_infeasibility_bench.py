@@ -60,3 +60,25 @@ def test_the_cells_can_be_drawn_with_another_campaign_seed():
     assert other_seed == seed + 1 and [c.name for c in other] == [c.name for c in cells]
     assert all(c.params.mpc.ipm_central_attempt == "mpcdc" for c in other)
     assert "central_mpcdc" in inf.VARIANTS and inf.VARIANTS["central_all"] == {"mpc.ipm_central_attempt": "all"}
+
+
+def test_a_variant_paired_with_another_variant_gets_its_own_section():
+    """``--base``: the central attempt for every controller measured on top of MPC-DC's only, not against the defaults."""
+    ref, new = [_row(0)], [_row(0)]
+    paired = {"variant": "central_all", "base": "central_mpcdc",
+              "runs": {"central_mpcdc": _side("engine", ref, 10.0), "central_all": _side("engine", new, 4.0)},
+              "agreement": agreement(ref, new, key="episode_id", values=PAIRED_VALUES),
+              "per_cell": {"c": {"paired": 1, "safe_agree": 1, "outcome_agree": 1}},
+              "audits": {"infeasibility_audits": 0, "infeasibility_audit_disagreements": 0}}
+    text = inf.markdown(paired, None, "cmd")
+    assert inf.section_key(paired) == "central_all over central_mpcdc"
+    assert text.startswith(inf.marks("central_all over central_mpcdc")[0])
+    assert "central_all against central_mpcdc" in text and "| central_mpcdc | 1 | 10.00 |" in text
+    assert inf.section_key({"variant": "phase1"}) == "phase1"
+
+
+def test_a_variant_cannot_be_its_own_base():
+    import pytest
+
+    with pytest.raises(ValueError, match="both"):
+        inf.compare_policies("x.toml", "all", 1, "central_all", base="central_all")
