@@ -17,8 +17,9 @@ Two measurements, written together into a generated section of results/BENCHMARK
    warm and the cold start and under the restoration-enabled attempts: how the start-independent
    verdict compares with what IPOPT made of the same problem.
 
-Run: ``python -m mcverify.bench.infeasibility --variant phase1 --episodes 1 [--recording FILE ...]
-[--no-write]`` (each variant has its own generated section).
+Run: ``python -m mcverify.bench.infeasibility --variant phase1 --episodes 1 [--base VARIANT]
+[--recording FILE ...] [--no-write]`` (each variant has its own generated section; ``--base`` pairs the
+variant with another variant instead of the defaults, in a section of its own).
 """
 
 from __future__ import annotations
