@@ -63,7 +63,8 @@ def test_the_cells_can_be_drawn_with_another_campaign_seed():
 
 
 def test_a_variant_paired_with_another_variant_gets_its_own_section():
-    """``--base``: the central attempt for every controller measured on top of MPC-DC's only, not against the defaults."""
+    """``--base``: the central attempt for every controller measured on top of MPC-DC's only, not against
+    the defaults."""
     ref, new = [_row(0)], [_row(0)]
     paired = {"variant": "central_all", "base": "central_mpcdc",
               "runs": {"central_mpcdc": _side("engine", ref, 10.0), "central_all": _side("engine", new, 4.0)},
