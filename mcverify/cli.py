@@ -248,8 +248,15 @@ def _parser() -> argparse.ArgumentParser:
                      help="importance: episodes drawn from the defensive mixture (default 400)")
     est.add_argument("--ce-samples", type=_positive_int, default=100,
                      help="importance: episodes per cross-entropy iteration (default 100)")
-    est.add_argument("--ce-iterations", type=_positive_int, default=10,
-                     help="importance: most cross-entropy iterations (default 10)")
+    est.add_argument("--ce-iterations", type=_nonneg_int, default=10,
+                     help="importance: most cross-entropy iterations (default 10; 0: the scenario stays nominal, "
+                          "e.g. with --noise-tilt when the score would steer the scenario away from the event)")
+    est.add_argument("--noise-tilt", type=_noise_tilt, metavar="KEY=VALUE,...",
+                     help="importance: draw veh_f's measurement noise near veh_f from exponential tilts, refitted "
+                          "by the cross-entropy iterations, and weight each episode by its likelihood ratio; keys "
+                          "gap_max_m (required), split_m, band_steps, defensive, theta_max and starting tilts "
+                          "UNIT_BAND (x|y|v _ approach|jump|alongside) (docs/rare_events.md), e.g. "
+                          "gap_max_m=4.1,split_m=3.05,y_approach=-5,y_jump=5")
     est.add_argument("--max-iterations", type=_positive_int, default=2000,
                      help="splitting: iteration cap per run (a capped run is flagged, not an estimate)")
     est.add_argument("--resume", type=Path, metavar="RUN_DIR", help="finish an interrupted estimate")
@@ -507,6 +514,8 @@ def _cmd_estimate(args) -> int:
     from mcverify.estimate import folder, mc
 
     method = _folder_method(args.resume) if args.resume else args.method
+    if args.noise_tilt is not None and (args.resume or method != "importance"):
+        raise RunError("--noise-tilt is a proposal of --method importance, given when the estimate starts")
     if method in ("splitting", "importance"):
         return _cmd_estimate_in_process(args, method)
     executor = executors.make_executor(args.executor, workers=args.workers, address=args.address)
@@ -590,7 +599,8 @@ def _cmd_estimate_in_process(args, method: str) -> int:
                     raise RunError(f"--score {score} estimates {spec.target}, not --target {args.target}")
             else:
                 spec = importance_run.ImportanceSpec(args.target, args.samples, args.ce_samples, level=args.level,
-                                                     max_ce_iterations=args.ce_iterations, score=args.score)
+                                                     max_ce_iterations=args.ce_iterations, score=args.score,
+                                                     noise_tilt=args.noise_tilt)
         except ValueError as err:
             raise RunError(str(err)) from None
         campaign = load_campaign(args.campaign, seed=args.seed, settings=args.settings)
@@ -822,6 +832,29 @@ def _int_list(text: str) -> tuple[int, ...]:
     if not values or min(values) < 1:
         raise argparse.ArgumentTypeError(f"expected comma-separated positive integers, got {text!r}")
     return values
+
+
+def _noise_tilt(text: str) -> dict:
+    """``--noise-tilt gap_max_m=4,split_m=3,y_approach=-5,y_jump=5``: the starting NoiseTilt (the rest
+    at their defaults; a tilt per band and unit is named UNIT_BAND, e.g. y_jump)."""
+    from mcverify.sim.noise import TILT_BANDS, TILT_UNITS, NoiseTilt  # noqa: PLC0415 - JAX only when used
+
+    tilts = [f"{u}_{b}" for b in TILT_BANDS for u in TILT_UNITS]
+    scalars = [f for f in NoiseTilt._fields if f != "theta"]
+    values: dict[str, float] = {}
+    for part in filter(None, (p.strip() for p in text.split(","))):
+        key, sep, value = (x.strip() for x in part.partition("="))
+        if not sep or key not in (*scalars, *tilts):
+            raise argparse.ArgumentTypeError(f"expected KEY=VALUE with KEY one of {', '.join(scalars)} or a tilt "
+                                             f"UNIT_BAND ({', '.join(tilts)}), got {part!r}")
+        try:
+            values[key] = float(value)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{key}: not a number: {value!r}") from None
+    if "gap_max_m" not in values:
+        raise argparse.ArgumentTypeError("gap_max_m is required (the tilt acts where veh_f's gap is at most that)")
+    theta = [values.pop(t, 0.0) for t in tilts]
+    return {**NoiseTilt(**values)._asdict(), "theta": theta}
 
 
 def _positive_int(text: str) -> int:

@@ -41,6 +41,7 @@ from mcverify.episode import stop
 from mcverify.episode.recording import EpisodeRecording
 from mcverify.episode.row import EndState, Row, episode_row
 from mcverify.episode.snapshot import Branching, branch_key
+from mcverify.sim.noise import NoiseTilt
 from mcverify.sim.plant import LaneGroups, SafetyTrace, Substep, footprint_top_y_m, initial_plant
 
 Array = jax.Array
@@ -171,6 +172,7 @@ def run_episodes(
     branching: Branching | None = None,
     scenarios: Mapping[int, Mapping[str, float]] | None = None,
     on_episode: Callable[[int, bool], None] | None = None,
+    noise_tilt: NoiseTilt | None = None,
 ) -> ChunkResult:
     """Simulate ``episode_ids`` (ids within the cell) of ``cell`` as one batch; one row per episode.
 
@@ -185,6 +187,10 @@ def run_episodes(
     on_episode: called as ``on_episode(episode id, unsafe)`` as soon as an episode stops (settling
     included), before the chunk ends; ``unsafe`` is what its row's ``safe`` will say, negated
     (progress bars; it changes nothing in the loop).
+    noise_tilt: draw veh_f's y noise near veh_f from this proposal (importance sampling,
+    :class:`~mcverify.sim.noise.NoiseTilt`); each row then carries ``noise_log_lr``, the log likelihood
+    ratio (nominal over proposal) of its noise, and ``noise_tilt_sums`` (9) / ``noise_tilt_counts`` (3),
+    the statistics a cross-entropy refit of the tilt needs. None: the nominal noise, and no such keys.
     """
     phase = clock.phase if clock is not None else _untimed
     p = cell.params
@@ -195,7 +201,7 @@ def run_episodes(
     for b, e in enumerate(ids):
         samples[b].update((scenarios or {}).get(e, {}))
     world = LaneGroups(initial_plant(p, [s["front_accel_mps2"] for s in samples],
-                                     [s["opp_speed_mps"] for s in samples]), keys, p)
+                                     [s["opp_speed_mps"] for s in samples]), keys, p, tilt=noise_tilt)
     h0 = world.trace().min_h_front.copy()
     states = [EpisodeState(e) for e in ids]
     spawning = p.opposing.kind != "none" and p.opposing.spawn == "lane_entry"
@@ -236,7 +242,8 @@ def run_episodes(
             ego = world.ego()
             if spawning:
                 _spawn_opposing(world, states, samples, entered_s, ego, t_s, p)
-            front_meas, opp_meas = world.observe(step)
+            live = np.array([not st.done or b in settling for b, st in enumerate(states)])
+            front_meas, opp_meas = world.observe(step, live)
         u = np.zeros((len(ids), 2))
         records: dict[int, StepRecord] = {}
         with phase("planner"):
@@ -303,6 +310,13 @@ def run_episodes(
                     ends[b])
         for b, st in enumerate(states)
     ]
+    if noise_tilt is not None:
+        sums, counts = world.tilt_statistics()
+        log_lr = world.noise_log_lr()
+        for b, row in enumerate(rows):
+            row["noise_log_lr"] = float(log_lr[b])
+            row["noise_tilt_sums"] = [float(v) for v in sums[b]]
+            row["noise_tilt_counts"] = [float(v) for v in counts[b]]
     if rec is None:
         return ChunkResult(rows)
     return ChunkResult(rows, rec.recordings(ids))

@@ -11,16 +11,25 @@ weight w = p / q is at most 1 / alpha, and
 
     p_hat = mean(w_i 1{score_i >= 0}),  interval p_hat +- z sd(w 1) / sqrt(M)   (asymptotic).
 
-A lower bound valid at any sample count (``anytime_lower``) comes from betting on alpha w 1{event},
-which lies in [0, 1] (:mod:`mcverify.analysis.betting`); unlike the normal interval it does not
-rely on the sample being large. It is one-sided and at the same ``level``.
+A lower bound valid at any sample count (``anytime_lower``) comes from betting on alpha w 1{event}
+(divided by the largest extra likelihood ratio, below), which lies in [0, 1]
+(:mod:`mcverify.analysis.betting`); unlike the normal interval it does not rely on the sample being
+large. It is one-sided and at the same ``level``.
 
 Diagnostics: the effective sample size of the failing samples, (sum w)^2 / sum w^2, and the largest
 weight's share of the estimate; :func:`estimate` warns when there are few failing samples, the ESS is
 small or one weight dominates, since the normal interval then means little.
 
-Only the estimator is here, with a score function of the parameters; running it on the closed loop
-needs the rollout to take given scenario values instead of its own draws (not done yet).
+A score function may also draw part of each sample's randomness from a proposal of its own (the
+noise tilt of :class:`~mcverify.sim.noise.NoiseTilt`) and return :class:`Scored`: the scores with
+each sample's log likelihood ratio of that part (nominal over proposal), which multiplies its weight
+in the cross-entropy fits and in the estimate. Give :func:`estimate` the largest such ratio
+(``max_extra_ratio``) so that the anytime bound still bets on a quantity in [0, 1]. If the score
+function has a method ``refit_noise(elite, weights)`` (elite: (m,) bool over the last batch; weights:
+the elite's likelihood ratios), each cross-entropy iteration calls it after refitting the scenario
+proposal, so that the noise proposal is fitted by cross-entropy as well.
+
+The closed-loop runner is :mod:`mcverify.estimate.importance_run`.
 
 [RK04] R. Y. Rubinstein, D. P. Kroese, The Cross-Entropy Method (2004). [Hes95] T. Hesterberg,
 Weighted average importance sampling and defensive mixture distributions, Technometrics 37 (1995).
@@ -31,15 +40,32 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from scipy import stats as sps
 
 from mcverify.analysis import betting
 
-#: score(theta) for an (m, d) array of parameter vectors: (m,) scores, failure where >= 0.
-ScoreFn = Callable[[np.ndarray], np.ndarray]
+
+class Scored(NamedTuple):
+    """What a score function returns when it draws more than theta: (m,) scores (failure where >= 0)
+    and (m,) log likelihood ratios (nominal over proposal) of the rest of each sample's randomness."""
+
+    scores: np.ndarray
+    log_lr: np.ndarray
+
+
+#: score(theta) for an (m, d) array of parameter vectors: (m,) scores, failure where >= 0 (or :class:`Scored`).
+ScoreFn = Callable[[np.ndarray], "np.ndarray | Scored"]
+
+
+def _scored(result: np.ndarray | Scored) -> tuple[np.ndarray, np.ndarray]:
+    """(scores, log likelihood ratios) of a score function's result; 0 when it drew nothing else."""
+    if isinstance(result, Scored):
+        return np.asarray(result.scores, dtype=float), np.asarray(result.log_lr, dtype=float)
+    s = np.asarray(result, dtype=float)
+    return s, np.zeros_like(s)
 #: Fewest elite samples per cross-entropy iteration below which the fitted proposal is flagged: a
 #: Beta fitted to a handful of points collapses onto them (seen on the closed loop, docs/rare_events.md).
 MIN_ELITE = 10
@@ -140,13 +166,16 @@ def cross_entropy(score: ScoreFn, nominal: Proposal, rng: np.random.Generator, *
         if progress:
             progress(f"  cross-entropy iteration {it + 1} (at most {max_iterations}): {per_iteration} evaluations")
         theta = g.sample(rng, per_iteration)
-        s = np.asarray(score(theta), dtype=float)
+        s, log_lr = _scored(score(theta))
         evaluations += per_iteration
         gamma = min(0.0, float(np.quantile(s, 1.0 - rho)))
         levels.append(gamma)
         elite = s >= gamma
-        w = np.exp(nominal.logpdf(theta[elite]) - g.logpdf(theta[elite]))
+        w = np.exp(nominal.logpdf(theta[elite]) - g.logpdf(theta[elite]) + log_lr[elite])
         g = g.refit(theta[elite], w)
+        refit_noise = getattr(score, "refit_noise", None)  # a score that draws noise from a proposal of its own
+        if refit_noise is not None:
+            refit_noise(elite, w)
         if progress:
             betas = ", ".join(f"Beta({a:.2g}, {b:.2g})" for a, b in zip(g.a, g.b, strict=True))
             progress(f"    level {gamma:.4g} (the failure level is 0), elite {int(elite.sum())}, proposal {betas}")
@@ -157,9 +186,14 @@ def cross_entropy(score: ScoreFn, nominal: Proposal, rng: np.random.Generator, *
 
 def estimate(score: ScoreFn, bounds: Sequence[tuple[float, float]], *, samples: int = 2000, alpha: float = 0.1,
              level: float = 0.95, seed: int = 0, per_iteration: int = 200, rho: float = 0.1,
-             max_iterations: int = 20, stream: int = 0,
-             progress: Callable[[str], None] | None = None) -> ISEstimate:
+             max_iterations: int = 20, stream: int = 0, max_extra_ratio: float = 1.0,
+             progress: Callable[[str], None] | None = None,
+             on_samples: Callable[[np.ndarray, np.ndarray, np.ndarray], None] | None = None) -> ISEstimate:
     """Cross-entropy fit, then ``samples`` draws from the defensive mixture; see the module docstring.
+    max_extra_ratio: the largest likelihood ratio a :class:`Scored` result can carry (1 when the
+    score function draws nothing but theta); it bounds the weights for the anytime lower bound.
+    on_samples: given the final draws as (theta (M, d), weights (M,), failed (M,) bool), from which
+    the estimate is mean(weights * failed) (to store them).
 
     The draws come from a generator keyed by (``seed``, ``stream``): estimates that share a seed but
     must be independent (the cells of one campaign) pass distinct streams. Stream 0 is the stream of
@@ -176,8 +210,11 @@ def estimate(score: ScoreFn, bounds: Sequence[tuple[float, float]], *, samples: 
     theta = np.where(from_nominal[:, None], nominal.sample(rng, samples), g.sample(rng, samples))
     log_p = nominal.logpdf(theta)
     log_q = np.logaddexp(math.log(alpha) + log_p, math.log1p(-alpha) + g.logpdf(theta))
-    w = np.exp(log_p - log_q)
-    fail = np.asarray(score(theta), dtype=float) >= 0.0
+    s, log_lr = _scored(score(theta))
+    w = np.exp(log_p - log_q + log_lr)
+    fail = s >= 0.0
+    if on_samples is not None:
+        on_samples(theta, w, fail)
     x = w * fail
     p_hat = float(x.mean())
     se = float(x.std(ddof=1) / math.sqrt(samples))
@@ -187,11 +224,11 @@ def estimate(score: ScoreFn, bounds: Sequence[tuple[float, float]], *, samples: 
     share = float(x.max() / total) if total > 0 else math.nan
     warnings = []
     elite = math.ceil(rho * per_iteration)
-    if elite < MIN_ELITE:
+    if levels and elite < MIN_ELITE:
         warnings.append(f"each cross-entropy elite holds about {elite} samples (elite share x samples per "
                         f"iteration); a proposal fitted to so few collapses onto them: give at least "
                         f"{math.ceil(MIN_ELITE / rho)} per iteration")
-    if levels[-1] < 0.0:
+    if levels and levels[-1] < 0.0:
         warnings.append(f"the cross-entropy levels stopped at {levels[-1]:.3g} < 0: the proposal may miss failures")
     if fail.sum() < 10:
         warnings.append(f"only {int(fail.sum())} failing samples: the interval is unreliable")
@@ -199,8 +236,9 @@ def estimate(score: ScoreFn, bounds: Sequence[tuple[float, float]], *, samples: 
         warnings.append(f"effective sample size of the failing samples is {ess:.0f} (< 50)")
     if total > 0 and share > 0.2:
         warnings.append(f"one weight carries {share:.0%} of the estimate")
-    # alpha * w <= 1 under the defensive mixture, so alpha * x lies in [0, 1]: the betting bound applies
-    anytime = betting.lower_bound(np.clip(alpha * x, 0.0, 1.0), level) / alpha
+    # alpha * w <= max_extra_ratio under the defensive mixture, so scale * x lies in [0, 1]: the betting bound applies
+    scale = alpha / max_extra_ratio
+    anytime = betting.lower_bound(np.clip(scale * x, 0.0, 1.0), level) / scale
     return ISEstimate(p_hat, max(0.0, p_hat - z * se), p_hat + z * se, level, samples, int(fail.sum()), ess, share,
                       len(levels), levels, evaluations + samples, [float(v) for v in g.a], [float(v) for v in g.b],
                       anytime, warnings=warnings)

@@ -4,7 +4,10 @@ cell's scenario ranges (:mod:`mcverify.estimate.importance`) on the real closed 
 The parameters are the cell's scenario draws that have a range: alpha_f
 (``scenario.front_accel_range_mps2``), veh_o's speed (``opposing.speed_range_mps``) and spawn gap
 (``opposing.spawn_gap_range_m``); each is uniform on its range under the campaign, which is the
-nominal distribution. The perception noise stays nominal (drawn from the episode key). Every
+nominal distribution. The perception noise stays nominal (drawn from the episode key), unless a
+noise tilt is given (``--noise-tilt``, :class:`~mcverify.sim.noise.NoiseTilt`): then veh_f's lateral
+measurement noise at a few steps near veh_f is drawn from that fixed proposal, and each episode's weight
+carries its likelihood ratio (``noise_log_lr``) besides the scenario's. Every
 evaluation is one episode with the given values (``run_episodes(scenarios=...)``), run in batches of
 8 lanes, in this process or, with an executor (``--workers``, Ray), one batch per work unit in
 parallel (an episode does not depend on its batch, so the estimate is the same);
@@ -24,7 +27,7 @@ import functools
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -41,6 +44,8 @@ from mcverify.errors import RunError
 from mcverify.estimate import folder, importance
 from mcverify.estimate.closed_loop import H_EF_SCORES, SCORES, gap_score, h_ef_score
 from mcverify.estimate.folder import num
+from mcverify.sim import noise
+from mcverify.sim.noise import NoiseTilt
 
 #: Scenario key of :func:`mcverify.episode.rollout.sample_scenario` -> how to read its range from a cell.
 RANGES: dict[str, Callable] = {
@@ -51,6 +56,45 @@ RANGES: dict[str, Callable] = {
 }
 #: Episodes simulated together (one lane group of the plant).
 BATCH = 8
+
+
+#: The row values kept per final draw in ``samples_cellNNN.parquet`` (those a row has).
+SAMPLE_COLUMNS = ("outcome", "collision_front", "collision_opp", "min_gap_front_m", "min_h_front",
+                  "ellipse_violation", "switched_to_q2_at_s", "steps", "noise_log_lr")
+
+
+def samples_file(out: Path, cell_index: int) -> Path:
+    """Where a cell's final draws are kept."""
+    return Path(out) / f"samples_cell{cell_index:03d}.parquet"
+
+
+def write_samples(out: Path, cell_index: int, names: Sequence[str], rows: Sequence[dict[str, Any]],
+                  final: Mapping[str, np.ndarray]) -> None:
+    """Keep a cell's final draws: its episode id (``cell_episode``, which replays the episode with the
+    same scenario values and noise tilt), the scenario values, the weight (nominal over proposal,
+    noise included), whether it failed and the row values of :data:`SAMPLE_COLUMNS`. The cell's
+    estimate is ``mean(weight * failed)`` over this file, exactly."""
+    import pyarrow as pa  # noqa: PLC0415 - only when writing
+    import pyarrow.parquet as pq  # noqa: PLC0415
+
+    weight = np.asarray(final["weight"], dtype=float)
+    rows = rows if len(rows) == weight.size else []  # a score function that runs no episodes has no rows
+    table: dict[str, Any] = {"cell_episode": [int(r["cell_episode"]) for r in rows]} if rows else {}
+    table.update({f"sample_{n}": np.asarray(final["theta"])[:, j].astype(float) for j, n in enumerate(names)})
+    table["weight"] = weight
+    table["failed"] = np.asarray(final["failed"], dtype=bool)
+    for key in SAMPLE_COLUMNS:
+        if any(key in r for r in rows):
+            table[key] = [r.get(key) for r in rows]
+    store.atomic_write(samples_file(out, cell_index), lambda tmp: pq.write_table(pa.table(table), tmp))
+
+
+def tilt_text(tilt: NoiseTilt) -> str:
+    """The tilts per band and unit, e.g. "approach y -5, jump y +5" (zeros left out), and the window."""
+    parts = [f"{band} {unit} {t:+.2g}" for (band, unit), t in
+             zip(((b, u) for b in noise.TILT_BANDS for u in noise.TILT_UNITS), tilt.theta, strict=True) if t != 0.0]
+    return (f"{', '.join(parts) or 'all tilts 0'}; gap window {tilt.gap_max_m:g} / {tilt.split_m:g} m, "
+            f"{tilt.band_steps:g} steps per band, defensive {tilt.defensive:g}")
 
 
 def scenario_bounds(cell: Cell) -> dict[str, tuple[float, float]]:
@@ -65,14 +109,16 @@ def scenario_bounds(cell: Cell) -> dict[str, tuple[float, float]]:
 
 def scenario_unit(cell: Cell, episode_ids: tuple[int, ...], seed: int, common_random_numbers: bool,
                   record: tuple[int, ...], *, names: Sequence[str],
-                  values: Mapping[int, Sequence[float]]) -> ChunkResult:
+                  values: Mapping[int, Sequence[float]], noise_tilt: NoiseTilt | None = None) -> ChunkResult:
     """One batch of evaluations as an executor work unit (the
     :data:`~mcverify.campaign.executors.EpisodeFn` interface): episodes ``episode_ids`` with the
     scenario ``values[e]`` (in the order of ``names``); each row carries its share of the unit's CPU
-    seconds (``unit_cpu_s``). The noise is the episode's own, as in this process."""
+    seconds (``unit_cpu_s``). The noise is the episode's own (through ``noise_tilt`` if given), as in
+    this process."""
     t0 = time.process_time()
     over = {e: dict(zip(names, map(float, values[e]), strict=True)) for e in episode_ids}
-    res = run_episodes(cell, list(episode_ids), seed, executors.solver_for(cell.params), scenarios=over)
+    res = run_episodes(cell, list(episode_ids), seed, executors.solver_for(cell.params), scenarios=over,
+                       noise_tilt=noise_tilt)
     share = (time.process_time() - t0) / max(1, len(res.rows))
     for row in res.rows:
         row["unit_cpu_s"] = share
@@ -96,14 +142,37 @@ class ClosedLoopScore:
     cpu_s: float = 0.0
     executor: Executor | None = None
     campaign: Campaign | None = None
+    noise_tilt: NoiseTilt | None = None
+    progress: Callable[[str], None] | None = None
+    _last_rows: list[dict[str, Any]] = field(default_factory=list)
 
-    def __call__(self, theta: np.ndarray) -> np.ndarray:
+    def __call__(self, theta: np.ndarray) -> np.ndarray | importance.Scored:
         ids = list(range(self.episodes, self.episodes + theta.shape[0]))
         values = {e: tuple(map(float, t)) for e, t in zip(ids, theta, strict=True)}
         rows = self._parallel(ids, values) if self.executor is not None else self._here(ids, values)
         self.episodes += theta.shape[0]
         self.steps += sum(int(r.get("steps") or 0) for r in rows)
-        return np.array([self._score(r) for r in rows])
+        scores = np.array([self._score(r) for r in rows])
+        self._last_rows = rows
+        if self.noise_tilt is None:
+            return scores
+        return importance.Scored(scores, np.array([float(r.get("noise_log_lr") or 0.0) for r in rows]))
+
+    def final_rows(self, m: int) -> list[dict[str, Any]]:
+        """The rows of the last ``m`` evaluations (the final draws when the estimate just ended)."""
+        return self._last_rows[-m:]
+
+    def refit_noise(self, elite: np.ndarray, weights: np.ndarray) -> None:
+        """Cross-entropy update of the noise tilt from the last batch's elite episodes (weights: their
+        likelihood ratios); nothing without a tilt."""
+        if self.noise_tilt is None:
+            return
+        rows = [r for r, e in zip(self._last_rows, elite, strict=True) if e]
+        sums = np.array([r.get("noise_tilt_sums") or [0.0] * 9 for r in rows], dtype=float).reshape(-1, 9)
+        counts = np.array([r.get("noise_tilt_counts") or [0.0] * 3 for r in rows], dtype=float).reshape(-1, 3)
+        self.noise_tilt = noise.refit_tilt(self.noise_tilt, sums, counts, weights)
+        if self.progress:
+            self.progress(f"    noise tilt {tilt_text(self.noise_tilt)}")
 
     def _here(self, ids: list[int], values: dict[int, tuple[float, ...]]) -> list[dict[str, Any]]:
         rows = []
@@ -111,7 +180,8 @@ class ClosedLoopScore:
             part = ids[start:start + BATCH]
             over = {e: dict(zip(self.names, values[e], strict=True)) for e in part}
             t0 = time.process_time()
-            rows += run_episodes(self.cell, part, self.seed, self.planner, scenarios=over).rows
+            rows += run_episodes(self.cell, part, self.seed, self.planner, scenarios=over,
+                                 noise_tilt=self.noise_tilt).rows
             self.cpu_s += time.process_time() - t0
         return rows
 
@@ -125,7 +195,7 @@ class ClosedLoopScore:
                 got[int(row["cell_episode"])] = row
 
         chunks = [store.Chunk(self.cell.index, tuple(ids[i:i + BATCH])) for i in range(0, len(ids), BATCH)]
-        unit = functools.partial(scenario_unit, names=tuple(self.names), values=values)
+        unit = functools.partial(scenario_unit, names=tuple(self.names), values=values, noise_tilt=self.noise_tilt)
         executors.execute(self.campaign, chunks, on_done, executor=self.executor, episode_fn=unit)
         rows = [got[e] for e in ids]  # in episode order, whatever order the units finished in
         self.cpu_s += sum(float(r.get("unit_cpu_s") or 0.0) for r in rows)
@@ -151,7 +221,9 @@ class ClosedLoopScore:
 class ImportanceSpec:
     """target: collision or ellipse; samples: final draws from the defensive mixture; ce_samples:
     draws per cross-entropy iteration; rho: elite share; alpha: defensive (nominal) share; level;
-    score: what steers the cross-entropy stages (None: ``gap`` for collision, ``h_ef`` for ellipse)."""
+    score: what steers the cross-entropy stages (None: ``gap`` for collision, ``h_ef`` for ellipse);
+    noise_tilt: the fields of the starting :class:`~mcverify.sim.noise.NoiseTilt` (None: the nominal
+    noise); the cross-entropy iterations refit its tilts."""
 
     target: str = "collision"
     samples: int = 400
@@ -161,6 +233,7 @@ class ImportanceSpec:
     level: float = 0.95
     max_ce_iterations: int = 10
     score: str | None = None
+    noise_tilt: dict[str, Any] | None = None
 
     def __post_init__(self) -> None:
         if self.target not in ("collision", "ellipse"):
@@ -173,6 +246,24 @@ class ImportanceSpec:
             raise ValueError("alpha and rho must be in (0, 1)")
         if self.samples < 2 or self.ce_samples < 2:
             raise ValueError("need at least 2 samples and 2 cross-entropy samples")
+        if self.noise_tilt is not None:
+            tilt = self.tilt()
+            assert tilt is not None
+            if (not 0.0 < tilt.defensive <= 1.0 or tilt.gap_max_m <= 0.0 or tilt.band_steps < 1
+                    or tilt.theta_max <= 0 or len(tilt.theta) != 9):
+                raise ValueError("--noise-tilt needs defensive in (0, 1], gap_max_m > 0, band_steps >= 1, "
+                                 "theta_max > 0 and 9 tilts")
+
+    def tilt(self) -> NoiseTilt | None:
+        """The starting noise tilt as the plant takes it, or None."""
+        if self.noise_tilt is None:
+            return None
+        return NoiseTilt(**{**self.noise_tilt, "theta": tuple(self.noise_tilt.get("theta", (0.0,) * 9))})
+
+    def max_noise_ratio(self) -> float:
+        """The largest likelihood ratio the tilt can give an episode (1 without a tilt)."""
+        tilt = self.tilt()
+        return 1.0 if tilt is None else tilt.max_ratio()
 
 
 def run(campaign: Campaign, spec: ImportanceSpec, out: Path, *, progress=print,
@@ -211,12 +302,18 @@ def _cells_on(campaign: Campaign, spec: ImportanceSpec, out: Path, done: dict[in
         ("warnings", lambda c: "; ".join(c["warnings"]) or "-"),
     ]
     steer = spec.score or ("gap" if spec.target == "collision" else "h_ef")
+    tilt = spec.tilt()
+    noise_text = ("the noise stays nominal" if tilt is None else
+                  "veh_f's measurement noise near veh_f is drawn from a noise tilt refitted by the cross-entropy "
+                  f"iterations (start: {tilt_text(tilt)}; each episode's weight carries its likelihood ratio)")
     intro = (f"Target: {spec.target}, cross-entropy steered by the score {steer}. Cross-entropy importance "
              "sampling over the cell's scenario ranges "
              f"({spec.ce_samples} episodes per CE iteration, elite share {spec.rho:g}), then {spec.samples} episodes "
-             f"from the defensive mixture ({spec.alpha:g} nominal); the noise stays nominal. The interval is "
+             f"from the defensive mixture ({spec.alpha:g} nominal); {noise_text}. The interval is "
              f"asymptotic ({spec.level:.0%} normal); read it with the ESS and the largest weight's share. The "
-             "anytime lower bound (one-sided, same level, betting on the bounded weights) holds at any sample count.")
+             "anytime lower bound (one-sided, same level, betting on the bounded weights) holds at any sample count. "
+             "Each cell's final draws (episode id, scenario values, weight, failed, outcome) are kept in "
+             "samples_cellNNN.parquet; the estimate is mean(weight * failed) over them.")
 
     def write():
         return folder.write(out, f"mcverify importance-sampling estimate: {campaign.name}", intro,
@@ -232,16 +329,20 @@ def _cells_on(campaign: Campaign, spec: ImportanceSpec, out: Path, done: dict[in
         progress(f"cell {cell.name}: importance sampling over {', '.join(bounds)}")
         planner = executors.solver_for(cell.params) if executor is None else None
         score = ClosedLoopScore(cell, campaign.seed, planner, list(bounds), spec.target, spec.score,
-                                executor=executor, campaign=campaign)
+                                executor=executor, campaign=campaign, noise_tilt=tilt, progress=progress)
         # the draws of the scenario parameters follow the campaign seed and the cell (as the noise
         # does), so that estimates with distinct --seed are independent repetitions and the cells of
         # one campaign are independent estimates (shared draws only under common random numbers)
+        final: dict[str, np.ndarray] = {}
         est = importance.estimate(score, list(bounds.values()), samples=spec.samples, alpha=spec.alpha,
                                   level=spec.level, seed=campaign.seed, per_iteration=spec.ce_samples, rho=spec.rho,
-                                  max_iterations=spec.max_ce_iterations,
-                                  stream=0 if campaign.common_random_numbers else cell.index, progress=progress)
+                                  max_iterations=spec.max_ce_iterations, max_extra_ratio=spec.max_noise_ratio(),
+                                  stream=0 if campaign.common_random_numbers else cell.index, progress=progress,
+                                  on_samples=lambda t, w, f, kept=final: kept.update(theta=t, weight=w, failed=f))
+        write_samples(out, cell.index, list(bounds), score.final_rows(len(final["weight"])), final)
         results[cell.index] = {"cell_index": cell.index, "cell": cell.name, "method": "importance",
                                "target": spec.target, "parameters": list(bounds), **est.as_dict(),
-                               "episodes": score.episodes, "steps": score.steps, "cpu_s": score.cpu_s}
+                               "episodes": score.episodes, "steps": score.steps, "cpu_s": score.cpu_s,
+                               **({} if score.noise_tilt is None else {"noise_tilt": score.noise_tilt._asdict()})}
         write()
     return write()

@@ -133,7 +133,11 @@ class Plant(NamedTuple):
 
     ego: (4,) [x_m, y_m, psi_rad, speed_mps]; front: (2,) [x_m, speed_mps] on the ego lane centre;
     opp: (2,) [x_m, v_mps] on the opposing lane centre, v <= 0 (road frame);
-    front_accel_mps2: () this episode's alpha_f; t_s: () time since the episode started.
+    front_accel_mps2: () this episode's alpha_f; t_s: () time since the episode started;
+    tilt_log_ratio: () the sum of log(tilted / nominal density) over the tilted steps so far (the
+    episode's likelihood ratio follows from it, :func:`~mcverify.sim.noise.episode_log_lr`); tilt_sums:
+    (9,) the sums of the tilted units per (band, unit), row-major; tilt_counts: (3,) the tilted steps per
+    band (all 0 unless a :class:`~mcverify.sim.noise.NoiseTilt` is in use).
     """
 
     ego: Array
@@ -141,6 +145,9 @@ class Plant(NamedTuple):
     opp: Array
     front_accel_mps2: Array
     t_s: Array
+    tilt_log_ratio: Array
+    tilt_sums: Array
+    tilt_counts: Array
 
 
 class SafetyTrace(NamedTuple):
@@ -250,6 +257,43 @@ def observe(plant: Plant, key: Array, step: Array, pp: PlantParams) -> tuple[Arr
     return jnp.stack([fx, fy, fv]), jnp.stack([ox, ov])
 
 
+def observe_tilted(plant: Plant, key: Array, step: Array, pp: PlantParams, tilt: Array,
+                   live: Array) -> tuple[Array, Array, Plant]:
+    """:func:`observe` with veh_f's noise drawn from a :class:`~mcverify.sim.noise.NoiseTilt` at the
+    tilted steps (importance sampling); returns the measurements and the plant with its likelihood
+    ratio and tilt statistics updated.
+
+    tilt: (14,) :meth:`NoiseTilt.pack`; live: () whether the episode still uses its measurements (a
+    stopped episode's later draws change nothing, so they are not counted: its likelihood ratio does
+    not depend on how long its chunk runs). Away from the tilted steps every draw is :func:`observe`'s,
+    bit for bit.
+    """
+    front, opp = observe(plant, key, step, pp)
+    c = checks(plant.ego, plant.front, plant.opp, jnp.zeros(2), pp)
+    theta, split_m, gap_max_m, band_steps, defensive, theta_max = (
+        tilt[:9].reshape(3, 3), tilt[9], tilt[10], tilt[11], tilt[12], tilt[13])
+    gap = c.gap_front_m
+    band = jnp.where(gap > split_m, 0, jnp.where(gap > pp.near_threshold_m, 1, 2))
+    tilted = (live & (pp.noise_scale > 0) & (gap <= gap_max_m) & (plant.tilt_counts[band] < band_steps))
+    raw = noise.unit_draws(noise.step_key(key, step, STREAM_FRONT))
+    # one draw per episode (not per step) picks the mixture's component
+    nominal = jax.random.uniform(jax.random.fold_in(key, noise.STREAM_TILT), (), dtype=float) < defensive
+    z, log_ratio = noise.tilted_units(raw, nominal, jnp.clip(theta[band], -theta_max, theta_max))
+    fsx, fsv = noise.structured_offsets(pp.front_disturbance, plant.t_s, pp.front_segments, pp.front_segment_counts,
+                                        pp.episode_s)
+    nz = {"pos_far_m": pp.pos_far_m, "pos_near_m": pp.pos_near_m, "near_threshold_m": pp.near_threshold_m,
+          "speed_rel": pp.speed_rel, "scale": pp.noise_scale}
+    drawn = noise.measure(key, plant.front[0], 0.0, plant.front[1], gap, **nz, share=pp.noise_share, x_offset=fsx,
+                          v_offset=fsv, unit=z)
+    front = jnp.where(tilted, jnp.stack(drawn), front)
+    one_hot = (jnp.arange(3) == band) & tilted
+    return front, opp, plant._replace(
+        tilt_log_ratio=plant.tilt_log_ratio + jnp.where(tilted, log_ratio, 0.0),
+        tilt_sums=plant.tilt_sums + jnp.where(jnp.repeat(one_hot, 3), jnp.tile(z, 3), 0.0),
+        tilt_counts=plant.tilt_counts + one_hot.astype(float),
+    )
+
+
 def opposing_accel(plant: Plant, u: Array, pp: PlantParams) -> Array:
     """veh_o's acceleration for this control period (its controller samples at the ego's rate)."""
     auto = agents.autonomous_accel(
@@ -303,7 +347,7 @@ def advance(plant: Plant, trace: SafetyTrace, u: Array, active: Array, pp: Plant
         return (ego_n, front_n, opp_n, tr), sub
 
     (ego, front, opp, tr), subs = jax.lax.scan(body, (plant.ego, plant.front, plant.opp, trace), jnp.arange(substeps))
-    new_plant = Plant(ego, front, opp, plant.front_accel_mps2, plant.t_s + pp.control_period_s)
+    new_plant = plant._replace(ego=ego, front=front, opp=opp, t_s=plant.t_s + pp.control_period_s)
     keep = lambda new, old: jnp.where(active, new, old)  # noqa: E731 - finished episodes stay frozen
     return jax.tree.map(keep, new_plant, plant), jax.tree.map(keep, tr, trace), subs
 
@@ -324,6 +368,12 @@ def compiled(substeps: int):
     return obs, adv, ini
 
 
+@functools.lru_cache(maxsize=1)
+def compiled_tilted():
+    """:func:`observe_tilted`, jitted and vmapped over :data:`LANES` episodes (importance sampling only)."""
+    return jax.jit(jax.vmap(observe_tilted, in_axes=(0, 0, None, None, None, 0)))
+
+
 def initial_plant(p: ModelParams, front_accels_mps2: Sequence[float],
                   opp_speeds_mps: Sequence[float] | None = None) -> Plant:
     """The campaign's start (paper Sec. VI-B) for episodes with these alpha_f (and veh_o speeds,
@@ -338,7 +388,8 @@ def initial_plant(p: ModelParams, front_accels_mps2: Sequence[float],
     else:
         speeds = [o.speed_mps] * n if opp_speeds_mps is None else list(opp_speeds_mps)
         opp = jnp.array([[o.x_m, -v] for v in speeds], dtype=float)
-    return Plant(ego, front, opp, jnp.asarray(front_accels_mps2, dtype=float), jnp.zeros(n))
+    return Plant(ego, front, opp, jnp.asarray(front_accels_mps2, dtype=float), jnp.zeros(n), jnp.zeros(n),
+                 jnp.zeros((n, 9)), jnp.zeros((n, 3)))
 
 
 def footprint_top_y_m(ego: np.ndarray, p: ModelParams) -> np.ndarray:
@@ -357,9 +408,11 @@ class LaneGroups:
     Padding lanes repeat the last episode, are never active and are dropped from every output.
     """
 
-    def __init__(self, plant: Plant, keys: Array, params: ModelParams) -> None:
+    def __init__(self, plant: Plant, keys: Array, params: ModelParams, tilt: noise.NoiseTilt | None = None) -> None:
         self.n = int(plant.t_s.shape[0])
         self.pp = plant_params(params)
+        # a noise tilt (importance sampling) with an empty window is no tilt: the plain executable runs
+        self.tilt = tilt.pack() if tilt is not None and tilt.gap_max_m > 0 else None
         self.substeps = params.sim.substeps
         self._obs, self._adv, self._ini = compiled(self.substeps)
         pad = (-self.n) % LANES
@@ -378,14 +431,36 @@ class LaneGroups:
         """(n, 4) true ego states."""
         return self._gather([pl.ego for pl in self.plants])
 
-    def observe(self, step: int) -> tuple[np.ndarray, np.ndarray]:
-        """Measured (front (n, 3), opp (n, 2)) at control step ``step``."""
-        outs = self.observe_on_device(step)
+    def observe(self, step: int, live: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Measured (front (n, 3), opp (n, 2)) at control step ``step``; ``live`` (n,) bool: the episodes
+        that still use their measurements (read only under a noise tilt; default all)."""
+        outs = self.observe_on_device(step, live)
         return self._gather([o[0] for o in outs]), self._gather([o[1] for o in outs])
 
-    def observe_on_device(self, step: int) -> list[tuple[Array, Array]]:
-        """Per lane group, the (front, opp) measurements as JAX arrays, not yet copied to the host."""
-        return [self._obs(pl, k, jnp.asarray(step), self.pp) for pl, k in zip(self.plants, self.keys, strict=True)]
+    def observe_on_device(self, step: int, live: np.ndarray | None = None) -> list[tuple[Array, Array]]:
+        """Per lane group, the (front, opp) measurements as JAX arrays, not yet copied to the host
+        (under a noise tilt the plants' noise memory is updated too)."""
+        if self.tilt is None:
+            return [self._obs(pl, k, jnp.asarray(step), self.pp) for pl, k in zip(self.plants, self.keys, strict=True)]
+        live = np.ones(self.n, dtype=bool) if live is None else np.asarray(live, dtype=bool)
+        live = np.concatenate([live, np.zeros(self.groups * LANES - self.n, dtype=bool)])
+        outs = []
+        for g in range(self.groups):
+            front, opp, self.plants[g] = compiled_tilted()(self.plants[g], self.keys[g], jnp.asarray(step), self.pp,
+                                                           self.tilt, jnp.asarray(live[g * LANES:(g + 1) * LANES]))
+            outs.append((front, opp))
+        return outs
+
+    def noise_log_lr(self) -> np.ndarray:
+        """(n,) log(nominal / proposal) of each episode's noise so far (0 without a noise tilt)."""
+        if self.tilt is None:
+            return np.zeros(self.n)
+        ratio = self._gather([pl.tilt_log_ratio for pl in self.plants])
+        return np.asarray(noise.episode_log_lr(ratio, self.tilt[12]))
+
+    def tilt_statistics(self) -> tuple[np.ndarray, np.ndarray]:
+        """((n, 9) sums of the tilted units per (band, unit), (n, 3) tilted steps per band)."""
+        return self._gather([pl.tilt_sums for pl in self.plants]), self._gather([pl.tilt_counts for pl in self.plants])
 
     def advance(self, u: np.ndarray, active: np.ndarray) -> list[Substep]:
         """One control period for every episode; returns the per-group sub-step outputs."""

@@ -149,3 +149,72 @@ def test_parallel_batches_give_the_same_estimate(tmp_path: Path, campaign_file: 
     same = ("estimate", "low", "high", "failures", "ess", "proposal_a", "proposal_b", "ce_levels", "episodes", "steps")
     assert {k: here[k] for k in same} == {k: two[k] for k in same}
     assert two["cpu_s"] > 0
+
+
+TILT = "gap_max_m=1000,split_m=30,y_approach=-3,y_jump=3"  # a window the 1 s episodes are inside of
+
+
+def test_a_noise_tilt_draws_inside_its_window_only():
+    """In its window the tilt draws and weighs; a window the episodes never reach leaves every row as
+    the plain run's, bit for bit (only the tilt's own keys are added, with ratio 1)."""
+    from mcverify.sim.noise import NoiseTilt  # noqa: PLC0415
+
+    camp = campaign_from_dict({"campaign": {"name": "r", "seed": 1, "episodes": 1},
+                               "model": {"sim": {"control_period_s": 0.1, "substeps": 20, "max_time_s": 1.0},
+                                         "noise": {"kind": "paper"}}})
+    cell = camp.cells[0]
+    planner = executors.solver_for(cell.params)
+    plain = run_episodes(cell, [0, 1], camp.seed, planner).rows
+    y = np.zeros(9)
+    y[1], y[4] = -3.0, 3.0
+    unreached = run_episodes(cell, [0, 1], camp.seed, planner,
+                             noise_tilt=NoiseTilt(theta=tuple(y), split_m=2.2, gap_max_m=2.5)).rows
+    tilted = run_episodes(cell, [0, 1], camp.seed, planner,
+                          noise_tilt=NoiseTilt(theta=tuple(y), split_m=30.0, gap_max_m=1000.0, band_steps=3)).rows
+    tilt_keys = ("noise_log_lr", "noise_tilt_sums", "noise_tilt_counts", "solve_time_mean_s", "solve_time_max_s")
+    for a, b in zip(plain, unreached, strict=True):
+        assert {k: v for k, v in a.items() if k not in tilt_keys} == {k: v for k, v in b.items() if k not in tilt_keys}
+        assert b["noise_log_lr"] == 0.0 and b["noise_tilt_counts"] == [0.0, 0.0, 0.0]
+    for row in tilted:
+        assert row["noise_tilt_counts"] == [3.0, 0.0, 0.0] and row["noise_log_lr"] != 0.0  # veh_f over 30 m ahead
+
+
+def test_the_noise_tilt_cli_records_the_fitted_tilt_and_runs_the_same_on_workers(tmp_path: Path, campaign_file: Path):
+    args = ["estimate", str(campaign_file), "--method", "importance", "--target", "ellipse", "--samples", "16",
+            "--ce-samples", "10", "--ce-iterations", "1", "--seed", "3", "--noise-tilt", TILT, "-q"]
+    assert main([*args, "--run-dir", str(tmp_path / "here")]) == 0
+    assert main([*args, "--workers", "2", "--run-dir", str(tmp_path / "two")]) == 0
+    here, two = (json.loads((tmp_path / d / "estimate.json").read_text())["cells"][0] for d in ("here", "two"))
+    assert len(here["noise_tilt"]["theta"]) == 9 and here["noise_tilt"]["gap_max_m"] == 1000.0
+    same = ("estimate", "low", "high", "failures", "ess", "proposal_a", "proposal_b", "noise_tilt", "episodes")
+    assert {k: here[k] for k in same} == {k: two[k] for k in same}
+    assert "noise tilt" in (tmp_path / "here" / "report.md").read_text()
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--method", "importance", "--noise-tilt", "y_jump=3"], "gap_max_m is required"),
+    (["--method", "importance", "--noise-tilt", "gap_max_m=3,y_jmp=3"], "expected KEY=VALUE"),
+    (["--method", "importance", "--noise-tilt", "gap_max_m=3,defensive=0"], "defensive in (0, 1]"),
+    (["--method", "splitting", "--noise-tilt", "gap_max_m=3"], "--noise-tilt is a proposal of --method importance"),
+])
+def test_a_bad_noise_tilt_is_one_line(tmp_path: Path, campaign_file: Path, capsys, extra, message):
+    rc = main(["estimate", str(campaign_file), *extra, "--run-dir", str(tmp_path / "o"), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and message in err[0]
+
+
+def test_the_final_draws_are_kept_and_give_the_estimate(tmp_path: Path, campaign_file: Path):
+    """samples_cell000.parquet holds the final draws: mean(weight * failed) is the stored estimate,
+    exactly, and each draw's scenario value lies in the cell's range."""
+    import pyarrow.parquet as pq  # noqa: PLC0415
+
+    out = tmp_path / "est"
+    assert main(["estimate", str(campaign_file), "--method", "importance", "--target", "ellipse", "--samples", "12",
+                 "--ce-samples", "10", "--ce-iterations", "1", "--seed", "4", "--noise-tilt", TILT, "--run-dir",
+                 str(out), "-q"]) == 0
+    cell = json.loads((out / "estimate.json").read_text())["cells"][0]
+    kept = pq.read_table(out / "samples_cell000.parquet").to_pydict()
+    weight, failed = np.array(kept["weight"]), np.array(kept["failed"])
+    assert len(weight) == 12 and kept["cell_episode"] == list(range(10, 22))
+    assert float((weight * failed).mean()) == cell["estimate"]
+    assert all(1.0 <= a <= 3.0 for a in kept["sample_front_accel_mps2"]) and all(np.isfinite(kept["noise_log_lr"]))
