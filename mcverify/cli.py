@@ -573,7 +573,8 @@ def _cmd_estimate_in_process(args, method: str) -> int:
     from mcverify.estimate import folder, importance_run, splitting_run
 
     module = splitting_run if method == "splitting" else importance_run
-    log = lambda msg: print(msg, file=sys.stderr)  # noqa: E731
+    # progress lines on stderr, unless -q ("only warnings and errors on stderr")
+    log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))  # noqa: E731
     if args.resume:
         from mcverify import store
 

@@ -218,3 +218,13 @@ def test_the_final_draws_are_kept_and_give_the_estimate(tmp_path: Path, campaign
     assert len(weight) == 12 and kept["cell_episode"] == list(range(10, 22))
     assert float((weight * failed).mean()) == cell["estimate"]
     assert all(1.0 <= a <= 3.0 for a in kept["sample_front_accel_mps2"]) and all(np.isfinite(kept["noise_log_lr"]))
+
+
+def test_quiet_keeps_the_progress_lines_off_stderr(tmp_path: Path, campaign_file: Path, capsys):
+    args = ["estimate", str(campaign_file), "--method", "importance", "--target", "ellipse", "--samples", "4",
+            "--ce-samples", "4", "--ce-iterations", "1"]
+    assert main([*args, "--run-dir", str(tmp_path / "loud")]) == 0
+    assert "cross-entropy iteration" in capsys.readouterr().err
+    assert main([*args, "--run-dir", str(tmp_path / "quiet"), "-q"]) == 0
+    err = capsys.readouterr().err
+    assert "cross-entropy iteration" not in err and "estimate folder" not in err
