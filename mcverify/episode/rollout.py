@@ -242,7 +242,8 @@ def run_episodes(
             ego = world.ego()
             if spawning:
                 _spawn_opposing(world, states, samples, entered_s, ego, t_s, p)
-            live = np.array([not st.done or b in settling for b, st in enumerate(states)])
+            live = None if noise_tilt is None else np.array([not st.done or b in settling
+                                                              for b, st in enumerate(states)])
             front_meas, opp_meas = world.observe(step, live)
         u = np.zeros((len(ids), 2))
         records: dict[int, StepRecord] = {}

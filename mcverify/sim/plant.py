@@ -244,17 +244,31 @@ def observe(plant: Plant, key: Array, step: Array, pp: PlantParams) -> tuple[Arr
     Returns (front (3,) [x, y, v], opp (2,) [x, v]); the ego's own state is known exactly.
     """
     c = checks(plant.ego, plant.front, plant.opp, jnp.zeros(2), pp)
-    nz = {"pos_far_m": pp.pos_far_m, "pos_near_m": pp.pos_near_m, "near_threshold_m": pp.near_threshold_m,
-          "speed_rel": pp.speed_rel, "scale": pp.noise_scale}
+    return _measure_front(plant, key, step, pp, c.gap_front_m), _measure_opp(plant, key, step, pp, c.gap_opp_m)
+
+
+def _noise_numbers(pp: PlantParams) -> dict[str, Array]:
+    return {"pos_far_m": pp.pos_far_m, "pos_near_m": pp.pos_near_m, "near_threshold_m": pp.near_threshold_m,
+            "speed_rel": pp.speed_rel, "scale": pp.noise_scale}
+
+
+def _measure_front(plant: Plant, key: Array, step: Array, pp: PlantParams, gap_m: Array,
+                   unit: Array | None = None) -> Array:
+    """veh_f measured (3,) [x, y, v], from the step's own draws or from ``unit`` (3,) (a noise tilt's)."""
     fsx, fsv = noise.structured_offsets(pp.front_disturbance, plant.t_s, pp.front_segments, pp.front_segment_counts,
                                         pp.episode_s)
+    return jnp.stack(noise.measure(noise.step_key(key, step, STREAM_FRONT), plant.front[0], 0.0, plant.front[1],
+                                   gap_m, **_noise_numbers(pp), share=pp.noise_share, x_offset=fsx, v_offset=fsv,
+                                   unit=unit))
+
+
+def _measure_opp(plant: Plant, key: Array, step: Array, pp: PlantParams, gap_m: Array) -> Array:
+    """veh_o measured (2,) [x, v]."""
     osx, osv = noise.structured_offsets(pp.opp_disturbance, plant.t_s, pp.opp_segments, pp.opp_segment_counts,
                                         pp.episode_s)
-    fx, fy, fv = noise.measure(noise.step_key(key, step, STREAM_FRONT), plant.front[0], 0.0, plant.front[1],
-                               c.gap_front_m, **nz, share=pp.noise_share, x_offset=fsx, v_offset=fsv)
     ox, _, ov = noise.measure(noise.step_key(key, step, STREAM_OPP), plant.opp[0], pp.opp_lane_y_m, plant.opp[1],
-                              c.gap_opp_m, **nz, share=pp.noise_share, x_offset=osx, v_offset=osv)
-    return jnp.stack([fx, fy, fv]), jnp.stack([ox, ov])
+                              gap_m, **_noise_numbers(pp), share=pp.noise_share, x_offset=osx, v_offset=osv)
+    return jnp.stack([ox, ov])
 
 
 def observe_tilted(plant: Plant, key: Array, step: Array, pp: PlantParams, tilt: Array,
@@ -266,9 +280,8 @@ def observe_tilted(plant: Plant, key: Array, step: Array, pp: PlantParams, tilt:
     tilt: (14,) :meth:`NoiseTilt.pack`; live: () whether the episode still uses its measurements (a
     stopped episode's later draws change nothing, so they are not counted: its likelihood ratio does
     not depend on how long its chunk runs). Away from the tilted steps every draw is :func:`observe`'s,
-    bit for bit.
+    bit for bit (the step's own units go through the same measurement).
     """
-    front, opp = observe(plant, key, step, pp)
     c = checks(plant.ego, plant.front, plant.opp, jnp.zeros(2), pp)
     theta, split_m, gap_max_m, band_steps, defensive, theta_max = (
         tilt[:9].reshape(3, 3), tilt[9], tilt[10], tilt[11], tilt[12], tilt[13])
@@ -279,15 +292,9 @@ def observe_tilted(plant: Plant, key: Array, step: Array, pp: PlantParams, tilt:
     # one draw per episode (not per step) picks the mixture's component
     nominal = jax.random.uniform(jax.random.fold_in(key, noise.STREAM_TILT), (), dtype=float) < defensive
     z, log_ratio = noise.tilted_units(raw, nominal, jnp.clip(theta[band], -theta_max, theta_max))
-    fsx, fsv = noise.structured_offsets(pp.front_disturbance, plant.t_s, pp.front_segments, pp.front_segment_counts,
-                                        pp.episode_s)
-    nz = {"pos_far_m": pp.pos_far_m, "pos_near_m": pp.pos_near_m, "near_threshold_m": pp.near_threshold_m,
-          "speed_rel": pp.speed_rel, "scale": pp.noise_scale}
-    drawn = noise.measure(key, plant.front[0], 0.0, plant.front[1], gap, **nz, share=pp.noise_share, x_offset=fsx,
-                          v_offset=fsv, unit=z)
-    front = jnp.where(tilted, jnp.stack(drawn), front)
+    front = _measure_front(plant, key, step, pp, gap, unit=jnp.where(tilted, z, raw))
     one_hot = (jnp.arange(3) == band) & tilted
-    return front, opp, plant._replace(
+    return front, _measure_opp(plant, key, step, pp, c.gap_opp_m), plant._replace(
         tilt_log_ratio=plant.tilt_log_ratio + jnp.where(tilted, log_ratio, 0.0),
         tilt_sums=plant.tilt_sums + jnp.where(jnp.repeat(one_hot, 3), jnp.tile(z, 3), 0.0),
         tilt_counts=plant.tilt_counts + one_hot.astype(float),
