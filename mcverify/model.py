@@ -304,6 +304,17 @@ class Noise:
     values in [-1, 1] each): the episode duration ``sim.max_time_s`` is cut into K equal segments and
     the k-th value is added inside the clip during segment k, so ``s(t) = clip(bias + drift_per_s * t
     + offset_k(t), -1, 1)``; () (the default) adds nothing.
+
+    veh_f's measured lateral position (y) has its own share, ``lateral_share`` (default 0, so the
+    x/speed share never changes y): its error is ``half_width * ((1 - lateral_share) * u_y +
+    lateral_share * s_y)`` with ``s_y = clip(front_y_bias + front_y_drift_per_s * t + offset_k(t) +
+    gap_offset_j(gap), -1, 1)``, where the time offsets ``front_y_segments`` are as above and the
+    *gap offsets* ``front_y_gap_segments`` cut veh_f's true footprint gap [0, front_y_gap_window_m]
+    into J equal bands (band 0 the nearest) and add the j-th value while the gap is in band j, nothing
+    beyond the window: a lateral error keyed to where the ego is, e.g. veh_f measured 1 m towards the
+    ego exactly as the ego comes alongside, the pattern that makes Q1 infeasible there
+    (docs/rare_events.md, "What decides an event at lower noise"). veh_o's lateral position is not
+    measured (it is taken on its lane centre), so it has no lateral disturbance.
     """
 
     kind: str = "paper"
@@ -349,6 +360,22 @@ class Noise:
     opp_v_segments: tuple[float, ...] = ()
     """Piecewise-constant offsets of veh_o's speed disturbance (see front_x_segments). Valid: up to 8 values in [-1,
     1]. Paper: ()."""
+    lateral_share: float = 0.0
+    """Share of veh_f's lateral (y) position error taken by its structured lateral disturbance. Valid: [0, 1]. Paper:
+    0 (none)."""
+    front_y_bias: float = 0.0
+    """Structured bias of veh_f's measured y, as a fraction of its half-width (+ towards the opposing lane). Valid:
+    [-1, 1]. Paper: 0."""
+    front_y_drift_per_s: float = 0.0
+    """Drift of veh_f's y disturbance (1/s). Valid: finite. Paper: 0."""
+    front_y_segments: tuple[float, ...] = ()
+    """Piecewise-constant offsets of veh_f's y disturbance over time (see front_x_segments). Valid: up to 8 values in
+    [-1, 1]. Paper: ()."""
+    front_y_gap_segments: tuple[float, ...] = ()
+    """Offsets of veh_f's y disturbance by veh_f's true footprint gap: J equal bands of [0, front_y_gap_window_m],
+    band 0 the nearest; none beyond the window. Valid: up to 8 values in [-1, 1]. Paper: ()."""
+    front_y_gap_window_m: float = 8.0
+    """The footprint-gap window that front_y_gap_segments divides. Valid: > 0. Paper: (unused)."""
     key_seed: int = -1
     """Root of the episodes' noise: -1 draws it from (campaign seed, cell, episode id); a seed >= 0 from (key_seed,
     episode id) only, whatever the cell (a splitting search re-runs a parent's noise in a child's cell). Valid: -1 or

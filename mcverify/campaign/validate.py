@@ -26,7 +26,8 @@ from mcverify.model import (
 )
 
 #: The piecewise-constant disturbance fields of [model.noise].
-SEGMENT_FIELDS = ("front_x_segments", "front_v_segments", "opp_x_segments", "opp_v_segments")
+SEGMENT_FIELDS = ("front_x_segments", "front_v_segments", "opp_x_segments", "opp_v_segments", "front_y_segments",
+                  "front_y_gap_segments")
 
 CONTROLLERS = ("vlcbf", "mpcdc", "mpcdc_eps")
 OPPOSING_KINDS = ("none", "autonomous", "human")
@@ -73,13 +74,14 @@ def validate_params(p: ModelParams, where: str) -> None:
         "mpc.tol": m.tol,
         "sim.control_period_s": s.control_period_s,
         "sim.max_time_s": s.max_time_s,
+        "noise.front_y_gap_window_m": n.front_y_gap_window_m,
     }
     for key, v in positive.items():
         if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
             raise bad(key, f"must be a finite number > 0, got {_short(v)}")
-    unit_interval = {"noise.structured_share": (n.structured_share, 0.0)}
+    unit_interval = {"noise.structured_share": (n.structured_share, 0.0), "noise.lateral_share": (n.lateral_share, 0.0)}
     unit_interval |= {f"noise.{k}": (getattr(n, k), -1.0) for k in ("front_x_bias", "front_v_bias", "opp_x_bias",
-                                                                   "opp_v_bias")}
+                                                                   "opp_v_bias", "front_y_bias")}
     for key, (v, low) in unit_interval.items():
         if not low <= v <= 1.0:
             raise bad(key, f"must be in [{low:g}, 1] (a fraction of the noise bound), got {_short(v)}")

@@ -106,6 +106,52 @@ def segment_arrays(noise: Noise) -> dict[str, tuple[list[list[float]], list[floa
     }
 
 
+def lateral_arrays(noise: Noise) -> dict[str, list[float]]:
+    """veh_f's structured lateral disturbance as runtime numbers: ``disturbance`` [y bias, y drift (1/s)],
+    ``segments`` (MAX_SEGMENTS,) time offsets and ``gap_segments`` (MAX_SEGMENTS,) gap offsets, zero
+    padded, with their counts, and ``gap_window_m`` (m); :attr:`~mcverify.model.Noise.lateral_share`."""
+    def pad(v: tuple[float, ...]) -> list[float]:
+        return [*v, *([0.0] * (MAX_SEGMENTS - len(v)))]
+
+    return {
+        "disturbance": [noise.front_y_bias, noise.front_y_drift_per_s],
+        "segments": pad(noise.front_y_segments),
+        "segment_count": float(len(noise.front_y_segments)),
+        "gap_segments": pad(noise.front_y_gap_segments),
+        "gap_segment_count": float(len(noise.front_y_gap_segments)),
+        "gap_window_m": noise.front_y_gap_window_m,
+    }
+
+
+def gap_segment_offset(values: ArrayLike, count: ArrayLike, gap_m: ArrayLike, window_m: ArrayLike) -> Array:
+    """The offset by footprint gap: ``values[j]`` while ``gap_m`` lies in the j-th of ``count`` equal bands
+    of [0, window_m] (band 0 the nearest; a gap below 0, overlap, counts as band 0), 0 beyond the window
+    or when ``count`` is 0. values: (MAX_SEGMENTS,); count, gap_m (m), window_m (m): scalars."""
+    j = jnp.clip(jnp.floor(gap_m / window_m * count), 0.0, jnp.maximum(count - 1.0, 0.0)).astype(jnp.int32)
+    return jnp.where((count > 0) & (gap_m <= window_m), jnp.asarray(values, dtype=float)[j], 0.0)
+
+
+def lateral_offset(
+    disturbance: ArrayLike,
+    t_s: ArrayLike,
+    gap_m: ArrayLike,
+    segments: ArrayLike,
+    segment_count: ArrayLike,
+    gap_segments: ArrayLike,
+    gap_segment_count: ArrayLike,
+    gap_window_m: ArrayLike,
+    episode_s: ArrayLike,
+) -> Array:
+    """s_y for veh_f's measured y: ``clip(bias + drift * t + offset(t) + gap_offset(gap), -1, 1)``.
+    disturbance (2,) [bias, drift (1/s)] as in :func:`lateral_arrays`; t_s, episode_s (s); gap_m: veh_f's
+    true footprint gap (m); the time offsets as :func:`segment_offset`, the gap offsets as
+    :func:`gap_segment_offset`."""
+    d = jnp.asarray(disturbance, dtype=float)
+    raw = (d[0] + d[1] * t_s + segment_offset(segments, segment_count, t_s, episode_s)
+           + gap_segment_offset(gap_segments, gap_segment_count, gap_m, gap_window_m))
+    return jnp.clip(raw, -1.0, 1.0)
+
+
 def segment_offset(values: ArrayLike, count: ArrayLike, t_s: ArrayLike, episode_s: ArrayLike) -> Array:
     """The piecewise-constant offset at episode time ``t_s``: ``values[k]`` on the k-th of ``count``
     equal segments of [0, episode_s] (the last one closed), 0 when ``count`` is 0.
@@ -154,6 +200,8 @@ def measure(
     x_offset: ArrayLike = 0.0,
     v_offset: ArrayLike = 0.0,
     unit: ArrayLike | None = None,
+    y_share: ArrayLike = 0.0,
+    y_offset: ArrayLike = 0.0,
 ) -> tuple[Array, Array, Array]:
     """The paper's noise model with every number a runtime argument (traced, not compiled in).
 
@@ -162,7 +210,9 @@ def measure(
     ``share`` of the x and speed errors is taken by the structured offsets ``x_offset``,
     ``v_offset`` in [-1, 1] (:func:`structured_offsets`); with share 0 the draws are used as before,
     bit for bit ((1 - 0) * u + 0 * s == u). ``unit`` (3,) in [-1, 1]: the draws to use instead of
-    the key's (a noise tilt's, :func:`tilted_units`); None: the key's.
+    the key's (a noise tilt's, :func:`tilted_units`); None: the key's. ``y_share`` of the y error is
+    taken by ``y_offset`` in [-1, 1] (:func:`lateral_offset`) the same way; with ``y_share`` 0, y is as
+    before, bit for bit.
     """
     x = jnp.asarray(true_x_m, dtype=float)
     y = jnp.asarray(true_y_m, dtype=float)
@@ -173,7 +223,8 @@ def measure(
     speed_half_mps = scale * speed_rel * jnp.abs(v)
     wx = (1.0 - share) * unit[0] + share * x_offset
     wv = (1.0 - share) * unit[2] + share * v_offset
-    return x + pos_half_m * wx, y + pos_half_m * unit[1], v + speed_half_mps * wv
+    wy = (1.0 - y_share) * unit[1] + y_share * y_offset
+    return x + pos_half_m * wx, y + pos_half_m * wy, v + speed_half_mps * wv
 
 
 # ------------------------------------------------------------------ importance-sampling proposal

@@ -82,6 +82,13 @@ class PlantParams(NamedTuple):
     opp_segments: Array
     opp_segment_counts: Array
     episode_s: Array  # sim.max_time_s: the segments divide it
+    lateral_share: Array  # share of veh_f's y error taken by the lateral disturbance (0: none)
+    front_y_disturbance: Array  # (2,) [y bias, y drift (1/s)]
+    front_y_segments: Array  # (MAX_SEGMENTS,) time offsets of y, zero padded
+    front_y_segment_count: Array
+    front_y_gap_segments: Array  # (MAX_SEGMENTS,) offsets of y by veh_f's footprint gap band, zero padded
+    front_y_gap_segment_count: Array
+    front_y_gap_window_m: Array
 
 
 def plant_params(p: ModelParams) -> PlantParams:
@@ -89,6 +96,7 @@ def plant_params(p: ModelParams) -> PlantParams:
     o, road = p.opposing, p.road
     nz = noise.noise_arrays(p.noise)
     segments = noise.segment_arrays(p.noise)
+    lateral = noise.lateral_arrays(p.noise)
     f = lambda v: jnp.asarray(v, dtype=float)  # noqa: E731
     return PlantParams(
         control_period_s=f(p.sim.control_period_s),
@@ -125,6 +133,13 @@ def plant_params(p: ModelParams) -> PlantParams:
         opp_segments=f(segments["opp"][0]),
         opp_segment_counts=f(segments["opp"][1]),
         episode_s=f(p.sim.max_time_s),
+        lateral_share=f(p.noise.lateral_share),
+        front_y_disturbance=f(lateral["disturbance"]),
+        front_y_segments=f(lateral["segments"]),
+        front_y_segment_count=f(lateral["segment_count"]),
+        front_y_gap_segments=f(lateral["gap_segments"]),
+        front_y_gap_segment_count=f(lateral["gap_segment_count"]),
+        front_y_gap_window_m=f(lateral["gap_window_m"]),
     )
 
 
@@ -257,9 +272,12 @@ def _measure_front(plant: Plant, key: Array, step: Array, pp: PlantParams, gap_m
     """veh_f measured (3,) [x, y, v], from the step's own draws or from ``unit`` (3,) (a noise tilt's)."""
     fsx, fsv = noise.structured_offsets(pp.front_disturbance, plant.t_s, pp.front_segments, pp.front_segment_counts,
                                         pp.episode_s)
+    fsy = noise.lateral_offset(pp.front_y_disturbance, plant.t_s, gap_m, pp.front_y_segments,
+                               pp.front_y_segment_count, pp.front_y_gap_segments, pp.front_y_gap_segment_count,
+                               pp.front_y_gap_window_m, pp.episode_s)
     return jnp.stack(noise.measure(noise.step_key(key, step, STREAM_FRONT), plant.front[0], 0.0, plant.front[1],
                                    gap_m, **_noise_numbers(pp), share=pp.noise_share, x_offset=fsx, v_offset=fsv,
-                                   unit=unit))
+                                   unit=unit, y_share=pp.lateral_share, y_offset=fsy))
 
 
 def _measure_opp(plant: Plant, key: Array, step: Array, pp: PlantParams, gap_m: Array) -> Array:

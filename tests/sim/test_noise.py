@@ -245,3 +245,92 @@ def test_the_plant_measures_veh_f_with_the_offset_of_the_current_segment():
         front, _ = pl.observe(lane._replace(t_s=jnp.asarray(t_s)), jax.random.PRNGKey(3), jnp.int32(4), pp)
         assert float(front[0]) - float(lane.front[0]) == p.noise.pos_far_m * value, t_s  # far regime: 0.5 m
         assert float(front[2]) == float(lane.front[1])
+
+
+# --- veh_f's lateral disturbance: bias, drift, time and footprint-gap offsets -----------------------
+
+
+def test_gap_offsets_pick_the_band_of_the_gap_and_nothing_beyond_the_window():
+    import jax.numpy as jnp  # noqa: PLC0415
+
+    from mcverify.model import MAX_SEGMENTS  # noqa: PLC0415
+    from mcverify.sim import noise as nz  # noqa: PLC0415
+
+    values = jnp.asarray([1.0, -0.5, 0.25, *([0.0] * (MAX_SEGMENTS - 3))])
+    # 3 bands of a 6 m window: [0, 2), [2, 4), [4, 6]; an overlap (gap < 0) counts as the nearest band
+    for gap, want in ((-0.3, 1.0), (0.0, 1.0), (1.99, 1.0), (2.0, -0.5), (3.5, -0.5), (4.0, 0.25), (6.0, 0.25),
+                      (6.01, 0.0), (40.0, 0.0)):
+        assert float(nz.gap_segment_offset(values, 3.0, gap, 6.0)) == want, gap
+    assert float(nz.gap_segment_offset(values, 0.0, 1.0, 6.0)) == 0.0
+    # bias + drift t + time offset + gap offset, clipped to the bound
+    zero = jnp.zeros(MAX_SEGMENTS)
+    assert float(nz.lateral_offset([0.2, 0.0], 3.0, 2.5, zero, 0.0, values, 3.0, 6.0, 20.0)) == float(
+        jnp.asarray(0.2) + jnp.asarray(-0.5))
+    assert float(nz.lateral_offset([0.5, 0.0], 3.0, 1.0, zero, 0.0, values, 3.0, 6.0, 20.0)) == 1.0
+    assert float(nz.lateral_offset([0.0, 0.1], 5.0, 30.0, zero, 0.0, values, 3.0, 6.0, 20.0)) == 0.5
+
+
+def test_lateral_share_zero_leaves_y_bit_for_bit_and_share_one_puts_y_on_its_offset():
+    import jax  # noqa: PLC0415
+    import numpy as np  # noqa: PLC0415
+
+    from mcverify.sim import noise as nz  # noqa: PLC0415
+
+    rng = np.random.default_rng(3)
+    for i in range(30):
+        key = jax.random.PRNGKey(100 + i)
+        offset = float(rng.uniform(-1, 1))
+        plain = nz.measure(key, 30.0, 0.1 * i, 7.0, 5.0, **_measure_args())
+        zero_share = nz.measure(key, 30.0, 0.1 * i, 7.0, 5.0, **_measure_args(), y_share=0.0, y_offset=offset)
+        assert [float(a) for a in plain] == [float(b) for b in zero_share]
+        _, y, _ = nz.measure(key, 30.0, 0.1 * i, 7.0, 5.0, **_measure_args(), y_share=1.0, y_offset=offset)
+        assert abs(float(y) - (0.1 * i + 0.5 * offset)) < 1e-15
+        share = float(rng.uniform(0, 1))
+        _, y, _ = nz.measure(key, 30.0, 0.0, 7.0, 5.0, **_measure_args(), y_share=share, y_offset=offset)
+        assert abs(float(y)) <= 0.5 + 1e-12  # inside the declared bound whatever the share
+
+
+def test_lateral_fields_are_validated_with_one_line():
+    import pytest  # noqa: PLC0415
+
+    from mcverify.campaign.spec import campaign_from_dict  # noqa: PLC0415
+    from mcverify.errors import CampaignError  # noqa: PLC0415
+
+    for field, value in (("lateral_share", -0.1), ("front_y_bias", 1.5), ("front_y_gap_segments", [2.0]),
+                         ("front_y_segments", [0.0] * 9), ("front_y_gap_window_m", 0.0)):
+        raw = {"campaign": {"name": "x", "seed": 1, "episodes": 1}, "model": {"noise": {field: value}}}
+        with pytest.raises(CampaignError, match=f"noise.{field}") as err:
+            campaign_from_dict(raw)
+        assert "\n" not in str(err.value)
+
+
+def test_the_plant_moves_measured_veh_f_sideways_by_the_band_of_its_gap():
+    """Through the plant: lateral share 1, gap offsets [+1 within 2 m, -1 in 2-4 m] of a 4 m window; the
+    measured y is the true y plus the regime's half-width times the band's value, x and speed as
+    without the lateral disturbance."""
+    import jax  # noqa: PLC0415
+    import jax.numpy as jnp  # noqa: PLC0415
+
+    from mcverify.campaign.spec import campaign_from_dict  # noqa: PLC0415
+    from mcverify.sim import plant as pl  # noqa: PLC0415
+
+    def params(noise):
+        return campaign_from_dict({"campaign": {"name": "x", "seed": 1, "episodes": 1},
+                                   "model": {"noise": noise}}).cells[0].params
+
+    p = params({"lateral_share": 1.0, "front_y_gap_segments": [1.0, -1.0], "front_y_gap_window_m": 4.0})
+    plain = params({})
+    lane = jax.tree_util.tree_map(lambda a: a[0], pl.initial_plant(p, [0.0]))
+    length = p.geometry.length_m
+    key = jax.random.PRNGKey(5)
+    for gap, value, half in ((1.0, 1.0, p.noise.pos_near_m), (3.0, -1.0, p.noise.pos_far_m), (10.0, None, None)):
+        ego = lane.ego.at[0].set(lane.front[0] - length - gap)
+        state = lane._replace(ego=ego)
+        front, opp = pl.observe(state, key, jnp.int32(9), pl.plant_params(p))
+        front0, opp0 = pl.observe(state, key, jnp.int32(9), pl.plant_params(plain))
+        assert float(front[0]) == float(front0[0]) and float(front[2]) == float(front0[2])
+        assert [float(v) for v in opp] == [float(v) for v in opp0]
+        if value is None:  # beyond the window: no offset, and share 1 leaves no random part either
+            assert float(front[1]) == 0.0
+        else:
+            assert abs(float(front[1]) - half * value) < 1e-12, gap
