@@ -237,14 +237,15 @@ def first_violation_s(row: Row, trajectory: Mapping[str, np.ndarray] | None, nam
 
     Located from the stored ``trajectory`` for the per-step requirements (:data:`STEPWISE`) and for
     ``theorem5`` (the first sub-step of the first control step whose decision solved neither Q1 nor Q2:
-    ``q1_solved`` not 1 and ``q2_solved`` 0, as the planner counts it); and, for any requirement, from
+    ``q1_solved`` not 1 and ``q2_solved`` 0, as the planner counts it) and ``theorem5_certified`` (the
+    first sub-step of the first control step with ``both_certified`` 1); and, for any requirement, from
     the stop when the episode was ended at it (``stopped_at`` is the cell's ``sim.stop_at`` and the
     row's ``stopped_at_violation`` is set): the first sub-step of its last control period, since the
     rollout ends an episode at the end of the control period in which it first violated. Without a
-    trajectory, ``safe`` falls back to the row's ``first_unsafe_s``. ``theorem5_certified`` and
-    ``h_eo`` of an episode that ran on are not located (the trajectory records neither the
-    certificates nor which sub-steps count for h_eo), nor is a requirement whose columns the
-    trajectory lacks."""
+    trajectory, ``safe`` falls back to the row's ``first_unsafe_s``. ``h_eo`` of an episode that ran
+    on is not located (the trajectory does not record which sub-steps count for it), nor is
+    ``theorem5_certified`` in a trajectory recorded before ``both_certified`` existed, nor any
+    requirement whose columns the trajectory lacks."""
     rob = robustness(row, name)
     if not rob < 0.0:
         return math.nan
@@ -260,6 +261,9 @@ def first_violation_s(row: Row, trajectory: Mapping[str, np.ndarray] | None, nam
         if name == "theorem5" and "q1_solved" in trajectory and "q2_solved" in trajectory:
             q1, q2 = (np.asarray(trajectory[k], dtype=np.float64) for k in ("q1_solved", "q2_solved"))
             hit = (q1 != 1.0) & (q2 == 0.0)
+            return float(t[np.argmax(hit)]) if hit.any() else math.nan
+        if name == "theorem5_certified" and "both_certified" in trajectory:
+            hit = np.asarray(trajectory["both_certified"], dtype=np.float64) == 1.0
             return float(t[np.argmax(hit)]) if hit.any() else math.nan
         if stopped_at == name and bool(row.get("stopped_at_violation")):
             last_period = t > t[-1] - control_period_s + 1e-9

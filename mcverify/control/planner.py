@@ -122,16 +122,30 @@ class EpisodeState:
         """Theorem 5's check of one dual-planner step: neither Q1 nor Q2 solved, split by whether
         both failures are certificates of infeasibility, and the runs of such steps. ``q2`` is None
         when it was not solved because Q1 was (:attr:`Mpc.q2_solve`)."""
-        both = (q1 is None or not q1.success) and q2 is not None and not q2.success
+        both = neither_solved(q1, q2)
         self.both_infeasible_steps += int(both)
         if not both:
             self.both_infeasible_run = 0
             return
-        certified = q1 is not None and q1.status.certified_infeasible and q2.status.certified_infeasible
+        certified = both_certified_infeasible(q1, q2)
         self.both_certified_infeasible_steps += int(certified)
         self.both_unsolved_uncertified_steps += int(not certified)
         self.both_infeasible_run += 1
         self.both_infeasible_longest_run = max(self.both_infeasible_longest_run, self.both_infeasible_run)
+
+
+def neither_solved(q1: MpcSolution | None, q2: MpcSolution | None) -> bool:
+    """Theorem 5's failure at one dual-planner step: Q2 was solved and failed, and Q1 failed or was
+    not solved (``q2`` is None when Q1's success made it unnecessary, :attr:`Mpc.q2_solve`)."""
+    return (q1 is None or not q1.success) and q2 is not None and not q2.success
+
+
+def both_certified_infeasible(q1: MpcSolution | None, q2: MpcSolution | None) -> bool:
+    """:func:`neither_solved` with both failures certificates of infeasibility (IPOPT's, or the
+    certificate the infeasibility policy accepts): a counter-example to Theorem 5 up to local
+    infeasibility."""
+    return (neither_solved(q1, q2) and q1 is not None and q1.status.certified_infeasible
+            and q2 is not None and q2.status.certified_infeasible)
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,9 @@ unless noted:
 * the control step's decision: ``active_problem`` (0 none, else :class:`~mcverify.control.decision.Source`),
   ``mode`` (:class:`~mcverify.control.decision.Mode`, -1 none), ``opp_detected`` (0/1),
   ``q1_solved``, ``q2_solved`` (0/1, NaN not solved), ``q1_time_s``, ``q2_time_s`` (the plans'
-  total time T, s; NaN unless solved), ``table_one_row`` (-1 not consulted);
+  total time T, s; NaN unless solved), ``table_one_row`` (-1 not consulted), ``both_certified``
+  (0/1: neither problem solved and both failures certificates of infeasibility, Theorem 5's
+  certified counter-example; NaN without a decision);
 * the measurements: ``meas_front_x_m``, ``meas_front_y_m`` (m), ``meas_front_speed_mps`` (m/s),
   ``meas_opp_x_m`` (m), ``meas_opp_speed_mps`` (m/s).
 

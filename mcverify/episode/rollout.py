@@ -36,7 +36,7 @@ import numpy as np
 from mcverify.cell import Cell
 from mcverify.control import lane_keeping
 from mcverify.control.decision import Source
-from mcverify.control.planner import EpisodeState, Planner, StepRecord
+from mcverify.control.planner import EpisodeState, Planner, StepRecord, both_certified_infeasible
 from mcverify.episode import stop
 from mcverify.episode.recording import EpisodeRecording
 from mcverify.episode.row import EndState, Row, episode_row
@@ -462,6 +462,7 @@ class _Recorder:
                 "q1_time_s": rep(_total(r.q1) if r else np.nan),
                 "q2_time_s": rep(_total(r.q2) if r else np.nan),
                 "table_one_row": rep(r.table_row if r else -1),
+                "both_certified": rep(float(both_certified_infeasible(r.q1, r.q2)) if r else np.nan),
                 "meas_front_x_m": rep(front_meas[b, 0]), "meas_front_y_m": rep(front_meas[b, 1]),
                 "meas_front_speed_mps": rep(front_meas[b, 2]),
                 "meas_opp_x_m": rep(opp_meas[b, 0] if has_opp else np.nan),

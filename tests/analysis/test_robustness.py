@@ -116,8 +116,11 @@ def test_first_violation_of_theorem5_is_the_first_step_with_neither_solved():
     traj = _trajectory([1.0] * 5, q1=[1, 0, math.nan, 0, 1], q2=[1, 1, 0, 0, 1])
     row = _row(both_infeasible_steps=2, both_certified_infeasible_steps=1)
     assert rb.first_violation_s(row, traj, "theorem5", control_period_s=0.01) == pytest.approx(0.03)
-    # the certificates are not in the trajectory: located only through a stop at that requirement
+    # a trajectory recorded before `both_certified` existed: located only through a stop at that requirement
     assert math.isnan(rb.first_violation_s(row, traj, "theorem5_certified", control_period_s=0.01))
+    # with the per-step certificate column: the first step at which both failures were certificates
+    certified = dict(traj, both_certified=np.array([0.0, 0.0, 0.0, 1.0, 0.0]))
+    assert rb.first_violation_s(row, certified, "theorem5_certified", control_period_s=0.01) == pytest.approx(0.04)
     stopped = _row(both_infeasible_steps=1, both_certified_infeasible_steps=1, stopped_at_violation=True)
     two_substeps = {k: np.repeat(v, 2) for k, v in _trajectory([1.0] * 3).items()}
     two_substeps["t_s"] = np.arange(1, 7) * 0.005  # control period 0.01 s, 2 sub-steps

@@ -179,9 +179,13 @@ def test_both_unsolved_steps_split_by_certificate_and_longest_run():
     # solved at 4, both fail again at 5 (Q1 only presumed); the default rule then abandons at 6
     q1 = [None, CERT, CERT_FB, CERT, None, PRES, ITER]
     q2 = [None, CERT, CERT, ITER, None, CERT]
-    st, _ = _run(q1, q2)
+    st, recs = _run(q1, q2)
     assert st.both_infeasible_steps == 4
     assert st.both_certified_infeasible_steps == 2 and st.both_unsolved_uncertified_steps == 2
+    # the per-step test the trajectory's `both_certified` column records agrees with the counts
+    from mcverify.control.planner import both_certified_infeasible, neither_solved  # noqa: PLC0415
+    assert [both_certified_infeasible(r.q1, r.q2) for r in recs][:6] == [False, True, True, False, False, False]
+    assert sum(neither_solved(r.q1, r.q2) for r in recs) == st.both_infeasible_steps
     assert st.both_infeasible_longest_run == 3
     assert st.q1_fail_steps == 5 and (st.q1_fail_certified_steps, st.q1_fail_presumed_steps,
                                       st.q1_fail_iteration_limit_steps, st.q1_fail_other_steps) == (3, 1, 1, 0)
