@@ -2,7 +2,8 @@
 
 :func:`road_panel` draws, on equal axes, the two lanes, each vehicle as its true footprint (a
 rectangle of the model's ``geometry.length_m`` x ``geometry.width_m`` at its position and heading)
-with its name written on it, the safety ellipse h_ef = 0 around veh_f, the ego's path so far, the
+with its name written on it, veh_f where the planner measured it (a dotted outline), the safety
+ellipse h_ef = 0 around veh_f, the ego's path so far, the
 latest Q1/Q2 plans solved by then and veh_o's predicted positions, the time, and, on the panel of
 the first unsafe moment (:mod:`mcverify.reporting.unsafe_event`), a red frame, a marker and the
 cause. :func:`windows` gives every panel of a figure the same width (one scale for all of them);
@@ -45,13 +46,17 @@ def index_at(t: np.ndarray, when: float) -> int:
 
 
 def box(ax: plt.Axes, x: float, y: float, psi: float, p: Mapping[str, Any], colour: str, *, name: str = "",
-        alpha: float = 0.65, zorder: int = 4) -> None:
+        alpha: float = 0.65, zorder: int = 4, outline: bool = False) -> None:
     """The vehicle's footprint: a ``length_m`` x ``width_m`` rectangle centred at (x, y) (m),
-    turned by ``psi`` (rad), with ``name`` written on it."""
+    turned by ``psi`` (rad), with ``name`` written on it; ``outline``: a dotted outline only (where
+    the planner measured the vehicle)."""
     half_l, half_w = 0.5 * p["geometry"]["length_m"], 0.5 * p["geometry"]["width_m"]
     local = np.array([[half_l, -half_w], [half_l, half_w], [-half_l, half_w], [-half_l, -half_w]])
     c, s = math.cos(psi), math.sin(psi)
     corners = np.column_stack([x + local[:, 0] * c - local[:, 1] * s, y + local[:, 0] * s + local[:, 1] * c])
+    if outline:
+        ax.add_patch(Polygon(corners, closed=True, fill=False, edgecolor=colour, lw=0.9, ls=":", zorder=zorder))
+        return
     ax.add_patch(Polygon(corners, closed=True, facecolor=colour, edgecolor="black", lw=0.4, alpha=alpha,
                          zorder=zorder))
     if name:
@@ -128,6 +133,9 @@ def road_panel(ax: plt.Axes, traj: Trajectory, plans: Mapping[str, np.ndarray] |
     ax.plot(ego_x[: k + 1], ego_y[: k + 1], color="black", lw=1.2, zorder=3)
     ax.add_patch(Ellipse((front_x[k], fy), 2 * a_m, 2 * b_m, fill=False, ls="--", lw=1, color=FRONT, zorder=2))
     box(ax, front_x[k], fy, 0.0, p, FRONT, name="veh_f")
+    meas_x, meas_y = column(traj, "meas_front_x_m"), column(traj, "meas_front_y_m")
+    if meas_x is not None and meas_y is not None and np.isfinite(meas_x[k]) and np.isfinite(meas_y[k]):
+        box(ax, float(meas_x[k]), float(meas_y[k]), 0.0, p, FRONT, zorder=5, outline=True)  # what the planner saw
     box(ax, ego_x[k], ego_y[k], float(psi[k]) if psi is not None else 0.0, p, EGO, name="ego", zorder=5)
     if opp_x is not None and np.isfinite(opp_x[k]):
         parked = opp_x[k] >= PARKED_BEYOND_X_M
@@ -196,6 +204,9 @@ def legend_handles(traj: Trajectory, plans: Mapping[str, np.ndarray] | None,
         plt.Line2D([], [], color=FRONT, label="veh_f (front)", **box_kw),
         plt.Line2D([], [], color=FRONT, ls="--", label="safety ellipse h_ef = 0"),
     ]
+    if column(traj, "meas_front_x_m") is not None:
+        handles.append(plt.Line2D([], [], color=FRONT, marker="s", ls="", ms=9, mfc="none", mec=FRONT,
+                                  label="veh_f as measured"))
     if column(traj, "opp_x_m") is not None:
         handles.append(plt.Line2D([], [], color=OPP, label="veh_o (opposing)", **box_kw))
     handles.append(plt.Line2D([], [], color="black", label="ego path"))
