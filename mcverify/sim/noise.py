@@ -91,13 +91,16 @@ def disturbance_arrays(noise: Noise) -> dict[str, list[float]]:
     }
 
 
+def _pad_segments(values: tuple[float, ...]) -> list[float]:
+    """Segment values zero padded to MAX_SEGMENTS (one array shape, one compiled plant)."""
+    return [*values, *([0.0] * (MAX_SEGMENTS - len(values)))]
+
+
 def segment_arrays(noise: Noise) -> dict[str, tuple[list[list[float]], list[float]]]:
     """The piecewise-constant offsets per vehicle: (values (2, MAX_SEGMENTS) for [x, speed], zero
     padded; counts (2,) the number K of segments of each, 0 for none). Padding keeps one array shape
     (one compiled plant) whatever K."""
-    def pad(v: tuple[float, ...]) -> list[float]:
-        return [*v, *([0.0] * (MAX_SEGMENTS - len(v)))]
-
+    pad = _pad_segments
     return {
         "front": ([pad(noise.front_x_segments), pad(noise.front_v_segments)],
                   [float(len(noise.front_x_segments)), float(len(noise.front_v_segments))]),
@@ -110,9 +113,7 @@ def lateral_arrays(noise: Noise) -> dict[str, list[float]]:
     """veh_f's structured lateral disturbance as runtime numbers: ``disturbance`` [y bias, y drift (1/s)],
     ``segments`` (MAX_SEGMENTS,) time offsets and ``gap_segments`` (MAX_SEGMENTS,) gap offsets, zero
     padded, with their counts, and ``gap_window_m`` (m); :attr:`~mcverify.model.Noise.lateral_share`."""
-    def pad(v: tuple[float, ...]) -> list[float]:
-        return [*v, *([0.0] * (MAX_SEGMENTS - len(v)))]
-
+    pad = _pad_segments
     return {
         "disturbance": [noise.front_y_bias, noise.front_y_drift_per_s],
         "segments": pad(noise.front_y_segments),
