@@ -100,11 +100,11 @@ def segment_arrays(noise: Noise) -> dict[str, tuple[list[list[float]], list[floa
     """The piecewise-constant offsets per vehicle: (values (2, MAX_SEGMENTS) for [x, speed], zero
     padded; counts (2,) the number K of segments of each, 0 for none). Padding keeps one array shape
     (one compiled plant) whatever K."""
-    pad = _pad_segments
+
     return {
-        "front": ([pad(noise.front_x_segments), pad(noise.front_v_segments)],
+        "front": ([_pad_segments(noise.front_x_segments), _pad_segments(noise.front_v_segments)],
                   [float(len(noise.front_x_segments)), float(len(noise.front_v_segments))]),
-        "opp": ([pad(noise.opp_x_segments), pad(noise.opp_v_segments)],
+        "opp": ([_pad_segments(noise.opp_x_segments), _pad_segments(noise.opp_v_segments)],
                 [float(len(noise.opp_x_segments)), float(len(noise.opp_v_segments))]),
     }
 
@@ -113,12 +113,12 @@ def lateral_arrays(noise: Noise) -> dict[str, list[float]]:
     """veh_f's structured lateral disturbance as runtime numbers: ``disturbance`` [y bias, y drift (1/s)],
     ``segments`` (MAX_SEGMENTS,) time offsets and ``gap_segments`` (MAX_SEGMENTS,) gap offsets, zero
     padded, with their counts, and ``gap_window_m`` (m); :attr:`~mcverify.model.Noise.lateral_share`."""
-    pad = _pad_segments
+
     return {
         "disturbance": [noise.front_y_bias, noise.front_y_drift_per_s],
-        "segments": pad(noise.front_y_segments),
+        "segments": _pad_segments(noise.front_y_segments),
         "segment_count": float(len(noise.front_y_segments)),
-        "gap_segments": pad(noise.front_y_gap_segments),
+        "gap_segments": _pad_segments(noise.front_y_gap_segments),
         "gap_segment_count": float(len(noise.front_y_gap_segments)),
         "gap_window_m": noise.front_y_gap_window_m,
     }
