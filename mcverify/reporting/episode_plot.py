@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from mcverify.analysis import robustness
 from mcverify.cell import Cell
 from mcverify.reporting import episode_figures
 
@@ -34,8 +35,20 @@ def episode_figure(
         f"min dist. to ellipse {dist:.2f} m · min h_ef {h:.3f}{opp}"
     )
     # an episode ended at its first violation (falsify's stop_episodes) gets a panel at its end: the
-    # violating step, which need not be a safety event (a Theorem 5 step)
+    # violating step, which need not be a safety event (a Theorem 5 step); one that ran on gets a panel
+    # at its first step without a plan (Theorem 5), if it had one
     stop = float(np.asarray(traj["t_s"])[-1]) if row.get("stopped_at_violation") and len(traj["t_s"]) else None
     episode_figures.episode_overview(traj, cell.params, cell.epsilon, Path(path), title=title, plans=plans,
-                                     moment=stop)
+                                     moment=stop if stop is not None else theorem5_moment_s(traj, row, cell))
     return Path(path)
+
+
+def theorem5_moment_s(traj: Mapping[str, np.ndarray], row: Mapping[str, Any], cell: Cell) -> float | None:
+    """When an episode that ran on first broke Theorem 5 (s): its first step at which IPOPT certified both
+    Q1 and Q2 infeasible, else its first step with neither solved; None if it kept the theorem. A safety
+    event gets its own panel anyway; this one shows the planner without any plan."""
+    for name in ("theorem5_certified", "theorem5"):
+        t_s = robustness.first_violation_s(row, traj, name, control_period_s=cell.params.sim.control_period_s)
+        if math.isfinite(t_s):
+            return t_s
+    return None

@@ -45,3 +45,25 @@ def test_a_stopped_episode_gets_a_panel_at_its_stop(tmp_path):
     stopped = mpimg.imread(episode_plot.episode_figure(traj, _cell(), {**ROW, "stopped_at_violation": True},
                                                        tmp_path / "b.png", plans=plans))
     assert stopped.shape[0] > plain.shape[0]  # one more road panel
+
+
+def test_an_episode_that_ran_on_gets_a_panel_at_its_first_step_without_a_plan(tmp_path):
+    # a Theorem 5 counterexample of a campaign (not stopped at it): the panel is at the first certified
+    # step when there is one, else at the first step with neither Q1 nor Q2 solved
+    traj = synthetic.trajectory(opposing=True)
+    plans = synthetic.plans(traj)
+    n = len(traj["t_s"])
+    k_any, k_cert = n // 3, n // 2
+    traj["q1_solved"] = np.where(np.arange(n) >= k_any, 0.0, 1.0)
+    traj["q2_solved"] = np.where(np.arange(n) >= k_any, 0.0, 1.0)
+    traj["both_certified"] = np.where(np.arange(n) >= k_cert, 1.0, 0.0)
+    row = {**ROW, "both_infeasible_steps": 5, "both_certified_infeasible_steps": 2}
+    cell = _cell()
+    assert episode_plot.theorem5_moment_s(traj, row, cell) == traj["t_s"][k_cert]
+    uncertified = {**row, "both_certified_infeasible_steps": 0}
+    assert episode_plot.theorem5_moment_s(traj, uncertified, cell) == traj["t_s"][k_any]
+    assert episode_plot.theorem5_moment_s(traj, {**row, "both_infeasible_steps": 0,
+                                                 "both_certified_infeasible_steps": 0}, cell) is None
+    plain = mpimg.imread(episode_plot.episode_figure(traj, cell, ROW, tmp_path / "a.png", plans=plans))
+    broke = mpimg.imread(episode_plot.episode_figure(traj, cell, row, tmp_path / "b.png", plans=plans))
+    assert broke.shape[0] > plain.shape[0]  # one more road panel
