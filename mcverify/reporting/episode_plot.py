@@ -36,19 +36,26 @@ def episode_figure(
     )
     # an episode ended at its first violation (falsify's stop_episodes) gets a panel at its end: the
     # violating step, which need not be a safety event (a Theorem 5 step); one that ran on gets a panel
-    # at its first step without a plan (Theorem 5), if it had one
+    # at its first step without a plan (Theorem 5), if it had one, named in the title
     stop = float(np.asarray(traj["t_s"])[-1]) if row.get("stopped_at_violation") and len(traj["t_s"]) else None
+    no_plan = None if stop is not None else theorem5_moment(traj, row, cell)
+    if no_plan is not None:
+        title += f" · {no_plan[1]} at {no_plan[0]:.2f} s"
     episode_figures.episode_overview(traj, cell.params, cell.epsilon, Path(path), title=title, plans=plans,
-                                     moment=stop if stop is not None else theorem5_moment_s(traj, row, cell))
+                                     moment=stop if no_plan is None else no_plan[0])
     return Path(path)
 
 
-def theorem5_moment_s(traj: Mapping[str, np.ndarray], row: Mapping[str, Any], cell: Cell) -> float | None:
-    """When an episode that ran on first broke Theorem 5 (s): its first step at which IPOPT certified both
-    Q1 and Q2 infeasible, else its first step with neither solved; None if it kept the theorem. A safety
-    event gets its own panel anyway; this one shows the planner without any plan."""
-    for name in ("theorem5_certified", "theorem5"):
+#: What the planner lacked at a step that broke Theorem 5, per requirement (the figure's title).
+_NO_PLAN = {"theorem5_certified": "Q1 and Q2 certified infeasible", "theorem5": "neither Q1 nor Q2 solved"}
+
+
+def theorem5_moment(traj: Mapping[str, np.ndarray], row: Mapping[str, Any], cell: Cell) -> tuple[float, str] | None:
+    """When an episode first broke Theorem 5 (s) and how: its first step at which IPOPT certified both Q1 and
+    Q2 infeasible, else its first step with neither solved; None if it kept the theorem (or its trajectory
+    cannot say). A safety event gets its own panel anyway; this one shows the planner without any plan."""
+    for name, what in _NO_PLAN.items():
         t_s = robustness.first_violation_s(row, traj, name, control_period_s=cell.params.sim.control_period_s)
         if math.isfinite(t_s):
-            return t_s
+            return t_s, what
     return None

@@ -59,11 +59,11 @@ def test_an_episode_that_ran_on_gets_a_panel_at_its_first_step_without_a_plan(tm
     traj["both_certified"] = np.where(np.arange(n) >= k_cert, 1.0, 0.0)
     row = {**ROW, "both_infeasible_steps": 5, "both_certified_infeasible_steps": 2}
     cell = _cell()
-    assert episode_plot.theorem5_moment_s(traj, row, cell) == traj["t_s"][k_cert]
+    assert episode_plot.theorem5_moment(traj, row, cell) == (traj["t_s"][k_cert], "Q1 and Q2 certified infeasible")
     uncertified = {**row, "both_certified_infeasible_steps": 0}
-    assert episode_plot.theorem5_moment_s(traj, uncertified, cell) == traj["t_s"][k_any]
-    assert episode_plot.theorem5_moment_s(traj, {**row, "both_infeasible_steps": 0,
-                                                 "both_certified_infeasible_steps": 0}, cell) is None
+    assert episode_plot.theorem5_moment(traj, uncertified, cell) == (traj["t_s"][k_any], "neither Q1 nor Q2 solved")
+    assert episode_plot.theorem5_moment(traj, {**row, "both_infeasible_steps": 0,
+                                               "both_certified_infeasible_steps": 0}, cell) is None
     plain = mpimg.imread(episode_plot.episode_figure(traj, cell, ROW, tmp_path / "a.png", plans=plans))
     broke = mpimg.imread(episode_plot.episode_figure(traj, cell, row, tmp_path / "b.png", plans=plans))
     assert broke.shape[0] > plain.shape[0]  # one more road panel
