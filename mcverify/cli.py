@@ -296,6 +296,9 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--backend", help="the engine's solver backend (default: the cell's)")
     bench.add_argument("--infeasibility", choices=("ipopt", "phase1"),
                        help="the engine's mpc.infeasibility policy (default: the cell's)")
+    bench.add_argument("--seed", type=_nonneg_int, help="campaign seed (overrides the file: other episodes)")
+    bench.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", dest="settings",
+                       help="override a model parameter of every cell, on every side (repeatable)")
     bench.add_argument("--no-write", action="store_true", help="do not append to results/BENCHMARKS.md")
     bench.set_defaults(func=_cmd_bench)
 
@@ -682,6 +685,7 @@ def _cmd_bench(args) -> int:
         campaign=args.campaign, cell_name=args.cell, engine_episodes=args.engine_episodes,
         baseline_episodes=args.baseline_episodes, naive_episodes=args.naive_episodes, backend=args.backend,
         write=not args.no_write, progress=lambda msg: print(msg, file=sys.stderr), infeasibility=args.infeasibility,
+        seed=args.seed, settings=args.settings,
     )
     print(engine_report.render(result))
     if not args.no_write:

@@ -30,7 +30,7 @@ import shlex
 import sys
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from datetime import datetime, timezone
 from typing import Any
 
@@ -143,11 +143,13 @@ def plant_transfer_ms(cell: Cell, batch: int, seed: int, reps: int = 200) -> dic
 
 
 def pick_cells(campaign_path: str, cell_name: str, backend: str | None, infeasibility: str | None = None,
-               overrides: dict | None = None, seed: int | None = None) -> tuple[list[Cell], int, bool]:
+               overrides: dict | None = None, seed: int | None = None,
+               settings: Sequence[str] = ()) -> tuple[list[Cell], int, bool]:
     """The cells to run (``cell_name`` or every cell for ``"all"``), with ``backend``, the
     ``mpc.infeasibility`` policy and other ``overrides`` (dotted keys) applied when given; ``seed``:
-    the campaign seed instead of the file's (other episodes, the same cells)."""
-    camp = load_campaign(campaign_path, seed=seed)
+    the campaign seed instead of the file's (other episodes, the same cells); ``settings``: as
+    ``mcverify run --set``, written into the file before its cells are expanded."""
+    camp = load_campaign(campaign_path, seed=seed, settings=settings)
     cells = list(camp.cells) if cell_name == ALL_CELLS else [camp.cell(cell_name)]
     changes = [("mpc.backend", backend, "--backend"), ("mpc.infeasibility", infeasibility, "--infeasibility")]
     changes += [(k, v, "overrides") for k, v in (overrides or {}).items()]
@@ -211,17 +213,19 @@ def run(
     infeasibility: str | None = None,
     overrides: dict | None = None,
     seed: int | None = None,
+    settings: Sequence[str] = (),
 ) -> dict[str, Any]:
     """Run the sides on every chosen cell and return the figures (and append them to results/BENCHMARKS.md).
 
     Per cell, the engine runs episodes 0 .. engine_episodes - 1, the baseline and the naive loop the
     first ``baseline_episodes`` / ``naive_episodes`` of them (paired; 0 skips a side's episodes).
+    ``settings``: ``"SECTION.FIELD=VALUE"`` strings written into the campaign file (``mcverify bench --set``).
     """
     if engine_episodes < 1 or not 0 <= min(baseline_episodes, naive_episodes) <= max(
             baseline_episodes, naive_episodes) <= engine_episodes:
         raise ValueError("need engine_episodes >= 1 and 0 <= baseline_episodes, naive_episodes <= engine_episodes "
                          "(their episodes are paired with the engine's)")
-    cells, seed, crn = pick_cells(campaign, cell_name, backend, infeasibility, overrides, seed)
+    cells, seed, crn = pick_cells(campaign, cell_name, backend, infeasibility, overrides, seed, settings)
     counts = {"engine": engine_episodes, "baseline": baseline_episodes, "naive": naive_episodes}
     progress(f"bench: {campaign}, {len(cells)} cell(s); episodes per cell: engine {engine_episodes}, "
              f"compiled IPOPT loop {baseline_episodes}, naive {naive_episodes} (paired: the first ones)")

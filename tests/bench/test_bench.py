@@ -156,3 +156,30 @@ def test_engine_phases_add_up_to_the_measured_cpu():
 def test_plant_transfer_split_is_measured_per_step():
     split = bench.plant_transfer_ms(_short_cell(), batch=3, seed=3, reps=5)
     assert split["batch"] == 3.0 and split["compute_ms"] > 0 and split["transfer_ms"] >= 0
+
+
+def test_bench_settings_reach_every_cell_and_bad_ones_are_one_line(monkeypatch, capsys):
+    """``mcverify bench --set``/``--seed``: written into the campaign before its cells are expanded, as for
+    ``mcverify run``; a bad setting stops with one line (exit 2) before anything runs."""
+    from mcverify import cli
+
+    cells, seed, _ = bench.pick_cells(bench.DEFAULT_CAMPAIGN, "all", None,
+                                      settings=["mpc.ipm_central_attempt=mpcdc"], seed=7)
+    assert seed == 7 and cells and all(c.params.mpc.ipm_central_attempt == "mpcdc" for c in cells)
+    seen = {}
+
+    class Stop(Exception):
+        pass
+
+    def fake_run(**kwargs):  # the command's arguments, without running a benchmark
+        seen.update(kwargs)
+        raise Stop
+
+    monkeypatch.setattr(bench, "run", fake_run)
+    with pytest.raises(Stop):
+        cli.main(["bench", "--no-write", "--seed", "7", "--set", "mpc.ipm_central_attempt=mpcdc"])
+    assert seen["seed"] == 7 and seen["settings"] == ["mpc.ipm_central_attempt=mpcdc"]
+    monkeypatch.undo()
+    assert cli.main(["bench", "--no-write", "--set", "mpc.no_such_field=1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no_such_field" in err[0]
