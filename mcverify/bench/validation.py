@@ -85,6 +85,10 @@ class Repetition:
     warnings: list[str] = field(default_factory=list)
     #: the reference p this repetition is checked against, when not the whole reference's (leave-out)
     reference_p: float | None = None
+    #: importance sampling: its anytime-valid lower bound, failing samples and their effective sample size
+    anytime_lower: float = math.nan
+    failures: int = -1
+    ess: float = math.nan
 
 
 def _manifest(run_dir: Path) -> dict[str, Any]:
@@ -284,9 +288,27 @@ def importance_repetitions(dirs: Sequence[Path], ref: Reference) -> list[Repetit
         manifests.append(manifest)
         reps.append(Repetition(float(cell["estimate"]), float(cell["low"]), float(cell["high"]),
                                float(cell.get("steps", math.nan)), float(cell.get("cpu_s", math.nan)),
-                               list(cell.get("warnings", []))))
+                               list(cell.get("warnings", [])), anytime_lower=float(cell.get("anytime_lower", math.nan)),
+                               failures=int(cell.get("failures", -1)), ess=float(cell.get("ess", math.nan))))
     _check_seeds(manifests, dirs, ref)
     return reps
+
+
+def importance_summary(reps: Sequence[Repetition], ref: Reference) -> dict[str, Any]:
+    """What importance sampling's own diagnostics said over its repetitions: failing samples and their
+    ESS per estimate, and how often the one-sided anytime-valid lower bound held (was at or below p)."""
+    lower = np.array([r.anytime_lower for r in reps])
+    has_lower = np.isfinite(lower)
+    failures = np.array([r.failures for r in reps if r.failures >= 0])
+    ess = np.array([r.ess for r in reps if math.isfinite(r.ess)])
+
+    def spread(x: np.ndarray) -> list[float]:
+        return [float(np.median(x)), float(x.min()), float(x.max())] if x.size else [math.nan] * 3
+
+    return {"repetitions": len(reps), "failures_median_min_max": spread(failures),
+            "ess_median_min_max": spread(ess), "with_anytime_lower": int(has_lower.sum()),
+            "anytime_lower_held": int(np.sum(lower[has_lower] <= ref.p)),
+            "anytime_lower_median": float(np.median(lower[has_lower])) if has_lower.any() else math.nan}
 
 
 def summarise(reps: Sequence[Repetition], ref: Reference, level: float = 0.95) -> dict[str, Any]:
@@ -348,8 +370,9 @@ def run(reference_dir: Path, *, splitting_pools: Sequence[Sequence[Path]] = (),
                                       "method": "splitting", "runs_per_repetition": group,
                                       **summarise(reps, ref, level)})
     if importance_dirs:
-        out["estimators"].append({"estimator": "importance", "method": "importance",
-                                  **summarise(importance_repetitions(importance_dirs, ref), ref, level)})
+        reps = importance_repetitions(importance_dirs, ref)
+        out["estimators"].append({"estimator": "importance", "method": "importance", **summarise(reps, ref, level)})
+        out["importance"] = importance_summary(reps, ref)
     _, _, events, steps, _ = sequence
     for halfwidth, relative in sequential:
         reps = sequential_repetitions(events, steps, halfwidth, relative, level)
@@ -409,8 +432,21 @@ def markdown(res: dict[str, Any], command: str) -> str:
                      f"{pooled['run_relative_sd']:.2f}; {pooled['steps_per_run']:,.0f} control steps and "
                      f"{pooled['cpu_s_per_run']:.0f} CPU-s per run; for the same width crude Monte Carlo needs "
                      f"{pooled['steps_ratio_vs_crude']:.2f}x the control steps (from the runs' variance)")
+    if res.get("importance"):
+        lines += ["", _importance_line(res["importance"])]
     lines += ["", END_MARK, ""]
     return "\n".join(lines)
+
+
+def _importance_line(imp: dict[str, Any]) -> str:
+    fails, ess = imp["failures_median_min_max"], imp["ess_median_min_max"]
+    line = (f"- importance, the {imp['repetitions']} estimates: failing samples per estimate median {fails[0]:.0f} "
+            f"({fails[1]:.0f}-{fails[2]:.0f}), their effective sample size median {ess[0]:.1f} "
+            f"({ess[1]:.1f}-{ess[2]:.1f})")
+    if imp["with_anytime_lower"]:
+        line += (f"; the one-sided anytime-valid lower bound is at or below p in {imp['anytime_lower_held']} of "
+                 f"{imp['with_anytime_lower']} (median {imp['anytime_lower_median']:.4f})")
+    return line
 
 
 def figure(res: dict[str, Any], path: Path) -> Path:

@@ -178,3 +178,37 @@ def test_cli_sequential_rows_use_the_reference_episodes(tmp_path, capsys):
     assert main(["bench-validate", str(tmp_path / "ref"), "--sequential", "0.0001", "--no-write"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "too few" in err[0]
+
+
+def _importance(out: Path, seed: int, estimate: float, low: float, high: float, anytime_lower: float,
+                failures: int, ess: float) -> None:
+    _manifest(out, "importance", seed=seed)
+    store.write_json_atomic(out / ESTIMATE, {"spec": {"method": "importance"}, "cells": [
+        {"cell": "all", "target": "ellipse", "estimate": estimate, "low": low, "high": high, "steps": 300,
+         "cpu_s": 7.0, "anytime_lower": anytime_lower, "failures": failures, "ess": ess,
+         "warnings": ["few failing samples"] if failures < 10 else []}]})
+
+
+def test_importance_repetitions_and_their_diagnostics(tmp_path, capsys):
+    from mcverify.cli import main
+
+    _reference(tmp_path / "ref", [[True, False, False, False]] * 5)  # p = 0.25
+    folders = [tmp_path / f"is{i}" for i in range(3)]
+    _importance(folders[0], 11, 0.24, 0.15, 0.33, 0.10, 12, 10.5)
+    _importance(folders[1], 12, 0.10, 0.05, 0.15, 0.02, 4, 3.0)  # misses p, low; its lower bound holds
+    _importance(folders[2], 13, 0.40, 0.30, 0.50, 0.27, 20, 17.0)  # misses p, high; so does its lower bound
+    ref = validation.reference(tmp_path / "ref")
+    reps = validation.importance_repetitions(folders, ref)
+    summary = validation.summarise(reps, ref)
+    assert (summary["covered"], summary["with_warnings"]) == (1, 1)
+    imp = validation.importance_summary(reps, ref)
+    assert imp["failures_median_min_max"] == [12, 4, 20] and imp["ess_median_min_max"] == [10.5, 3.0, 17.0]
+    assert (imp["with_anytime_lower"], imp["anytime_lower_held"], imp["anytime_lower_median"]) == (3, 2, 0.10)
+    bench = tmp_path / "BENCH.md"
+    assert main(["bench-validate", str(tmp_path / "ref"), "--importance", *map(str, folders),
+                 "--write", str(bench)]) == 0
+    text = bench.read_text()
+    assert "| importance | 3 | 1/3 = 33% " in text
+    assert ("- importance, the 3 estimates: failing samples per estimate median 12 (4-20), their effective sample "
+            "size median 10.5 (3.0-17.0); the one-sided anytime-valid lower bound is at or below p in 2 of 3 "
+            "(median 0.1000)") in text
