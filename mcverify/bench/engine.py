@@ -60,7 +60,7 @@ SIDES = ("engine", "baseline", "naive")
 @dataclasses.dataclass
 class SideResult:
     """One side's episodes over the mix: rows, CPU and wall seconds, engine phases, solve classes,
-    and per cell ``[episodes, cpu_s]``."""
+    per cell ``[episodes, cpu_s]`` and per cell the solves' CPU seconds by class (:class:`SolveClass`)."""
 
     name: str
     rows: list[dict]
@@ -69,6 +69,7 @@ class SideResult:
     phases: dict[str, float] = dataclasses.field(default_factory=dict)
     classes: ClassTally = dataclasses.field(default_factory=ClassTally)
     per_cell: dict[str, list[float]] = dataclasses.field(default_factory=dict)
+    per_cell_classes: dict[str, Counter] = dataclasses.field(default_factory=dict)
 
     @property
     def episodes_per_cpu_min(self) -> float:
@@ -86,12 +87,13 @@ class SideResult:
     def cpu_ms_per_solve(self) -> float:
         return 1e3 * self.cpu_s / self.solves if self.solves else math.nan
 
-    def add(self, cell: str, rows: list[dict], cpu_s: float, wall_s: float) -> None:
+    def add(self, cell: str, rows: list[dict], cpu_s: float, wall_s: float, class_cpu_s: Counter | None = None) -> None:
         self.rows.extend(rows)
         self.cpu_s += cpu_s
         self.wall_s += wall_s
         n, c = self.per_cell.get(cell, [0, 0.0])
         self.per_cell[cell] = [n + len(rows), c + cpu_s]
+        self.per_cell_classes.setdefault(cell, Counter()).update(class_cpu_s or {})
 
 
 def _timed(name: str, fn) -> SideResult:
@@ -250,11 +252,12 @@ def run(
         progress(f"  cell {cell.name}")
         for s in active:
             ids = list(range(counts[s]))
+            class_cpu0 = Counter(tallies[s].cpu_s)
             r = _run_side(s, cell, ids, seed, planners[s], crn, clock)
             if s == "engine":  # the backends' counters include the warm-up step: subtract it
                 count, cpu = ipm_attempts(planners[s])
                 outcomes.update(count - warm_attempts[0]), attempt_cpu.update(cpu - warm_attempts[1])
-            sides[s].add(cell.name, r.rows, r.cpu_s, r.wall_s)
+            sides[s].add(cell.name, r.rows, r.cpu_s, r.wall_s, Counter(tallies[s].cpu_s) - class_cpu0)
             progress(f"    {s}: {r.cpu_s / len(r.rows):.1f} CPU-s per episode")
     engine = sides["engine"]
     engine.phases = engine_phases(engine.rows, clock, engine.cpu_s)

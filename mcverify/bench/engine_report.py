@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from mcverify.bench.engine import PAIRED_VALUES, SideResult
+from mcverify.bench.solve_classes import SolveClass
 
 BENCHMARKS_MD = Path("results/BENCHMARKS.md")
 MARKER = "## mcverify bench: the engine against the compiled IPOPT loop on the Table IV mix\n\n"
@@ -49,6 +50,23 @@ def cell_table(sides: dict[str, SideResult]) -> list[str]:
     return lines
 
 
+def cell_class_table(sides: dict[str, SideResult]) -> list[str]:
+    """Markdown table: per cell and side, the solves' CPU-s per episode by solve class, in the order of
+    :class:`SolveClass` (where a cell's time goes)."""
+    names = list(sides)
+    order = list(SolveClass)
+    head = " / ".join(c.value for c in order)
+    lines = ["| cell | " + " | ".join(f"{LABELS[s]}: {head}" for s in names) + " |", "|---|" + "---|" * len(names)]
+    for cell in sides["engine"].per_cell:
+        vals = []
+        for s in names:
+            n = sides[s].per_cell.get(cell, [0, 0.0])[0]
+            by_class = sides[s].per_cell_classes.get(cell, {})
+            vals.append(" / ".join(f"{by_class.get(c, 0.0) / n:.2f}" for c in order) if n else "-")
+        lines.append(f"| {cell} | " + " | ".join(vals) + " |")
+    return lines
+
+
 def agreement_line(name: str, ag: dict[str, Any]) -> str:
     diffs = ", ".join(f"{c} {ag[f'{c}_absdiff_max']:.3g}" for c in PAIRED_VALUES)
     line = (f"{LABELS[name]} vs engine on {ag['paired']} paired episodes: safety verdict {ag['safe_agree']}/"
@@ -71,7 +89,7 @@ def render(result: dict[str, Any]) -> str:
     lines.append(f"  peak memory {result['peak_rss_mb']:.0f} MB (the whole process); one-off set-up "
                  f"{result['setup_cpu_s']:.1f} CPU-s (solver set-up, XLA compile; counted on no side)")
     lines += ["  " + ln for ln in phase_lines(sides["engine"], result.get("plant_transfer"))]
-    lines += ["  " + ln for ln in class_table(sides)] + ["  " + ln for ln in cell_table(sides)]
+    lines += ["  " + ln for ln in [*class_table(sides), *cell_table(sides), *cell_class_table(sides)]]
     lines += ["  " + agreement_line(s, ag) for s, ag in result["agreement"].items()]
     lines += ["  " + ln for ln in attempt_lines(result.get("ipm_attempts", {}))]
     return "\n".join(lines)
@@ -126,6 +144,8 @@ def append_markdown(result: dict[str, Any], path: Path = BENCHMARKS_MD) -> None:
         *class_table(sides),
         "",
         *cell_table(sides),
+        "",
+        *cell_class_table(sides),
         "",
         *[agreement_line(s, ag) + "." for s, ag in result["agreement"].items()],
         "",

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections import Counter
 
 import pytest
 
@@ -48,7 +49,7 @@ def test_agreement_of_solver_runs_counts_statuses_and_intervals():
 
 def _side(name, n, cpu):
     side = bench.SideResult(name, [], 0.0, 0.0)
-    side.add("c", [row(i) for i in range(n)], cpu, cpu)
+    side.add("c", [row(i) for i in range(n)], cpu, cpu, Counter({SolveClass.CONVERGED: cpu / 2}))
     side.classes.add(SolveClass.CONVERGED, cpu / 2)
     return side
 
@@ -72,6 +73,9 @@ def test_markdown_blocks_go_into_the_bench_section(tmp_path):
     assert text.index("### 2026-11-23") < text.index("## Later") and "## Other section" in text
     assert "**2.00x**" in text and "| converged | 7.50 (0.2, 30000.0) | 15.00 (0.2, 60000.0) |" in text
     assert "| whole episode | 15.00 | 30.00 |" in text and "| c | 15.00 | 30.00 |" in text
+    # where each cell's solver time goes, by class in SolveClass order
+    assert ("| cell | engine: converged / rescued / certified infeasible / presumed infeasible / other failure |"
+            in text) and "| c | 7.50 / 0.00 / 0.00 / 0.00 / 0.00 | 15.00 / 0.00 / 0.00 / 0.00 / 0.00 |" in text
     assert sides["engine"].episodes_per_cpu_min == 4.0 and sides["engine"].cpu_ms_per_solve == 150.0
     assert "engine / compiled IPOPT loop: 2.00x" in engine_report.render(result)
 
@@ -89,7 +93,7 @@ def test_solve_classes_account_for_every_solve_of_every_side():
 
     camp = campaign_from_dict(raw)
     orig = eng.load_campaign
-    eng.load_campaign = lambda path: camp
+    eng.load_campaign = lambda path, **_: camp
     try:
         result = eng.run(campaign="mix", engine_episodes=2, baseline_episodes=1, write=False, progress=lambda m: None)
     finally:
@@ -99,6 +103,8 @@ def test_solve_classes_account_for_every_solve_of_every_side():
         assert sum(side.classes.count.values()) == side.solves > 0, name
         assert side.classes.total_cpu_s <= side.cpu_s
         assert sum(n for n, _ in side.per_cell.values()) == len(side.rows)
+        per_cell = sum(sum(c.values()) for c in side.per_cell_classes.values())
+        assert per_cell == pytest.approx(side.classes.total_cpu_s), name  # the cells' split adds up
     assert len(result["sides"]["engine"].rows) == 4 and len(result["sides"]["baseline"].rows) == 2
     converged = sum(a["attempts"] for k, a in result["ipm_attempts"].items() if k.endswith(":Converged"))
     assert converged >= result["sides"]["engine"].classes.count[SolveClass.CONVERGED] > 0  # warm-up not counted
