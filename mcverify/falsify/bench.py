@@ -4,13 +4,16 @@ For every target campaign and method, ``trials`` independent searches (search se
 ``seed + 1``, ...; each seed also sets the episodes' noise) with the same episode budget, each
 stopping at its first counterexample. Reported per target and method: the success rate with its
 exact (Clopper-Pearson) interval, the median number of episodes to the first counterexample over
-the successful trials, and the smallest robustness reached. Written as a generated section of
-``results/BENCHMARKS.md``; the search folders stay under ``out_dir`` (replayable).
+the successful trials, and the smallest robustness reached; per target, issue 16's verdict
+(:func:`goal_verdict`): is the target rare for random search, and does a method meet the goal there.
+Written as a generated section of ``results/BENCHMARKS.md``; the search folders stay under ``out_dir``
+(replayable).
 """
 
 from __future__ import annotations
 
 import copy
+import math
 import statistics
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -87,6 +90,60 @@ def draw_curves(trials: Sequence[Trial], out_dir: Path) -> list[Path]:
     return paths
 
 
+#: Issue 16's definition of a rare target: random search's median to the first counterexample is at
+#: least this many episodes (or it fails within the budget).
+RARE_MEDIAN_EPISODES = 50
+#: The goal on a rare target: a method succeeds in at least this share of its trials ...
+GOAL_SUCCESS_SHARE = 0.9
+#: ... with a median to the first counterexample at most this share of random search's.
+GOAL_MEDIAN_SHARE = 0.1
+
+
+def median_to_first(group: Sequence[Trial]) -> float:
+    """Median episodes to the first counterexample over *all* trials, a failed trial counting as
+    beyond its budget (``inf``): the median exceeds the budget when half or more of the trials failed."""
+    return statistics.median(math.inf if t.first_counterexample is None else t.first_counterexample for t in group)
+
+
+def goal_verdict(trials: Sequence[Trial], target: str, budget: int) -> str:
+    """One sentence for ``target``: rare or not for random search (median to the first counterexample,
+    failures counted as beyond the budget, at least :data:`RARE_MEDIAN_EPISODES`), and on a rare target
+    which methods meet the goal (successes in at least 90 % of the trials, median at most a tenth of
+    random search's), fail it, or cannot be judged (random's median lies beyond the budget, so a tenth
+    of it is known only to exceed budget / 10)."""
+    by_method: dict[str, list[Trial]] = {}
+    for t in trials:
+        if t.target == target:
+            by_method.setdefault(t.method, []).append(t)
+    if "random" not in by_method:
+        return f"{target}: no random-search trials, so its rarity is not measured."
+    base = median_to_first(by_method["random"])
+    beyond = math.isinf(base)
+    base_text = f"beyond the budget of {budget}" if beyond else f"{base:g}"
+    if not beyond and base < RARE_MEDIAN_EPISODES:
+        return (f"{target}: not rare (random search's median to the first counterexample {base_text} "
+                f"< {RARE_MEDIAN_EPISODES}); the goal applies to rare targets only.")
+    bound = (budget if beyond else base) * GOAL_MEDIAN_SHARE
+    verdicts = []
+    for method, group in by_method.items():
+        if method == "random":
+            continue
+        hits = sum(t.first_counterexample is not None for t in group)
+        med = median_to_first(group)
+        med_text = "beyond the budget" if math.isinf(med) else f"{med:g}"
+        if hits < GOAL_SUCCESS_SHARE * len(group) or (not beyond and med > bound):
+            word = "not met"
+        elif med <= bound:
+            word = "met"
+        else:
+            word = "undecided"
+        verdicts.append(f"{method} {word} ({hits}/{len(group)}, median {med_text})")
+    return (f"{target}: rare (random search's median {base_text}); goal (>= {GOAL_SUCCESS_SHARE:.0%} of trials, "
+            f"median <= {GOAL_MEDIAN_SHARE:g} x random's, "
+            + (f"known only to exceed {bound:g}" if beyond else f"i.e. <= {bound:g}") + "): "
+            + ("; ".join(verdicts) if verdicts else "no other method ran") + ".")
+
+
 def section(trials: Sequence[Trial], *, budget: int, command: str) -> str:
     lines = [BEGIN_MARK, "", "## Falsification benchmark", "",
              f"Command: `{command}`. Each trial is a search with its own seed (search and noise), budget "
@@ -104,6 +161,9 @@ def section(trials: Sequence[Trial], *, budget: int, command: str) -> str:
         lines.append(f"| {target} | {method} | {len(group)} | {len(hits)} | {rate['rate']:.2f} "
                      f"[{rate['low']:.2f}, {rate['high']:.2f}] | {med} | "
                      f"{min(t.min_robustness for t in group):.4g} | {sum(t.episodes for t in group)} |")
+    lines += ["", "Issue 16's goal, per target (medians over all trials, a failed trial counting as beyond the "
+              "budget):", ""]
+    lines += [f"- {goal_verdict(trials, target, budget)}" for target in dict.fromkeys(t.target for t in trials)]
     lines += ["", END_MARK, ""]
     return "\n".join(lines)
 
