@@ -585,7 +585,8 @@ def _cmd_estimate_in_process(args, method: str) -> int:
             raise RunError("--resume writes into RUN_DIR: leave out --out and --run-dir")
         manifest = store.read_manifest(args.resume)
         camp = manifest["campaign"]
-        campaign = campaign_from_dict(camp["raw"], source=camp["source"], seed=camp["seed"])
+        raw = runner.pin_changed_defaults(camp["raw"], manifest.get("cells", []))  # a changed default keeps the run's
+        campaign = campaign_from_dict(raw, source=camp["source"], seed=camp["seed"])
         path = module.resume(args.resume, campaign, progress=log, **_executor_for(args, method))
     else:
         if args.campaign is None:

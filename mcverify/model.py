@@ -263,10 +263,11 @@ class Mpc:
     ipm_restoration: bool = False
     """The ipm backend's cold IPM attempt of a full solve runs with the C restoration phase: a failed line search
     restores feasibility instead of ending the attempt (docs/engine.md)."""
-    ipm_central_attempt: str = "off"
+    ipm_central_attempt: str = "mpcdc"
     """A last IPM attempt of a full solve, after the two warm and the cold one failed and before IPOPT: the warm
     start again at barrier parameter 1e-2 (docs/engine.md, "A central attempt before the rescue"): off, mpcdc (the
-    MPC-DC baselines only) or all."""
+    MPC-DC baselines only; the default since 2026-11-26, ``off`` before, which runs made earlier keep:
+    :data:`mcverify.campaign.runner.CHANGED_DEFAULTS`) or all."""
     kkt_factorization: str = "lu"
     """How the ipm backend factorises its KKT system: lu (banded LU, the default), ldlt (banded LDL^T with the inertia
     test) or ldlt_curvature (banded LDL^T with the LU's curvature test); docs/engine.md, "The LDL^T path"."""

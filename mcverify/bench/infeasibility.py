@@ -9,9 +9,9 @@ Two measurements, written together into a generated section of results/BENCHMARK
    phase-1 certificate from every start, IPOPT as scheduled auditor), "restoration"
    (``mpc.ipm_restoration``: the IPM attempts with the restoration phase), both, "q2_when_needed" or
    "q2_fast_when_unneeded" (``mpc.q2_solve``: a Q2 the step's decision ignores not solved, or given
-   the fast path only), "central_mpcdc" or "central_all" (``mpc.ipm_central_attempt``): CPU per episode
-   by solve class, the audit counters, and the episode-by-episode agreement of safety verdicts and
-   outcomes.
+   the fast path only), "central_off", "central_mpcdc" or "central_all" (``mpc.ipm_central_attempt``,
+   whose default is ``mpcdc``): CPU per episode by solve class, the audit counters, and the
+   episode-by-episode agreement of safety verdicts and outcomes.
 2. **Recorded solves** (:func:`replay_verdicts`): every solve of a recording
    (:mod:`mcverify.bench.recorded_ipm`) the IPM did not converge on, replayed under phase 1 from the
    warm and the cold start and under the restoration-enabled attempts: how the start-independent
@@ -47,6 +47,7 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "phase1+restoration": {"mpc.infeasibility": "phase1", "mpc.ipm_restoration": True},
     "q2_when_needed": {"mpc.q2_solve": "when_needed"},
     "q2_fast_when_unneeded": {"mpc.q2_solve": "fast_when_unneeded"},
+    "central_off": {"mpc.ipm_central_attempt": "off"},
     "central_mpcdc": {"mpc.ipm_central_attempt": "mpcdc"},
     "central_all": {"mpc.ipm_central_attempt": "all"},
 }

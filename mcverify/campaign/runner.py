@@ -145,19 +145,54 @@ def manifest_for(campaign: Campaign, chunk_size: int, kernels: dict[str, str]) -
     }
 
 
+#: Model fields whose default has changed, with the default that runs made before the change used
+#: (``(section, field) -> old default``). Rebuilding a run's campaign pins such a field to the run's own
+#: value where its campaign left it to the default, so a new default never changes how an old run
+#: replays or resumes.
+CHANGED_DEFAULTS: dict[tuple[str, str], Any] = {("mpc", "ipm_central_attempt"): "off"}
+
+
+def _names_field(raw: Any, dotted: str, field: str, section: str, in_section: bool = False) -> bool:
+    """Whether a campaign's raw TOML sets ``section.field`` anywhere: in ``[model.<section>]`` or as a
+    dotted key (axes, grid, falsify bounds)."""
+    if isinstance(raw, dict):
+        return any(key == dotted or (in_section and key == field)
+                   or _names_field(value, dotted, field, section, key == section) for key, value in raw.items())
+    if isinstance(raw, list):
+        return any(_names_field(value, dotted, field, section) for value in raw)
+    return False
+
+
+def pin_changed_defaults(raw: dict[str, Any], cells: list[dict[str, Any]]) -> dict[str, Any]:
+    """``raw`` with every field of :data:`CHANGED_DEFAULTS` the file leaves to the default set to the
+    value the run's cells recorded (the old default where they predate the field)."""
+    pinned = dict(raw)
+    for (section, field), old in CHANGED_DEFAULTS.items():
+        if _names_field(raw, f"{section}.{field}", field, section):
+            continue
+        values = {(c.get("params") or {}).get(section, {}).get(field, old) for c in cells}
+        if len(values) == 1:
+            model = dict(pinned.get("model", {}))
+            model[section] = {**model.get(section, {}), field: values.pop()}
+            pinned["model"] = model
+    return pinned
+
+
 def campaign_from_manifest(manifest: dict[str, Any]) -> Campaign:
     """Rebuild the exact campaign a run used (the file's content plus the command line's overrides).
 
     The manifest keeps the file's content and the resolved seed and per-cell episode counts; a
     ``--episodes`` override (which replaces every bundle's own count) is recognised by the counts:
-    the campaign is rebuilt without it first and with it if the counts then differ.
+    the campaign is rebuilt without it first and with it if the counts then differ. Fields whose
+    default changed since the run keep the run's value (:func:`pin_changed_defaults`).
     """
     camp = manifest["campaign"]
     recorded = [c["episodes"] for c in manifest.get("cells", [])]
+    raw = pin_changed_defaults(camp["raw"], manifest.get("cells", []))
     last_error: CampaignError | None = None
     for episodes in (None, camp["episodes_per_cell"]):
         try:
-            campaign = campaign_from_dict(camp["raw"], source=camp["source"], episodes=episodes, seed=camp["seed"])
+            campaign = campaign_from_dict(raw, source=camp["source"], episodes=episodes, seed=camp["seed"])
         except CampaignError as err:
             last_error = err
             continue

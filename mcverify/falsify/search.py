@@ -24,7 +24,7 @@ import hashlib
 import math
 import shutil
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -175,7 +175,12 @@ def resume(out_dir: Path, **kw: Any) -> SearchResult:
     out_dir = Path(out_dir)
     if not (out_dir / CONFIG).is_file():
         raise RunError(f"{out_dir} is not a falsification folder (no {CONFIG})")
-    return _search(SearchConfig.from_json(store.read_json(out_dir / CONFIG)), out_dir, **kw)
+    config = SearchConfig.from_json(store.read_json(out_dir / CONFIG))
+    first = out_dir / GENERATIONS / "g000" / store.MANIFEST
+    if first.is_file():  # a default changed since the search began keeps the search's value
+        cells = store.read_json(first).get("cells", [])
+        config = replace(config, raw=runner.pin_changed_defaults(config.raw, cells))
+    return _search(config, out_dir, **kw)
 
 
 def _search(

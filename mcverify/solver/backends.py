@@ -273,7 +273,8 @@ class IpmBackend:
         # failures the cold start repairs cheaply, nor a presumed-infeasible fast-only solve, where a
         # restoration would mostly fail at a price)
         self.cold_full = dataclasses.replace(self.cold, restoration=params.mpc.ipm_restoration)
-        # mpc.ipm_central_attempt (off by default): the warm start once more, more central, before IPOPT
+        # mpc.ipm_central_attempt (default mpcdc: the MPC-DC baselines): the warm start once more, more central,
+        # before IPOPT
         self.central = (dataclasses.replace(CENTRAL_WARM, tol=params.mpc.tol, **kkt)
                         if uses_central_attempt(params.mpc) else None)
         self.ipm_outcomes: Counter[str] = Counter()

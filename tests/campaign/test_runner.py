@@ -381,3 +381,28 @@ def test_default_run_folders_never_collide(tmp_path: Path) -> None:
     first.mkdir()
     second = runner.default_run_dir(camp, tmp_path)
     assert second != first and not second.exists() and second.name.startswith(first.name)
+
+
+def test_a_changed_default_keeps_the_runs_value_when_its_campaign_is_rebuilt(monkeypatch):
+    """runner.CHANGED_DEFAULTS: a run made before a default changed rebuilds (replay, resume) with the
+    value it ran with: the old default where its cells predate the field, else the recorded value; a
+    campaign that sets the field itself is left alone."""
+    monkeypatch.setattr(runner, "CHANGED_DEFAULTS", {("mpc", "q2_solve"): "when_needed"})
+    raw = {"campaign": {"name": "t", "seed": 3, "episodes": 2}, "model": {"sim": {"control_period_s": 0.1}}}
+    manifest = runner.manifest_for(campaign_from_dict(raw, source="t.toml"), 8, {})
+    assert {c["params"]["mpc"]["q2_solve"] for c in manifest["cells"]} == {"every_step"}  # today's default
+
+    def rebuilt(cells_value):
+        for cell in manifest["cells"]:
+            if cells_value is None:
+                cell["params"]["mpc"].pop("q2_solve", None)  # a run older than the field
+            else:
+                cell["params"]["mpc"]["q2_solve"] = cells_value
+        return {c.params.mpc.q2_solve for c in runner.campaign_from_manifest(manifest).cells}
+
+    assert rebuilt(None) == {"when_needed"}
+    assert rebuilt("fast_when_unneeded") == {"fast_when_unneeded"}
+    manifest["campaign"]["raw"] = {**raw, "model": {**raw["model"], "mpc": {"q2_solve": "every_step"}}}
+    assert rebuilt(None) == {"every_step"}  # the file's own value wins
+    axes = {**raw, "axes": {"q2": {"a": {"mpc.q2_solve": "when_needed"}, "b": {"mpc.q2_solve": "every_step"}}}}
+    assert runner.pin_changed_defaults(axes, manifest["cells"]) == axes
