@@ -152,14 +152,14 @@ def manifest_for(campaign: Campaign, chunk_size: int, kernels: dict[str, str]) -
 CHANGED_DEFAULTS: dict[tuple[str, str], Any] = {("mpc", "ipm_central_attempt"): "off"}
 
 
-def _names_field(raw: Any, dotted: str, field: str, section: str, in_section: bool = False) -> bool:
+def _names_field(raw: Any, section: str, field: str, in_section: bool = False) -> bool:
     """Whether a campaign's raw TOML sets ``section.field`` anywhere: in ``[model.<section>]`` or as a
     dotted key (axes, grid, falsify bounds)."""
     if isinstance(raw, dict):
-        return any(key == dotted or (in_section and key == field)
-                   or _names_field(value, dotted, field, section, key == section) for key, value in raw.items())
+        return any(key == f"{section}.{field}" or (in_section and key == field)
+                   or _names_field(value, section, field, key == section) for key, value in raw.items())
     if isinstance(raw, list):
-        return any(_names_field(value, dotted, field, section) for value in raw)
+        return any(_names_field(value, section, field) for value in raw)
     return False
 
 
@@ -168,7 +168,7 @@ def pin_changed_defaults(raw: dict[str, Any], cells: list[dict[str, Any]]) -> di
     value the run's cells recorded (the old default where they predate the field)."""
     pinned = dict(raw)
     for (section, field), old in CHANGED_DEFAULTS.items():
-        if _names_field(raw, f"{section}.{field}", field, section):
+        if _names_field(raw, section, field):
             continue
         values = {(c.get("params") or {}).get(section, {}).get(field, old) for c in cells}
         if len(values) == 1:
