@@ -482,7 +482,8 @@ class Opposing:
       ``spawn_gap_m`` ahead of the ego (x_o - x_e, m), so that every episode that starts an
       overtake meets it mid-overtake. ``spawn_gap_range_m`` = (lo, hi), when given,
       draws the gap per episode uniformly in (lo, hi] from the episode's key;
-      ``speed_range_mps`` = (lo, hi) likewise draws veh_o's speed (either spawn mode).
+      ``speed_range_mps`` = (lo, hi) likewise draws veh_o's speed (either spawn mode), and
+      ``spawn_delay_range_s`` = (lo, hi) the delay after the lane entry (when veh_o arrives).
     """
 
     kind: str = "none"
@@ -516,6 +517,8 @@ class Opposing:
     """(lo, hi): draws the spawn gap per episode uniformly in (lo, hi]; replaces spawn_gap_m."""
     spawn_delay_s: float = 0.0
     """With lane_entry, how long after the lane entry veh_o appears. Valid: >= 0."""
+    spawn_delay_range_s: tuple[float, ...] = ()
+    """(lo, hi): draws the spawn delay per episode uniformly in (lo, hi]; replaces spawn_delay_s."""
     speed_range_mps: tuple[float, ...] = ()
     """(lo, hi): draws veh_o's speed per episode uniformly in (lo, hi]; replaces speed_mps."""
 

@@ -75,6 +75,8 @@ EPISODE_COLUMNS: tuple[Column, ...] = (
     _c("sample_opp_speed_mps", _FLOAT, "m/s", "veh_o's speed drawn for the episode (NaN without veh_o)"),
     _c("sample_opp_spawn_gap_m", _FLOAT, "m", "x_o - x_e at which veh_o appears when the ego enters the opposing "
        "lane (opposing.spawn = lane_entry; NaN otherwise)"),
+    _c("sample_opp_spawn_delay_s", _FLOAT, "s", "how long after the ego's lane entry veh_o appears "
+       "(opposing.spawn = lane_entry; NaN otherwise)"),
     # outcome
     _c("outcome", _STR, "", "overtook, went_back, timeout, stopped (falsify mode: ended at its first violation "
        "before a goal, see stopped_at_violation) or error (an episode that could not be simulated)"),

@@ -245,6 +245,7 @@ def _validate_front_and_opposing(p: ModelParams, bad) -> None:
     if not (math.isfinite(o.spawn_delay_s) and o.spawn_delay_s >= 0):
         raise bad("opposing.spawn_delay_s", f"must be a finite number >= 0, got {_short(o.spawn_delay_s)}")
     _check_range(bad, "opposing.spawn_gap_range_m", o.spawn_gap_range_m, lo_min=p.geometry.length_m)
+    _check_range(bad, "opposing.spawn_delay_range_s", o.spawn_delay_range_s, lo_min=0.0)
     _check_range(bad, "opposing.speed_range_mps", o.speed_range_mps, lo_min=0.0, hi_max=o.speed_limit_mps)
 
 

@@ -108,17 +108,19 @@ def sample_scenario(key: Array, params) -> dict[str, float]:
     """Per-episode scenario values drawn from the episode key, each from its own stream.
 
     alpha_f: ``scenario.front_accel_range_mps2`` = (lo, hi) draws it uniformly in (lo, hi] (the
-    paper's Table III ranges are left-open); otherwise the fixed ``front_accel_mps2``. veh_o's speed
-    and spawn gap likewise from ``opposing.speed_range_mps`` and ``opposing.spawn_gap_range_m``
-    (NaN where they do not apply: no veh_o, or no spawn gap with ``spawn = "start"``).
+    paper's Table III ranges are left-open); otherwise the fixed ``front_accel_mps2``. veh_o's speed,
+    spawn gap and spawn delay likewise from ``opposing.speed_range_mps``, ``opposing.spawn_gap_range_m``
+    and ``opposing.spawn_delay_range_s`` (NaN where they do not apply: no veh_o, or no spawn gap or
+    delay with ``spawn = "start"``).
     """
     sc, o = params.scenario, params.opposing
     has_opp = o.kind != "none"
+    at_entry = has_opp and o.spawn == "lane_entry"
     return {
         "front_accel_mps2": _draw(key, 0, sc.front_accel_range_mps2, sc.front_accel_mps2),
         "opp_speed_mps": _draw(key, 1, o.speed_range_mps, o.speed_mps) if has_opp else math.nan,
-        "opp_spawn_gap_m": (_draw(key, 2, o.spawn_gap_range_m, o.spawn_gap_m)
-                            if has_opp and o.spawn == "lane_entry" else math.nan),
+        "opp_spawn_gap_m": _draw(key, 2, o.spawn_gap_range_m, o.spawn_gap_m) if at_entry else math.nan,
+        "opp_spawn_delay_s": _draw(key, 3, o.spawn_delay_range_s, o.spawn_delay_s) if at_entry else math.nan,
     }
 
 
@@ -134,15 +136,16 @@ def _draw(key: Array, stream: int, rng: Sequence[float], fixed: float) -> float:
 def _spawn_opposing(world: LaneGroups, states: list[EpisodeState], samples: list[dict[str, float]],
                     entered_s: list[float], ego: np.ndarray, t_s: float, p) -> None:
     """The spawn rule ``opposing.spawn = "lane_entry"``: veh_o appears ``opp_spawn_gap_m`` ahead of
-    the ego ``opposing.spawn_delay_s`` after the first control step at which the ego's footprint is
-    over the lane line (``entered_s``: that step's time per episode, NaN until then; updated here)."""
+    the ego ``opp_spawn_delay_s`` (the episode's draws) after the first control step at which the
+    ego's footprint is over the lane line (``entered_s``: that step's time per episode, NaN until
+    then; updated here)."""
     over = footprint_top_y_m(ego, p) > 0.5 * p.road.lane_width_m
     for b, st in enumerate(states):
         if st.done or not math.isnan(st.opp_spawn_s):
             continue
         if over[b] and math.isnan(entered_s[b]):
             entered_s[b] = t_s
-        if not math.isnan(entered_s[b]) and t_s >= entered_s[b] + p.opposing.spawn_delay_s - 1e-9:
+        if not math.isnan(entered_s[b]) and t_s >= entered_s[b] + samples[b]["opp_spawn_delay_s"] - 1e-9:
             st.opp_spawn_s = t_s
             world.place_opposing(b, float(ego[b, 0]) + samples[b]["opp_spawn_gap_m"], -samples[b]["opp_speed_mps"])
 

@@ -1,7 +1,8 @@
 """The folder of an estimate that does not run through the campaign runner (splitting, importance):
 ``manifest.json`` (the campaign record, the estimator's specification, the code version),
-``estimate.json`` (the specification and one result per finished cell, rewritten after every cell)
-and ``report.md`` (a table of the results). ``--resume`` keeps the finished cells: each cell's
+``estimate.json`` (the specification and one result per finished cell, rewritten after every cell),
+``cells.parquet`` (the same results, one row per finished cell, for tables and pandas) and
+``report.md`` (a table of the results, and the estimator's figures). ``--resume`` keeps the finished cells: each cell's
 result is deterministic, so running it again would give the same numbers.
 """
 
@@ -19,6 +20,7 @@ from mcverify.campaign.spec import Campaign
 from mcverify.errors import RunError
 
 ESTIMATE = "estimate.json"
+CELLS = "cells.parquet"
 REPORT = "report.md"
 
 #: A report column: (header, cell result -> text).
@@ -71,16 +73,42 @@ def load(out: Path, method: str) -> tuple[dict[str, Any], dict[int, dict[str, An
 
 
 def write(out: Path, title: str, intro: str, spec: dict[str, Any], results: dict[int, dict[str, Any]],
-          columns: Sequence[Column]) -> Path:
-    """Rewrite ``estimate.json`` and ``report.md`` with the results so far; returns the report path."""
+          columns: Sequence[Column], figures: Sequence[str] = ()) -> Path:
+    """Rewrite ``estimate.json``, ``cells.parquet`` and ``report.md`` with the results so far (``figures``:
+    paths relative to ``out`` shown at the end of the report); returns the report path."""
     out = Path(out)
-    cells = [results[i] for i in sorted(results)]
+    cells = [json_ready(results[i]) for i in sorted(results)]
     store.write_json_atomic(out / ESTIMATE, json_ready({"spec": spec, "cells": cells}))
+    write_cells_table(out / CELLS, spec, cells)
     lines = [f"# {title}", "", intro, "", "| " + " | ".join(h for h, _ in columns) + " |",
              "|" + "---|" * len(columns)]
     lines += ["| " + " | ".join(fn(c) for _, fn in columns) + " |" for c in cells]
+    lines += [line for fig in figures for line in ("", f"![{Path(fig).stem}]({fig})")]
     store.atomic_write(out / REPORT, lambda tmp: Path(tmp).write_text("\n".join(lines) + "\n", encoding="utf-8"))
     return out / REPORT
+
+
+def write_cells_table(path: Path, spec: dict[str, Any], cells: Sequence[dict[str, Any]]) -> None:
+    """One row per cell result: its scalar fields as they are, a list of scalars joined with "; " (the
+    warnings, the parameters), anything else (nested records) as JSON text; the estimator's method
+    and target in every row."""
+    import json  # noqa: PLC0415
+
+    import pyarrow as pa  # noqa: PLC0415 - only when writing
+    import pyarrow.parquet as pq  # noqa: PLC0415
+
+    def flat(value: Any) -> Any:
+        if value is None or isinstance(value, (bool, int, float, str)):
+            return value
+        if isinstance(value, list) and all(isinstance(v, (bool, int, float, str)) for v in value):
+            return "; ".join(str(v) for v in value)
+        return json.dumps(value, sort_keys=True)
+
+    rows = [{"method": spec.get("method"), "target": spec.get("target"), **{k: flat(v) for k, v in c.items()}}
+            for c in cells]
+    keys = list(dict.fromkeys(k for r in rows for k in r))
+    table = pa.table({k: [r.get(k) for r in rows] for k in keys}) if rows else pa.table({})
+    store.atomic_write(path, lambda tmp: pq.write_table(table, tmp))
 
 
 def num(x: float | None, fmt: str = ".3g") -> str:

@@ -2,24 +2,23 @@
 cell's scenario ranges (:mod:`mcverify.estimate.importance`) on the real closed loop.
 
 The parameters are the cell's scenario draws that have a range: alpha_f
-(``scenario.front_accel_range_mps2``), veh_o's speed (``opposing.speed_range_mps``) and spawn gap
-(``opposing.spawn_gap_range_m``); each is uniform on its range under the campaign, which is the
-nominal distribution. The perception noise stays nominal (drawn from the episode key), unless a
-noise tilt is given (``--noise-tilt``, :class:`~mcverify.sim.noise.NoiseTilt`): then veh_f's lateral
-measurement noise at a few steps near veh_f is drawn from that fixed proposal, and each episode's weight
-carries its likelihood ratio (``noise_log_lr``) besides the scenario's. Every
-evaluation is one episode with the given values (``run_episodes(scenarios=...)``), run in batches of
-8 lanes, in this process or, with an executor (``--workers``, Ray), one batch per work unit in
-parallel (an episode does not depend on its batch, so the estimate is the same);
-its score is the final value of one of the splitting scores
+(``scenario.front_accel_range_mps2``), veh_o's speed (``opposing.speed_range_mps``), spawn gap
+(``opposing.spawn_gap_range_m``) and spawn delay (``opposing.spawn_delay_range_s``); each is uniform
+on its range under the campaign, which is the nominal distribution. The perception noise stays
+nominal (drawn from the episode key), unless a noise tilt is given (``--noise-tilt``,
+:class:`~mcverify.sim.noise.NoiseTilt`): then veh_f's lateral measurement noise at a few steps near
+veh_f is drawn from that fixed proposal, and each episode's weight carries its likelihood ratio
+(``noise_log_lr``) besides the scenario's. Every evaluation is one episode with the given values
+(``run_episodes(scenarios=...)``), run in batches of 8 lanes, in this process or, with an executor
+(``--workers``, Ray), one batch per work unit in parallel (an episode does not depend on its batch,
+so the estimate is the same); its score is the final value of one of the splitting scores
 (:mod:`mcverify.estimate.closed_loop`): minus min h_ef (``h_ef``, target ellipse), that brought
-forward by the steps with neither Q1 nor Q2 solved (``h_ef_held``, target ellipse), by the
-episode's longest run of such steps (``h_ef_run``, target ellipse: a row has no per-step runs) or
-minus the footprint gap (``gap``, target collision), >= 0 exactly at the event. The score only steers the
-cross-entropy stages; the estimate counts the event itself, so any score leaves it unbiased.
-Episode ids count the evaluations from 0, so the estimate
-replays from (campaign seed, cell, the estimator's seed).
-"""
+forward by the steps with neither Q1 nor Q2 solved (``h_ef_held``, target ellipse), by the episode's
+longest run of such steps (``h_ef_run``, target ellipse: a row has no per-step runs) or minus the
+footprint gap (``gap``, target collision), >= 0 exactly at the event. The score only steers the
+cross-entropy stages; the estimate counts the event itself, so any score leaves it unbiased. Episode
+ids count the evaluations from 0, so the estimate replays from (campaign seed, cell, the estimator's
+seed)."""
 
 from __future__ import annotations
 
@@ -47,13 +46,21 @@ from mcverify.estimate.folder import num
 from mcverify.sim import noise
 from mcverify.sim.noise import NoiseTilt
 
+
+def _at_lane_entry(p) -> bool:
+    """Whether veh_o appears at the ego's lane entry (where its spawn gap and delay apply)."""
+    return p.opposing.kind != "none" and p.opposing.spawn == "lane_entry"
+
+
 #: Scenario key of :func:`mcverify.episode.rollout.sample_scenario` -> how to read its range from a cell.
 RANGES: dict[str, Callable] = {
     "front_accel_mps2": lambda p: p.scenario.front_accel_range_mps2,
     "opp_speed_mps": lambda p: p.opposing.speed_range_mps if p.opposing.kind != "none" else (),
-    "opp_spawn_gap_m": lambda p: (p.opposing.spawn_gap_range_m
-                                  if p.opposing.kind != "none" and p.opposing.spawn == "lane_entry" else ()),
+    "opp_spawn_gap_m": lambda p: p.opposing.spawn_gap_range_m if _at_lane_entry(p) else (),
+    "opp_spawn_delay_s": lambda p: p.opposing.spawn_delay_range_s if _at_lane_entry(p) else (),
 }
+
+
 #: Episodes simulated together (one lane group of the plant).
 BATCH = 8
 
@@ -66,6 +73,22 @@ SAMPLE_COLUMNS = ("outcome", "collision_front", "collision_opp", "min_gap_front_
 def samples_file(out: Path, cell_index: int) -> Path:
     """Where a cell's final draws are kept."""
     return Path(out) / f"samples_cell{cell_index:03d}.parquet"
+
+
+def figure_file(cell_index: int) -> str:
+    """A cell's figure (nominal and proposal densities, the final draws), relative to the folder."""
+    return f"figures/importance_cell{cell_index:03d}.png"
+
+
+def draw_cell(out: Path, result: dict[str, Any], bounds: dict[str, tuple[float, float]], alpha: float,
+              final: Mapping[str, np.ndarray]) -> None:
+    """Draw a finished cell's figure (:mod:`mcverify.reporting.importance_figures`)."""
+    from mcverify.reporting import importance_figures  # noqa: PLC0415 - matplotlib only where a figure is drawn
+    title = (f"{result['cell']}: P({result['target']}) = {num(result['estimate'])} "
+             f"[{num(result['low'])}, {num(result['high'])}], {result['failures']} failing of {len(final['weight'])}")
+    importance_figures.draw_importance_cell(Path(out) / figure_file(result["cell_index"]), title, list(bounds),
+                                            list(bounds.values()), result["proposal_a"], result["proposal_b"],
+                                            alpha, final["theta"], final["failed"])
 
 
 def write_samples(out: Path, cell_index: int, names: Sequence[str], rows: Sequence[dict[str, Any]],
@@ -313,11 +336,14 @@ def _cells_on(campaign: Campaign, spec: ImportanceSpec, out: Path, done: dict[in
              f"asymptotic ({spec.level:.0%} normal); read it with the ESS and the largest weight's share. The "
              "anytime lower bound (one-sided, same level, betting on the bounded weights) holds at any sample count. "
              "Each cell's final draws (episode id, scenario values, weight, failed, outcome) are kept in "
-             "samples_cellNNN.parquet; the estimate is mean(weight * failed) over them.")
+             "samples_cellNNN.parquet; the estimate is mean(weight * failed) over them. The figures show, per "
+             "scenario parameter, the nominal density, the proposal the final draws came from, their histogram "
+             "and a red tick per failing draw.")
 
     def write():
+        figures = [figure_file(i) for i in sorted(results) if (out / figure_file(i)).exists()]
         return folder.write(out, f"mcverify importance-sampling estimate: {campaign.name}", intro,
-                            {"method": "importance", **asdict(spec)}, results, columns)
+                            {"method": "importance", **asdict(spec)}, results, columns, figures)
 
     for cell in campaign.cells:
         if cell.index in results or (only and cell.name not in only):
@@ -344,5 +370,6 @@ def _cells_on(campaign: Campaign, spec: ImportanceSpec, out: Path, done: dict[in
                                "target": spec.target, "parameters": list(bounds), **est.as_dict(),
                                "episodes": score.episodes, "steps": score.steps, "cpu_s": score.cpu_s,
                                **({} if score.noise_tilt is None else {"noise_tilt": score.noise_tilt._asdict()})}
+        draw_cell(out, results[cell.index], bounds, spec.alpha, final)
         write()
     return write()

@@ -61,15 +61,20 @@ def test_footprint_top_edge() -> None:
 
 
 def test_draws_are_keyed_in_their_ranges_and_nan_where_they_do_not_apply() -> None:
-    cell = _cell(spawn="lane_entry", spawn_gap_range_m=[100.0, 160.0], speed_range_mps=[8.0, 18.0])
+    cell = _cell(spawn="lane_entry", spawn_gap_range_m=[100.0, 160.0], speed_range_mps=[8.0, 18.0],
+                 spawn_delay_range_s=[1.0, 4.0])
     draws = [sample_scenario(episode_key(SEED, 0, e), cell.params) for e in range(200)]
-    gaps = np.array([d["opp_spawn_gap_m"] for d in draws])
-    speeds = np.array([d["opp_speed_mps"] for d in draws])
+    gaps, speeds, delays = (np.array([d[k] for d in draws]) for k in ("opp_spawn_gap_m", "opp_speed_mps",
+                                                                       "opp_spawn_delay_s"))
     assert np.all((gaps > 100.0) & (gaps <= 160.0)) and np.all((speeds > 8.0) & (speeds <= 18.0))
-    assert abs(np.corrcoef(gaps, speeds)[0, 1]) < 0.2  # separate streams
+    assert np.all((delays > 1.0) & (delays <= 4.0))
+    assert np.all(np.abs(np.corrcoef([gaps, speeds, delays])[np.triu_indices(3, 1)]) < 0.2)  # separate streams
     assert draws[3] == sample_scenario(episode_key(SEED, 0, 3), cell.params)
     fixed = sample_scenario(episode_key(SEED, 0, 0), _cell().params)
     assert fixed["opp_speed_mps"] == 15.0 and math.isnan(fixed["opp_spawn_gap_m"])
+    assert math.isnan(fixed["opp_spawn_delay_s"])  # spawn = "start": no delay applies
+    at_entry = sample_scenario(episode_key(SEED, 0, 0), _cell(spawn="lane_entry", spawn_delay_s=2.5).params)
+    assert at_entry["opp_spawn_delay_s"] == 2.5
     none = sample_scenario(episode_key(SEED, 0, 0), _cell(kind="none").params)
     assert math.isnan(none["opp_speed_mps"]) and math.isnan(none["opp_spawn_gap_m"])
 
@@ -104,6 +109,18 @@ def test_a_spawn_delay_moves_the_spawn_later_by_that_much() -> None:
     assert spawn_s(0.5) == pytest.approx(spawn_s(0.0) + 0.5)
 
 
+def test_a_drawn_spawn_delay_is_the_one_the_episode_waits_and_records() -> None:
+    cell = _cell(spawn="lane_entry", spawn_gap_m=120.0, spawn_delay_range_s=[0.0, 1.0])
+    planner = Planner(cell.params, solver_factory=lambda p, st: SteerLeftSolver(p, st))
+    rows = run_episodes(cell, [0, 1, 2], SEED, planner).rows
+    undelayed = run_episodes(_cell(spawn="lane_entry", spawn_gap_m=120.0), [0], SEED, planner).rows[0]["opp_spawn_s"]
+    for row in rows:
+        delay = row["sample_opp_spawn_delay_s"]
+        assert 0.0 < delay <= 1.0
+        # veh_o appears at the first control step at or after lane entry + delay (0.1 s steps)
+        assert undelayed + delay - 1e-9 <= row["opp_spawn_s"] < undelayed + delay + 0.1
+
+
 def test_spawn_at_start_is_recorded_as_zero() -> None:
     cell = _cell(speed_mps=12.0)
     planner = Planner(cell.params, solver_factory=lambda p, st: SteerLeftSolver(p, st))
@@ -116,6 +133,7 @@ def test_spawn_at_start_is_recorded_as_zero() -> None:
     ({"spawn": "lane_entry", "spawn_gap_m": 3.0}, "opposing.spawn_gap_m"),
     ({"spawn": "lane_entry", "spawn_delay_s": -1.0}, "opposing.spawn_delay_s"),
     ({"spawn": "lane_entry", "spawn_gap_range_m": [200.0, 100.0]}, "opposing.spawn_gap_range_m"),
+    ({"spawn": "lane_entry", "spawn_delay_range_s": [-1.0, 2.0]}, "opposing.spawn_delay_range_s"),
     ({"speed_range_mps": [10.0, 25.0]}, "opposing.speed_range_mps"),
 ])
 def test_bad_spawn_settings_are_one_line(opposing, field) -> None:

@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pyarrow.parquet as pq
 import pytest
 
 from mcverify.campaign import executors
@@ -40,6 +41,18 @@ def test_given_scenario_values_replace_the_draws():
     assert given["sample_front_accel_mps2"] == 2.5 != own["sample_front_accel_mps2"]
 
 
+def test_veh_o_arrival_draws_are_sampling_parameters():
+    opposing = {"kind": "human", "spawn": "lane_entry", "spawn_gap_range_m": [100.0, 200.0],
+                "spawn_delay_range_s": [0.0, 8.0], "speed_range_mps": [8.0, 18.0]}
+    camp = campaign_from_dict({"campaign": {"name": "r", "seed": 1, "episodes": 1},
+                               "model": {"opposing": opposing}})
+    assert scenario_bounds(camp.cells[0]) == {"opp_speed_mps": (8.0, 18.0), "opp_spawn_gap_m": (100.0, 200.0),
+                                              "opp_spawn_delay_s": (0.0, 8.0)}
+    at_start = campaign_from_dict({"campaign": {"name": "r", "seed": 1, "episodes": 1},
+                                   "model": {"opposing": {**opposing, "spawn": "start"}}})
+    assert scenario_bounds(at_start.cells[0]) == {"opp_speed_mps": (8.0, 18.0)}  # gap and delay do not apply
+
+
 def test_importance_cli_writes_its_estimate_and_resumes(tmp_path: Path, campaign_file: Path, capsys):
     out = tmp_path / "est"
     argv = ["estimate", str(campaign_file), "--method", "importance", "--target", "ellipse", "--samples", "8",
@@ -49,7 +62,12 @@ def test_importance_cli_writes_its_estimate_and_resumes(tmp_path: Path, campaign
     (cell,) = est["cells"]
     assert cell["parameters"] == ["front_accel_mps2"] and cell["episodes"] == 16 and cell["cpu_s"] > 0
     assert cell["failures"] == 0 and any("failing samples" in w for w in cell["warnings"])  # 1 s episodes: safe
-    assert "ESS" in (out / "report.md").read_text()
+    report = (out / "report.md").read_text()
+    assert "ESS" in report and "![importance_cell000](figures/importance_cell000.png)" in report
+    assert (out / "figures" / "importance_cell000.png").stat().st_size > 0
+    (row,) = pq.read_table(out / "cells.parquet").to_pylist()
+    assert row["method"] == "importance" and row["estimate"] == cell["estimate"]
+    assert row["parameters"] == "front_accel_mps2"
     before = (out / "estimate.json").read_text()
     assert main(["estimate", "--resume", str(out)]) == 0
     assert (out / "estimate.json").read_text() == before

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pyarrow.parquet as pq
 import pytest
 
 from mcverify.cli import main
@@ -25,6 +26,10 @@ def test_splitting_cli_writes_its_estimate_and_resumes(tmp_path: Path, capsys):
         assert any("iteration cap" in w for w in c["warnings"])  # 1 iteration cannot reach a collision
         assert any("only 2 AMS runs" in w and "--replicates 8" in w for w in c["warnings"])
     assert "| front_speed_kmh=25 |" in (out / "report.md").read_text()
+    table = pq.read_table(out / "cells.parquet").to_pylist()  # the same results, one row per cell
+    assert [r["cell_index"] for r in table] == [0, 1] and {r["method"] for r in table} == {"splitting"}
+    assert [r["estimate"] for r in table] == [c["estimate"] for c in est["cells"]]
+    assert table[0]["warnings"] == "; ".join(est["cells"][0]["warnings"])
     before = (out / "estimate.json").read_text()
     assert main(["estimate", "--resume", str(out)]) == 0
     assert (out / "estimate.json").read_text() == before
