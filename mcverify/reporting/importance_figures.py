@@ -31,7 +31,8 @@ def draw_importance_cell(path: Path, title: str, names: Sequence[str], bounds: S
     ``theta`` ((M, d), in the order of ``names``) and a red tick under the axis per failing draw."""
     theta = np.asarray(theta, dtype=float).reshape(-1, len(names))
     failed = np.asarray(failed, dtype=bool)
-    fig, axes = plt.subplots(1, len(names), figsize=(4.2 * len(names), 3.4), squeeze=False)
+    width_in = max(6.0, 4.2 * len(names))
+    fig, axes = plt.subplots(1, len(names), figsize=(width_in, 3.4), squeeze=False)
     for j, (ax, name, (low, high)) in enumerate(zip(axes[0], names, bounds, strict=True)):
         x = np.linspace(low, high, CURVE_POINTS)
         ax.hist(theta[:, j], bins=30, range=(low, high), density=True, color="0.85", label="final draws")
@@ -45,6 +46,6 @@ def draw_importance_cell(path: Path, title: str, names: Sequence[str], bounds: S
         ax.set_xlabel(name)
         ax.set_ylabel("density")
         ax.legend(fontsize=7, loc="upper right")
-    fig.suptitle(title, fontsize=10)
-    fig.subplots_adjust(left=0.08, right=0.97, bottom=0.17, top=0.86, wspace=0.3)
+    fig.suptitle(title, fontsize=9)
+    fig.subplots_adjust(left=0.65 / width_in, right=0.97, bottom=0.17, top=0.86, wspace=0.3)
     return save(fig, path)
