@@ -271,6 +271,11 @@ class Mpc:
     kkt_factorization: str = "lu"
     """How the ipm backend factorises its KKT system: lu (banded LU, the default), ldlt (banded LDL^T with the inertia
     test) or ldlt_curvature (banded LDL^T with the LU's curvature test); docs/engine.md, "The LDL^T path"."""
+    q2_stoppable_goal: bool = False
+    """Q2's goal also asks for a speed the ego can shed behind veh_f: at the plan's end the footprint gap
+    x_f - x_e - length must hold (v_e - v_f)_+^2 / (2 |accel_min_mps2|). Not in the paper (its Q2 has no terminal
+    speed condition, so a late turn-back can reach the goal too fast to avoid veh_f: README, "Q2's goal has no speed
+    condition"); VL-CBF controllers only. Measured not to close that window (README): an experiment, off by default."""
     q2_solve: str = "every_step"
     """How Q2 is solved at the steps whose decision does not read it: every_step (Algorithm 1: in full),
     fast_when_unneeded (the fast path only) or when_needed (not at all)."""

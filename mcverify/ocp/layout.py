@@ -67,6 +67,7 @@ class OcpStructure:
     constraint: str = "cbf"
     opp_order_m: int = 1
     opp_law_order_m: int = 1
+    stoppable_goal: bool = False
 
     def __post_init__(self) -> None:
         if self.horizon < 2:
@@ -87,6 +88,7 @@ class OcpStructure:
             constraint="distance" if params.mpc.is_mpcdc else "cbf",
             opp_order_m=len(params.barrier.opp_lambdas_m),
             opp_law_order_m=len(params.opposing.lambdas_m),
+            stoppable_goal=params.mpc.q2_stoppable_goal and not params.mpc.is_mpcdc,
         )
 
 
@@ -132,6 +134,9 @@ class ParamLayout:
     gate_relax              1      M: how much the faded-out constraint is relaxed by
     half_length, half_width 1, 1   of the ego footprint (m), for its top edge
     opp_lane_y              1      centre of the opposing lane (m), the MPC-DC ellipse's y
+    ---- with a stoppable Q2 goal (Mpc.q2_stoppable_goal) -------------------------------------
+    stop_gap                1      centre distance at footprint contact behind veh_f: the length (m)
+    stop_decel              1      the ego's strongest braking |accel_min| (m/s^2)
     ======================  =====  ==========================================================
     """
 
@@ -139,10 +144,12 @@ class ParamLayout:
     with_opposing: bool = False
     opp_order_m: int = 1
     opp_law_order_m: int = 1
+    stoppable_goal: bool = False
 
     @classmethod
     def of(cls, structure: OcpStructure) -> ParamLayout:
-        return cls(structure.order_m, structure.with_opposing, structure.opp_order_m, structure.opp_law_order_m)
+        return cls(structure.order_m, structure.with_opposing, structure.opp_order_m, structure.opp_law_order_m,
+                   structure.stoppable_goal)
 
     @property
     def sizes(self) -> dict[str, int]:
@@ -159,6 +166,8 @@ class ParamLayout:
                 "opp_speed_limit": 1, "lane_line_y": 1, "gate_width": 1, "gate_relax": 1,
                 "half_length": 1, "half_width": 1, "opp_lane_y": 1,
             })
+        if self.stoppable_goal:
+            sizes.update({"stop_gap": 1, "stop_decel": 1})
         return sizes
 
     @property
@@ -263,6 +272,9 @@ def pack_params(
         p[sl["half_length"]] = 0.5 * geo.length_m
         p[sl["half_width"]] = 0.5 * geo.width_m
         p[sl["opp_lane_y"]] = road.opp_lane_y_m
+    if structure.stoppable_goal:
+        p[sl["stop_gap"]] = params.geometry.length_m
+        p[sl["stop_decel"]] = -params.ego.accel_min_mps2
     return p
 
 
@@ -274,10 +286,11 @@ class NlpLayout:
     horizon: int
     uniform_dt: bool = True
     with_opposing: bool = False
+    stoppable_goal: bool = False
 
     @classmethod
     def of(cls, structure: OcpStructure) -> NlpLayout:
-        return cls(structure.horizon, structure.uniform_dt, structure.with_opposing)
+        return cls(structure.horizon, structure.uniform_dt, structure.with_opposing, structure.stoppable_goal)
 
     def _w_sizes(self) -> dict[str, int]:
         n = self.horizon
@@ -292,6 +305,7 @@ class NlpLayout:
         return {
             "init": N_X, "clock0": 1, "dyn": N_X * n, "clock": n, "dt_equal": n - 1 if self.uniform_dt else 0,
             "opp_dyn": n_opp_eq, "front": n, "opp": n if self.with_opposing else 0, "goal": 1, "lat": 2,
+            "stop": 1 if self.stoppable_goal else 0,
         }
 
     @property
@@ -301,7 +315,8 @@ class NlpLayout:
 
     @property
     def g_slices(self) -> dict[str, slice]:
-        """Slices of g: "init", "clock0", "dyn", "clock", "dt_equal", "opp_dyn", "front", "opp", "goal", "lat"."""
+        """Slices of g: "init", "clock0", "dyn", "clock", "dt_equal", "opp_dyn", "front", "opp", "goal", "lat",
+        "stop"."""
         return _slices(self._g_sizes())
 
     @property

@@ -21,6 +21,9 @@ Constraint vector ``g`` (all written as ``lbg <= g <= ubg`` with the numeric bou
   "distance": the ellipse around the predicted veh_o, i = 1..N  (N)    eq.tompcAdd_cbf_eo
 * ``s (X[0, N] - x_g) >= 0``                                    (1)    eq.tompc_goal
 * ``eps_y -+ (X[1, N] - y_goal) >= 0``                          (2)    eq.tompc_y
+* with ``stoppable_goal`` (not the paper's): ``x_f(T) - X[0, N] - L - max(v_x,N - v_f, 0)^2 / (2 a)
+  + M (1 + s) / 2 >= 0``: Q2 (s = -1) ends where braking at a = |accel_min| keeps the footprints
+  apart behind veh_f; relaxed for Q1                            (1)    see :func:`stoppable_goal_row`
 
 The input and state bounds (eq.tompc_u, eq.tompc_v, eq.tompc_t) are bounds on ``w``
 (:func:`~mcverify.ocp.layout.decision_bounds`). The dynamics are the forward-Euler discretisation of
@@ -147,6 +150,8 @@ def opposing_lane_gate(x: ca.SX, par: dict) -> ca.SX:
 #: Width (m/s^2) of the smooth max/min in veh_o's predicted law: the prediction differs from the
 #: exact max/clip of the plant's law by at most half of it, and IPOPT sees no kinks.
 SMOOTH_ACCEL_MPS2 = 0.05
+#: Width of the smooth maximum in the stoppable-goal row (m/s).
+SMOOTH_SPEED_MPS = 0.05
 
 
 #: The worst-case acceleration of a human-driven veh_o fades out over this speed band above its limit.
@@ -236,13 +241,15 @@ def build_nlp(structure: OcpStructure) -> dict[str, ca.SX]:
     dy = X[1, n] - par["y_goal"]
     g_lat = ca.vertcat(par["eps_y"] - dy, par["eps_y"] + dy)
 
+    g_stop = stoppable_goal_row(X[:, n], front, total_time, s, par) if structure.stoppable_goal else ca.SX(0, 1)
+
     # uniform stages (OcpStructure.uniform_dt): DT_{i+1} - DT_i == 0
     g_equal = ca.diff(DT) if structure.uniform_dt else ca.SX(0, 1)
     opp_init = XO[:, 0] - par["opp"] if XO is not None else ca.SX(0, 1)
 
     g = ca.vertcat(
         X[:, 0] - par["x0"], t[0], *g_dyn, *g_clock, g_equal, opp_init, *g_opp_dyn,
-        *g_front, *g_opp, g_goal, g_lat,
+        *g_front, *g_opp, g_goal, g_lat, g_stop,
     )
     # Objective: sum DT + w_s (sum ||u^{i+1} - u^i||^2 + sum beta_i^2) (Remark after eq.tompc), with
     # u in units of its bound (see input_scale).
@@ -265,6 +272,22 @@ def formulation_digest(structure: OcpStructure) -> str:
     nlp = build_nlp(structure)
     fn = ca.Function("nlp", [nlp["x"], nlp["p"]], [nlp["f"], nlp["g"]])
     return hashlib.sha256(fn.serialize().encode()).hexdigest()
+
+
+#: How much the stoppable-goal row is relaxed for Q1 (m): more than any gap on the road.
+STOP_RELAX_M = 1e3
+
+
+def stoppable_goal_row(x_end: ca.SX, front: ca.SX, total_time: ca.SX, s: ca.SX, par: dict) -> ca.SX:
+    """Q2's end state can still avoid veh_f (>= 0): the footprint gap behind veh_f's predicted position
+    at the plan's end, x_f + v_f T - x_e - L, covers the distance the ego needs to shed its excess speed
+    over veh_f at its strongest braking a, (v_x - v_f)_+^2 / (2 a) (veh_f at constant speed, as the
+    goal predicts it). Not in the paper: its Q2 (eq.tompc with the goal behind veh_f) has no terminal
+    speed condition, so a late turn-back may reach the goal too fast to stop behind veh_f. Relaxed by
+    :data:`STOP_RELAX_M` when s = +1 (Q1)."""
+    gap = front[0] + front[2] * total_time - x_end[0] - par["stop_gap"]
+    excess = smooth_max(x_end[3] * ca.cos(x_end[2]) - front[2], 0.0, width=SMOOTH_SPEED_MPS)
+    return gap - excess**2 / (2.0 * par["stop_decel"]) + STOP_RELAX_M * (1.0 + s) / 2.0
 
 
 def _opposing_row(structure: OcpStructure, X, U, XO, t, i: int, a_o, par: dict) -> ca.SX:

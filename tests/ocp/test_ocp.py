@@ -128,6 +128,57 @@ def test_formulation_digest_follows_the_maths():
     assert len(digests) == 4
 
 
+STOPPABLE = dataclasses.replace(P, mpc=dataclasses.replace(P.mpc, q2_stoppable_goal=True))
+
+
+@pytest.mark.parametrize("with_opposing", [False, True])
+def test_the_stoppable_goal_row_is_the_braking_distance_behind_veh_f_for_q2_only(with_opposing):
+    st = ocp.OcpStructure.from_params(STOPPABLE, with_opposing=with_opposing)
+    plain = ocp.OcpStructure.from_params(P, with_opposing=with_opposing)
+    assert st.stoppable_goal and not plain.stoppable_goal
+    lay = ocp.NlpLayout.of(st)
+    assert lay.n_g == ocp.NlpLayout.of(plain).n_g + 1 and lay.g_slices["stop"].stop == lay.n_g
+    assert ocp.formulation_digest(st) != ocp.formulation_digest(plain)  # a kernel of its own
+    nlp = ocp.build_nlp(st)
+    g = ca.Function("g", [nlp["x"], nlp["p"]], [nlp["g"]])
+    ws, n = lay.w_slices, st.horizon
+    w = np.zeros(lay.n_w)
+    X = np.zeros((4, n + 1))
+    X[0, -1], X[2, -1], X[3, -1] = 50.0, 0.1, 18.0  # the plan's end: 18 m/s, heading 0.1 rad
+    w[ws["x"]] = X.reshape(-1, order="F")
+    w[ws["t"]] = np.linspace(0.0, 2.0, n + 1)
+    front = np.array([43.0, 0.0, 7.0])
+    opp = np.array([300.0, -10.0]) if with_opposing else None
+    gap = 43.0 + 7.0 * 2.0 - 50.0 - P.geometry.length_m
+    excess = 18.0 * np.cos(0.1) - 7.0
+    expected = gap - excess**2 / (2.0 * -P.ego.accel_min_mps2)
+    for direction, relax in ((-1, 0.0), (1, ocp.problem.STOP_RELAX_M)):
+        p = ocp.pack_params(STOPPABLE, X[:, 0], front, direction, LAMBDA0, opp_xv=opp, structure=st)
+        row = float(np.asarray(g(w, p)).ravel()[lay.g_slices["stop"]][0])
+        assert row == pytest.approx(expected + relax, abs=0.03)  # the smooth max is 0.025 m/s above max
+    lbg, ubg = ocp.constraint_bounds(st)
+    assert lbg[lay.g_slices["stop"]][0] == 0.0 and np.isinf(ubg[lay.g_slices["stop"]][0])
+
+
+def test_the_baselines_have_no_stoppable_goal():
+    for controller in ("mpcdc", "mpcdc_eps"):
+        params = dataclasses.replace(STOPPABLE, mpc=dataclasses.replace(STOPPABLE.mpc, controller=controller))
+        assert not ocp.OcpStructure.from_params(params).stoppable_goal
+
+
+def test_a_stoppable_q2_plan_ends_slow_enough_to_stay_behind():
+    # alongside veh_f at 18 m/s, as a late turn-back: the plain Q2 plan ends at the goal too fast to
+    # stop behind veh_f; the stoppable one sheds the excess speed first
+    ego = np.array([60.0, 3.5, 0.0, 18.0])
+    front = np.array([64.0, 0.0, 25.0 / 3.6])
+    sol = MpcSolver(STOPPABLE).solve(ego, front, -1, LAMBDA0)
+    assert sol.success, sol.status
+    check_plan(sol, STOPPABLE, ego, front, -1)
+    end, total = sol.x_plan[-1], sol.total_time_s
+    gap = front[0] + front[2] * total - end[0] - P.geometry.length_m
+    assert gap >= max(end[3] * np.cos(end[2]) - front[2], 0.0) ** 2 / (2.0 * -P.ego.accel_min_mps2) - 1e-3
+
+
 # --- solved plans ------------------------------------------------------------------------------------
 
 
