@@ -131,6 +131,8 @@ ABANDON_RULES = ("first_failure", "consecutive", "certified")
 CENTRAL_ATTEMPT_POLICIES = ("off", "mpcdc", "all")
 #: When the dual planner solves Q2 while overtaking (:attr:`Mpc.q2_solve`).
 Q2_SOLVE_POLICIES = ("every_step", "fast_when_unneeded", "when_needed")
+#: Where Q2 asks the ego to stay stoppable behind veh_f (:attr:`Mpc.q2_stoppable`; not in the paper).
+Q2_STOPPABLE_MODES = ("off", "end", "path")
 #: Most piecewise-constant segments of one structured disturbance (:attr:`Noise.front_x_segments`).
 MAX_SEGMENTS = 8
 #: Most noise branches of one episode (:attr:`Noise.branch_after_steps`).
@@ -271,11 +273,11 @@ class Mpc:
     kkt_factorization: str = "lu"
     """How the ipm backend factorises its KKT system: lu (banded LU, the default), ldlt (banded LDL^T with the inertia
     test) or ldlt_curvature (banded LDL^T with the LU's curvature test); docs/engine.md, "The LDL^T path"."""
-    q2_stoppable_goal: bool = False
-    """Q2's goal also asks for a speed the ego can shed behind veh_f: at the plan's end the footprint gap
-    x_f - x_e - length must hold (v_e - v_f)_+^2 / (2 |accel_min_mps2|). Not in the paper (its Q2 has no terminal
-    speed condition, so a late turn-back can reach the goal too fast to avoid veh_f: README, "Q2's goal has no speed
-    condition"); VL-CBF controllers only. Measured not to close that window (README): an experiment, off by default."""
+    q2_stoppable: str = "off"
+    """Not in the paper (its Q2 has no speed condition, so a late turn-back can reach the goal too fast to avoid veh_f:
+    README, "Q2's goal has no speed condition"): Q2 asks that the footprint gap behind veh_f, x_f - x_e - length,
+    cover (v_e - v_f)_+^2 / (2 |accel_min_mps2|). off (the paper), end (at the plan's end only; measured not to close
+    that window, README) or path (at every node where the ego is behind veh_f). VL-CBF controllers only."""
     q2_solve: str = "every_step"
     """How Q2 is solved at the steps whose decision does not read it: every_step (Algorithm 1: in full),
     fast_when_unneeded (the fast path only) or when_needed (not at all)."""

@@ -21,6 +21,7 @@ from mcverify.model import (
     MAX_BRANCHES,
     MAX_SEGMENTS,
     Q2_SOLVE_POLICIES,
+    Q2_STOPPABLE_MODES,
     REQUIREMENT_NAMES,
     ModelParams,
 )
@@ -131,6 +132,8 @@ def validate_params(p: ModelParams, where: str) -> None:
                   "(set both; equal: a fixed period)")
     if m.abandon_rule not in ABANDON_RULES:
         raise bad("mpc.abandon_rule", f"unknown rule {_short(m.abandon_rule)}; valid: {', '.join(ABANDON_RULES)}")
+    if m.q2_stoppable not in Q2_STOPPABLE_MODES:
+        raise bad("mpc.q2_stoppable", f"unknown mode {_short(m.q2_stoppable)}; valid: {', '.join(Q2_STOPPABLE_MODES)}")
     if m.q2_solve not in Q2_SOLVE_POLICIES:
         raise bad("mpc.q2_solve", f"unknown policy {_short(m.q2_solve)}; valid: {', '.join(Q2_SOLVE_POLICIES)}")
     if type(m.abandon_after_failures) is not int or m.abandon_after_failures < 1:

@@ -67,7 +67,7 @@ class OcpStructure:
     constraint: str = "cbf"
     opp_order_m: int = 1
     opp_law_order_m: int = 1
-    stoppable_goal: bool = False
+    stoppable: str = "off"
 
     def __post_init__(self) -> None:
         if self.horizon < 2:
@@ -88,7 +88,7 @@ class OcpStructure:
             constraint="distance" if params.mpc.is_mpcdc else "cbf",
             opp_order_m=len(params.barrier.opp_lambdas_m),
             opp_law_order_m=len(params.opposing.lambdas_m),
-            stoppable_goal=params.mpc.q2_stoppable_goal and not params.mpc.is_mpcdc,
+            stoppable="off" if params.mpc.is_mpcdc else params.mpc.q2_stoppable,
         )
 
 
@@ -134,7 +134,7 @@ class ParamLayout:
     gate_relax              1      M: how much the faded-out constraint is relaxed by
     half_length, half_width 1, 1   of the ego footprint (m), for its top edge
     opp_lane_y              1      centre of the opposing lane (m), the MPC-DC ellipse's y
-    ---- with a stoppable Q2 goal (Mpc.q2_stoppable_goal) -------------------------------------
+    ---- with a stoppable Q2 (Mpc.q2_stoppable end or path) ----------------------------------
     stop_gap                1      centre distance at footprint contact behind veh_f: the length (m)
     stop_decel              1      the ego's strongest braking |accel_min| (m/s^2)
     ======================  =====  ==========================================================
@@ -144,12 +144,12 @@ class ParamLayout:
     with_opposing: bool = False
     opp_order_m: int = 1
     opp_law_order_m: int = 1
-    stoppable_goal: bool = False
+    stoppable: str = "off"
 
     @classmethod
     def of(cls, structure: OcpStructure) -> ParamLayout:
         return cls(structure.order_m, structure.with_opposing, structure.opp_order_m, structure.opp_law_order_m,
-                   structure.stoppable_goal)
+                   structure.stoppable)
 
     @property
     def sizes(self) -> dict[str, int]:
@@ -166,7 +166,7 @@ class ParamLayout:
                 "opp_speed_limit": 1, "lane_line_y": 1, "gate_width": 1, "gate_relax": 1,
                 "half_length": 1, "half_width": 1, "opp_lane_y": 1,
             })
-        if self.stoppable_goal:
+        if self.stoppable != "off":
             sizes.update({"stop_gap": 1, "stop_decel": 1})
         return sizes
 
@@ -272,7 +272,7 @@ def pack_params(
         p[sl["half_length"]] = 0.5 * geo.length_m
         p[sl["half_width"]] = 0.5 * geo.width_m
         p[sl["opp_lane_y"]] = road.opp_lane_y_m
-    if structure.stoppable_goal:
+    if structure.stoppable != "off":
         p[sl["stop_gap"]] = params.geometry.length_m
         p[sl["stop_decel"]] = -params.ego.accel_min_mps2
     return p
@@ -286,11 +286,11 @@ class NlpLayout:
     horizon: int
     uniform_dt: bool = True
     with_opposing: bool = False
-    stoppable_goal: bool = False
+    stoppable: str = "off"
 
     @classmethod
     def of(cls, structure: OcpStructure) -> NlpLayout:
-        return cls(structure.horizon, structure.uniform_dt, structure.with_opposing, structure.stoppable_goal)
+        return cls(structure.horizon, structure.uniform_dt, structure.with_opposing, structure.stoppable)
 
     def _w_sizes(self) -> dict[str, int]:
         n = self.horizon
@@ -305,7 +305,7 @@ class NlpLayout:
         return {
             "init": N_X, "clock0": 1, "dyn": N_X * n, "clock": n, "dt_equal": n - 1 if self.uniform_dt else 0,
             "opp_dyn": n_opp_eq, "front": n, "opp": n if self.with_opposing else 0, "goal": 1, "lat": 2,
-            "stop": 1 if self.stoppable_goal else 0,
+            "stop": {"off": 0, "end": 1, "path": n}[self.stoppable],
         }
 
     @property

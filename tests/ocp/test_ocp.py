@@ -128,14 +128,18 @@ def test_formulation_digest_follows_the_maths():
     assert len(digests) == 4
 
 
-STOPPABLE = dataclasses.replace(P, mpc=dataclasses.replace(P.mpc, q2_stoppable_goal=True))
+def stoppable(mode: str) -> ModelParams:
+    return dataclasses.replace(P, mpc=dataclasses.replace(P.mpc, q2_stoppable=mode))
+
+
+STOPPABLE = stoppable("end")
 
 
 @pytest.mark.parametrize("with_opposing", [False, True])
 def test_the_stoppable_goal_row_is_the_braking_distance_behind_veh_f_for_q2_only(with_opposing):
     st = ocp.OcpStructure.from_params(STOPPABLE, with_opposing=with_opposing)
     plain = ocp.OcpStructure.from_params(P, with_opposing=with_opposing)
-    assert st.stoppable_goal and not plain.stoppable_goal
+    assert st.stoppable == "end" and plain.stoppable == "off"
     lay = ocp.NlpLayout.of(st)
     assert lay.n_g == ocp.NlpLayout.of(plain).n_g + 1 and lay.g_slices["stop"].stop == lay.n_g
     assert ocp.formulation_digest(st) != ocp.formulation_digest(plain)  # a kernel of its own
@@ -163,7 +167,43 @@ def test_the_stoppable_goal_row_is_the_braking_distance_behind_veh_f_for_q2_only
 def test_the_baselines_have_no_stoppable_goal():
     for controller in ("mpcdc", "mpcdc_eps"):
         params = dataclasses.replace(STOPPABLE, mpc=dataclasses.replace(STOPPABLE.mpc, controller=controller))
-        assert not ocp.OcpStructure.from_params(params).stoppable_goal
+        assert ocp.OcpStructure.from_params(params).stoppable == "off"
+
+
+def test_the_stoppable_path_rows_ask_nothing_alongside_veh_f_and_the_braking_distance_behind_it():
+    st = ocp.OcpStructure.from_params(stoppable("path"))
+    lay = ocp.NlpLayout.of(st)
+    n = st.horizon
+    assert lay.g_slices["stop"] == slice(lay.n_g - n, lay.n_g)
+    nlp = ocp.build_nlp(st)
+    g = ca.Function("g", [nlp["x"], nlp["p"]], [nlp["g"]])
+    ws = lay.w_slices
+    X = np.zeros((4, n + 1))
+    X[3, :] = 18.0
+    X[0, :] = np.linspace(30.0, 90.0, n + 1)  # from 34 m behind veh_f to 12 m ahead of it (it moves 14 m)
+    t = np.linspace(0.0, 2.0, n + 1)
+    w = np.zeros(lay.n_w)
+    w[ws["x"]], w[ws["t"]] = X.reshape(-1, order="F"), t
+    front = np.array([64.0, 0.0, 7.0])
+    p = ocp.pack_params(st_params := stoppable("path"), X[:, 0], front, -1, LAMBDA0, structure=st)
+    rows = np.asarray(g(w, p)).ravel()[lay.g_slices["stop"]]
+    gap = 64.0 + 7.0 * t[1:] - X[0, 1:] - st_params.geometry.length_m
+    plain = gap - (18.0 - 7.0) ** 2 / (2.0 * -P.ego.accel_min_mps2)
+    behind, alongside = gap >= ocp.problem.STOP_GATE_M, gap <= 0.0
+    assert behind.any() and alongside.any()
+    assert np.allclose(rows[behind], plain[behind], atol=0.03)
+    assert np.allclose(rows[alongside], ocp.problem.STOP_GATE_RELAX_M)
+    p_q1 = ocp.pack_params(st_params, X[:, 0], front, 1, LAMBDA0, structure=st)
+    assert np.all(np.asarray(g(w, p_q1)).ravel()[lay.g_slices["stop"]] > 900.0)  # relaxed for Q1
+
+
+def test_bad_stoppable_mode_is_one_line():
+    from mcverify.campaign.spec import CampaignError, campaign_from_dict
+
+    with pytest.raises(CampaignError, match=r"mpc\.q2_stoppable") as err:
+        campaign_from_dict({"campaign": {"name": "x", "seed": 1, "episodes": 1},
+                            "model": {"mpc": {"q2_stoppable": "always"}}})
+    assert "\n" not in str(err.value)
 
 
 def test_a_stoppable_q2_plan_ends_slow_enough_to_stay_behind():
