@@ -276,8 +276,9 @@ class Mpc:
     q2_stoppable: str = "off"
     """Not in the paper (its Q2 has no speed condition, so a late turn-back can reach the goal too fast to avoid veh_f:
     README, "Q2's goal has no speed condition"): Q2 asks that the footprint gap behind veh_f, x_f - x_e - length,
-    cover (v_e - v_f)_+^2 / (2 |accel_min_mps2|). off (the paper), end (at the plan's end only; measured not to close
-    that window, README) or path (at every node where the ego is behind veh_f). VL-CBF controllers only."""
+    cover (v_e - v_f)_+^2 / (2 |accel_min_mps2|), veh_f's measurement errors allowed for. off (the paper), end (at the
+    plan's end only) or path (at every node where the ego is behind veh_f). An experiment: neither closes that window
+    (README), and path makes overtakes 6-20x dearer. VL-CBF controllers only."""
     q2_solve: str = "every_step"
     """How Q2 is solved at the steps whose decision does not read it: every_step (Algorithm 1: in full),
     fast_when_unneeded (the fast path only) or when_needed (not at all)."""

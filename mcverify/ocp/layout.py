@@ -135,7 +135,10 @@ class ParamLayout:
     half_length, half_width 1, 1   of the ego footprint (m), for its top edge
     opp_lane_y              1      centre of the opposing lane (m), the MPC-DC ellipse's y
     ---- with a stoppable Q2 (Mpc.q2_stoppable end or path) ----------------------------------
-    stop_gap                1      centre distance at footprint contact behind veh_f: the length (m)
+    stop_gap                1      centre distance kept behind veh_f's measured c.g.: the length plus the
+                                   measured position's largest error (m)
+    stop_speed_factor       1      veh_f's speed is at least this times its measured speed (1 - the
+                                   speed noise's largest relative error)
     stop_decel              1      the ego's strongest braking |accel_min| (m/s^2)
     ======================  =====  ==========================================================
     """
@@ -167,7 +170,7 @@ class ParamLayout:
                 "half_length": 1, "half_width": 1, "opp_lane_y": 1,
             })
         if self.stoppable != "off":
-            sizes.update({"stop_gap": 1, "stop_decel": 1})
+            sizes.update({"stop_gap": 1, "stop_speed_factor": 1, "stop_decel": 1})
         return sizes
 
     @property
@@ -273,7 +276,10 @@ def pack_params(
         p[sl["half_width"]] = 0.5 * geo.width_m
         p[sl["opp_lane_y"]] = road.opp_lane_y_m
     if structure.stoppable != "off":
-        p[sl["stop_gap"]] = params.geometry.length_m
+        nz = params.noise
+        noisy = nz.kind != "none"
+        p[sl["stop_gap"]] = params.geometry.length_m + (nz.pos_far_m * nz.scale if noisy else 0.0)
+        p[sl["stop_speed_factor"]] = 1.0 - (nz.speed_rel * nz.scale if noisy else 0.0)
         p[sl["stop_decel"]] = -params.ego.accel_min_mps2
     return p
 

@@ -21,7 +21,7 @@ Constraint vector ``g`` (all written as ``lbg <= g <= ubg`` with the numeric bou
   "distance": the ellipse around the predicted veh_o, i = 1..N  (N)    eq.tompcAdd_cbf_eo
 * ``s (X[0, N] - x_g) >= 0``                                    (1)    eq.tompc_goal
 * ``eps_y -+ (X[1, N] - y_goal) >= 0``                          (2)    eq.tompc_y
-* with ``stoppable`` "end" or "path" (not the paper's): ``d_i - max(v_x,i - v_f, 0)^2 / (2 a)
+* with ``stoppable`` "end" or "path" (not the paper's): ``d_i - max(v_i - v_f, 0)^2 / (2 a)
   + M (1 + s) / 2 >= 0``, d_i = x_f(t_i) - X[0, i] - L the footprint gap behind veh_f: braking at
   a = |accel_min| keeps the footprints apart; relaxed for Q1. "end": i = N      (1)
   "path": i = 1..N, each row faded out (relaxed) while d_i <= 0 (alongside or ahead of
@@ -286,9 +286,10 @@ STOP_GATE_RELAX_M = 100.0
 
 
 def stoppable_row(x: ca.SX, front: ca.SX, t: ca.SX, s: ca.SX, par: dict, gated: bool) -> ca.SX:
-    """The ego at state x, time t can still avoid veh_f (>= 0): the footprint gap behind veh_f's
-    predicted position, d = x_f + v_f t - x_e - L, covers the distance it needs to shed its excess
-    speed over veh_f at its strongest braking a, (v_x - v_f)_+^2 / (2 a) (veh_f at constant speed, as
+    """The ego at state x, time t can still avoid veh_f (>= 0): the gap behind veh_f's predicted
+    position, d = x_f + v_f t - x_e - L (L: the length plus the measured position's largest error),
+    covers the distance it needs to shed its excess speed over veh_f at its strongest braking a,
+    (v - k v_f)_+^2 / (2 a) (k v_f: the slowest veh_f the measured speed allows) (veh_f at constant speed, as
     the goal predicts it). Not in the paper: its Q2 (eq.tompc with the goal behind veh_f) has no speed
     condition, so a late turn-back may reach the goal too fast to stop behind veh_f. ``gated``: with
     gate = smoothstep(d / STOP_GATE_M), the row is gate row + STOP_GATE_RELAX_M (1 - gate), so that it
@@ -296,7 +297,10 @@ def stoppable_row(x: ca.SX, front: ca.SX, t: ca.SX, s: ca.SX, par: dict, gated: 
     ego is STOP_GATE_M behind (a relaxed row, not a row times 0, so that an interior point never sits
     on it: as the eo row's gate). Relaxed by :data:`STOP_RELAX_M` when s = +1 (Q1)."""
     gap = front[0] + front[2] * t - x[0] - par["stop_gap"]
-    excess = smooth_max(x[3] * ca.cos(x[2]) - front[2], 0.0, width=SMOOTH_SPEED_MPS)
+    # the speed, not its x component: a merging ego heads up to 0.35 rad off the lane, and v cos(psi)
+    # would promise 6 % less speed to shed than it has once it straightens out behind veh_f; and veh_f's
+    # slowest speed the measurement allows (the excess's square moves 2 m per m/s of speed error)
+    excess = smooth_max(x[3] - par["stop_speed_factor"] * front[2], 0.0, width=SMOOTH_SPEED_MPS)
     row = gap - excess**2 / (2.0 * par["stop_decel"])
     if gated:
         gate = smoothstep(gap / STOP_GATE_M)
