@@ -21,9 +21,10 @@ Constraint vector ``g`` (all written as ``lbg <= g <= ubg`` with the numeric bou
   "distance": the ellipse around the predicted veh_o, i = 1..N  (N)    eq.tompcAdd_cbf_eo
 * ``s (X[0, N] - x_g) >= 0``                                    (1)    eq.tompc_goal
 * ``eps_y -+ (X[1, N] - y_goal) >= 0``                          (2)    eq.tompc_y
-* with ``stoppable`` "end" or "path" (not the paper's): ``d_i - max(v_i - v_f, 0)^2 / (2 a)
-  + M (1 + s) / 2 >= 0``, d_i = x_f(t_i) - X[0, i] - L the footprint gap behind veh_f: braking at
-  a = |accel_min| keeps the footprints apart; relaxed for Q1. "end": i = N      (1)
+* with ``stoppable`` "end" or "path" (not the paper's): ``d_i - max(v_i - k v_f, 0)^2 / (2 a)
+  + M (1 + s) / 2 >= 0``, d_i = x_f(t_i) - X[0, i] - L the gap behind veh_f (L: the length and the
+  measured position's largest error; k v_f: the slowest veh_f its measured speed allows): braking
+  at a = |accel_min| keeps the footprints apart; relaxed for Q1. "end": i = N   (1)
   "path": i = 1..N, each row faded out (relaxed) while d_i <= 0 (alongside or ahead of
   veh_f)                                                        (N)    see :func:`stoppable_row`
 
@@ -289,8 +290,8 @@ def stoppable_row(x: ca.SX, front: ca.SX, t: ca.SX, s: ca.SX, par: dict, gated: 
     """The ego at state x, time t can still avoid veh_f (>= 0): the gap behind veh_f's predicted
     position, d = x_f + v_f t - x_e - L (L: the length plus the measured position's largest error),
     covers the distance it needs to shed its excess speed over veh_f at its strongest braking a,
-    (v - k v_f)_+^2 / (2 a) (k v_f: the slowest veh_f the measured speed allows) (veh_f at constant speed, as
-    the goal predicts it). Not in the paper: its Q2 (eq.tompc with the goal behind veh_f) has no speed
+    (v - k v_f)_+^2 / (2 a) (k v_f: the slowest veh_f the measured speed allows; veh_f at constant
+    speed, as the goal predicts it). Not in the paper: its Q2 (eq.tompc with the goal behind veh_f) has no speed
     condition, so a late turn-back may reach the goal too fast to stop behind veh_f. ``gated``: with
     gate = smoothstep(d / STOP_GATE_M), the row is gate row + STOP_GATE_RELAX_M (1 - gate), so that it
     asks nothing while the ego is alongside or ahead of veh_f (d <= 0) and is the plain row once the
