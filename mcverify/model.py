@@ -530,6 +530,12 @@ class Opposing:
     speed_range_mps: tuple[float, ...] = ()
     """(lo, hi): draws veh_o's speed per episode uniformly in (lo, hi]; replaces speed_mps."""
 
+    @property
+    def appears_at_lane_entry(self) -> bool:
+        """Whether there is a veh_o and it appears at the ego's lane entry (where the spawn gap and
+        delay apply)."""
+        return self.kind != "none" and self.spawn == "lane_entry"
+
 
 @dataclass(frozen=True)
 class ModelParams:

@@ -115,7 +115,7 @@ def sample_scenario(key: Array, params) -> dict[str, float]:
     """
     sc, o = params.scenario, params.opposing
     has_opp = o.kind != "none"
-    at_entry = has_opp and o.spawn == "lane_entry"
+    at_entry = o.appears_at_lane_entry
     return {
         "front_accel_mps2": _draw(key, 0, sc.front_accel_range_mps2, sc.front_accel_mps2),
         "opp_speed_mps": _draw(key, 1, o.speed_range_mps, o.speed_mps) if has_opp else math.nan,
@@ -207,7 +207,7 @@ def run_episodes(
                                      [s["opp_speed_mps"] for s in samples]), keys, p, tilt=noise_tilt)
     h0 = world.trace().min_h_front.copy()
     states = [EpisodeState(e) for e in ids]
-    spawning = p.opposing.kind != "none" and p.opposing.spawn == "lane_entry"
+    spawning = p.opposing.appears_at_lane_entry
     entered_s = [math.nan] * len(ids)  # when each ego first had its footprint over the lane line
     if p.opposing.kind != "none" and not spawning:
         for st in states:

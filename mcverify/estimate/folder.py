@@ -8,6 +8,7 @@ result is deterministic, so running it again would give the same numbers.
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -78,7 +79,7 @@ def write(out: Path, title: str, intro: str, spec: dict[str, Any], results: dict
     paths relative to ``out`` shown at the end of the report); returns the report path."""
     out = Path(out)
     cells = [json_ready(results[i]) for i in sorted(results)]
-    store.write_json_atomic(out / ESTIMATE, json_ready({"spec": spec, "cells": cells}))
+    store.write_json_atomic(out / ESTIMATE, {"spec": json_ready(spec), "cells": cells})
     write_cells_table(out / CELLS, spec, cells)
     lines = [f"# {title}", "", intro, "", "| " + " | ".join(h for h, _ in columns) + " |",
              "|" + "---|" * len(columns)]
@@ -92,8 +93,6 @@ def write_cells_table(path: Path, spec: dict[str, Any], cells: Sequence[dict[str
     """One row per cell result: its scalar fields as they are, a list of scalars joined with "; " (the
     warnings, the parameters), anything else (nested records) as JSON text; the estimator's method
     and target in every row."""
-    import json  # noqa: PLC0415
-
     import pyarrow as pa  # noqa: PLC0415 - only when writing
     import pyarrow.parquet as pq  # noqa: PLC0415
 

@@ -46,18 +46,12 @@ from mcverify.estimate.folder import num
 from mcverify.sim import noise
 from mcverify.sim.noise import NoiseTilt
 
-
-def _at_lane_entry(p) -> bool:
-    """Whether veh_o appears at the ego's lane entry (where its spawn gap and delay apply)."""
-    return p.opposing.kind != "none" and p.opposing.spawn == "lane_entry"
-
-
 #: Scenario key of :func:`mcverify.episode.rollout.sample_scenario` -> how to read its range from a cell.
 RANGES: dict[str, Callable] = {
     "front_accel_mps2": lambda p: p.scenario.front_accel_range_mps2,
     "opp_speed_mps": lambda p: p.opposing.speed_range_mps if p.opposing.kind != "none" else (),
-    "opp_spawn_gap_m": lambda p: p.opposing.spawn_gap_range_m if _at_lane_entry(p) else (),
-    "opp_spawn_delay_s": lambda p: p.opposing.spawn_delay_range_s if _at_lane_entry(p) else (),
+    "opp_spawn_gap_m": lambda p: p.opposing.spawn_gap_range_m if p.opposing.appears_at_lane_entry else (),
+    "opp_spawn_delay_s": lambda p: p.opposing.spawn_delay_range_s if p.opposing.appears_at_lane_entry else (),
 }
 
 
