@@ -207,6 +207,7 @@ def test_bad_stoppable_mode_is_one_line():
     assert "\n" not in str(err.value)
 
 
+@pytest.mark.slow  # compiles a kernel variant of its own (about 40 s) for an experimental option
 def test_a_stoppable_q2_plan_ends_slow_enough_to_stay_behind():
     # alongside veh_f at 18 m/s, as a late turn-back: the plain Q2 plan ends at the goal too fast to
     # stop behind veh_f; the stoppable one sheds the excess speed first
