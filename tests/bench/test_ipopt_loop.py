@@ -73,6 +73,7 @@ def params():
     return ModelParams()
 
 
+@pytest.mark.slow  # builds and runs the expanded IPOPT baseline (about 35 s)
 def test_expanded_ipopt_solves_like_the_reference(params):
     structure = OcpStructure.from_params(params)
     ref = MpcSolver(dataclasses.replace(params, mpc=dataclasses.replace(params.mpc, backend="ipopt")), structure)

@@ -99,6 +99,7 @@ def test_two_workers_and_an_odd_chunk_size_give_the_same_episodes(reference: Pat
 
 
 @pytest.mark.filterwarnings("ignore:os.fork:RuntimeWarning")  # Ray starts its daemons with fork+exec
+@pytest.mark.slow  # starts a local Ray cluster (20-60 s on 2 cores); its bad-input paths stay in the default suite
 def test_ray_executor_gives_the_same_episodes(reference: Path, tmp_path: Path):
     ray = pytest.importorskip("ray")
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)

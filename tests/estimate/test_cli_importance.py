@@ -197,6 +197,7 @@ def test_a_noise_tilt_draws_inside_its_window_only():
         assert row["noise_tilt_counts"] == [3.0, 0.0, 0.0] and row["noise_log_lr"] != 0.0  # veh_f over 30 m ahead
 
 
+@pytest.mark.slow  # two closed-loop estimates (25-45 s); the tilt's draws and worker invariance are tested apart
 def test_the_noise_tilt_cli_records_the_fitted_tilt_and_runs_the_same_on_workers(tmp_path: Path, campaign_file: Path):
     args = ["estimate", str(campaign_file), "--method", "importance", "--target", "ellipse", "--samples", "16",
             "--ce-samples", "10", "--ce-iterations", "1", "--seed", "3", "--noise-tilt", TILT, "-q"]
