@@ -1,4 +1,4 @@
-"""The ``mcverify`` command line.
+"""mcverify: Monte-Carlo verification and falsification of the TO-CBF-MPC overtaking controller.
 
 Every user error (bad campaign, missing run folder, bad argument) ends with one line on stderr and
 exit status 2; a replay that does not reproduce exits with status 1.
@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import logging
+import os
 import signal
 import sys
 from pathlib import Path
@@ -19,6 +20,7 @@ _log = logging.getLogger("mcverify.cli")
 
 EXIT_USAGE = 2
 EXIT_MISMATCH = 1
+EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE, what a shell reports for a writer whose reader closed the pipe
 #: Exit status after Ctrl-C (128 + SIGINT) and after SIGTERM (128 + SIGTERM), as a shell reports them.
 EXIT_INTERRUPTED = 130
 EXIT_TERMINATED = 143
@@ -65,6 +67,10 @@ def _dispatch(args) -> int:
     except UserError as err:
         print(f"mcverify: error: {err}", file=sys.stderr)
         return EXIT_USAGE
+    except BrokenPipeError:  # `mcverify ... | head`: the reader left; stop quietly, as a pipe's writer does
+        with contextlib.suppress(OSError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit's flush
+        return EXIT_BROKEN_PIPE
     except OSError as err:  # a folder that cannot be written, a full disk: the environment, not a bug
         where = f": {err.filename}" if err.filename else ""
         print(f"mcverify: error: {err.strerror or err}{where}", file=sys.stderr)
@@ -205,18 +211,19 @@ def _parser() -> argparse.ArgumentParser:
 
     est = sub.add_parser("estimate", help="estimate a target event's rate per cell, with sequential stopping")
     est.add_argument("campaign", nargs="?", type=Path, help="campaign TOML file")
-    est.add_argument("--method", choices=("mc", "splitting", "importance"), default="mc",
+    est.add_argument("--method", choices=("mc", "splitting", "importance"), default=None,
                      help="mc: crude Monte Carlo stopped on an anytime-valid interval (default); splitting: "
                           "adaptive multilevel splitting on the per-step noise; importance: cross-entropy "
-                          "importance sampling over the scenario ranges (both in this process)")
-    est.add_argument("--target", default="collision",
+                          "importance sampling over the scenario ranges (both in this process unless --workers "
+                          "or --executor ray is given)")
+    est.add_argument("--target", default=None,
                      help="event whose rate is estimated: collision (default), ellipse, unsafe, invariance, "
                           "opp_invariance")
     est.add_argument("--until-halfwidth", type=_halfwidth, default=None, metavar="H",
                      help="stop a cell when the interval's half-width is <= H (absolute, e.g. 0.01) or <= H "
                           "of the estimate (relative, e.g. 30%%)")
-    est.add_argument("--budget", type=_positive_int, default=1000, help="most episodes per cell (default 1000)")
-    est.add_argument("--level", type=_level, default=0.95, help="confidence level of the interval (default 0.95)")
+    est.add_argument("--budget", type=_positive_int, default=None, help="mc: most episodes per cell (default 1000)")
+    est.add_argument("--level", type=_level, default=None, help="confidence level of the interval (default 0.95)")
     est.add_argument("--seed", type=_nonneg_int, help="campaign seed (overrides the file)")
     est.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", dest="settings",
                      help="override a model parameter of the file (repeatable)")
@@ -230,25 +237,25 @@ def _parser() -> argparse.ArgumentParser:
     est.add_argument("--address", metavar="ADDR", help="Ray cluster to join (with --executor ray)")
     est.add_argument("--workers", type=_positive_int, default=None, help="worker processes or Ray tasks in flight")
     est.add_argument("--chunk-size", type=_positive_int, default=None, metavar="K",
-                     help="episodes per chunk, the unit of work and of the stopping checks (default 8)")
+                     help="mc: episodes per chunk, the unit of work and of the stopping checks (default 8)")
     est.add_argument("--score", choices=("gap", "gap_run", "h_ef", "h_ef_held", "h_ef_run"), default=None,
                      help="splitting, importance: footprint gap (target collision, the default) or gap_run (the gap "
                      "brought forward by the current run of steps with neither problem solved; target collision), "
                      "h_ef, h_ef_held or h_ef_run (h_ef brought forward by all such steps, or by the current run; "
                      "all three target ellipse); for importance it steers the cross-entropy stages only")
-    est.add_argument("--particles", type=_positive_int, default=20, help="splitting: particles per run (default 20)")
-    est.add_argument("--replicates", type=_positive_int, default=8,
+    est.add_argument("--particles", type=_positive_int, default=None, help="splitting: particles per run (default 20)")
+    est.add_argument("--replicates", type=_positive_int, default=None,
                      help="splitting: independent runs whose spread gives the interval (default 8; "
                           "fewer under-cover, docs/rare_events.md)")
     est.add_argument("--cell", action="append", default=[], metavar="NAME",
                      help="splitting, importance: only this cell (repeatable; default: every cell); splitting runs its "
                           "AMS runs, importance its batches of 8 episodes, in this process unless --workers (local) "
                           "or --executor ray is given")
-    est.add_argument("--samples", type=_positive_int, default=400,
+    est.add_argument("--samples", type=_positive_int, default=None,
                      help="importance: episodes drawn from the defensive mixture (default 400)")
-    est.add_argument("--ce-samples", type=_positive_int, default=100,
+    est.add_argument("--ce-samples", type=_positive_int, default=None,
                      help="importance: episodes per cross-entropy iteration (default 100)")
-    est.add_argument("--ce-iterations", type=_nonneg_int, default=10,
+    est.add_argument("--ce-iterations", type=_nonneg_int, default=None,
                      help="importance: most cross-entropy iterations (default 10; 0: the scenario stays nominal, "
                           "e.g. with --noise-tilt when the score would steer the scenario away from the event)")
     est.add_argument("--noise-tilt", type=_noise_tilt, metavar="KEY=VALUE,...",
@@ -257,15 +264,16 @@ def _parser() -> argparse.ArgumentParser:
                           "gap_max_m (required), split_m, band_steps, defensive, theta_max and starting tilts "
                           "UNIT_BAND (x|y|v _ approach|jump|alongside) (docs/rare_events.md), e.g. "
                           "gap_max_m=4.1,split_m=3.05,y_approach=-5,y_jump=5")
-    est.add_argument("--max-iterations", type=_positive_int, default=2000,
+    est.add_argument("--max-iterations", type=_positive_int, default=None,
                      help="splitting: iteration cap per run (a capped run is flagged, not an estimate)")
     est.add_argument("--resume", type=Path, metavar="RUN_DIR", help="finish an interrupted estimate")
     est.add_argument("--no-progress", action="store_true", help="no progress bar")
     est.set_defaults(func=_cmd_estimate)
 
     rep = sub.add_parser("replay", help="re-simulate one stored episode and write its trajectory")
-    rep.add_argument("run_dir", type=Path)
-    rep.add_argument("episode_id", type=_nonneg_int)
+    rep.add_argument("run_dir", type=Path,
+                     help="run folder (a search's generation folder, e.g. SEARCH/generations/g000, is one)")
+    rep.add_argument("episode_id", type=_nonneg_int, help="the episode's id (column episode_id, from 0)")
     rep.add_argument("--out", type=Path, help="folder for the trajectory and plot (default: RUN_DIR/replay)")
     rep.set_defaults(func=_cmd_replay)
 
@@ -331,8 +339,12 @@ def _parser() -> argparse.ArgumentParser:
     fal.add_argument("--method", choices=("cma", "cross-entropy", "random", "bo", "splitting"),
                      help="search method (default cma; bo: Bayesian optimisation, needs the extra mcverify[bo]; "
                           "splitting: branches the best episodes with fresh per-step noise, for noise-driven failures)")
-    fal.add_argument("--budget", type=_positive_int, help="episodes the search may spend")
-    fal.add_argument("--requirement", help="requirement to falsify (default: the file's, else safe)")
+    fal.add_argument("--budget", type=_positive_int,
+                     help="episodes the search may spend (required for a new search)")
+    fal.add_argument("--requirement",
+                     help="requirement to falsify: collision_front, collision_opp, ellipse, invariance, h_eo, "
+                          "theorem5, theorem5_certified or safe (docs/falsification.md; default: the file's "
+                          "[falsify] requirement, else safe)")
     fal.add_argument("--seed", type=_nonneg_int, help="search seed (default: the campaign's seed)")
     fal.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", dest="settings",
                      help="override a model parameter of the file (repeatable)")
@@ -341,11 +353,13 @@ def _parser() -> argparse.ArgumentParser:
                           "$MCVERIFY_RESULTS, else ./results)")
     fal.add_argument("--run-dir", type=Path, dest="new_run_dir", metavar="OUT",
                      help="the exact (new or empty) folder for this search, instead of a fresh one under --out")
-    fal.add_argument("--executor", choices=("local", "ray", "serial"), default="local")
+    fal.add_argument("--executor", choices=("local", "ray", "serial"), default="local",
+                     help="local worker processes (default), tasks on a Ray cluster, or this process")
     fal.add_argument("--address", metavar="ADDR", help="Ray cluster to join (with --executor ray)")
-    fal.add_argument("--workers", type=_positive_int, default=None, help="worker processes / tasks in flight")
+    fal.add_argument("--workers", type=_positive_int, default=None,
+                     help="worker processes / Ray tasks in flight (default: the machine's cores)")
     fal.add_argument("--resume", type=Path, metavar="OUT", help="finish an interrupted search")
-    fal.add_argument("--no-progress", action="store_true", help="no per-generation lines")
+    fal.add_argument("--no-progress", action="store_true", help="no per-generation lines and no progress bar")
     fal.set_defaults(func=_cmd_falsify)
 
     bf = sub.add_parser("bench-falsify", help="success rate and median episodes to the first counterexample per "
@@ -487,7 +501,7 @@ def _cmd_run(args) -> int:
             progress=progress, on_start=starting,
         )
     print(path.read_text())
-    print(f"report: {path}", file=sys.stderr)
+    _log.info("report: %s", path)
     return 0
 
 
@@ -509,6 +523,49 @@ def _cmd_bench_falsify(args) -> int:
 
     return bench_falsify(args, argv=sys.argv[1:])
 
+#: ``mcverify estimate`` options that only some methods read: (attribute, option, methods).
+_ESTIMATE_METHOD_OPTIONS: tuple[tuple[str, str, tuple[str, ...]], ...] = (
+    ("until_halfwidth", "--until-halfwidth", ("mc",)),
+    ("budget", "--budget", ("mc",)),
+    ("chunk_size", "--chunk-size", ("mc",)),
+    ("score", "--score", ("splitting", "importance")),
+    ("cell", "--cell", ("splitting", "importance")),
+    ("particles", "--particles", ("splitting",)),
+    ("replicates", "--replicates", ("splitting",)),
+    ("max_iterations", "--max-iterations", ("splitting",)),
+    ("samples", "--samples", ("importance",)),
+    ("ce_samples", "--ce-samples", ("importance",)),
+    ("ce_iterations", "--ce-iterations", ("importance",)),
+    ("noise_tilt", "--noise-tilt", ("importance",)),
+)
+#: Their defaults (None on the command line, so that a given option can be told from a default).
+_ESTIMATE_DEFAULTS: dict[str, object] = {
+    "method": "mc", "target": "collision", "budget": 1000, "level": 0.95, "particles": 20, "replicates": 8,
+    "samples": 400, "ce_samples": 100, "ce_iterations": 10, "max_iterations": 2000,
+}
+
+
+def _check_estimate_options(args, method: str) -> None:
+    """Refuse, with one line, an option the method (or ``--resume``) would ignore; then fill the defaults."""
+    from mcverify.errors import RunError
+
+    def given(attr: str) -> bool:
+        return getattr(args, attr) not in (None, [])
+
+    if args.resume:
+        kept = [opt for attr, opt in (("method", "--method"), ("target", "--target"), ("level", "--level"))
+                if given(attr)] + [opt for attr, opt, _ in _ESTIMATE_METHOD_OPTIONS if given(attr)]
+        if kept:
+            raise RunError(f"--resume keeps the estimate's method, target and options: leave out {', '.join(kept)}")
+    else:
+        for attr, opt, methods in _ESTIMATE_METHOD_OPTIONS:
+            if given(attr) and method not in methods:
+                raise RunError(f"{opt} is for --method {' or '.join(methods)}, not {method}")
+    for attr, value in _ESTIMATE_DEFAULTS.items():
+        if getattr(args, attr) is None:
+            setattr(args, attr, value)
+
+
 def _cmd_estimate(args) -> int:
     from mcverify.analysis.estimates import EstimateSpec
     from mcverify.campaign import executors, runner
@@ -516,15 +573,15 @@ def _cmd_estimate(args) -> int:
     from mcverify.errors import RunError
     from mcverify.estimate import folder, mc
 
-    method = _folder_method(args.resume) if args.resume else args.method
+    method = _folder_method(args.resume) if args.resume else (args.method or "mc")
     if args.noise_tilt is not None and (args.resume or method != "importance"):
         raise RunError("--noise-tilt is a proposal of --method importance, given when the estimate starts")
+    _check_estimate_options(args, method)
     if method in ("splitting", "importance"):
         return _cmd_estimate_in_process(args, method)
     executor = executors.make_executor(args.executor, workers=args.workers, address=args.address)
     if args.resume:
-        if (args.campaign or args.out or args.new_run_dir or args.seed is not None or args.settings
-                or args.until_halfwidth):
+        if args.campaign or args.out or args.new_run_dir or args.seed is not None or args.settings:
             raise RunError("--resume keeps the estimate's campaign and rule: give only RUN_DIR (and the executor)")
         args.run_dir = args.resume
         path = mc.resume(args.resume, executor=executor, progress=not args.no_progress)
@@ -539,12 +596,12 @@ def _cmd_estimate(args) -> int:
         campaign = load_campaign(args.campaign, episodes=args.budget, seed=args.seed, settings=args.settings)
         folder.check_noise_is_drawn(campaign)
         out = args.run_dir = new_folder(args, lambda parent: runner.default_run_dir(campaign, parent))
-        print(runner.describe(campaign), file=sys.stderr)
-        print(f"estimate folder: {out}", file=sys.stderr)
+        _log.info("%s", runner.describe(campaign))
+        _log.info("estimate folder: %s", out)
         path = mc.run(campaign, spec, out, executor=executor,
                       chunk_size=args.chunk_size or runner.DEFAULT_CHUNK_SIZE, progress=not args.no_progress)
     print(path.read_text())
-    print(f"report: {path}", file=sys.stderr)
+    _log.info("report: %s", path)
     return 0
 
 
@@ -591,8 +648,6 @@ def _cmd_estimate_in_process(args, method: str) -> int:
     else:
         if args.campaign is None:
             raise RunError("missing campaign file, e.g. `mcverify estimate campaigns/eps_sweep_rare.toml`")
-        if args.until_halfwidth is not None:
-            raise RunError(f"--until-halfwidth is for --method mc, not {method}")
         if args.target not in ("collision", "ellipse"):
             raise RunError(f"{method} estimates --target collision or ellipse")
         try:
@@ -615,7 +670,7 @@ def _cmd_estimate_in_process(args, method: str) -> int:
         log(f"estimate folder: {out}")
         path = module.run(campaign, spec, out, progress=log, cells=args.cell or None, **_executor_for(args, method))
     print(path.read_text())
-    print(f"report: {path}", file=sys.stderr)
+    _log.info("report: %s", path)
     return 0
 
 

@@ -134,6 +134,7 @@ def manifest_for(campaign: Campaign, chunk_size: int, kernels: dict[str, str]) -
             "axes": campaign.axes,
             "reference": campaign.reference,
             "raw": campaign.raw,
+            "settings": list(campaign.settings),
         },
         "cells": record["cells"],
         "chunk_size": chunk_size,
@@ -262,9 +263,9 @@ def run(
     if chunk_size < 1:
         raise RunError(f"chunk size must be >= 1, got {chunk_size}")
     if (run_dir / store.MANIFEST).exists():
-        raise RunError(f"{run_dir} already holds a run; choose another --out or use --resume {run_dir}")
+        raise RunError(f"{run_dir} already holds a run; choose another folder or use --resume {run_dir}")
     if run_dir.exists() and (not run_dir.is_dir() or any(p.name != store.LOCK for p in run_dir.iterdir())):
-        raise RunError(f"{run_dir} exists and is not an empty folder; choose another --out")
+        raise RunError(f"{run_dir} exists and is not an empty folder; choose another folder")
     executor = executor or executors.LocalExecutor()
     with executor:  # a Ray cluster is reached before anything is written
         kernels = _prepare_kernels(campaign, episode_fn)

@@ -79,6 +79,9 @@ class Campaign:
     raw: dict[str, Any] = field(default_factory=dict)
     #: The ``[falsify]`` table (what ``mcverify falsify`` searches), None if the file has none.
     falsify: SearchSpace | None = None
+    #: The command line's ``--set SECTION.FIELD=VALUE`` settings, already written into ``raw`` and the
+    #: cells; kept apart so that a run's report can say what it changed from the file.
+    settings: tuple[str, ...] = ()
 
     @property
     def total_episodes(self) -> int:
@@ -117,6 +120,7 @@ def load_campaign(
     except OSError as err:
         raise CampaignError(f"cannot read campaign file {path}: {err.strerror or err}") from None
     campaign = campaign_from_dict(apply_settings(raw, settings), source=str(path), episodes=episodes, seed=seed)
+    campaign = dataclasses.replace(campaign, settings=tuple(settings))
     if any(cell.params.sim.stop_at for cell in campaign.cells):
         # an episode ended at its first violation has every other metric cut short: never in statistics
         raise CampaignError(f"{path}: sim.stop_at is set by `mcverify falsify` only (stop_episodes = true in "
@@ -146,12 +150,25 @@ def apply_settings(raw: Mapping[str, Any], settings: Sequence[str]) -> dict[str,
             value = tomllib.loads(f"v = {text.strip()}")["v"]
         except tomllib.TOMLDecodeError:
             value = text.strip()
+        _check_setting(f"{section}.{name}", value, item)
         _refuse_varied_field(raw, f"{section}.{name}", item)
         table = out["model"].setdefault(section, {})
         if not isinstance(table, dict):
             raise CampaignError(f"--set {item!r}: model.{section} is not a table in the campaign file")
         table[name] = value
     return out
+
+
+def _check_setting(key: str, value: Any, item: str) -> None:
+    """A ``--set``'s own mistakes (an unknown field, a value of the wrong type, a field only
+    ``mcverify falsify`` sets) named as the option's, not blamed on the campaign file."""
+    known = model_fields()
+    if key not in known:
+        raise CampaignError(f"--set {item!r}: unknown model field {_short(key)}{_suggest(key, known)}")
+    if key == "sim.stop_at":
+        raise CampaignError(f"--set {item!r}: sim.stop_at is set by `mcverify falsify` only "
+                            "(stop_episodes = true in [falsify])")
+    _coerce(value, known[key], f"--set {item!r}")
 
 
 def _refuse_varied_field(raw: Mapping[str, Any], key: str, item: str) -> None:
@@ -171,6 +188,10 @@ def _refuse_varied_field(raw: Mapping[str, Any], key: str, item: str) -> None:
             if isinstance(bundle, Mapping) and any(field_of(str(k)) == target for k in bundle):
                 raise CampaignError(f"--set {item!r}: {key} is set by the campaign's axis {axis!r} "
                                     f"([axes.{axis}.{label}]), which wins in its cells; change the axis in the file")
+    bounds = raw.get("falsify", {}).get("bounds", {}) if isinstance(raw.get("falsify"), Mapping) else {}
+    if isinstance(bounds, Mapping) and any(field_of(str(k).split("[", 1)[0]) == target for k in bounds):
+        raise CampaignError(f"--set {item!r}: {key} is searched by the campaign's [falsify.bounds], so every "
+                            "candidate sets it itself; change its bounds in the file instead")
 
 
 def campaign_from_dict(

@@ -49,7 +49,7 @@ def create(out: Path, campaign: Campaign, spec: dict[str, Any], cells: Sequence[
         if missing:
             raise RunError(f"no cell {missing[0]!r} in {campaign.name}; cells: {', '.join(known)}")
     if out.exists() and any(out.iterdir()):
-        raise RunError(f"{out} exists and is not empty; choose another --out or use --resume {out}")
+        raise RunError(f"{out} exists and is not empty; choose another folder or use --resume {out}")
     out.mkdir(parents=True, exist_ok=True)
     record = runner.campaign_record(campaign)
     manifest = {"format": store.FORMAT,

@@ -66,7 +66,7 @@ def run_trials(
                                  res.min_robustness, tuple(e.robustness for e in res.evaluations)))
                 if progress is not None:
                     progress(f"{campaign.name} {method} trial {t}: "
-                             + (f"counterexample at episode {res.first_counterexample}" if res.first_counterexample
+                             + (f"counterexample after {res.first_counterexample} episodes" if res.first_counterexample
                                 else f"none in {res.episodes}, min robustness {res.min_robustness:.4g}"))
     return out
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import sys
 from pathlib import Path
 from typing import Any
@@ -11,6 +12,7 @@ from mcverify.errors import RunError
 
 def falsify(args: Any) -> int:
     """Start a search (``CAMPAIGN.toml``) or resume one (``--resume OUT``); prints the report."""
+    from mcverify.analysis import robustness as rb  # noqa: PLC0415
     from mcverify.campaign import executors  # noqa: PLC0415 - keep `mcverify --help` fast
     from mcverify.campaign.spec import apply_settings, load_campaign  # noqa: PLC0415
     from mcverify.falsify import methods, search  # noqa: PLC0415
@@ -32,7 +34,8 @@ def falsify(args: Any) -> int:
             raise RunError("--resume keeps the search's campaign, method, budget, seed, requirement and folder: "
                            "give only --resume OUT (and --executor/--workers)")
         args.run_dir = args.resume
-        result = search.resume(args.resume, make_executor=make_executor, progress=say)
+        result = search.resume(args.resume, make_executor=make_executor, progress=say,
+                               bar=not args.no_progress)
     else:
         if args.campaign is None:
             raise RunError("missing campaign file, e.g. `mcverify falsify campaigns/falsify_mpcdc_table4b.toml`")
@@ -45,7 +48,9 @@ def falsify(args: Any) -> int:
         method = args.method or "cma"
         if method not in methods.METHODS:
             raise RunError(f"unknown --method {method!r}; choose one of {', '.join(methods.METHODS)}")
-        methods.searcher(method, 1, 2, 0)  # an optional method without its package: one line, before any output
+        if args.requirement is not None and args.requirement not in rb.REQUIREMENTS:
+            raise RunError(f"--requirement {args.requirement!r}: unknown requirement; known: "
+                           f"{', '.join(rb.REQUIREMENTS)}")
         import tomllib  # noqa: PLC0415
 
         raw = apply_settings(tomllib.loads(Path(args.campaign).read_text(encoding="utf-8")), args.settings)
@@ -56,18 +61,20 @@ def falsify(args: Any) -> int:
             seed=campaign.seed if args.seed is None else args.seed,
             requirement=args.requirement or campaign.falsify.requirement,
         )
+        search.check(config)  # every mistake as one line, before the start line and the folder
         from mcverify.campaign import runner  # noqa: PLC0415
 
         out = args.run_dir = runner.new_folder(args.out, args.new_run_dir,
                                                lambda parent: _default_out(campaign.name, method, parent))
+        search.check_new_folder(Path(out))
         say(f"falsify {args.campaign}: {method}, budget {args.budget} episodes, requirement "
             f"{config.requirement}, into {out}")
-        result = search.start(config, out, make_executor=make_executor, progress=say)
+        result = search.start(config, out, make_executor=make_executor, progress=say, bar=not args.no_progress)
     print((result.out_dir / "report.md").read_text())
-    first = result.first_counterexample
-    found = (f"first counterexample at episode {first}" if first else
+    first = result.first_counterexample_text()
+    found = (f"first counterexample {first}" if first else
              f"no counterexample in {result.episodes} episodes, minimum robustness {result.min_robustness:.4g}")
-    print(f"report: {result.out_dir / 'report.md'} (also report.html); {found}", file=sys.stderr)
+    logging.getLogger("mcverify.falsify").info("report: %s (also report.html); %s", result.out_dir / "report.md", found)
     return 0
 
 

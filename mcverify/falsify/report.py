@@ -61,7 +61,7 @@ def robustness_curves(curves: Mapping[str, Sequence[float]], path: Path, require
 
 def facts(result: SearchResult, records: Sequence[Mapping[str, Any]]) -> list[tuple[str, str]]:
     req = rb.requirement(result.config.requirement)
-    first = result.first_counterexample
+    first = result.first_counterexample_text()
     space = result.space.describe()
     generations = len({e.generation for e in result.evaluations})
     return [
@@ -72,7 +72,7 @@ def facts(result: SearchResult, records: Sequence[Mapping[str, Any]]) -> list[tu
         ("search space", space),
         ("effort", f"{result.episodes} of {result.config.budget} episodes in {generations} generation(s)"),
         ("minimum robustness reached", fmt_num(result.min_robustness, 4, signed=True)),
-        ("first counterexample", f"episode {first} of the search" if first else
+        ("first counterexample", first if first else
          f"none found within {result.episodes} episodes"),
         ("counterexamples", f"{len(records)} (see `counterexamples.parquet`)"),
     ] + _guide_facts(result) + _noise_facts(result)

@@ -38,8 +38,8 @@ from mcverify.analysis import failure_regions
 from mcverify.analysis import robustness as rb
 from mcverify.campaign import executors, runner
 from mcverify.campaign.executors import EpisodeFn, Executor
-from mcverify.campaign.search_space import SearchSpace, check_single_target
-from mcverify.campaign.spec import Campaign, campaign_from_dict
+from mcverify.campaign.search_space import SearchSpace, check_single_target, split_element
+from mcverify.campaign.spec import Campaign, apply_overrides, campaign_from_dict
 from mcverify.errors import CampaignError, RunError
 from mcverify.falsify import methods
 from mcverify.falsify.splitting import Candidate, NoiseSplitting
@@ -109,8 +109,21 @@ class SearchResult:
 
     @property
     def first_counterexample(self) -> int | None:
-        """1-based count of episodes evaluated up to and including the first violating one."""
+        """1-based count of episodes evaluated up to and including the first violating one (a count,
+        not an episode id: :meth:`first_counterexample_text` names the episode)."""
         return next((i + 1 for i, e in enumerate(self.evaluations) if e.robustness < 0.0), None)
+
+    def first_counterexample_text(self) -> str | None:
+        """``after N episodes: generation G, episode E (mcverify replay DIR E)``, None if none was found;
+        E is the episode id the replay command takes (0-based within its generation's folder)."""
+        count = self.first_counterexample
+        if count is None:
+            return None
+        e = self.evaluations[count - 1]
+        gen_dir = self.out_dir / GENERATIONS / f"g{e.generation:03d}"
+        episode = int(e.row["episode_id"])
+        return (f"after {count} episode{'s' if count != 1 else ''}: generation {e.generation}, episode {episode} "
+                f"(`mcverify replay {gen_dir} {episode}`)")
 
 
 def target(config: SearchConfig) -> tuple[Campaign, SearchSpace]:
@@ -149,11 +162,13 @@ def generation_campaign(config: SearchConfig, values: list[dict[str, Any]], gene
     return campaign_from_dict(raw, source=f"{config.source} (generation {generation})")
 
 
-def start(config: SearchConfig, out_dir: Path, **kw: Any) -> SearchResult:
-    """A new search into the new folder ``out_dir`` (see :func:`_search` for the keywords)."""
-    out_dir = Path(out_dir)
-    _, space = target(config)  # validates before anything is written
-    methods.searcher(config.method, 1, 2, 0)  # a bad method name fails here, with one line
+def check(config: SearchConfig) -> SearchSpace:
+    """Everything about a new search that can be wrong before it runs, each as one CampaignError or
+    RunError line: the campaign and its ``[falsify]`` table, every bound against its field's limits,
+    the method and the method's demands on the table."""
+    campaign, space = target(config)
+    check_bounds(config, campaign, space)
+    methods.searcher(config.method, 1, 2, 0)  # a bad method name (or a missing optional package) fails here
     if config.method == "splitting" and space.common_noise:
         raise RunError("--method splitting draws fresh noise for its branches; [falsify] common_noise = true "
                        "is for the other methods")
@@ -163,8 +178,37 @@ def start(config: SearchConfig, out_dir: Path, **kw: Any) -> SearchResult:
     if config.method == "splitting" and config.requirement not in rb.STEPWISE:
         raise RunError(f"--method splitting branches on a per-step robustness; requirement {config.requirement!r} "
                        f"has none (choose one of {', '.join(rb.STEPWISE)})")
+    return space
+
+
+def check_bounds(config: SearchConfig, campaign: Campaign, space: SearchSpace) -> None:
+    """Each searched field at its lower and at its upper bound, on the campaign's own model, must be
+    valid, so that a bound beyond a field's limit fails before the search starts, not in the generation
+    whose candidate first lands there. (The other elements of a searched list field sit at their
+    middle; the other fields keep the file's values, so a limit that two searched fields share is still
+    checked per candidate.)"""
+    base = campaign.cells[0].params
+    for i, (name, lo, hi) in enumerate(space.bounds):
+        field = split_element(name)[0]
+        for end, u in (("lower", 0.0), ("upper", 1.0)):
+            point = [0.5] * space.dimension
+            point[i] = u
+            values = {k: v for k, v in space.values(point).items() if split_element(k)[0] == field}
+            where = f"{config.source} [falsify.bounds] {name} = [{lo:g}, {hi:g}], at its {end} bound {values[name]:g}"
+            apply_overrides(base, space.overrides(values), where)
+
+
+def check_new_folder(out_dir: Path) -> None:
+    """A new search's folder must not exist yet or be empty."""
     if out_dir.exists() and any(out_dir.iterdir()):
-        raise RunError(f"{out_dir} exists and is not empty; choose another --out or use --resume {out_dir}")
+        raise RunError(f"{out_dir} exists and is not empty; choose another folder or use --resume {out_dir}")
+
+
+def start(config: SearchConfig, out_dir: Path, **kw: Any) -> SearchResult:
+    """A new search into the new folder ``out_dir`` (see :func:`_search` for the keywords)."""
+    out_dir = Path(out_dir)
+    check(config)  # validates before anything is written
+    check_new_folder(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     store.write_json_atomic(out_dir / CONFIG, config.to_json())
     return _search(config, out_dir, **kw)
@@ -191,20 +235,23 @@ def _search(
     episode_fn: EpisodeFn = executors.simulate,
     progress: Callable[[str], None] | None = None,
     stop_after_generations: int | None = None,
+    bar: bool = False,
 ) -> SearchResult:
     """The search loop. make_executor: the executor, made once and kept alive across the generations
     (:class:`~mcverify.campaign.executors.KeptAlive`: its workers start once); episode_fn: the episode
     simulation (tests inject cheap ones); progress: called with one line per generation;
-    stop_after_generations: stop (as if killed) after running that many generations in this call."""
+    stop_after_generations: stop (as if killed) after running that many generations in this call;
+    bar: a per-episode progress bar on stderr inside each generation."""
     shared = executors.KeptAlive(make_executor)
     try:
-        return _generations(config, out_dir, lambda: shared, episode_fn, progress, stop_after_generations)
+        return _generations(config, out_dir, lambda: shared, episode_fn, progress, stop_after_generations, bar)
     finally:
         shared.release()
 
 
 def _generations(config: SearchConfig, out_dir: Path, make_executor: Callable[[], Executor], episode_fn: EpisodeFn,
-                 progress: Callable[[str], None] | None, stop_after_generations: int | None) -> SearchResult:
+                 progress: Callable[[str], None] | None, stop_after_generations: int | None,
+                 bar: bool = False) -> SearchResult:
     campaign, space = target(config)
     search = methods.searcher(config.method, space.dimension, space.population, config.seed, campaign.seed)
     evaluations: list[Evaluation] = []
@@ -223,7 +270,7 @@ def _generations(config: SearchConfig, out_dir: Path, make_executor: Callable[[]
         if not finished:
             if stop_after_generations is not None and ran >= stop_after_generations:
                 raise RunError(f"search stopped after {ran} generation(s) (test hook); resume {out_dir}")
-            _run_generation(gen_campaign, gen_dir, make_executor, episode_fn)
+            _run_generation(gen_campaign, gen_dir, make_executor, episode_fn, bar)
             ran += 1
         else:
             _check_same(gen_dir, gen_campaign)
@@ -247,6 +294,8 @@ def _generations(config: SearchConfig, out_dir: Path, make_executor: Callable[[]
         generation += 1
         if space.stop_at_first and (robs < 0.0).any():
             break
+    if ran == 0 and progress is not None:
+        progress("nothing left to run: every generation of this search is stored; its report is rebuilt from them")
     result = SearchResult(out_dir, config, space, tuple(evaluations))
     write_outputs(result)
     return result
@@ -321,14 +370,14 @@ def _check_same(gen_dir: Path, campaign: Campaign) -> None:
 
 
 def _run_generation(campaign: Campaign, gen_dir: Path, make_executor: Callable[[], Executor],
-                    episode_fn: EpisodeFn) -> None:
+                    episode_fn: EpisodeFn, bar: bool = False) -> None:
     if (gen_dir / store.MANIFEST).is_file():
-        runner.resume(gen_dir, executor=make_executor(), progress=False, campaign=campaign, episode_fn=episode_fn)
+        runner.resume(gen_dir, executor=make_executor(), progress=bar, campaign=campaign, episode_fn=episode_fn)
         return
     if gen_dir.exists():  # killed before its manifest was written: nothing of it is usable
         shutil.rmtree(gen_dir)
     gen_dir.parent.mkdir(parents=True, exist_ok=True)
-    runner.run(campaign, gen_dir, executor=make_executor(), progress=False, episode_fn=episode_fn)
+    runner.run(campaign, gen_dir, executor=make_executor(), progress=bar, episode_fn=episode_fn)
 
 
 # -------------------------------------------------------------------------------------- outputs

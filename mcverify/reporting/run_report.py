@@ -293,16 +293,17 @@ def distance_table(summ: Mapping[str, Any]) -> Table:
 
 def time_table(summ: Mapping[str, Any]) -> Table:
     """Overtaking and lane-borrow times per cell (min / mean [CI] / max, as in the paper's Table II)."""
-    columns = ["cell", "overtakes", "overtake time min (s)", "mean [CI] (s)", "max (s)", "lane-borrow time min (s)",
-               "mean [CI] (s)", "max (s)"]
+    columns = ["cell", "overtakes", "overtake time min (s)", "mean [CI] (s)", "max (s)", "lane borrows",
+               "lane-borrow time min (s)", "mean [CI] (s)", "max (s)"]
     rows = []
     for c in summ["cells"]:
         ot, lb = value_of(c, "overtake_time_s"), value_of(c, "lane_borrow_time_s")
         rows.append([c["cell"], str(ot["count"]) if ot else DASH, stat_text(ot, "min"), fmt_mean_ci(ot), stat_text(ot, "max"),
-                     stat_text(lb, "min"), fmt_mean_ci(lb), stat_text(lb, "max")])
+                     str(lb["count"]) if lb else DASH, stat_text(lb, "min"), fmt_mean_ci(lb), stat_text(lb, "max")])
     notes = ["Overtake time: from the episode start to the paper's convergence test, over overtaking episodes only. "
-             "Lane-borrow time: while the ego footprint reaches into the opposing lane. Means carry their "
-             "percentile-bootstrap interval."]
+             "Lane-borrow time: while the ego footprint reaches into the opposing lane, over every episode that did "
+             "(\"lane borrows\": those that went back included, so in a cell with turn-backs it is not the overtakes' "
+             "lane-borrow time that the paper's Table II reports). Means carry their percentile-bootstrap interval."]
     return Table("times", "Overtaking times per cell", columns, rows, notes)
 
 
@@ -327,6 +328,10 @@ def facts(manifest: Mapping[str, Any], summ: Mapping[str, Any]) -> list[tuple[st
         ("episodes", f"{summ['episodes']} in {len(cells)} cell(s)"),
         ("grid", "; ".join(f"{a}: {', '.join(v)}" for a, v in axes.items()) or "one cell"),
         ("seed", f"{camp.get('seed')} (common random numbers: {'yes' if camp.get('common_random_numbers') else 'no'})"),
+    ]
+    if camp.get("settings"):  # what the command line changed from the file (--set)
+        out.append(("settings", "--set " + ", --set ".join(f"`{s}`" for s in camp["settings"])))
+    out += [
         ("controllers", ", ".join(controllers)),
         ("intervals", f"two-sided {summ['confidence_level']:.0%} {method_name(summ['interval_method'])} for rates; exact one-sided "
                       f"bounds when no or every episode counts; percentile bootstrap "
