@@ -140,7 +140,8 @@ def compare_runs(
         only_b = [n for n in names_b if n not in names_a]
     comparisons = [_compare_cells(a, ca, b, cb, level, test, bootstrap_resamples) for ca, cb in matched]
     describe = lambda r: {"label": r.label, "campaign": r.manifest["campaign"]["name"], "seed": r.seed,  # noqa: E731
-                          "common_random_numbers": r.crn}
+                          "common_random_numbers": r.crn,
+                          "settings": list(r.manifest["campaign"].get("settings") or [])}
     return {
         "run_a": describe(a),
         "run_b": describe(b),
@@ -318,15 +319,20 @@ def tables(result: Mapping[str, Any]) -> list[Table]:
     return out
 
 
+def _settings_text(run: Mapping[str, Any]) -> str:
+    """``, --set `a=1`, --set `b=2``` for a run started with command-line settings, else nothing."""
+    return "".join(f", --set `{s}`" for s in run.get("settings") or [])
+
+
 def render_markdown(result: Mapping[str, Any]) -> str:
     a, b = result["run_a"], result["run_b"]
     lines = [
         f"# mcverify compare: {a['label']} vs {b['label']}",
         "",
         f"- **A**: {a['label']} (campaign {a['campaign']}, seed {a['seed']}, common random numbers "
-        f"{'yes' if a['common_random_numbers'] else 'no'})",
+        f"{'yes' if a['common_random_numbers'] else 'no'}{_settings_text(a)})",
         f"- **B**: {b['label']} (campaign {b['campaign']}, seed {b['seed']}, common random numbers "
-        f"{'yes' if b['common_random_numbers'] else 'no'})",
+        f"{'yes' if b['common_random_numbers'] else 'no'}{_settings_text(b)})",
         f"- **cells compared**: {len(result['comparisons'])}"
         + (" (pairs given with --pair)" if result["explicit_pairs"] else " (matched by name)"),
     ]

@@ -89,7 +89,7 @@ def test_command_line_mistakes_are_named_as_the_options(tmp_path, capsys, option
 
 
 def test_a_set_of_a_field_only_falsify_sets_names_the_option(tmp_path, capsys):
-    assert cli.main(["run", str(Path(__file__).parents[1] / "fixtures" / "tiny.toml"), "--set", "sim.stop_at=safe",
+    assert cli.main(["run", str(Path(__file__).parent / "fixtures" / "tiny.toml"), "--set", "sim.stop_at=safe",
                      "--dry-run"]) == 2
     assert "--set 'sim.stop_at=safe': sim.stop_at is set by `mcverify falsify` only" in _one_error_line(
         capsys.readouterr().err)
@@ -104,7 +104,7 @@ def test_a_set_of_a_field_only_falsify_sets_names_the_option(tmp_path, capsys):
     (["--method", "splitting", "--ce-samples", "4"], "--ce-samples is for --method importance, not splitting"),
 ])
 def test_estimate_refuses_an_option_its_method_would_ignore(tmp_path, capsys, options, fragment):
-    f = Path(__file__).parents[1] / "fixtures" / "tiny.toml"
+    f = Path(__file__).parent / "fixtures" / "tiny.toml"
     assert cli.main(["estimate", str(f), "--run-dir", str(tmp_path / "e"), *options]) == 2
     assert fragment in _one_error_line(capsys.readouterr().err)
     assert not (tmp_path / "e").exists()
@@ -119,7 +119,7 @@ def test_estimate_resume_refuses_what_it_would_drop(tmp_path, capsys, options):
 
 
 def test_a_run_says_what_its_settings_changed_from_the_file(tmp_path):
-    f = Path(__file__).parents[1] / "fixtures" / "tiny.toml"
+    f = Path(__file__).parent / "fixtures" / "tiny.toml"
     camp = load_campaign(f, settings=["noise.scale=2"])
     assert camp.settings == ("noise.scale=2",)
     runner.run(camp, tmp_path / "r", executor=executors.SerialExecutor(), progress=False, episode_fn=synth.episodes)
@@ -127,3 +127,16 @@ def test_a_run_says_what_its_settings_changed_from_the_file(tmp_path):
     plain = load_campaign(f)
     runner.run(plain, tmp_path / "p", executor=executors.SerialExecutor(), progress=False, episode_fn=synth.episodes)
     assert "--set" not in (tmp_path / "p" / "report.md").read_text()
+
+
+def test_compare_says_which_run_had_command_line_settings(tmp_path):
+    from mcverify.reporting import compare  # noqa: PLC0415
+
+    f = Path(__file__).parent / "fixtures" / "tiny.toml"
+    for name, settings in (("a", []), ("b", ["noise.scale=2"])):
+        runner.run(load_campaign(f, settings=settings), tmp_path / name, executor=executors.SerialExecutor(),
+                   progress=False, episode_fn=synth.episodes)
+    result = compare.compare_runs(compare.load_run(tmp_path / "a"), compare.load_run(tmp_path / "b"))
+    text = compare.render_markdown(result)
+    line_a, line_b = (next(ln for ln in text.splitlines() if ln.startswith(f"- **{x}**")) for x in "AB")
+    assert "--set" not in line_a and "--set `noise.scale=2`" in line_b
