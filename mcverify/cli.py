@@ -523,6 +523,7 @@ def _cmd_bench_falsify(args) -> int:
 
     return bench_falsify(args, argv=sys.argv[1:])
 
+
 #: ``mcverify estimate`` options that only some methods read: (attribute, option, methods).
 _ESTIMATE_METHOD_OPTIONS: tuple[tuple[str, str, tuple[str, ...]], ...] = (
     ("until_halfwidth", "--until-halfwidth", ("mc",)),
