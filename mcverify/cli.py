@@ -585,7 +585,11 @@ def _cmd_estimate(args) -> int:
         if args.campaign or args.out or args.new_run_dir or args.seed is not None or args.settings:
             raise RunError("--resume keeps the estimate's campaign and rule: give only RUN_DIR (and the executor)")
         args.run_dir = args.resume
-        path = mc.resume(args.resume, executor=executor, progress=not args.no_progress)
+
+        def resuming(planned: int, done: int) -> None:
+            _log.info("resuming %s: %d of %d chunks already done", args.resume, done, planned)
+
+        path = mc.resume(args.resume, executor=executor, progress=not args.no_progress, on_start=resuming)
     else:
         if args.campaign is None:
             raise RunError("missing campaign file, e.g. `mcverify estimate campaigns/eps_sweep_rare.toml`")

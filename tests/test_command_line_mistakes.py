@@ -140,3 +140,20 @@ def test_compare_says_which_run_had_command_line_settings(tmp_path):
     text = compare.render_markdown(result)
     line_a, line_b = (next(ln for ln in text.splitlines() if ln.startswith(f"- **{x}**")) for x in "AB")
     assert "--set" not in line_a and "--set `noise.scale=2`" in line_b
+
+
+def test_resuming_a_finished_search_says_so_and_rebuilds_its_report(tmp_path, monkeypatch, capsys):
+    real = search.start
+    monkeypatch.setattr(search, "start", lambda config, out_dir, **kw: real(
+        config, out_dir, **{**kw, "make_executor": executors.SerialExecutor, "episode_fn": fake_episodes.episodes}))
+    f = tmp_path / "fz.toml"
+    f.write_text(CAMPAIGN)
+    assert cli.main(["falsify", str(f), "--budget", "4", "--method", "random", "--run-dir", str(tmp_path / "s")]) == 0
+    report = (tmp_path / "s" / "report.md").read_text()
+    (tmp_path / "s" / "report.md").unlink()
+    capsys.readouterr()
+    assert cli.main(["falsify", "--resume", str(tmp_path / "s")]) == 0
+    err = capsys.readouterr().err
+    assert f"resuming {tmp_path / 's'}: 1 generation(s) already stored" in err
+    assert "nothing left to run" in err
+    assert (tmp_path / "s" / "report.md").read_text() == report

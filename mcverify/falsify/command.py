@@ -34,6 +34,8 @@ def falsify(args: Any) -> int:
             raise RunError("--resume keeps the search's campaign, method, budget, seed, requirement and folder: "
                            "give only --resume OUT (and --executor/--workers)")
         args.run_dir = args.resume
+        if (Path(args.resume) / search.CONFIG).is_file():
+            say(f"resuming {args.resume}: {search.stored_generations(args.resume)} generation(s) already stored")
         result = search.resume(args.resume, make_executor=make_executor, progress=say,
                                bar=not args.no_progress)
     else:

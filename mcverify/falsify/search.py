@@ -214,6 +214,11 @@ def start(config: SearchConfig, out_dir: Path, **kw: Any) -> SearchResult:
     return _search(config, out_dir, **kw)
 
 
+def stored_generations(out_dir: Path) -> int:
+    """How many generations of the search in ``out_dir`` are finished on disk (what a resume re-reads)."""
+    return sum(_finished(g) for g in sorted((Path(out_dir) / GENERATIONS).glob("g[0-9][0-9][0-9]")))
+
+
 def resume(out_dir: Path, **kw: Any) -> SearchResult:
     """Finish (or re-read) the search in ``out_dir``."""
     out_dir = Path(out_dir)
