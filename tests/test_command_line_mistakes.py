@@ -157,3 +157,12 @@ def test_resuming_a_finished_search_says_so_and_rebuilds_its_report(tmp_path, mo
     assert f"resuming {tmp_path / 's'}: 1 generation(s) already stored" in err
     assert "nothing left to run" in err
     assert (tmp_path / "s" / "report.md").read_text() == report
+
+
+def test_a_speed_given_in_kmh_is_named_as_given_when_out_of_range():
+    from mcverify.campaign.spec import campaign_from_dict  # noqa: PLC0415
+
+    with pytest.raises(CampaignError) as err:
+        campaign_from_dict({"campaign": {"name": "x", "seed": 1, "episodes": 1},
+                            "model": {"scenario": {"front_speed_kmh": 500}}}, source="f.toml")
+    assert str(err.value).endswith("(given as scenario.front_speed_kmh = 500)") and "138.9 m/s" in str(err.value)

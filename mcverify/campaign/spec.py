@@ -286,7 +286,14 @@ def apply_overrides(params: ModelParams, overrides: Mapping[str, Any], where: st
     new = params
     for sec, values in sections.items():
         new = dataclasses.replace(new, **{sec: dataclasses.replace(getattr(new, sec), **values)})
-    validate_params(new, where)
+    try:
+        validate_params(new, where)
+    except CampaignError as err:  # a value given in km/h is checked in m/s: say what the user wrote
+        given = [f"{k} = {overrides[k]:g}" for k in overrides if k in UNIT_ALIASES
+                 and UNIT_ALIASES[k][0] in str(err) and isinstance(overrides[k], int | float)]
+        if given:
+            raise CampaignError(f"{err} (given as {', '.join(given)})") from None
+        raise
     return new
 
 
