@@ -166,3 +166,13 @@ def test_a_speed_given_in_kmh_is_named_as_given_when_out_of_range():
         campaign_from_dict({"campaign": {"name": "x", "seed": 1, "episodes": 1},
                             "model": {"scenario": {"front_speed_kmh": 500}}}, source="f.toml")
     assert str(err.value).endswith("(given as scenario.front_speed_kmh = 500)") and "138.9 m/s" in str(err.value)
+
+
+def test_the_counterexample_table_leaves_out_sampled_columns_that_say_nothing_new():
+    from mcverify.reporting.counterexample_report import _shown_parameters  # noqa: PLC0415
+
+    rows = [{"param:opposing.speed_mps": v, "sample_opp_speed_mps": v, "sample_front_accel_mps2": 0.0,
+             "sample_alpha": a} for v, a in ((12.0, 0.3), (15.5, 0.9))]
+    assert _shown_parameters(rows) == ["param:opposing.speed_mps", "sample_alpha"]
+    # one counterexample: its sampled values are shown, but not a copy of a searched value
+    assert _shown_parameters(rows[:1]) == ["param:opposing.speed_mps", "sample_front_accel_mps2", "sample_alpha"]

@@ -8,6 +8,7 @@ trajectory is stored (``trajectories/`` or ``replay/``; ``mcverify replay`` stor
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -27,9 +28,31 @@ MAX_DRAWN = 3
 MAX_REGIONS = 10
 
 
+def _shown_parameters(records: Sequence[Mapping[str, Any]]) -> list[str]:
+    """The ``param:`` columns, and the ``sample_`` columns that say something the table does not
+    already say: not the same value in every row (of two or more), and not a copy of a ``param:``
+    column (a searched or overridden field is also the episode's sampled value).
+    ``counterexamples.parquet`` keeps them all."""
+    keys = list(records[0]) if records else []
+    params = [k for k in keys if k.startswith("param:")]
+
+    def same(a: Any, b: Any) -> bool:
+        if isinstance(a, int | float) and isinstance(b, int | float):
+            return math.isclose(a, b, rel_tol=1e-9, abs_tol=1e-12) or (math.isnan(a) and math.isnan(b))
+        return a == b
+
+    def informative(k: str) -> bool:
+        values = [r.get(k) for r in records]
+        if len(values) > 1 and all(same(v, values[0]) for v in values):
+            return False
+        return not any(all(same(r.get(k), r.get(p)) for r in records) for p in params)
+
+    return params + [k for k in keys if k.startswith("sample_") and informative(k)]
+
+
 def table(records: Sequence[Mapping[str, Any]], requirement: str, total_episodes: int) -> Table:
     """The counterexample table: one row per violating episode, worst first."""
-    params = [k for k in (records[0] if records else {}) if k.startswith("param:") or k.startswith("sample_")]
+    params = _shown_parameters(records)
     columns = ["episode", "cell", *[p.removeprefix("param:") for p in params], "robustness", "first violation (s)",
                "cause", "min gap veh_f (m)", "min h_ef", "min gap veh_o, any time (m)", "min h_eo (m)", "replay"]
     rows = []
