@@ -2,10 +2,12 @@
 and an estimate of the CPU time from per-episode costs measured on this project's reference machine.
 
 The figures (CPU seconds per episode at the paper's 50 Hz planner, ``results/BENCHMARKS.md``) are
-per kind of cell; a cell's episodes cost about the figure times (50 Hz / its planner rate) times
-min(1, its time limit / 10 s), since episodes last up to their time limit and most overtakes take
-5-10 s. Episode costs vary by an order of magnitude within a kind (a run that meets veh_o, or that
-IPOPT must certify infeasible, costs more), so the estimate is a range, not a promise.
+per kind of cell; a cell's episodes cost about the figure times (its planner rate / 50 Hz) ** 0.57
+times min(1, its time limit / 10 s), since episodes last up to their time limit and most overtakes
+take 5-10 s. A slower planner has fewer steps but harder ones: a 10 Hz control step costs about twice
+a 50 Hz one (:data:`RATE_EXPONENT`). Episode costs vary by an order of magnitude within a kind (a
+run that meets veh_o, or that IPOPT must certify infeasible, costs more), so the estimate is a
+range, not a promise.
 """
 
 from __future__ import annotations
@@ -29,6 +31,12 @@ SECONDS_PER_EPISODE: dict[tuple[str, bool], tuple[float, float]] = {
 IPOPT_FACTOR = 3.4
 #: The planner rate of the measured figures (Hz) and the episode length they stand for (s).
 REFERENCE_RATE_HZ = 50.0
+#: Cost per episode grows as (rate / 50 Hz) ** RATE_EXPONENT, not linearly: at 10 Hz a control step
+#: costs 0.020-0.026 CPU-s (results/BENCHMARKS.md, the 10 Hz validation cell's splitting and importance
+#: runs, 850 CPU-s per 42,935 steps and 642 per 24,830), at 50 Hz about 0.010 (Table II, 4.5-5.2 CPU-s
+#: per 10 s episode of 500 steps): twice as much per step, so 1 - log(2) / log(5) = 0.57. The linear
+#: rule made `--dry-run` of the 10 Hz smoke campaign read 2x low (a new-user audit, stop 39).
+RATE_EXPONENT = 0.57
 REFERENCE_EPISODE_S = 10.0
 
 
@@ -50,7 +58,8 @@ def cell_seconds(cell: Cell) -> tuple[float, float]:
     p = cell.params
     family = "mpcdc" if p.mpc.is_mpcdc else "vlcbf"
     low, high = SECONDS_PER_EPISODE[(family, p.opposing.kind != "none")]
-    scale = (1.0 / p.sim.control_period_s) / REFERENCE_RATE_HZ * min(1.0, p.sim.max_time_s / REFERENCE_EPISODE_S)
+    rate = (1.0 / p.sim.control_period_s) / REFERENCE_RATE_HZ
+    scale = rate**RATE_EXPONENT * min(1.0, p.sim.max_time_s / REFERENCE_EPISODE_S)
     if p.mpc.backend == "ipopt":
         scale *= IPOPT_FACTOR
     return low * scale, high * scale

@@ -53,8 +53,9 @@ def test_estimate_scales_with_rate_backend_and_episodes():
     assert (est.cpu_s_low, est.cpu_s_high) == pytest.approx((120 * lo, 120 * hi))
     ipopt = cost.estimate(load_campaign(REPO / "campaigns/table2.toml", settings=["mpc.backend=ipopt"]), 8)
     assert ipopt.cpu_s_low == pytest.approx(cost.IPOPT_FACTOR * est.cpu_s_low)
-    smoke = load_campaign(REPO / "campaigns/smoke.toml")  # 10 Hz: a fifth of the steps
-    assert cost.cell_seconds(smoke.cells[0])[0] == pytest.approx(lo / 5)
+    smoke = load_campaign(REPO / "campaigns/smoke.toml")  # 10 Hz: a fifth of the steps, each about twice the cost
+    assert cost.cell_seconds(smoke.cells[0])[0] == pytest.approx(lo * 0.2**cost.RATE_EXPONENT)
+    assert 0.38 < cost.cell_seconds(smoke.cells[0])[0] / lo < 0.42
 
 
 def test_dry_run_prints_counts_and_writes_nothing(tmp_path: Path, capsys, monkeypatch):
