@@ -176,3 +176,37 @@ def test_the_counterexample_table_leaves_out_sampled_columns_that_say_nothing_ne
     assert _shown_parameters(rows) == ["param:opposing.speed_mps", "sample_alpha"]
     # one counterexample: its sampled values are shown, but not a copy of a searched value
     assert _shown_parameters(rows[:1]) == ["param:opposing.speed_mps", "sample_front_accel_mps2", "sample_alpha"]
+
+
+def test_the_failure_regions_table_shows_the_searched_columns_and_says_when_nothing_clusters():
+    from mcverify.reporting.counterexample_report import regions_table  # noqa: PLC0415
+
+    rows = [{"episode_id": i, "failure_mode": "ellipse/planned", "robustness": -0.01 * (i + 1), "region": i + 1,
+             "replay": f"mcverify replay run {i}", "param:opposing.speed_mps": v, "sample_opp_speed_mps": v,
+             "sample_front_accel_mps2": 0.0} for i, v in enumerate((9.0, 14.0, 19.0))]
+    table = regions_table(rows)
+    assert table.columns == ["region", "failure mode", "episodes", "worst robustness", "opposing.speed_mps",
+                             "replay (worst)"]
+    assert table.notes[0].startswith("Every counterexample is a region of its own: no two of the 3")
+    rows[1]["region"] = 1  # two in one region: no such note
+    assert not regions_table(rows).notes[0].startswith("Every counterexample")
+
+
+def test_the_robustness_plot_labels_its_axis_in_plain_numbers(tmp_path):
+    import matplotlib.image  # noqa: PLC0415
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    from mcverify.falsify import report  # noqa: PLC0415
+
+    _, ax = plt.subplots()
+    ax.set_yscale("symlog", linthresh=0.05)
+    ax.set_ylim(-0.055, 0.002)
+    report._label_symlog_axis(ax)
+    assert [t.get_text() for t in ax.get_yticklabels()] == ["-0.05", "-0.02", "-0.01", "0"]
+    ax.set_ylim(-2.0, 80.0)
+    report._label_symlog_axis(ax)
+    labels = [t.get_text() for t in ax.get_yticklabels()]
+    assert len(labels) <= 9 and "0" in labels and "-1" in labels and "10" in labels
+    plt.close("all")
+    report.robustness_curves({"random": [0.3, -0.02, 0.1]}, tmp_path / "r.png", "safe")
+    assert matplotlib.image.imread(tmp_path / "r.png").shape[0] > 100

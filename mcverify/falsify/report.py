@@ -46,17 +46,33 @@ def robustness_curves(curves: Mapping[str, Sequence[float]], path: Path, require
         y = np.asarray(values, dtype=float)
         x = np.arange(1, y.size + 1)
         colour = f"C{k}"
-        ax.plot(x, y, ".", color=colour, alpha=0.35, ms=4)
+        ax.plot(x, y, ".", color=colour, alpha=0.5, ms=5)
         ax.step(x, np.fmin.accumulate(np.where(np.isnan(y), np.inf, y)), where="post", color=colour, label=label)
     ax.axhline(0.0, color="k", lw=0.8, ls="--")
     ax.set_yscale("symlog", linthresh=0.05)
-    ax.set_xlabel("episodes")
+    _label_symlog_axis(ax)
+    ax.set_xlabel("episodes evaluated")
     ax.set_ylabel(f"robustness ({requirement})")
     ax.legend(loc="upper right", fontsize=8)
     ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, metadata={"Software": None})
     plt.close(fig)
+
+
+def _label_symlog_axis(ax: Any, most: int = 9) -> None:
+    """Plain-number ticks at 0 and +-1, 2, 5 x 10^k inside the axis's range (matplotlib's symlog labels
+    only whole decades, so a search whose robustness stays within -0.06..0.5 showed a single label).
+    Thinned to 1 and 5 x 10^k, then to 10^k, while there are more than ``most``."""
+    low, high = ax.get_ylim()
+    for mantissas in ((1.0, 2.0, 5.0), (1.0, 5.0), (1.0,)):
+        steps = [m * 10.0**k for k in range(-2, 5) for m in mantissas]  # below 0.01: crowded at 0
+        ticks = sorted({0.0, *(v for v in steps if v <= high), *(-v for v in steps if -v >= low)})
+        if len(ticks) <= most:
+            break
+    ax.set_yticks(ticks)
+    ax.set_yticklabels([f"{v:g}" for v in ticks])
+    ax.set_ylim(low, high)
 
 
 def facts(result: SearchResult, records: Sequence[Mapping[str, Any]]) -> list[tuple[str, str]]:

@@ -84,7 +84,8 @@ def table(records: Sequence[Mapping[str, Any]], requirement: str, total_episodes
 def regions_table(records: Sequence[Mapping[str, Any]]) -> Table:
     """One row per failure region: mode, size, worst robustness, the box per parameter, the worst's replay."""
     regions = failure_regions.from_records(records)
-    params = list(regions[0].box) if regions else []
+    shown = set(_shown_parameters(records))
+    params = [p for p in regions[0].box if p in shown] if regions else []
     columns = ["region", "failure mode", "episodes", "worst robustness",
                *[p.removeprefix("param:") for p in params], "replay (worst)"]
     rows = [[str(g.region), g.failure_mode, str(g.count), fmt_num(g.worst_robustness, 3, signed=True),
@@ -93,6 +94,11 @@ def regions_table(records: Sequence[Mapping[str, Any]]) -> Table:
              f"same region when a chain of counterexamples joins them whose neighbours differ by at most "
              f"{failure_regions.LINK:g} of the searched range in every parameter (single linkage, "
              "mcverify.analysis.failure_regions); each parameter column is the box the region spans."]
+    if len(regions) > 1 and all(g.count == 1 for g in regions):
+        notes.insert(0, f"Every counterexample is a region of its own: no two of the {len(regions)} differ by at most "
+                        f"{failure_regions.LINK:g} of the range in every parameter, so the "
+                        "search found no cluster of failures at this resolution (the rows repeat the "
+                        "counterexample table's).")
     return Table("failure_regions", "Failure regions", columns, rows, notes,
                  align="l" * 2 + "r" * (len(columns) - 3) + "l")
 

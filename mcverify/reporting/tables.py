@@ -238,12 +238,14 @@ def unsafe_count(table_key: str, column: str, text: str) -> bool:
 
 #: Tables with more columns than this get a smaller type in HTML (class "wide"), to fit 1400 px.
 WIDE_COLUMNS = 12
-_NAME_JOINT = re.compile(r"([._])(?=[A-Za-z])")
+_NAME_JOINT = re.compile(r"([._/](?=[A-Za-z])|=(?=[A-Za-z0-9-]))")
 
 
 def _breakable(text: str) -> str:
-    """Text that may wrap inside long names (``opposing.spawn_gap_m``, ``Infeasible_Problem_Detected``):
-    a ``<wbr>`` after each ``.`` or ``_`` followed by a letter (not inside numbers such as 0.3)."""
+    """Text that may wrap inside long names (``opposing.spawn_gap_m``, ``Infeasible_Problem_Detected``),
+    paths (``run/generations/g000``) and settings (``candidate=c02``): a ``<wbr>`` after each ``.``,
+    ``_`` or ``/`` followed by a letter, and after each ``=`` (never inside a number such as 0.3, or a count
+    such as 8/8)."""
     return _NAME_JOINT.sub(r"\1<wbr>", text)
 
 

@@ -111,6 +111,12 @@ def test_html_escapes_and_marks_sections():
     t = Table("w", "t", ["a", "opposing.spawn_gap_m"], [["x", "fallback:Solve_Succeeded 0.3"]])
     h = to_html(t)
     assert "<th>opposing.<wbr>spawn_<wbr>gap_<wbr>m</th>" in h and "<td>fallback:Solve_<wbr>Succeeded 0.3</td>" in h
+    # paths and settings wrap at / and = (a replay command, a cell), never inside a count or a number
+    rows = [["2", "candidate=c02", "mcverify replay run/generations/g000 2"], ["3", "x=-0.25", "8/8 (≥ 0.688)"]]
+    t = Table("w", "t", ["episode", "cell", "replay"], rows)
+    h = to_html(t)
+    assert "candidate=<wbr>c02" in h and "mcverify replay run/<wbr>generations/<wbr>g000 2" in h
+    assert "x=<wbr>-0.25" in h and "<td>8/8 (≥ 0.688)</td>" in h
 
 
 def test_inline_code_becomes_code_elements_and_the_rest_is_escaped():
