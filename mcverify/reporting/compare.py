@@ -12,7 +12,9 @@ saw identical disturbances under A and B: the comparison is **paired** over the 
 (Newcombe's paired score interval for the difference of rates and the exact McNemar test;
 paired bootstrap for differences of means). Otherwise it is **unpaired** (Newcombe's hybrid score
 interval and Fisher's exact test, or Boschloo's). The output says which and why, for every cell.
-Episodes whose outcome is ``error`` are left out (and counted).
+Episodes whose outcome is ``error`` are left out (and counted). The model fields in which two
+compared cells differ (read from each run's manifest) are listed, so that what was varied is on the
+page, not only which runs were compared.
 """
 
 from __future__ import annotations
@@ -79,6 +81,13 @@ class Run:
                 return (c.get("params") or {}).get("opposing", {}).get("kind")
         return None
 
+    def params(self, name: str) -> dict[str, Any]:
+        """The cell's resolved model fields, flattened to ``section.field`` (empty if not recorded)."""
+        for c in self.manifest.get("cells", []):
+            if c["name"] == name:
+                return _flatten(c.get("params") or {})
+        return {}
+
     def rows(self, name: str) -> pa.Table:
         mask = np.array([n == name for n in self.table.column("cell").to_pylist()], dtype=bool)
         return self.table.filter(pa.array(mask))
@@ -90,6 +99,24 @@ def load_run(run_dir: Path) -> Run:
         raise RunError(f"run folder not found: {run_dir}")
     manifest = store.read_json(run_dir / store.MANIFEST)
     return Run(run_dir.resolve().name, manifest, store.read_episodes(run_dir))
+
+
+def _flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in tree.items():
+        if isinstance(value, Mapping):
+            out.update(_flatten(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
+
+
+def model_differences(a: Run, cell_a: str, b: Run, cell_b: str) -> list[dict[str, Any]]:
+    """The model fields whose resolved values differ between the two cells, in field order:
+    ``{"field", "a", "b"}`` (None where one side does not have the field)."""
+    pa_, pb = a.params(cell_a), b.params(cell_b)
+    fields = list(pa_) + [f for f in pb if f not in pa_]
+    return [{"field": f, "a": pa_.get(f), "b": pb.get(f)} for f in fields if pa_.get(f) != pb.get(f)]
 
 
 def pairing(a: Run, cell_a: str, b: Run, cell_b: str) -> tuple[bool, str]:
@@ -217,6 +244,7 @@ def _compare_cells(a: Run, cell_a: str, b: Run, cell_b: str, level: float, test:
         "errors": errors,
         "rates": rates,
         "values": values,
+        "model_differences": model_differences(a, cell_a, b, cell_b),
     }
 
 
@@ -267,6 +295,9 @@ def tables(result: Mapping[str, Any]) -> list[Table]:
          f"(campaign {result['run_b']['campaign']})."],
         align="llll",
     )]
+    model = _model_table(comps)
+    if model is not None:
+        out.append(model)
     rows: list[list[str] | Section] = []
     for c in comps:
         if not c["rates"]:
@@ -319,6 +350,45 @@ def tables(result: Mapping[str, Any]) -> list[Table]:
     return out
 
 
+def _model_value(v: Any) -> str:
+    if v is None:
+        return DASH
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    return str(v) if not isinstance(v, list | tuple) else "[" + ", ".join(_model_value(x) for x in v) + "]"
+
+
+def _model_table(comps: Sequence[Mapping[str, Any]]) -> Table | None:
+    """The model fields that differ, one block per cell pair (one block for all when every pair
+    differs in the same way); None when no pair differs (the summary line says so)."""
+    diffs = [c.get("model_differences") or [] for c in comps]
+    if not any(diffs):
+        return None
+    row = lambda d: [d["field"], _model_value(d["a"]), _model_value(d["b"])]  # noqa: E731
+    if all(d == diffs[0] for d in diffs):
+        rows: list[list[str] | Section] = [row(d) for d in diffs[0]]
+        scope = "every compared cell pair"
+    else:
+        rows = []
+        for c, d in zip(comps, diffs, strict=True):
+            rows.append(Section(f"{_pair_label(c)}: {len(d)} field(s)" if d else f"{_pair_label(c)}: none"))
+            rows += [row(x) for x in d]
+        scope = "each cell pair"
+    return Table("compare-model", "Model fields that differ", ["field", "A", "B"], rows,
+                 [f"The resolved model of the two cells ({scope}), as stored in each run's manifest: grid values, "
+                  "campaign file and --set settings alike. Fields not listed are equal."], align="lll")
+
+
+def model_summary(result: Mapping[str, Any]) -> str:
+    """One line for the summary: how many model fields differ (or that none do)."""
+    diffs = [c.get("model_differences") or [] for c in result["comparisons"]]
+    fields = sorted({d["field"] for ds in diffs for d in ds})
+    if not fields:
+        return "the same in every compared cell pair"
+    shown = ", ".join(f"`{f}`" for f in fields[:6]) + (f" and {len(fields) - 6} more" if len(fields) > 6 else "")
+    return f"{len(fields)} field(s) differ ({shown}; table \"Model fields that differ\")"
+
+
 def _settings_text(run: Mapping[str, Any]) -> str:
     """``, --set `a=1`, --set `b=2``` for a run started with command-line settings, else nothing."""
     return "".join(f", --set `{s}`" for s in run.get("settings") or [])
@@ -342,6 +412,8 @@ def render_markdown(result: Mapping[str, Any]) -> str:
         lines.append(f"- **only in B, not compared**: {'; '.join(result['only_in_b'])}")
     if not result["comparisons"]:
         lines.append("- no cell of A matches a cell of B by name; give pairs with `--pair CELL_A CELL_B`")
+    else:
+        lines.append(f"- **model**: {model_summary(result)}")
     lines.append("")
     for t in tables(result):
         lines += [to_markdown(t), ""]

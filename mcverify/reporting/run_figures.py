@@ -230,7 +230,9 @@ def _trajectory_figures(
             results.append(FigureResult(key, f"Snapshots: {c['cell']}", "", None,
                                         f"not drawn: {ep.trajectory} lacks one of {', '.join(needed)}"))
             continue
-        plan_note = (f"planned Q1 (green dots) and Q2 (orange dots) trajectories from {ep.plans}"
+        plan_note = (f"planned Q1 (green dots) and Q2 (orange dots) trajectories from {ep.plans}, in road "
+                     f"coordinates: veh_f is drawn where it is at that time and moves on along the plan, so a Q2 "
+                     f"plan drawn past veh_f still ends behind where the planner predicts veh_f will be"
                      if plans is not None else "planned trajectories not stored for this episode (no plans file)")
         try:
             drawn = episode_figures.snapshots(traj, plans, p, out / f"{key}.png", title=head)

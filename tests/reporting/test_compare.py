@@ -135,3 +135,21 @@ def test_cli_compare_with_no_matching_cell_is_one_line_exit_2(tmp_path, capsys):
     assert len(lines) == 1 and lines[0].startswith("mcverify: error: no cell of ")
     assert "epsilon=0.1; epsilon=0.3" in lines[0] and "--pair CELL_A CELL_B" in lines[0]
     assert captured.out == ""
+
+
+def test_the_model_fields_that_differ_are_listed(tmp_path):
+    a = compare.load_run(_run(tmp_path, "a", _raw()))
+    b = compare.load_run(_run(tmp_path, "b", {**_raw(), "model": {"noise": {"scale": 2.0}}}))
+    res = compare.compare_runs(a, b)
+    assert [c["model_differences"] for c in res["comparisons"]] == [[{"field": "noise.scale", "a": 1.0, "b": 2.0}]] * 2
+    text = compare.render_markdown(res)
+    assert "- **model**: 1 field(s) differ (`noise.scale`;" in text
+    assert "### Model fields that differ" in text and "| noise.scale | 1 | 2 |" in text
+    # two cells of one run: the grid field differs, per pair
+    res = compare.compare_runs(a, a, pairs=[("epsilon=0.1", "epsilon=0.3"), ("epsilon=0.3", "epsilon=0.3")])
+    assert res["comparisons"][0]["model_differences"][0] == {"field": "barrier.epsilon", "a": 0.1, "b": 0.3}
+    assert res["comparisons"][1]["model_differences"] == []
+    text = compare.render_markdown(res)
+    assert "epsilon=0.3: none" in text and "epsilon=0.1 vs epsilon=0.3: " in text
+    assert "- **model**: the same" not in text
+    assert "- **model**: the same in every compared cell pair" in compare.render_markdown(compare.compare_runs(a, a))
