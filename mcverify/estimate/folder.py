@@ -3,7 +3,9 @@
 ``estimate.json`` (the specification and one result per finished cell, rewritten after every cell),
 ``cells.parquet`` (the same results, one row per finished cell, for tables and pandas) and
 ``report.md`` (a table of the results, and the estimator's figures). ``--resume`` keeps the finished cells: each cell's
-result is deterministic, so running it again would give the same numbers.
+result is deterministic, so running it again would give the same numbers. Once every cell is estimated
+the manifest gets ``finished_utc`` (:func:`finish`), as a run folder's does, so that
+``mcverify.open_run(DIR).finished`` says the estimate is complete.
 """
 
 from __future__ import annotations
@@ -73,6 +75,16 @@ def load(out: Path, method: str) -> tuple[dict[str, Any], dict[int, dict[str, An
     return manifest, {c["cell_index"]: c for c in done}
 
 
+def finish(out: Path) -> None:
+    """Mark the estimate in ``out`` complete: ``finished_utc`` in its manifest, as the campaign runner
+    marks a run folder (kept as it is when a finished estimate is resumed again)."""
+    out = Path(out)
+    manifest = store.read_json(out / store.MANIFEST)
+    if not manifest.get("finished_utc"):
+        manifest["finished_utc"] = provenance.now_utc()
+        store.write_json_atomic(out / store.MANIFEST, manifest)
+
+
 def write(out: Path, title: str, intro: str, spec: dict[str, Any], results: dict[int, dict[str, Any]],
           columns: Sequence[Column], figures: Sequence[str] = ()) -> Path:
     """Rewrite ``estimate.json``, ``cells.parquet`` and ``report.md`` with the results so far (``figures``:
@@ -108,6 +120,17 @@ def write_cells_table(path: Path, spec: dict[str, Any], cells: Sequence[dict[str
     keys = list(dict.fromkeys(k for r in rows for k in r))
     table = pa.table({k: [r.get(k) for r in rows] for k in keys}) if rows else pa.table({})
     store.atomic_write(path, lambda tmp: pq.write_table(table, tmp))
+
+
+def estimate_text(x: float | None) -> str:
+    """An estimate for the report: "not estimated" where there is none (None in JSON or NaN; the
+    warnings say why)."""
+    return "not estimated" if x is None or math.isnan(float(x)) else num(x)
+
+
+def interval_text(low: float | None, high: float | None) -> str:
+    """An interval for the report, "-" where there is none."""
+    return "-" if low is None or high is None or math.isnan(float(low)) else f"[{num(low)}, {num(high)}]"
 
 
 def num(x: float | None, fmt: str = ".3g") -> str:

@@ -366,4 +366,6 @@ def _cells_on(campaign: Campaign, spec: ImportanceSpec, out: Path, done: dict[in
                                **({} if score.noise_tilt is None else {"noise_tilt": score.noise_tilt._asdict()})}
         draw_cell(out, results[cell.index], bounds, spec.alpha, final)
         write()
-    return write()
+    path = write()
+    folder.finish(out)
+    return path

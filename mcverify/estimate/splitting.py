@@ -17,9 +17,12 @@ and level 0). Generalised AMS with a fixed number ``k`` of killed particles per 
 The estimate weight x (fraction of the final particles at the failure level) is unbiased for every
 n and k [BLR16, Thm. 4.1]. Its variance has no closed form off the idealised continuous case, so an
 interval comes from ``replicates`` independent AMS runs: their mean is unbiased and a Student t
-interval on the replicate estimates is asymptotic (labelled so); the relative variance of one run is
-close to (-log p)/n for k = 1 in the idealised case [GHM11], which is what the cost comparison with
-crude Monte Carlo builds on.
+interval on the replicate estimates is asymptotic (labelled so). A run stopped by ``max_iterations``
+before the level reached the failure set is *capped*: its weight times the share at the failure level
+is not an unbiased estimate (it is biased towards 0), so its estimate is NaN and it is left out of the
+mean and the interval, with a warning; with fewer than 2 uncapped runs there is no estimate at all. The
+relative variance of one run is close to (-log p)/n for k = 1 in the idealised case [GHM11], which is
+what the cost comparison with crude Monte Carlo builds on.
 
 Determinism: every particle's noise comes from (seed, branch id) through the process, and the
 survivor draws from a generator seeded by (run seed, selection key: the closed loop passes its campaign
@@ -88,7 +91,7 @@ class AMSRun:
     extinct: bool
     reached: int  # particles at the failure level at the end
     killed: tuple[int, ...] = ()  # particles killed at each iteration (> k with ties)
-    capped: bool = False  # stopped by max_iterations before the level reached the failure set: not an estimate
+    capped: bool = False  # stopped by max_iterations before the level reached the failure set: estimate NaN
 
 
 def ams(process: BranchingProcess, *, n: int, k: int = 1, failure_level: float, seed: int,
@@ -134,14 +137,18 @@ def ams(process: BranchingProcess, *, n: int, k: int = 1, failure_level: float, 
         iterations += 1
     reached = int(sum(float(p.scores[-1]) >= failure_level for p in particles))
     capped = iterations >= max_iterations and float(np.sort([p.scores[-1] for p in particles])[k - 1]) < failure_level
-    return AMSRun(math.exp(log_weight) * reached / n, iterations, levels, n, k, steps, False, reached,
-                  tuple(killed_counts), capped)
+    # a capped run stopped before its levels reached the failure set: weight * reached / n is not an
+    # unbiased estimate (it reads low, often 0), so it gives none
+    value = math.nan if capped else math.exp(log_weight) * reached / n
+    return AMSRun(value, iterations, levels, n, k, steps, False, reached, tuple(killed_counts), capped)
 
 
 @dataclass(frozen=True)
 class SplittingEstimate:
     """Mean of ``replicates`` independent AMS runs with a Student t interval at ``level`` (asymptotic),
-    the relative standard error, and the cost in control steps."""
+    the relative standard error, and the cost in control steps. Capped runs (``runs``: NaN) are left
+    out of the mean and the interval; with fewer than 2 uncapped runs estimate, interval and relative
+    half-width are NaN (not estimated), and ``warnings`` says why."""
 
     estimate: float
     low: float
@@ -178,12 +185,10 @@ def estimate(process: BranchingProcess, *, n: int, k: int = 1, failure_level: fl
 
 
 def from_runs(runs: list[AMSRun], level: float = 0.95) -> SplittingEstimate:
-    """The t interval of independent AMS runs, with warnings when it should not be trusted."""
-    values = np.array([r.estimate for r in runs])
+    """The t interval of independent AMS runs, with warnings when it should not be trusted; capped runs
+    are left out (see :func:`t_interval`)."""
+    values = np.array([math.nan if r.capped else r.estimate for r in runs], dtype=float)
     mean, low, high, rel, warnings = t_interval(values, level)
-    capped = sum(r.capped for r in runs)
-    if capped:
-        warnings.insert(0, f"{capped} run(s) hit the iteration cap before the failure level: not an estimate")
     return SplittingEstimate(mean, low, high, level, rel, int(values.size), runs[0].n,
                              runs[0].k, sum(r.steps for r in runs), [float(v) for v in values], warnings=warnings)
 
@@ -195,17 +200,33 @@ SPREAD_WARNING = 100.0
 
 
 def t_interval(values: np.ndarray, level: float = 0.95) -> tuple[float, float, float, float, list[str]]:
-    """(mean, low, high, relative half-width, warnings) of independent AMS runs' estimates ``values``
-    (at least 2): the Student t interval, its low end clipped at 0."""
+    """(mean, low, high, relative half-width, warnings) of independent AMS runs' estimates ``values``:
+    the Student t interval, its low end clipped at 0. A NaN value is a run that gave no estimate (capped
+    by the iteration limit before the failure level): it is left out of the mean and the interval, with
+    a warning; with fewer than 2 estimates left, all four numbers are NaN (not estimated)."""
     values = np.asarray(values, dtype=float)
+    capped = int(np.sum(np.isnan(values)))
+    total = int(values.size)
+    values = values[~np.isnan(values)]
+    warnings = []
+    if values.size < 2:
+        why = (f"{capped} of {total} runs hit the iteration cap before the failure level (a capped run is not an "
+               "estimate) and " if capped else "")
+        warnings.append(f"not estimated: {why}{values.size} run(s) finished, an interval needs at least 2"
+                        + ("; raise --max-iterations" if capped else ""))
+        return math.nan, math.nan, math.nan, math.nan, warnings
+    if capped:
+        warnings.append(f"{capped} of {total} runs hit the iteration cap before the failure level and are left out "
+                        "of the mean and the interval (a capped run is not an estimate, and leaving out the runs "
+                        "that needed the most levels can bias the mean): raise --max-iterations")
     mean = float(values.mean())
     se = float(values.std(ddof=1) / math.sqrt(values.size))
     half = float(sps.t.ppf(0.5 + level / 2, values.size - 1)) * se
     rel = half / mean if mean > 0 else math.inf
-    warnings = []
     zero = int(np.sum(values == 0))
     if zero > values.size // 2:
-        warnings.append(f"{zero} of {values.size} runs estimate 0 (extinction or no particle at the failure level): "
+        runs = f"{values.size} uncapped runs" if capped else f"{values.size} runs"
+        warnings.append(f"{zero} of {runs} estimate 0 (extinct: every particle killed at one level): "
                         "the t interval is unreliable; use more particles")
     positive = values[values > 0]
     if positive.size >= 2 and positive.max() > SPREAD_WARNING * positive.min():

@@ -8,8 +8,13 @@ steps and CPU seconds, and compared with what crude Monte Carlo would need for t
 half-width at the estimated p (episodes of the mean length of the fresh particles). Within an AMS
 run, one episode at a time (branches are sequential by nature); the independent runs are work units
 of the executors (this process by default, ``--executor local`` or ``ray`` to spread them), and a
-run's result does not depend on where it ran. ``estimate.json`` is rewritten after every cell, and
-``--resume`` keeps the cells it holds (each cell's result is deterministic, so nothing is lost).
+run's result does not depend on where it ran. Each finished AMS run is written at once to
+``runs/cellNNN_runNNN.json`` (atomically: its AMSRun, control steps, CPU seconds and the steps of its
+fresh episodes), ``estimate.json`` is rewritten after every cell, and ``manifest.json`` gets
+``finished_utc`` once every cell is estimated. ``--resume`` keeps the cells ``estimate.json`` holds and
+the finished runs of the others, and runs only the missing ones: a run is a deterministic function of
+(campaign, cell, replicate), so the estimate is the one an uninterrupted run gives (only the CPU
+seconds, which are measured, can differ). An interrupt loses at most the AMS runs still in progress.
 """
 
 from __future__ import annotations
@@ -22,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from mcverify import store
+from mcverify.analysis.cells import json_ready
 from mcverify.campaign import executors
 from mcverify.campaign.executors import Executor
 from mcverify.campaign.spec import Campaign
@@ -31,6 +37,9 @@ from mcverify.estimate import folder, splitting
 from mcverify.estimate.closed_loop import SCORES, ClosedLoopProcess
 from mcverify.estimate.folder import num
 from mcverify.schema import ERROR_COLUMN, ERROR_OUTCOME
+
+#: The folder of the finished AMS runs, one JSON file each (:func:`run_file`).
+RUNS = "runs"
 
 #: Fewer AMS runs than this get a warning: on the closed-loop validation cell (200 runs of 20
 #: particles with h_ef_run against 3,848 crude episodes) the 95 % t interval covered p in 43 of 50
@@ -54,10 +63,15 @@ class SplittingSpec:
     def __post_init__(self) -> None:
         if self.score not in SCORES:
             raise ValueError(f"unknown splitting score {self.score!r}; valid: {', '.join(SCORES)}")
-        if not 1 <= self.k < self.particles:
-            raise ValueError(f"need 1 <= k < particles, got k={self.k}, particles={self.particles}")
+        if self.k < 1:
+            raise ValueError(f"k (particles killed per AMS iteration) must be at least 1 (got {self.k})")
+        if self.particles <= self.k:
+            raise ValueError(f"--particles must be at least {self.k + 1} (got {self.particles}): each AMS iteration "
+                             f"kills {self.k} particle{'s' if self.k > 1 else ''} and branches the survivors")
         if self.replicates < 2:
-            raise ValueError(f"an interval needs at least 2 replicates, got {self.replicates}")
+            raise ValueError(f"--replicates must be at least 2 (got {self.replicates}) for an interval")
+        if self.max_iterations < 1:
+            raise ValueError(f"--max-iterations must be at least 1 (got {self.max_iterations})")
 
     @property
     def target(self) -> str:
@@ -105,6 +119,44 @@ def replicate_unit(cell: Cell, episode_ids: tuple[int, ...], seed: int, common_r
                          "steps": process.steps, "fresh_steps": list(process.fresh_steps)}])
 
 
+def run_file(out: Path, cell_index: int, replicate: int) -> Path:
+    """Where a finished AMS run of a cell is kept (``runs/cellNNN_runNNN.json``)."""
+    return Path(out) / RUNS / f"cell{cell_index:03d}_run{replicate:03d}.json"
+
+
+def _save_run(out: Path, cell: Cell, row: dict[str, Any]) -> None:
+    """Keep one finished AMS run (atomically: a reader never sees half a file), before it is reported."""
+    replicate = int(row["cell_episode"])
+    store.write_json_atomic(run_file(out, cell.index, replicate),
+                            json_ready({"cell_index": cell.index, "cell": cell.name, **row}))
+
+
+def _load_runs(out: Path, cell: Cell, replicates: int) -> dict[int, dict[str, Any]]:
+    """The finished AMS runs of ``cell`` kept in ``out`` (replicate -> row), as :func:`replicate_unit`
+    returned them (a capped run's estimate NaN again)."""
+    got = {}
+    for r in range(replicates):
+        path = run_file(out, cell.index, r)
+        if not path.is_file():
+            continue
+        row = store.read_json(path)
+        if row.get("cell_index") != cell.index or row.get("cell") != cell.name or row.get("cell_episode") != r:
+            raise RunError(f"{path} is not AMS run {r} of cell {cell.name}; move it away to run it again")
+        run = row["run"]
+        if run.get("estimate") is None:
+            run["estimate"] = math.nan
+        got[r] = {k: v for k, v in row.items() if k not in ("cell_index", "cell")}
+    return got
+
+
+def _fate(run: dict[str, Any]) -> str:
+    if run["extinct"]:
+        return "extinct"
+    if run.get("capped"):
+        return "capped by --max-iterations before the failure level (not an estimate)"
+    return f"estimate {run['estimate']:.3g}"
+
+
 def _cells(campaign: Campaign, spec: SplittingSpec, out: Path, done: dict[int, dict], progress,
            only: list[str] | None = None, executor: Executor | None = None) -> Path:
     results = dict(done)
@@ -113,21 +165,24 @@ def _cells(campaign: Campaign, spec: SplittingSpec, out: Path, done: dict[int, d
         for cell in campaign.cells:
             if cell.index in results or (only and cell.name not in only):
                 continue
-            progress(f"cell {cell.name}: {spec.replicates} AMS runs of {spec.particles} particles")
-            got: dict[int, dict[str, Any]] = {}
+            got = _load_runs(out, cell, spec.replicates)
+            kept = f" ({len(got)} finished before, kept)" if got else ""
+            progress(f"cell {cell.name}: {spec.replicates} AMS runs of {spec.particles} particles{kept}")
 
             def on_done(chunk: store.Chunk, output, cell=cell, got=got) -> None:
                 row = output.rows[0]
                 if row.get("outcome") == ERROR_OUTCOME:
                     raise RunError(f"AMS run {chunk.episode_ids[0]} of {cell.name} failed: {row.get(ERROR_COLUMN)}")
+                _save_run(out, cell, row)
                 got[chunk.episode_ids[0]] = row
                 run = row["run"]
-                fate = "extinct" if run["extinct"] else f"estimate {run['estimate']:.3g}"
-                progress(f"  AMS run {chunk.episode_ids[0] + 1} done ({len(got)} of {spec.replicates}): {fate}, "
-                         f"{run['iterations']} iterations, {row['steps']} control steps, {row['cpu_s']:.0f} CPU-s")
+                progress(f"  AMS run {chunk.episode_ids[0] + 1} done ({len(got)} of {spec.replicates}): "
+                         f"{_fate(run)}, {run['iterations']} iterations, {row['steps']} control steps, "
+                         f"{row['cpu_s']:.0f} CPU-s")
 
-            chunks = [store.Chunk(cell.index, (r,)) for r in range(spec.replicates)]
-            executors.execute(campaign, chunks, on_done, executor=ex, episode_fn=unit)
+            chunks = [store.Chunk(cell.index, (r,)) for r in range(spec.replicates) if r not in got]
+            if chunks:
+                executors.execute(campaign, chunks, on_done, executor=ex, episode_fn=unit)
             rows = [got[r] for r in range(spec.replicates)]
             runs = [splitting.AMSRun(**{**row["run"], "killed": tuple(row["run"]["killed"])}) for row in rows]
             cost = _Cost(sum(r["cpu_s"] for r in rows), sum(r["steps"] for r in rows),
@@ -135,7 +190,9 @@ def _cells(campaign: Campaign, spec: SplittingSpec, out: Path, done: dict[int, d
             results[cell.index] = cell_result(cell.index, cell.name, spec, splitting.from_runs(runs, spec.level),
                                               runs, cost)
             _write(out, spec, campaign, results)
-    return _write(out, spec, campaign, results)
+    path = _write(out, spec, campaign, results)
+    folder.finish(out)
+    return path
 
 
 @dataclass
@@ -159,6 +216,7 @@ def cell_result(index: int, name: str, spec: SplittingSpec, est: splitting.Split
     return {
         "cell_index": index, "cell": name, "method": "splitting", "target": spec.target, **est.as_dict(),
         "iterations": [r.iterations for r in runs], "extinct": [r.extinct for r in runs],
+        "capped": [r.capped for r in runs],
         "last_level": [r.levels[-1] if r.levels else None for r in runs],  # how close each run got (score)
         "cpu_s": process.cpu_s, "steps": process.steps,
         "mean_episode_steps": episode_steps, "crude_steps_same_width": crude,
@@ -167,8 +225,8 @@ def cell_result(index: int, name: str, spec: SplittingSpec, est: splitting.Split
 
 
 COLUMNS: list[folder.Column] = [
-    ("cell", lambda c: c["cell"]), ("estimate", lambda c: num(c["estimate"])),
-    ("interval", lambda c: f"[{num(c['low'])}, {num(c['high'])}]"),
+    ("cell", lambda c: c["cell"]), ("estimate", lambda c: folder.estimate_text(c["estimate"])),
+    ("interval", lambda c: folder.interval_text(c["low"], c["high"])),
     ("rel. half-width", lambda c: num(c["relative_halfwidth"], ".2f")), ("control steps", lambda c: str(c["steps"])),
     ("CPU (s)", lambda c: num(c["cpu_s"], ".0f")),
     ("crude MC steps, same width", lambda c: num(c["crude_steps_same_width"])),

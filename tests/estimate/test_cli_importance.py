@@ -11,6 +11,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
+import mcverify
 from mcverify.campaign import executors
 from mcverify.campaign.spec import campaign_from_dict
 from mcverify.cli import main
@@ -68,9 +69,12 @@ def test_importance_cli_writes_its_estimate_and_resumes(tmp_path: Path, campaign
     (row,) = pq.read_table(out / "cells.parquet").to_pylist()
     assert row["method"] == "importance" and row["estimate"] == cell["estimate"]
     assert row["parameters"] == "front_accel_mps2"
+    assert mcverify.open_run(out).finished  # the manifest says the estimate is complete
+    finished = json.loads((out / "manifest.json").read_text())["finished_utc"]
     before = (out / "estimate.json").read_text()
     assert main(["estimate", "--resume", str(out)]) == 0
     assert (out / "estimate.json").read_text() == before
+    assert json.loads((out / "manifest.json").read_text())["finished_utc"] == finished
 
 
 def test_a_cell_without_ranges_is_refused(tmp_path: Path, capsys):

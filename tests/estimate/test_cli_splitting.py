@@ -9,7 +9,10 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import pytest
 
+import mcverify
+from mcverify.campaign.spec import load_campaign
 from mcverify.cli import main
+from mcverify.estimate import splitting_run
 
 FIXTURE = Path(__file__).resolve().parents[1] / "fixtures" / "tiny.toml"
 
@@ -30,9 +33,18 @@ def test_splitting_cli_writes_its_estimate_and_resumes(tmp_path: Path, capsys):
     assert [r["cell_index"] for r in table] == [0, 1] and {r["method"] for r in table} == {"splitting"}
     assert [r["estimate"] for r in table] == [c["estimate"] for c in est["cells"]]
     assert table[0]["warnings"] == "; ".join(est["cells"][0]["warnings"])
+    for c in est["cells"]:  # every run capped: no estimate, and the warning names the cause and the remedy
+        assert c["capped"] == [True, True] and c["runs"] == [None, None]
+        assert c["estimate"] is None and c["low"] is None and c["high"] is None
+        assert any(w.startswith("not estimated") and "--max-iterations" in w for w in c["warnings"])
+        assert not any("extinct" in w for w in c["warnings"])
+    assert "| front_speed_kmh=25 | not estimated | - |" in (out / "report.md").read_text()
+    assert mcverify.open_run(out).finished  # the manifest says the estimate is complete
+    finished = json.loads((out / "manifest.json").read_text())["finished_utc"]
     before = (out / "estimate.json").read_text()
     assert main(["estimate", "--resume", str(out)]) == 0
     assert (out / "estimate.json").read_text() == before
+    assert json.loads((out / "manifest.json").read_text())["finished_utc"] == finished
     assert main(argv) == 2 and "not empty" in capsys.readouterr().err
 
 
@@ -40,12 +52,49 @@ def test_splitting_bad_input_is_one_line(capsys):
     for argv, message in (
         (["estimate", str(FIXTURE), "--method", "splitting", "--until-halfwidth", "0.1"], "--until-halfwidth is for"),
         (["estimate", str(FIXTURE), "--method", "splitting", "--target", "unsafe"], "estimates --target collision or"),
-        (["estimate", str(FIXTURE), "--method", "splitting", "--replicates", "1"], "at least 2 replicates"),
+        (["estimate", str(FIXTURE), "--method", "splitting", "--replicates", "1"],
+         "--replicates must be at least 2 (got 1) for an interval"),
+        (["estimate", str(FIXTURE), "--method", "splitting", "--particles", "1"],
+         "--particles must be at least 2 (got 1): each AMS iteration kills 1 particle and branches the survivors"),
         (["estimate", str(FIXTURE), "--method", "splitting", "--score", "h_ef"], "not --target collision"),
     ):
         assert main(argv) == 2, argv
         err = capsys.readouterr().err.strip()
         assert message in err and len(err.splitlines()) == 1, err
+
+
+def test_an_interrupted_splitting_estimate_keeps_its_finished_runs(tmp_path: Path):
+    """Each finished AMS run is on disk before it is reported: an interrupt after the first run leaves
+    it there, --resume runs only the second, and the estimate is the uninterrupted one's (but CPU time)."""
+    campaign = load_campaign(FIXTURE)
+    spec = splitting_run.SplittingSpec("gap", particles=2, replicates=2, max_iterations=1)
+    cells = ["front_speed_kmh=36"]
+    splitting_run.run(campaign, spec, tmp_path / "whole", progress=lambda msg: None, cells=cells)
+
+    class Stop(KeyboardInterrupt):
+        pass
+
+    def stop_after_the_first_run(msg: str) -> None:
+        if "AMS run 1 done" in msg:
+            raise Stop
+
+    out = tmp_path / "stopped"
+    with pytest.raises(Stop):
+        splitting_run.run(campaign, spec, out, progress=stop_after_the_first_run, cells=cells)
+    assert sorted(p.name for p in (out / splitting_run.RUNS).iterdir()) == ["cell001_run000.json"]
+    assert not (out / "estimate.json").exists() and not mcverify.open_run(out).finished
+    lines: list[str] = []
+    splitting_run.resume(out, campaign, progress=lines.append)
+    assert not any("AMS run 1 done" in line for line in lines), lines  # kept, not run again
+    assert any("1 finished before, kept" in line for line in lines) and any("AMS run 2 done" in line for line in lines)
+    assert mcverify.open_run(out).finished
+
+    def without_cpu(path: Path) -> dict:
+        (cell,) = json.loads((path / "estimate.json").read_text())["cells"]
+        return {k: v for k, v in cell.items() if k != "cpu_s"}
+
+    assert without_cpu(out) == without_cpu(tmp_path / "whole")
+    assert len(without_cpu(out)["iterations"]) == 2
 
 
 @pytest.mark.slow  # starts two worker processes (JAX, CasADi); the runs' local-worker determinism is tested by default

@@ -112,3 +112,75 @@ def test_runs_orders_of_magnitude_apart_are_flagged():
     assert len(spread) == 1 and "1300x" in spread[0] and "heavy-tailed" in spread[0]
     assert splitting.t_interval(np.array([0.013, 0.128, 0.05, 0.011]))[4] == []
     assert splitting.t_interval(np.array([0.0, 0.0, 0.0, 0.05]))[4][0].startswith("3 of 4 runs estimate 0")
+
+
+def _run(estimate: float, *, capped: bool = False, extinct: bool = False) -> splitting.AMSRun:
+    return splitting.AMSRun(estimate, 3, [0.1, 0.2, 0.3], 5, 1, 100, extinct, 0, (1, 1, 1), capped)
+
+
+def test_a_run_stopped_by_the_iteration_cap_gives_no_estimate():
+    """A capped run's weight times its share at the level is not an unbiased estimate: NaN, flagged."""
+    run = splitting.ams(WALK, n=5, failure_level=2.5, seed=9, max_iterations=2)
+    assert run.capped and not run.extinct and run.iterations == 2 and math.isnan(run.estimate)
+    whole = splitting.ams(WALK, n=5, failure_level=2.5, seed=9)
+    assert not whole.capped and whole.iterations > 2 and math.isfinite(whole.estimate)
+    # a cap that is not binding (the run ends at the cap's last iteration or before) is not capped
+    assert splitting.ams(WALK, n=5, failure_level=2.5, seed=9, max_iterations=whole.iterations) == whole
+
+
+def test_capped_runs_are_left_out_of_the_mean_and_the_interval():
+    est = splitting.from_runs([_run(0.01), _run(0.03), _run(0.02), _run(0.0, capped=True)])
+    assert est.estimate == pytest.approx(0.02) and est.low < 0.02 < est.high
+    assert est.replicates == 4 and math.isnan(est.runs[3]) and est.runs[:3] == [0.01, 0.03, 0.02]
+    (warning,) = est.warnings
+    assert warning.startswith("1 of 4 runs hit the iteration cap") and "--max-iterations" in warning
+    assert splitting.estimate(WALK, n=5, failure_level=2.5, replicates=3, seed=4, max_iterations=10**6) == \
+        splitting.estimate(WALK, n=5, failure_level=2.5, replicates=3, seed=4)  # no run capped: as before
+
+
+@pytest.mark.parametrize("uncapped", [0, 1])
+def test_fewer_than_two_uncapped_runs_are_not_an_estimate(uncapped: int):
+    runs = [_run(0.01)] * uncapped + [_run(0.0, capped=True)] * (3 - uncapped)
+    est = splitting.from_runs(runs)
+    assert all(math.isnan(x) for x in (est.estimate, est.low, est.high, est.relative_halfwidth))
+    assert not est.contains(0.01)
+    (warning,) = est.warnings  # the cause and the remedy; not extinction, not "more particles"
+    assert warning.startswith(f"not estimated: {3 - uncapped} of 3 runs hit the iteration cap")
+    assert "raise --max-iterations" in warning and "extinct" not in warning and "particles" not in warning
+    # the same through the estimator: every run capped
+    capped = splitting.estimate(WALK, n=5, failure_level=2.5, replicates=2, seed=4, max_iterations=1)
+    assert math.isnan(capped.estimate) and capped.warnings[0].startswith("not estimated: 2 of 2 runs hit")
+
+
+def test_the_extinction_warning_counts_extinct_runs_only():
+    runs = [_run(0.0, extinct=True), _run(0.0, extinct=True), _run(0.02), _run(0.0, capped=True),
+            _run(0.0, capped=True)]
+    warnings = splitting.from_runs(runs).warnings
+    assert warnings[0].startswith("2 of 5 runs hit the iteration cap")
+    assert warnings[1].startswith("2 of 3 uncapped runs estimate 0 (extinct")
+    assert not any("estimate 0" in w for w in splitting.from_runs([_run(0.01), _run(0.02), *runs[3:]]).warnings)
+
+
+def test_a_cell_without_an_estimate_is_null_in_strict_json_and_not_estimated_in_the_report(tmp_path):
+    import json
+
+    import pyarrow.parquet as pq
+
+    from mcverify.estimate import folder, splitting_run
+
+    spec = splitting_run.SplittingSpec("gap", particles=5, replicates=2, max_iterations=3)
+    runs = [_run(0.0, capped=True), _run(0.02)]
+    cost = splitting_run._Cost(1.0, 200, [80, 80])
+    result = splitting_run.cell_result(0, "c0", spec, splitting.from_runs(runs), runs, cost)
+    assert result["capped"] == [True, False] and result["extinct"] == [False, False]
+    folder.write(tmp_path, "t", "intro", {"method": "splitting"}, {0: result}, splitting_run.COLUMNS)
+
+    def no_constant(name: str):
+        raise AssertionError(f"{name} in estimate.json")
+
+    (cell,) = json.loads((tmp_path / "estimate.json").read_text(), parse_constant=no_constant)["cells"]
+    assert cell["estimate"] is None and cell["low"] is None and cell["runs"] == [None, 0.02]
+    assert cell["capped"] == [True, False]
+    (row,) = pq.read_table(tmp_path / "cells.parquet").to_pylist()
+    assert row["estimate"] is None and row["capped"] == "True; False"
+    assert "| c0 | not estimated | - |" in (tmp_path / "report.md").read_text()
