@@ -265,7 +265,7 @@ def _parser() -> argparse.ArgumentParser:
                           "UNIT_BAND (x|y|v _ approach|jump|alongside) (docs/rare_events.md), e.g. "
                           "gap_max_m=4.1,split_m=3.05,y_approach=-5,y_jump=5")
     est.add_argument("--max-iterations", type=_positive_int, default=None,
-                     help="splitting: iteration cap per run (a capped run is flagged, not an estimate)")
+                     help="splitting: iteration cap per run (default 2000; a capped run is flagged, not an estimate)")
     est.add_argument("--resume", type=Path, metavar="RUN_DIR", help="finish an interrupted estimate")
     est.add_argument("--no-progress", action="store_true", help="no progress bar")
     est.set_defaults(func=_cmd_estimate)
@@ -295,7 +295,8 @@ def _parser() -> argparse.ArgumentParser:
     bench = sub.add_parser("bench", help="the engine against the compiled IPOPT loop (and the naive loop), in one run")
     bench.add_argument("--campaign", default="campaigns/table4_fixed_start.toml",
                        help="campaign file (default: Table IV with veh_o on the road from the start)")
-    bench.add_argument("--cell", default="all", help="cell name of that campaign, or 'all' (default: the mix)")
+    bench.add_argument("--cell", default="all",
+                       help="cell name of that campaign, or 'all' (default: all, the Table IV mix)")
     bench.add_argument("--engine-episodes", type=_positive_int, default=2, help="episodes per cell, engine")
     bench.add_argument("--baseline-episodes", type=_nonneg_int, default=2,
                        help="paired episodes per cell, compiled warm-started IPOPT loop (0: skip)")
@@ -360,6 +361,9 @@ def _parser() -> argparse.ArgumentParser:
                      help="worker processes / Ray tasks in flight (default: the machine's cores)")
     fal.add_argument("--resume", type=Path, metavar="OUT", help="finish an interrupted search")
     fal.add_argument("--no-progress", action="store_true", help="no per-generation lines and no progress bar")
+    fal.add_argument("--dry-run", action="store_true",
+                     help="check the campaign, its [falsify] table and the options, say what the search would "
+                          "spend, and run nothing")
     fal.set_defaults(func=_cmd_falsify)
 
     bf = sub.add_parser("bench-falsify", help="success rate and median episodes to the first counterexample per "
@@ -388,7 +392,7 @@ def _parser() -> argparse.ArgumentParser:
                       help="AMS runs per estimate (default 25: about +-30 %% at p ~ 1e-4)")
     rare.add_argument("--repetitions", type=_positive_int, default=20, help="independent estimates (default 20)")
     rare.add_argument("--reference-episodes", type=_positive_int, default=30_000_000,
-                      help="crude reference walks (default 3e7)")
+                      help="crude reference walks (default 30000000)")
     rare.add_argument("--no-write", action="store_true", help="do not write into results/BENCHMARKS.md")
     rare.set_defaults(func=_cmd_bench_rare)
 
@@ -485,8 +489,15 @@ def _cmd_run(args) -> int:
 
             for warning in lint.warnings(campaign):
                 _log.warning("warning: %s", warning)
+            searched = None
+            if campaign.falsify is not None:  # checked first: a bad table is the only line printed
+                from mcverify.falsify.command import describe_table
+
+                searched = describe_table(args.campaign, args.settings)
             print(cost.render(campaign, args.chunk_size or runner.DEFAULT_CHUNK_SIZE,
                               args.workers or executors.default_workers()))
+            if searched:
+                print(searched)
             return 0
         out = args.run_dir = new_folder(args, lambda parent: runner.default_run_dir(campaign, parent))
         executor = executors.make_executor(args.executor, workers=args.workers, address=args.address)
@@ -779,11 +790,13 @@ def _cmd_bench_solver(args) -> int:
 
 def _cmd_bench_rare(args) -> int:
     from mcverify.bench import rare
+    from mcverify.errors import UserError
 
     if args.replicates < 2:
-        from mcverify.errors import UserError
-
         raise UserError("--replicates must be at least 2 (the interval comes from their spread)")
+    if args.particles < 2:
+        raise UserError(f"--particles must be at least 2 (got {args.particles}): each AMS iteration kills the lowest "
+                        "particle and branches a survivor")
     res = rare.run(barrier=args.barrier, particles=args.particles, replicates=args.replicates,
                    repetitions=args.repetitions, reference_episodes=args.reference_episodes)
     command = "mcverify " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["bench-rare"] else "mcverify bench-rare"
@@ -811,9 +824,16 @@ def _cmd_bench_plant(args) -> int:
     if args.only_include and not included:
         raise UserError("--only-include needs at least one --include JSON file")
     platforms = [p.strip() for p in args.platforms.split(",") if p.strip()]
+    unknown = [p for p in platforms if p not in plant_scaling.KNOWN_PLATFORMS]
+    if unknown or not platforms:
+        raise UserError(f"--platforms {args.platforms!r}: unknown backend {', '.join(unknown) or '(none given)'}; "
+                        f"known: {', '.join(plant_scaling.KNOWN_PLATFORMS)}")
     results = [] if args.only_include else plant_scaling.run(
         args.campaign, args.batches, args.steps, args.repeats, platforms,
         progress=lambda line: print(line, file=sys.stderr))
+    if not args.only_include and not results:
+        raise UserError(f"--platforms {args.platforms}: none of these JAX backends is on this machine; nothing was "
+                        "measured and results/BENCHMARKS.md was left as it was")
     if args.json:
         store.atomic_write_bytes(args.json, json.dumps(results, indent=1).encode())
     command = "mcverify " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["bench-plant"] else "mcverify bench-plant"

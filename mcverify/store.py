@@ -302,8 +302,25 @@ def _missing(run_dir: Path, chunk: Chunk) -> RunError:
 def read_episodes(run_dir: Path) -> pa.Table:
     path = Path(run_dir) / EPISODES
     if not path.exists():
-        raise RunError(f"{run_dir}: no {EPISODES}; is this a finished mcverify run folder?")
+        raise RunError(f"{run_dir}: no {EPISODES}; {_not_a_run(Path(run_dir))}")
     return pq.read_table(path)
+
+
+def _not_a_run(folder: Path) -> str:
+    """Why a folder without episodes.parquet has none, for the folders mcverify writes that are not runs."""
+    if (folder / "estimate.json").is_file():
+        try:
+            method = read_json(folder / "estimate.json").get("spec", {}).get("method", "?")
+        except (OSError, ValueError):
+            method = "?"
+        return (f"it is an `estimate --method {method}` folder, which stores its estimate (estimate.json, "
+                "report.md), not episodes; replay, report and compare work on run folders and on "
+                "`estimate --method mc` folders")
+    if (folder / "falsify.json").is_file():
+        return (f"it is a falsification search, whose episodes are in its generation folders (e.g. "
+                f"`mcverify replay {folder}/generations/g000 0`); `mcverify falsify --resume {folder}` rebuilds "
+                "its report")
+    return "is this a finished mcverify run folder?"
 
 
 def _declared_schema(names: Iterable[str], where: str) -> pa.Schema:
@@ -382,7 +399,8 @@ def read_json(path: Path) -> Any:
         if path.name == MANIFEST:
             if not path.parent.exists():
                 raise RunError(f"run folder not found: {path.parent}") from None
-            raise RunError(f"{path.parent}: not an mcverify run folder (no {MANIFEST})") from None
+            why = (f"; {_not_a_run(path.parent)}" if (path.parent / "falsify.json").is_file() else "")
+            raise RunError(f"{path.parent}: not an mcverify run folder (no {MANIFEST}){why}") from None
         raise RunError(f"missing file: {path}") from None
     except NotADirectoryError:
         raise RunError(f"not a run folder: {path.parent}") from None

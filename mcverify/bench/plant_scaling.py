@@ -149,13 +149,19 @@ def measure_batch(cell: Cell, seed: int, batch: int, steps: int, repeats: int, d
     }
 
 
-def available_devices(platforms: Sequence[str]) -> list[jax.Device]:
+#: JAX backend names ``--platforms`` accepts.
+KNOWN_PLATFORMS = ("cpu", "gpu", "cuda", "rocm", "tpu")
+
+
+def available_devices(platforms: Sequence[str], progress=None) -> list[jax.Device]:
+    """The first device of each named backend present here; an absent one is said (``progress``) and skipped."""
     out = []
     for name in platforms:
         try:
             out.append(jax.devices(name)[0])
         except RuntimeError:
-            continue  # no such backend on this machine
+            if progress:
+                progress(f"  {name}: no such JAX backend on this machine, skipped")
     return out
 
 
@@ -169,7 +175,7 @@ def run(campaign_path: Path = DEFAULT_CAMPAIGN, batches: Sequence[int] | None = 
     cell = campaign.cells[0]
     n_steps = steps or min(DEFAULT_STEPS, steps_of(cell))
     results = []
-    for device in available_devices(platforms):
+    for device in available_devices(platforms, progress):
         rows = []
         for b in batches or DEFAULT_BATCHES.get(device.platform, DEFAULT_BATCHES["gpu"]):
             row = measure_batch(cell, seed, b, n_steps, repeats, device)

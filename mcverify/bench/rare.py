@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from mcverify import provenance, store
+from mcverify.errors import UserError
 from mcverify.estimate import splitting
 from mcverify.estimate.synthetic import Walk
 
@@ -35,6 +36,12 @@ def run(*, barrier: float = 6.2, particles: int = 100, replicates: int = 25, rep
     t0 = time.process_time()
     hits, total = walk.crude(reference_episodes, barrier, seed=1)
     crude_cpu = time.process_time() - t0
+    if hits == 0:
+        raise UserError(f"--barrier {barrier:g}: none of the {total} reference walks reached it, so there is no p to "
+                        "check the estimates against; lower --barrier or raise --reference-episodes")
+    if hits > total / 2:
+        raise UserError(f"--barrier {barrier:g}: {hits} of {total} reference walks reached it, so there is no rare "
+                        "event to estimate; choose a barrier the walk reaches rarely (default 6.2: p about 1e-4)")
     p = hits / total
     estimates, cpu = [], []
     for r in range(repetitions):

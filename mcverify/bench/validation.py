@@ -253,7 +253,8 @@ def splitting_repetitions(dirs: Sequence[Path], ref: Reference, group: int, leve
         raise RunError(f"--group must be at least 2 (a t interval needs 2 runs), got {group}")
     values, steps, cpu, _ = pooled_runs(dirs, ref)
     if values.size < group:
-        raise RunError(f"--group {group} is more than the {values.size} runs the splitting folders hold")
+        raise RunError(f"--group {group} (AMS runs per repetition; 4 unless given) is more than the {values.size} runs "
+                       "the splitting folders hold: give more folders or a smaller --group")
     reps = []
     for start in range(0, values.size - group + 1, group):
         part = slice(start, start + group)
@@ -414,9 +415,9 @@ def markdown(res: dict[str, Any], command: str) -> str:
             f"| {s['estimator']} | {s['repetitions']} | {s['covered']}/{s['repetitions']} = {_pct(s['coverage'])} "
             f"({_pct(lo)}-{_pct(hi)}) | {_pct(s['coverage_at_reference_low'])} / "
             f"{_pct(s['coverage_at_reference_high'])} | {s['bias']:+.1%} (± {s['bias_standard_error']:.1%}) | "
-            f"{s['relative_error']:.2f} | {s['mean_relative_halfwidth']:.2f} | {s['with_warnings']} | "
-            f"{s['steps_per_repetition']:,.0f} | {_num(s['cpu_s_per_repetition'], '.0f')} | "
-            f"{s['crude_steps_same_width']:,.0f} |")
+            f"{_num(s['relative_error'], '.2f')} | {_num(s['mean_relative_halfwidth'], '.2f')} | "
+            f"{s['with_warnings']} | {_num(s['steps_per_repetition'], ',.0f')} | "
+            f"{_num(s['cpu_s_per_repetition'], '.0f')} | {_num(s['crude_steps_same_width'], ',.0f')} |")
     if any(s.get("leave_out_reference") for s in res["estimators"]):
         lines += ["", "- mc rows: consecutive runs of `mcverify estimate --method mc --until-halfwidth H` over the "
                   "reference's own episodes in their pre-assigned order, each checked against the reference without "

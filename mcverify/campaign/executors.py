@@ -64,5 +64,8 @@ def make_executor(kind: str = "local", *, workers: int | None = None, address: s
     if kind == "ray":
         return RayExecutor(address=address, workers=workers)
     if kind == "serial":
+        if workers is not None and workers != 1:
+            raise ExecutorError(f"--workers {workers} is for the local and Ray executors; --executor serial runs "
+                                "one episode at a time in this process")
         return SerialExecutor()
     raise ExecutorError(f"unknown executor {kind!r}; valid: local, ray, serial")

@@ -383,10 +383,11 @@ def _execute(
     done_episodes = sum(len(c.episode_ids) for c in chunks if c.name in done)
     record = [(c.index, 0) for c in campaign.cells if c.episodes > 0] if record_first else []
     if todo and episode_fn is executors.simulate and not executor.warm:
+        bar_note = (f"; then the bar moves as episodes finish (chunks of up to {chunk_size} run together; with Ray, "
+                    "as whole chunks finish)" if progress else "")
         log.info("starting %s: each worker imports JAX and CasADi, loads the solver and compiles the plant once "
-                 "(tens of seconds) before its first chunk; then the bar moves as episodes finish (chunks of up to %d "
-                 "run together; with Ray, as whole chunks finish)",
-                 ", ".join(f"{k} {v}" for k, v in executor.describe().items() if v is not None), chunk_size)
+                 "(tens of seconds) before its first chunk%s",
+                 ", ".join(f"{k} {v}" for k, v in executor.describe().items() if v is not None), bar_note)
     bar = tqdm(
         total=campaign.total_episodes,
         initial=done_episodes,

@@ -10,6 +10,44 @@ from typing import Any
 from mcverify.errors import RunError
 
 
+def describe_table(path: Path, settings: Any = ()) -> str:
+    """``run --dry-run``'s line for a campaign with a ``[falsify]`` table, after checking the table
+    as ``falsify`` would (every bound against its field's limits): a bad table is one error line."""
+    import tomllib  # noqa: PLC0415
+
+    from mcverify.campaign.spec import apply_settings, load_campaign  # noqa: PLC0415
+    from mcverify.falsify import search  # noqa: PLC0415
+
+    campaign = load_campaign(path, settings=settings)
+    raw = apply_settings(tomllib.loads(Path(path).read_text(encoding="utf-8")), settings)
+    config = search.SearchConfig(raw, str(path), "random", 1, campaign.seed, campaign.falsify.requirement)
+    space = search.check(config)
+    return (f"[falsify]: requirement {config.requirement}, {len(space.bounds)} searched field(s), every bound "
+            f"within its field's limits; search it with `mcverify falsify {path} --budget N`")
+
+
+def _dry_run(config: Any, campaign: Any, workers: int | None) -> str:
+    """``falsify --dry-run``: what the search is and what its budget would cost (the run dry run's
+    per-episode CPU model, every episode run to its end: stopping at a violation only saves)."""
+    from mcverify.campaign import cost, executors  # noqa: PLC0415
+    from mcverify.falsify import search  # noqa: PLC0415
+
+    space = search.check(config)
+    low, high = cost.cell_seconds(campaign.cells[0])
+    n = workers or executors.default_workers()
+    span = lambda a, b: (cost.duration(a) if cost.duration(a) == cost.duration(b)  # noqa: E731
+                         else f"{cost.duration(a)} to {cost.duration(b)}")
+    return "\n".join([
+        f"falsify {config.source}: {config.method}, budget {config.budget} episodes, requirement "
+        f"{config.requirement}, seed {config.seed}",
+        f"search space: {len(space.bounds)} field(s): {', '.join(b[0] for b in space.bounds)}",
+        f"estimated CPU: {span(low * config.budget, high * config.budget)} at most; wall time on {n} worker(s): "
+        f"{span(low * config.budget / n, high * config.budget / n)} at most (a rough range from measured rates; "
+        + ("the search stops after the generation of its first counterexample)" if space.stop_at_first
+           else "[falsify] stop_at_first = false: the search spends its whole budget)"),
+    ])
+
+
 def falsify(args: Any) -> int:
     """Start a search (``CAMPAIGN.toml``) or resume one (``--resume OUT``); prints the report."""
     from mcverify.analysis import robustness as rb  # noqa: PLC0415
@@ -27,6 +65,8 @@ def falsify(args: Any) -> int:
         if not args.no_progress:
             print(line, file=sys.stderr)
 
+    if args.resume is not None and args.dry_run:
+        raise RunError("--dry-run checks a campaign file; it does not apply to --resume")
     if args.resume is not None:
         if args.campaign is not None or args.out is not None or args.new_run_dir is not None or args.settings \
                 or args.budget is not None or args.method is not None or args.seed is not None \
@@ -64,6 +104,9 @@ def falsify(args: Any) -> int:
             requirement=args.requirement or campaign.falsify.requirement,
         )
         search.check(config)  # every mistake as one line, before the start line and the folder
+        if args.dry_run:
+            print(_dry_run(config, campaign, args.workers))
+            return 0
         from mcverify.campaign import runner  # noqa: PLC0415
 
         out = args.run_dir = runner.new_folder(args.out, args.new_run_dir,

@@ -86,12 +86,22 @@ def facts(result: SearchResult, records: Sequence[Mapping[str, Any]]) -> list[tu
                         "negative iff violated)"),
         ("method", f"{result.config.method}, seed {result.config.seed}, population {result.space.population}"),
         ("search space", space),
-        ("effort", f"{result.episodes} of {result.config.budget} episodes in {generations} generation(s)"),
+        ("effort", f"{result.episodes} of {result.config.budget} episodes in {generations} generation(s)"
+                   + _why_stopped(result)),
         ("minimum robustness reached", fmt_num(result.min_robustness, 4, signed=True)),
         ("first counterexample", first if first else
          f"none found within {result.episodes} episodes"),
         ("counterexamples", f"{len(records)} (see `counterexamples.parquet`)"),
     ] + _guide_facts(result) + _noise_facts(result)
+
+
+def _why_stopped(result: SearchResult) -> str:
+    """Why a finished search spent less than its budget: it stops after the generation of its first
+    counterexample unless ``[falsify] stop_at_first = false``."""
+    if result.episodes >= result.config.budget or result.first_counterexample is None or not result.space.stop_at_first:
+        return ""
+    return ("; it stopped after the generation that found its first counterexample (`[falsify] stop_at_first`, "
+            "default true; set it false to spend the whole budget)")
 
 
 def _guide_facts(result: SearchResult) -> list[tuple[str, str]]:

@@ -94,9 +94,9 @@ def theorem_table(summ: Mapping[str, Any]) -> Table:
     return Table("theorem-checks", "Theorem checks per cell", columns, rows, notes,
                  align="l" + "r" * (len(columns) - 2) + ("l" if cause else "r"))
 
-def findings_table(summ: Mapping[str, Any]) -> Table | None:
+def findings_table(summ: Mapping[str, Any], run_dir: str = "RUN_DIR") -> Table | None:
     """Every episode with a step where neither Q1 nor Q2 solved (Theorem 5 says there is none), with
-    the command that re-simulates it; None when the run has no such episode."""
+    the command that re-simulates it (``run_dir`` as given); None when the run has no such episode."""
     rows = []
     for c in summ["cells"]:
         for f in c.get("theorem_findings", []):
@@ -104,7 +104,7 @@ def findings_table(summ: Mapping[str, Any]) -> Table | None:
             rows.append([c["cell"], _int(f, "episode_id"), _int(f, "both_infeasible_steps"),
                          _int(f, "both_certified_infeasible_steps"), _int(f, "both_unsolved_uncertified_steps"),
                          _int(f, "both_infeasible_longest_run"),
-                         f"mcverify replay RUN_DIR {eid}" if eid is not None else DASH])
+                         f"mcverify replay {run_dir} {eid}" if eid is not None else DASH])
     if not rows:
         return None
     columns = ["cell", "episode", "steps with Q1 and Q2 unsolved", "both certified infeasible", "budget / numerical",
@@ -113,7 +113,7 @@ def findings_table(summ: Mapping[str, Any]) -> Table | None:
              "certified both problems infeasible at that step (a counter-example to Theorem 5 up to local "
              "infeasibility: inspect it); budget / numerical: an iteration limit, a numerical failure or a "
              "presumed infeasibility (no proof). Replay: re-simulates the episode bit for bit and writes its "
-             "trajectory (RUN_DIR: this run's folder)."]
+             "trajectory."]
     return Table("theorem-findings", "Theorem 5 findings: episodes with Q1 and Q2 unsolved", columns, rows, notes,
                  align="llrrrrl")
 

@@ -109,7 +109,7 @@ def write(
     manifest = store.read_json(run_dir / store.MANIFEST)
     table = store.read_episodes(run_dir)
     summ = build_summary(manifest, table, opts)
-    tables = report_tables(summ, manifest)
+    tables = report_tables(summ, manifest, str(run_dir))
     if not 10 <= figure_dpi <= 1200:
         raise RunError(f"--dpi must be between 10 and 1200, got {figure_dpi}")
     with figure_common.exporting(figure_formats, figure_dpi):
@@ -157,10 +157,10 @@ def build_summary(manifest: Mapping[str, Any], table: pa.Table, opts: Options = 
 # ----------------------------------------------------------------------------------------- tables
 
 
-def report_tables(summ: Mapping[str, Any], manifest: Mapping[str, Any]) -> list[Table]:
+def report_tables(summ: Mapping[str, Any], manifest: Mapping[str, Any], run_dir: str = "RUN_DIR") -> list[Table]:
     """Every table of the report, in order: the paper's layout (if the campaign names one), the
     outcomes, the pivot tables of a two-axis grid, distances, times, theorem checks, decisions and
-    solver."""
+    solver; ``run_dir`` (as given) goes into the replay commands, as in the counterexample table."""
     out: list[Table] = []
     if summ.get("estimates"):
         out.append(estimate_table(summ["estimates"]))
@@ -172,7 +172,7 @@ def report_tables(summ: Mapping[str, Any], manifest: Mapping[str, Any]) -> list[
     out.append(outcome_table(summ))
     out += pivot_tables(summ)
     out += [distance_table(summ), time_table(summ), theorem_table(summ)]
-    findings = findings_table(summ)
+    findings = findings_table(summ, run_dir)
     out += ([findings] if findings is not None else []) + [solver_table(summ)]
     settle = end_state_table(summ)
     if settle is not None:

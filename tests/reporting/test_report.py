@@ -173,10 +173,10 @@ def test_theorem_five_findings_list_every_episode_with_the_replay_command(tmp_pa
     assert flagged and any(e["both_certified_infeasible_steps"] for e in flagged)
     findings = (run / "tables" / "theorem-findings.md").read_text()
     for e in flagged:
-        line = next(x for x in findings.splitlines() if f"mcverify replay RUN_DIR {e['episode_id']} " in x)
+        line = next(x for x in findings.splitlines() if f"mcverify replay {run} {e['episode_id']} " in x)
         assert e["cell"] in line
         assert f"| {e['both_certified_infeasible_steps']} | {e['both_unsolved_uncertified_steps']} |" in line
-    assert findings.count("mcverify replay RUN_DIR") == len(flagged)
+    assert findings.count(f"mcverify replay {run} ") == len(flagged)  # the folder as given, as for counterexamples
     assert findings in (run / "report.md").read_text()
     thm = (run / "tables" / "theorem-checks.md").read_text()
     assert "both certified infeasible" in thm and "longest run" in thm
