@@ -18,7 +18,12 @@ longest run of such steps (``h_ef_run``, target ellipse: a row has no per-step r
 footprint gap (``gap``, target collision), >= 0 exactly at the event. The score only steers the
 cross-entropy stages; the estimate counts the event itself, so any score leaves it unbiased. Episode
 ids count the evaluations from 0, so the estimate replays from (campaign seed, cell, the estimator's
-seed)."""
+seed).
+
+What an interrupt keeps: the finished cells (``estimate.json``, ``samples_cellNNN.parquet``); the
+cell in progress is kept nowhere until it is finished, so ``--resume`` runs its cross-entropy
+iterations and final draws again from the start (the same episodes, so the same estimate, but its
+work so far is lost). ``manifest.json`` gets ``finished_utc`` once every cell is estimated."""
 
 from __future__ import annotations
 
@@ -292,7 +297,8 @@ def run(campaign: Campaign, spec: ImportanceSpec, out: Path, *, progress=print,
 
 
 def resume(out: Path, campaign: Campaign, *, progress=print, executor: Executor | None = None) -> Path:
-    """Finish an interrupted importance-sampling estimate (finished cells are kept)."""
+    """Finish an interrupted importance-sampling estimate: finished cells are kept; the cell that was in
+    progress starts again from its first cross-entropy iteration (the same episodes and estimate)."""
     manifest, done = folder.load(out, "importance")
     spec = ImportanceSpec(**{k: v for k, v in manifest["estimate"].items() if k != "method"})
     return _cells(campaign, spec, Path(out), done, progress, manifest.get("only_cells"), executor)
