@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import json
 import logging
 import os
 import signal
@@ -58,6 +59,21 @@ _RESUMABLE = ("run", "estimate", "falsify")
 _FOLDER_MARKERS = ("manifest.json", "falsify.json", "estimate.json")
 
 
+def _what_is_kept(command: str, run_dir: Path) -> str:
+    """What an interrupt leaves for ``--resume``: whole chunks of episodes, except for the estimators
+    whose unit of work is not a chunk."""
+    if command == "estimate":
+        try:
+            method = json.loads((run_dir / "manifest.json").read_text()).get("estimate", {}).get("method")
+        except (OSError, ValueError, AttributeError):
+            method = None
+        if method == "splitting":
+            return "finished AMS runs are kept"
+        if method == "importance":
+            return "finished cells are kept; the cell in progress starts again"
+    return "finished chunks are kept"
+
+
 def _dispatch(args) -> int:
     from mcverify.errors import UserError
 
@@ -83,8 +99,8 @@ def _dispatch(args) -> int:
             run_dir = None  # stopped before the folder was written: nothing to resume
         what = "terminated (SIGTERM)" if terminated else "interrupted"
         if run_dir is not None:
-            print(f"mcverify: {what}; finished chunks are kept (mcverify {command} --resume {run_dir})",
-                  file=sys.stderr)
+            print(f"mcverify: {what}; {_what_is_kept(command, Path(run_dir))} (mcverify {command} --resume "
+                  f"{run_dir})", file=sys.stderr)
         else:
             print(f"mcverify: {what}", file=sys.stderr)
         return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED

@@ -121,3 +121,14 @@ def test_theorem_five_findings_name_the_folder_as_the_counterexamples_do(tmp_pat
     run_report.write(run)
     text = (run / "tables" / "theorem-findings.md").read_text()
     assert "RUN_DIR" not in text and f"mcverify replay {run} " in text
+
+
+def test_an_interrupt_says_what_the_folder_keeps(tmp_path):
+    folder = tmp_path / "e"
+    folder.mkdir()
+    assert cli._what_is_kept("run", folder) == "finished chunks are kept"
+    for method, kept in (("splitting", "finished AMS runs are kept"),
+                         ("importance", "finished cells are kept; the cell in progress starts again"),
+                         ("mc", "finished chunks are kept")):
+        (folder / "manifest.json").write_text(f'{{"estimate": {{"method": "{method}"}}}}')
+        assert cli._what_is_kept("estimate", folder) == kept

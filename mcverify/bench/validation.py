@@ -267,6 +267,9 @@ def pooled_summary(dirs: Sequence[Path], ref: Reference) -> dict[str, Any]:
     """The runs taken one by one: each is unbiased, so their mean, with its standard error, checks the
     bias of splitting on this cell without any interval; and how many runs estimate 0."""
     values, steps, cpu, settings = pooled_runs(dirs, ref)
+    ok = np.isfinite(values)  # a run stopped by --max-iterations is no estimate (stored as null)
+    capped = int((~ok).sum())
+    values, steps, cpu = values[ok], steps[ok], cpu[ok]
     sd = float(values.std(ddof=1)) if values.size > 1 else math.nan
     se = sd / math.sqrt(values.size)
     # Work-normalised relative variance (control steps x relative variance, the cost of a relative
@@ -274,7 +277,8 @@ def pooled_summary(dirs: Sequence[Path], ref: Reference) -> dict[str, Any]:
     # crude Monte Carlo needs per step of splitting for the same width (> 1: splitting is cheaper).
     splitting_work = (sd / ref.p) ** 2 * float(steps.mean())
     crude_work = (1 - ref.p) / ref.p * ref.mean_episode_steps
-    return {"runs": int(values.size), **settings, "mean": float(values.mean()), "standard_error": se,
+    return {"runs": int(values.size), "capped_runs": capped, **settings, "mean": float(values.mean()),
+            "standard_error": se,
             "bias": float(values.mean() / ref.p - 1), "bias_standard_error": se / ref.p,
             "zero_runs": int(np.sum(values == 0)), "steps_per_run": float(steps.mean()),
             "cpu_s_per_run": float(cpu.mean()), "run_relative_sd": sd / ref.p,
@@ -429,7 +433,9 @@ def markdown(res: dict[str, Any], command: str) -> str:
                      f"particles one by one (each unbiased): mean {pooled['mean']:.4f} "
                      f"± {pooled['standard_error']:.4f} (s.e.), bias {pooled['bias']:+.1%} "
                      f"± {pooled['bias_standard_error']:.1%} against the reference; "
-                     f"{pooled['zero_runs']} runs estimate 0; relative standard deviation of a run "
+                     f"{pooled['zero_runs']} runs estimate 0"
+                     + (f", {pooled['capped_runs']} stopped by --max-iterations left out" if pooled.get("capped_runs")
+                        else "") + "; relative standard deviation of a run "
                      f"{pooled['run_relative_sd']:.2f}; {pooled['steps_per_run']:,.0f} control steps and "
                      f"{pooled['cpu_s_per_run']:.0f} CPU-s per run; for the same width crude Monte Carlo needs "
                      f"{pooled['steps_ratio_vs_crude']:.2f}x the control steps (from the runs' variance)")
