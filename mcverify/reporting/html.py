@@ -22,6 +22,7 @@ dl.facts { display: grid; grid-template-columns: max-content 1fr; gap: 0.2em 1em
 dl.facts dt { font-weight: bold; } dl.facts dd { margin: 0; }
 table { border-collapse: collapse; margin: 1em 0 0.3em; font-size: 0.86em; font-variant-numeric: tabular-nums; }
 caption { caption-side: top; text-align: left; font-weight: bold; padding-bottom: 0.4em; font-size: 1.1em; }
+p.table-title { font-weight: bold; font-size: 1.1em; margin-bottom: 0.2em; }
 th, td { padding: 0.25em 0.5em; border-bottom: 1px solid #e3e3e3; text-align: right; }
 td { white-space: normal; overflow-wrap: break-word; min-width: 4.5em; }  /* wraps at spaces and <wbr>, not mid-word */
 table.wide { font-size: 0.76em; } table.wide td { min-width: 3.6em; }  /* many columns: smaller, to fit */

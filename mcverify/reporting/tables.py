@@ -117,10 +117,16 @@ def fmt_rel(ours: Any, ref: Any) -> str:
 # -------------------------------------------------------------------------------------- Markdown
 
 
+#: What an empty table shows when it has no notes of its own.
+NO_ROWS = "Nothing to list."
+
+
 def to_markdown(t: Table, *, heading: str = "###") -> str:
     """GitHub-flavoured Markdown: a heading with the title, the table, the notes as a list."""
     esc = _md_escape
     lines = [f"{heading} {t.title}", ""] if heading else []
+    if not t.rows:  # a header over nothing reads like a rendering fault: say so in words
+        return "\n".join(lines + [f"- {n}" for n in t.notes or [NO_ROWS]])
     lines.append("| " + " | ".join(esc(c) for c in t.columns) + " |")
     lines.append("|" + "|".join(":---" if a == "l" else "---:" for a in _align(t)) + "|")
     for row in t.rows:
@@ -260,6 +266,9 @@ def inline_html(text: str) -> str:
 def to_html(t: Table) -> str:
     """An HTML ``<table>`` with a caption and the notes in a following paragraph."""
     esc = html.escape
+    if not t.rows:
+        notes = "".join(f"<li>{inline_html(n)}</li>" for n in t.notes or [NO_ROWS])
+        return f'<p class="table-title" id="tab-{esc(t.key)}">{esc(t.title)}</p>\n<ul class="notes">{notes}</ul>'
     wide = ' class="wide"' if len(t.columns) > WIDE_COLUMNS else ""
     out = [f'<table id="tab-{esc(t.key)}"{wide}>', f"<caption>{esc(t.title)}</caption>", "<thead><tr>"]
     out.append("".join(f"<th>{_breakable(esc(c))}</th>" for c in t.columns) + "</tr></thead>")

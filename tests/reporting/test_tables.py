@@ -124,3 +124,13 @@ def test_inline_code_becomes_code_elements_and_the_rest_is_escaped():
         "replay: <code>mcverify replay &lt;run&gt; 3</code> &amp; more")
     assert inline_html("an unpaired ` stays") == "an unpaired ` stays"
     assert inline_html("") == ""
+
+
+def test_an_empty_table_says_so_instead_of_drawing_a_header():
+    empty = Table("cx", "Counterexamples (safe)", ["episode", "robustness"], [],
+                  ["No episode violated the requirement."])
+    md, h = to_markdown(empty), to_html(empty)
+    assert "| episode" not in md and md.endswith("- No episode violated the requirement.")
+    assert "<table" not in h and '<p class="table-title" id="tab-cx">Counterexamples (safe)</p>' in h
+    assert "<li>No episode violated the requirement.</li>" in h
+    assert "Nothing to list." in to_markdown(Table("t", "T", ["a"], [], []))
