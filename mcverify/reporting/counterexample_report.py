@@ -76,7 +76,7 @@ def table(records: Sequence[Mapping[str, Any]], requirement: str, total_episodes
                      + "; ".join(_region_text(g) for g in regions[:MAX_REGIONS])
                      + (f"; ... {len(regions) - MAX_REGIONS} more." if len(regions) > MAX_REGIONS else "."))
     if not records:
-        notes.insert(0, "No episode violated the requirement.")
+        notes = [f"No episode violated `{requirement}` (robustness < 0): 0 of {total_episodes}."]
     return Table("counterexamples", f"Counterexamples ({requirement})", columns, rows, notes,
                  align="l" * 2 + "r" * (len(columns) - 3) + "l")
 
