@@ -70,7 +70,7 @@ def _what_is_kept(command: str, run_dir: Path) -> str:
         if method == "splitting":
             return "finished AMS runs are kept"
         if method == "importance":
-            return "finished cells are kept; the cell in progress starts again"
+            return "finished cells and the finished batches of the cell in progress are kept"
     return "finished chunks are kept"
 
 

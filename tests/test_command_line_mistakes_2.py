@@ -128,7 +128,7 @@ def test_an_interrupt_says_what_the_folder_keeps(tmp_path):
     folder.mkdir()
     assert cli._what_is_kept("run", folder) == "finished chunks are kept"
     for method, kept in (("splitting", "finished AMS runs are kept"),
-                         ("importance", "finished cells are kept; the cell in progress starts again"),
+                         ("importance", "finished cells and the finished batches of the cell in progress are kept"),
                          ("mc", "finished chunks are kept")):
         (folder / "manifest.json").write_text(f'{{"estimate": {{"method": "{method}"}}}}')
         assert cli._what_is_kept("estimate", folder) == kept

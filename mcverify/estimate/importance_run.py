@@ -20,10 +20,11 @@ cross-entropy stages; the estimate counts the event itself, so any score leaves 
 ids count the evaluations from 0, so the estimate replays from (campaign seed, cell, the estimator's
 seed).
 
-What an interrupt keeps: the finished cells (``estimate.json``, ``samples_cellNNN.parquet``); the
-cell in progress is kept nowhere until it is finished, so ``--resume`` runs its cross-entropy
-iterations and final draws again from the start (the same episodes, so the same estimate, but its
-work so far is lost). ``manifest.json`` gets ``finished_utc`` once every cell is estimated."""
+What an interrupt keeps: the finished cells (``estimate.json``, ``samples_cellNNN.parquet``) and,
+of the cell in progress, every finished batch of episodes (``evaluated_cellNNN.jsonl``,
+:mod:`mcverify.estimate.evaluations`): ``--resume`` replays the cell's cross-entropy iterations from
+the kept rows and runs only the batches that were not finished, so it gives the estimate of an
+uninterrupted run. ``manifest.json`` gets ``finished_utc`` once every cell is estimated."""
 
 from __future__ import annotations
 
@@ -45,8 +46,9 @@ from mcverify.cell import Cell
 from mcverify.control.planner import Planner
 from mcverify.episode.rollout import ChunkResult, run_episodes
 from mcverify.errors import RunError
-from mcverify.estimate import folder, importance
+from mcverify.estimate import evaluations, folder, importance
 from mcverify.estimate.closed_loop import H_EF_SCORES, SCORES, gap_score, h_ef_score
+from mcverify.estimate.evaluations import EvaluationCache
 from mcverify.estimate.folder import num
 from mcverify.sim import noise
 from mcverify.sim.noise import NoiseTilt
@@ -166,6 +168,7 @@ class ClosedLoopScore:
     campaign: Campaign | None = None
     noise_tilt: NoiseTilt | None = None
     progress: Callable[[str], None] | None = None
+    cache: EvaluationCache | None = None  # episodes evaluated before an interrupt, and where new ones go
     _last_rows: list[dict[str, Any]] = field(default_factory=list)
 
     def __call__(self, theta: np.ndarray) -> np.ndarray | importance.Scored:
@@ -196,15 +199,33 @@ class ClosedLoopScore:
         if self.progress:
             self.progress(f"    noise tilt {tilt_text(self.noise_tilt)}")
 
+    def _tilt_record(self) -> dict[str, Any] | None:
+        return None if self.noise_tilt is None else self.noise_tilt._asdict()
+
+    def _kept(self, part: list[int], values: dict[int, tuple[float, ...]]) -> list[dict[str, Any]] | None:
+        """The batch's rows from before an interrupt, when all of it was evaluated with these inputs."""
+        return None if self.cache is None else self.cache.rows(part, values, self._tilt_record())
+
+    def _keep(self, rows: list[dict[str, Any]], values: dict[int, tuple[float, ...]]) -> None:
+        if self.cache is not None:
+            self.cache.add(rows, values, self._tilt_record())
+
     def _here(self, ids: list[int], values: dict[int, tuple[float, ...]]) -> list[dict[str, Any]]:
         rows = []
         for start in range(0, len(ids), BATCH):
             part = ids[start:start + BATCH]
-            over = {e: dict(zip(self.names, values[e], strict=True)) for e in part}
-            t0 = time.process_time()
-            rows += run_episodes(self.cell, part, self.seed, self.planner, scenarios=over,
-                                 noise_tilt=self.noise_tilt).rows
-            self.cpu_s += time.process_time() - t0
+            batch = self._kept(part, values)
+            if batch is None:
+                over = {e: dict(zip(self.names, values[e], strict=True)) for e in part}
+                t0 = time.process_time()
+                batch = run_episodes(self.cell, part, self.seed, self.planner, scenarios=over,
+                                     noise_tilt=self.noise_tilt).rows
+                share = (time.process_time() - t0) / max(1, len(batch))
+                for row in batch:
+                    row["unit_cpu_s"] = share
+                self._keep(batch, values)
+            self.cpu_s += sum(float(r.get("unit_cpu_s") or 0.0) for r in batch)
+            rows += batch
         return rows
 
     def _parallel(self, ids: list[int], values: dict[int, tuple[float, ...]]) -> list[dict[str, Any]]:
@@ -215,10 +236,19 @@ class ClosedLoopScore:
         def on_done(chunk: store.Chunk, output) -> None:
             for row in output.rows:
                 got[int(row["cell_episode"])] = row
+            self._keep(list(output.rows), values)
 
-        chunks = [store.Chunk(self.cell.index, tuple(ids[i:i + BATCH])) for i in range(0, len(ids), BATCH)]
+        chunks = []
+        for i in range(0, len(ids), BATCH):
+            part = ids[i:i + BATCH]
+            kept = self._kept(part, values)
+            if kept is None:
+                chunks.append(store.Chunk(self.cell.index, tuple(part)))
+            else:
+                got.update(zip(part, kept, strict=True))
         unit = functools.partial(scenario_unit, names=tuple(self.names), values=values, noise_tilt=self.noise_tilt)
-        executors.execute(self.campaign, chunks, on_done, executor=self.executor, episode_fn=unit)
+        if chunks:
+            executors.execute(self.campaign, chunks, on_done, executor=self.executor, episode_fn=unit)
         rows = [got[e] for e in ids]  # in episode order, whatever order the units finished in
         self.cpu_s += sum(float(r.get("unit_cpu_s") or 0.0) for r in rows)
         return rows
@@ -298,7 +328,7 @@ def run(campaign: Campaign, spec: ImportanceSpec, out: Path, *, progress=print,
 
 def resume(out: Path, campaign: Campaign, *, progress=print, executor: Executor | None = None) -> Path:
     """Finish an interrupted importance-sampling estimate: finished cells are kept; the cell that was in
-    progress starts again from its first cross-entropy iteration (the same episodes and estimate)."""
+    progress continues from its kept batches of episodes (the same episodes and estimate)."""
     manifest, done = folder.load(out, "importance")
     spec = ImportanceSpec(**{k: v for k, v in manifest["estimate"].items() if k != "method"})
     return _cells(campaign, spec, Path(out), done, progress, manifest.get("only_cells"), executor)
@@ -354,8 +384,12 @@ def _cells_on(campaign: Campaign, spec: ImportanceSpec, out: Path, done: dict[in
                            "(give e.g. scenario.front_accel_range_mps2)")
         progress(f"cell {cell.name}: importance sampling over {', '.join(bounds)}")
         planner = executors.solver_for(cell.params) if executor is None else None
+        cache = EvaluationCache(evaluations.cache_file(out, cell.index))
+        if len(cache):
+            progress(f"  {len(cache)} episodes evaluated before the interrupt are kept")
         score = ClosedLoopScore(cell, campaign.seed, planner, list(bounds), spec.target, spec.score,
-                                executor=executor, campaign=campaign, noise_tilt=tilt, progress=progress)
+                                executor=executor, campaign=campaign, noise_tilt=tilt, progress=progress,
+                                cache=cache)
         # the draws of the scenario parameters follow the campaign seed and the cell (as the noise
         # does), so that estimates with distinct --seed are independent repetitions and the cells of
         # one campaign are independent estimates (shared draws only under common random numbers)
@@ -372,6 +406,7 @@ def _cells_on(campaign: Campaign, spec: ImportanceSpec, out: Path, done: dict[in
                                **({} if score.noise_tilt is None else {"noise_tilt": score.noise_tilt._asdict()})}
         draw_cell(out, results[cell.index], bounds, spec.alpha, final)
         write()
+        cache.remove()
     path = write()
     folder.finish(out)
     return path

@@ -251,3 +251,46 @@ def test_quiet_keeps_the_progress_lines_off_stderr(tmp_path: Path, campaign_file
     assert main([*args, "--run-dir", str(tmp_path / "quiet"), "-q"]) == 0
     err = capsys.readouterr().err
     assert "cross-entropy iteration" not in err and "estimate folder" not in err
+
+
+@pytest.mark.parametrize("workers", [None, pytest.param("2", marks=pytest.mark.slow)])
+def test_an_interrupt_mid_cell_resumes_to_the_uninterrupted_estimate(tmp_path: Path, campaign_file: Path,
+                                                                      monkeypatch, workers):
+    """Killed after two batches of the cell in progress, --resume reruns only the batches that were not
+    finished and ends with the uninterrupted run's estimate and final draws."""
+    from mcverify.estimate import evaluations, importance_run  # noqa: PLC0415
+
+    extra = ["--workers", workers] if workers else []
+    args = ["estimate", str(campaign_file), "--method", "importance", "--target", "ellipse", "--samples", "16",
+            "--ce-samples", "16", "--ce-iterations", "1", "--seed", "5", "-q", *extra]
+    assert main([*args, "--run-dir", str(tmp_path / "whole")]) == 0
+
+    batches = []
+    real = importance_run.ClosedLoopScore._keep
+
+    def keep_then_stop(self, rows, values):
+        real(self, rows, values)
+        batches.append(len(rows))
+        if len(batches) == 2:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(importance_run.ClosedLoopScore, "_keep", keep_then_stop)
+    cut = tmp_path / "cut"
+    assert main([*args, "--run-dir", str(cut)]) == 130
+    kept = evaluations.cache_file(cut, 0)
+    assert len(kept.read_text().splitlines()) == 16  # two batches of 8
+    monkeypatch.setattr(importance_run.ClosedLoopScore, "_keep", real)
+
+    ran = []
+    real_run = importance_run.run_episodes if not workers else None
+    if not workers:
+        monkeypatch.setattr(importance_run, "run_episodes", lambda *a, **k: ran.append(a[1]) or real_run(*a, **k))
+    assert main(["estimate", "--resume", str(cut), "-q", *extra]) == 0
+    if not workers:
+        assert sorted(e for part in ran for e in part) == list(range(16, 32))  # the kept 16 did not run again
+    whole, resumed = (json.loads((tmp_path / d / "estimate.json").read_text())["cells"][0] for d in ("whole", "cut"))
+    same = ("estimate", "low", "high", "failures", "ess", "proposal_a", "proposal_b", "ce_levels", "episodes", "steps")
+    assert {k: whole[k] for k in same} == {k: resumed[k] for k in same}
+    draws = [pq.read_table(d / "samples_cell000.parquet").to_pylist() for d in (tmp_path / "whole", cut)]
+    assert repr(draws[0]) == repr(draws[1])  # repr: NaN (no turn to Q2) reads the same on both sides
+    assert not kept.exists()  # removed once the cell is stored
