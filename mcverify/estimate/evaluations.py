@@ -8,9 +8,9 @@ for the same episodes with the same scenario values and noise tilt, in the same 
 every episode is in the file with those inputs takes its rows from the file; anything else runs.
 One JSON line per episode, appended and fsync'ed after each finished batch:
 ``{"episode": id, "values": [...], "tilt": {...} | null, "row": {...}}``. A line cut short by a
-kill is ignored. Rows hold plain Python values (floats, ints, bools, strings, lists, None), which
-JSON gives back exactly (floats by their shortest repr, NaN and infinities as JSON's extensions).
-The file is removed once the cell's result is stored.
+kill is cut off when the file is read again. Rows hold plain Python values (floats, ints, bools,
+strings, lists, None), which JSON gives back exactly (floats by their shortest repr, NaN and
+infinities as JSON's extensions). The file is removed once the cell's result is stored.
 """
 
 from __future__ import annotations
@@ -39,11 +39,12 @@ class EvaluationCache:
         self.path = Path(path)
         self._records: dict[int, dict[str, Any]] = {}
         if self.path.exists():
-            for line in self.path.read_text().splitlines():
-                try:
-                    rec = json.loads(line)
-                except ValueError:
-                    continue  # the last line of a killed append
+            text = self.path.read_text()
+            if not text.endswith("\n"):  # a killed append: drop its fragment, so the next append starts a line
+                text = text[:text.rfind("\n") + 1]
+                self.path.write_text(text)
+            for line in text.splitlines():
+                rec = json.loads(line)
                 self._records[int(rec["episode"])] = rec
 
     def __len__(self) -> int:
