@@ -291,6 +291,9 @@ def _parser() -> argparse.ArgumentParser:
                      help="run folder (a search's generation folder, e.g. SEARCH/generations/g000, is one)")
     rep.add_argument("episode_id", type=_nonneg_int, help="the episode's id (column episode_id, from 0)")
     rep.add_argument("--out", type=Path, help="folder for the trajectory and plot (default: RUN_DIR/replay)")
+    rep.add_argument("--cell", metavar="NAME",
+                     help="importance-sampling estimate folders: the cell whose final draw EPISODE_ID is "
+                          "(needed when the folder estimates several cells)")
     rep.set_defaults(func=_cmd_replay)
 
     rpt = sub.add_parser(
@@ -708,13 +711,23 @@ def _cmd_estimate_in_process(args, method: str) -> int:
 
 def _cmd_replay(args) -> int:
     from mcverify.campaign.replay import ReplayMismatch, replay
+    from mcverify.errors import RunError
+    from mcverify.estimate.replay import is_importance_folder, replay_draw
 
+    draw = is_importance_folder(args.run_dir)
     try:
-        res = replay(args.run_dir, args.episode_id, args.out)
+        if draw:
+            res = replay_draw(args.run_dir, args.episode_id, args.out, args.cell)
+        elif args.cell is not None:
+            raise RunError(f"--cell is for importance-sampling estimate folders; {args.run_dir} is not one "
+                           "(a run folder's episode ids already name the cell)")
+        else:
+            res = replay(args.run_dir, args.episode_id, args.out)
     except ReplayMismatch as err:
         print(f"mcverify: replay FAILED: {err}", file=sys.stderr)
         return EXIT_MISMATCH
-    print(f"episode {res.episode_id} reproduced exactly ({res.row['outcome']}, safe={res.row['safe']})")
+    kept = " (the values its estimate folder keeps)" if draw else ""
+    print(f"episode {res.episode_id} reproduced exactly{kept} ({res.row['outcome']}, safe={res.row['safe']})")
     if res.not_stored:
         print(f"(not compared: {len(res.not_stored)} column(s) newer than the run: {', '.join(res.not_stored)})")
     print(f"trajectory: {res.trajectory_path}")

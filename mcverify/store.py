@@ -313,6 +313,11 @@ def _not_a_run(folder: Path) -> str:
             method = read_json(folder / "estimate.json").get("spec", {}).get("method", "?")
         except (OSError, ValueError):
             method = "?"
+        if method == "importance":
+            return (f"it is an `estimate --method importance` folder, which stores its estimate (estimate.json, "
+                    "report.md) and each cell's final draws (samples_cellNNN.parquet), not episodes; `mcverify "
+                    f"replay {folder} EPISODE [--cell NAME]` replays a final draw; report and compare work on run "
+                    "folders and on `estimate --method mc` folders")
         return (f"it is an `estimate --method {method}` folder, which stores its estimate (estimate.json, "
                 "report.md), not episodes; replay, report and compare work on run folders and on "
                 "`estimate --method mc` folders")

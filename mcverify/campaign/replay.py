@@ -63,19 +63,31 @@ def replay(run_dir: Path, episode_id: int, out_dir: Path | None = None) -> Repla
             f"({stored.get(ERROR_COLUMN)}); the replay fails again: {type(exc).__name__}: {exc}"
         ) from exc
     row = result.rows[0]
-    diffs = compare_rows(stored, row)
     out_dir = Path(out_dir) if out_dir else run_dir / "replay"
+    traj_path, plot_path = write_recording(result.recordings[local], cell, row, out_dir, f"episode-{episode_id:06d}")
+    return checked(episode_id, stored, row, traj_path, plot_path)
+
+
+def write_recording(recording, cell, row: dict, out_dir: Path, stem: str) -> tuple[Path, Path]:
+    """Write a replayed episode's trajectory (``STEM.parquet``, plans in ``STEM_plans.parquet`` when it
+    has any) and its plot (``STEM.png``) into ``out_dir``; (trajectory path, plot path)."""
+    out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    recording = result.recordings[local]
     traj = recording.trajectory
-    traj_path = out_dir / f"episode-{episode_id:06d}.parquet"
+    traj_path = out_dir / f"{stem}.parquet"
     pq.write_table(pa.table(dict(traj)), traj_path)
     if recording.plans:  # unlike a run folder, no empty plans file
-        pq.write_table(pa.table(dict(recording.plans)), out_dir / f"episode-{episode_id:06d}{PLANS_SUFFIX}.parquet")
-    plot_path = out_dir / f"episode-{episode_id:06d}.png"
+        pq.write_table(pa.table(dict(recording.plans)), out_dir / f"{stem}{PLANS_SUFFIX}.parquet")
+    plot_path = out_dir / f"{stem}.png"
     from mcverify.reporting import episode_plot
 
     episode_plot.episode_figure(traj, cell, row, plot_path, plans=recording.plans or None)
+    return traj_path, plot_path
+
+
+def checked(episode_id: int, stored: dict, row: dict, traj_path: Path, plot_path: Path) -> ReplayResult:
+    """The replay's result, or :class:`ReplayMismatch` when a stored value differs from the replayed."""
+    diffs = compare_rows(stored, row)
     if diffs:
         detail = "; ".join(f"{k}: stored {a!r} vs replayed {b!r}" for k, (a, b) in diffs.items())
         raise ReplayMismatch(f"episode {episode_id} does not reproduce: {detail}")

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import functools
 import math
+import shlex
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
@@ -334,6 +335,15 @@ def resume(out: Path, campaign: Campaign, *, progress=print, executor: Executor 
     return _cells(campaign, spec, Path(out), done, progress, manifest.get("only_cells"), executor)
 
 
+def _replay_text(out: Path, result: dict[str, Any], cells: int) -> str:
+    """The replay command of a cell's first failing final draw (``mcverify.estimate.replay``), or "-"."""
+    failing = result.get("failing_draws") or []
+    if not failing:
+        return "-"
+    cell = f" --cell {shlex.quote(result['cell'])}" if cells > 1 else ""
+    return f"`mcverify replay {shlex.quote(str(out))} {failing[0]}{cell}` ({len(failing)} failing)"
+
+
 def _cells(campaign: Campaign, spec: ImportanceSpec, out: Path, done: dict[int, dict], progress,
            only: list[str] | None, executor: Executor | None = None) -> Path:
     if executor is None:
@@ -353,6 +363,7 @@ def _cells_on(campaign: Campaign, spec: ImportanceSpec, out: Path, done: dict[in
         ("largest weight share", lambda c: num(c["max_weight_share"], ".2f")),
         ("episodes", lambda c: str(c["episodes"])), ("CPU (s)", lambda c: num(c["cpu_s"], ".0f")),
         ("warnings", lambda c: "; ".join(c["warnings"]) or "-"),
+        ("replay the first failing draw", lambda c: _replay_text(out, c, len(campaign.cells))),
     ]
     steer = spec.score or ("gap" if spec.target == "collision" else "h_ef")
     tilt = spec.tilt()
@@ -399,9 +410,12 @@ def _cells_on(campaign: Campaign, spec: ImportanceSpec, out: Path, done: dict[in
                                   max_iterations=spec.max_ce_iterations, max_extra_ratio=spec.max_noise_ratio(),
                                   stream=0 if campaign.common_random_numbers else cell.index, progress=progress,
                                   on_samples=lambda t, w, f, kept=final: kept.update(theta=t, weight=w, failed=f))
-        write_samples(out, cell.index, list(bounds), score.final_rows(len(final["weight"])), final)
+        drawn = score.final_rows(len(final["weight"]))
+        write_samples(out, cell.index, list(bounds), drawn, final)
+        failing = [int(r["cell_episode"]) for r, f in zip(drawn, final["failed"], strict=False) if f]
         results[cell.index] = {"cell_index": cell.index, "cell": cell.name, "method": "importance",
                                "target": spec.target, "parameters": list(bounds), **est.as_dict(),
+                               "failing_draws": failing,
                                "episodes": score.episodes, "steps": score.steps, "cpu_s": score.cpu_s,
                                **({} if score.noise_tilt is None else {"noise_tilt": score.noise_tilt._asdict()})}
         draw_cell(out, results[cell.index], bounds, spec.alpha, final)

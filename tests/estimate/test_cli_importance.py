@@ -294,3 +294,40 @@ def test_an_interrupt_mid_cell_resumes_to_the_uninterrupted_estimate(tmp_path: P
     draws = [pq.read_table(d / "samples_cell000.parquet").to_pylist() for d in (tmp_path / "whole", cut)]
     assert repr(draws[0]) == repr(draws[1])  # repr: NaN (no turn to Q2) reads the same on both sides
     assert not kept.exists()  # removed once the cell is stored
+
+
+def test_a_final_draw_replays_bit_for_bit_with_the_fitted_noise_tilt(tmp_path: Path, campaign_file: Path, capsys):
+    """``mcverify replay ESTIMATE_DIR EPISODE`` re-simulates a final draw from its scenario values and the
+    noise tilt the final draws came from; a kept value that differs is a failed replay (exit 1)."""
+    out = tmp_path / "est"
+    assert main(["estimate", str(campaign_file), "--method", "importance", "--target", "ellipse", "--samples", "8",
+                 "--ce-samples", "8", "--ce-iterations", "1", "--seed", "4", "--noise-tilt", TILT, "-q",
+                 "--run-dir", str(out)]) == 0
+    draws = pq.read_table(out / "samples_cell000.parquet").to_pylist()
+    assert [d["cell_episode"] for d in draws] == list(range(8, 16))
+    assert len({d["noise_log_lr"] for d in draws}) > 1  # the tilt weighs each draw: a replay must redraw it
+    capsys.readouterr()
+    assert main(["replay", str(out), "13"]) == 0
+    said = capsys.readouterr().out
+    assert "episode 13 reproduced exactly (the values its estimate folder keeps)" in said
+    assert (out / "replay" / "cell000-episode-000013.parquet").is_file()
+    assert main(["replay", str(out), "3"]) == 2  # a cross-entropy episode: not kept
+    assert "not a kept final draw; the final draws are episodes 8 to 15" in capsys.readouterr().err
+    table = pq.read_table(out / "samples_cell000.parquet")
+    lr = table.column("noise_log_lr").to_pylist()
+    lr[5] += 1e-12  # the draw of episode 13
+    pq.write_table(table.set_column(table.schema.get_field_index("noise_log_lr"), "noise_log_lr", [lr]),
+                   out / "samples_cell000.parquet")
+    assert main(["replay", str(out), "13"]) == 1
+    assert "noise_log_lr: stored" in capsys.readouterr().err
+
+
+def test_the_report_names_the_replay_of_the_first_failing_draw():
+    from mcverify.estimate.importance_run import _replay_text  # noqa: PLC0415
+
+    cell = {"cell": "scenario=A,method=MPC-DC eps=0.3", "failing_draws": [131, 140]}
+    assert _replay_text(Path("/r/e st"), cell, 1) == "`mcverify replay '/r/e st' 131` (2 failing)"
+    assert _replay_text(Path("/r/e"), cell, 8) == (
+        "`mcverify replay /r/e 131 --cell 'scenario=A,method=MPC-DC eps=0.3'` (2 failing)")
+    assert _replay_text(Path("/r/e"), {"cell": "all", "failing_draws": []}, 1) == "-"
+    assert _replay_text(Path("/r/e"), {"cell": "all"}, 1) == "-"  # a folder from before the column
