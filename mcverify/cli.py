@@ -289,11 +289,14 @@ def _parser() -> argparse.ArgumentParser:
     rep = sub.add_parser("replay", help="re-simulate one stored episode and write its trajectory")
     rep.add_argument("run_dir", type=Path,
                      help="run folder (a search's generation folder, e.g. SEARCH/generations/g000, is one)")
-    rep.add_argument("episode_id", type=_nonneg_int, help="the episode's id (column episode_id, from 0)")
+    rep.add_argument("episode_id", type=_nonneg_int,
+                     help="the episode's id (column episode_id, from 0); in an importance-sampling estimate "
+                          "folder a final draw's cell_episode, in a splitting one a failing particle's place in "
+                          "the cell's failing_particles")
     rep.add_argument("--out", type=Path, help="folder for the trajectory and plot (default: RUN_DIR/replay)")
     rep.add_argument("--cell", metavar="NAME",
-                     help="importance-sampling estimate folders: the cell whose final draw EPISODE_ID is "
-                          "(needed when the folder estimates several cells)")
+                     help="estimate folders: the cell of the draw or particle (needed when the folder "
+                          "estimates several cells)")
     rep.set_defaults(func=_cmd_replay)
 
     rpt = sub.add_parser(
@@ -712,22 +715,26 @@ def _cmd_estimate_in_process(args, method: str) -> int:
 def _cmd_replay(args) -> int:
     from mcverify.campaign.replay import ReplayMismatch, replay
     from mcverify.errors import RunError
-    from mcverify.estimate.replay import is_importance_folder, replay_draw
+    from mcverify.estimate.replay import estimate_method, replay_counterexample
 
-    draw = is_importance_folder(args.run_dir)
+    method = estimate_method(args.run_dir)
     try:
-        if draw:
-            res = replay_draw(args.run_dir, args.episode_id, args.out, args.cell)
+        if method:
+            res = replay_counterexample(args.run_dir, args.episode_id, args.out, args.cell)
         elif args.cell is not None:
-            raise RunError(f"--cell is for importance-sampling estimate folders; {args.run_dir} is not one "
-                           "(a run folder's episode ids already name the cell)")
+            raise RunError(f"--cell is for estimate folders (importance sampling, splitting); {args.run_dir} is "
+                           "not one (a run folder's episode ids already name the cell)")
         else:
             res = replay(args.run_dir, args.episode_id, args.out)
     except ReplayMismatch as err:
         print(f"mcverify: replay FAILED: {err}", file=sys.stderr)
         return EXIT_MISMATCH
-    kept = " (the values its estimate folder keeps)" if draw else ""
-    print(f"episode {res.episode_id} reproduced exactly{kept} ({res.row['outcome']}, safe={res.row['safe']})")
+    if method == "splitting":
+        print(f"failing particle {res.episode_id} reproduced exactly (its running score at its last step) "
+              f"({res.row['outcome']}, safe={res.row['safe']})")
+    else:
+        kept = " (the values its estimate folder keeps)" if method else ""
+        print(f"episode {res.episode_id} reproduced exactly{kept} ({res.row['outcome']}, safe={res.row['safe']})")
     if res.not_stored:
         print(f"(not compared: {len(res.not_stored)} column(s) newer than the run: {', '.join(res.not_stored)})")
     print(f"trajectory: {res.trajectory_path}")

@@ -313,11 +313,12 @@ def _not_a_run(folder: Path) -> str:
             method = read_json(folder / "estimate.json").get("spec", {}).get("method", "?")
         except (OSError, ValueError):
             method = "?"
-        if method == "importance":
-            return (f"it is an `estimate --method importance` folder, which stores its estimate (estimate.json, "
-                    "report.md) and each cell's final draws (samples_cellNNN.parquet), not episodes; `mcverify "
-                    f"replay {folder} EPISODE [--cell NAME]` replays a final draw; report and compare work on run "
-                    "folders and on `estimate --method mc` folders")
+        if method in ("importance", "splitting"):
+            what = ("each cell's final draws (samples_cellNNN.parquet)" if method == "importance"
+                    else "each cell's failing particles (estimate.json)")
+            return (f"it is an `estimate --method {method}` folder, which stores its estimate (estimate.json, "
+                    f"report.md) and {what}, not episodes; `mcverify replay {folder} K [--cell NAME]` replays "
+                    "one; report and compare work on run folders and on `estimate --method mc` folders")
         return (f"it is an `estimate --method {method}` folder, which stores its estimate (estimate.json, "
                 "report.md), not episodes; replay, report and compare work on run folders and on "
                 "`estimate --method mc` folders")

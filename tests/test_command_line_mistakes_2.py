@@ -100,10 +100,14 @@ def test_a_search_report_says_why_it_stopped_before_its_budget(tmp_path):
 def test_folders_that_are_not_runs_say_what_they_are(tmp_path, capsys):
     est = tmp_path / "est"
     est.mkdir()
-    (est / "manifest.json").write_text('{"campaign": {"name": "x"}}')
+    (est / "manifest.json").write_text('{"campaign": {"name": "x"}, "cells": [], "estimate": {"method": "splitting"}}')
     (est / "estimate.json").write_text('{"spec": {"method": "splitting"}, "cells": []}')
-    assert cli.main(["replay", str(est), "0"]) == 2
-    assert "it is an `estimate --method splitting` folder, which stores its estimate" in capsys.readouterr().err
+    assert cli.main(["report", str(est)]) == 2
+    line = _one_error_line(capsys.readouterr().err)
+    assert "it is an `estimate --method splitting` folder, which stores its estimate" in line
+    assert f"`mcverify replay {est} K [--cell NAME]` replays one" in line
+    assert cli.main(["replay", str(est), "0"]) == 2  # replay knows the folder: nothing estimated yet
+    assert "no cell is estimated yet: nothing to replay" in _one_error_line(capsys.readouterr().err)
     fal = tmp_path / "fal"
     fal.mkdir()
     (fal / "falsify.json").write_text("{}")

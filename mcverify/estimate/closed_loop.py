@@ -51,6 +51,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -112,22 +113,35 @@ class BranchPoint:
     snapshot: EpisodeSnapshot
     scores: np.ndarray
     snapshots: dict[int, EpisodeSnapshot]
+    lineage: tuple[tuple[int, int], ...] = ()  # the parent's noise branches before the snapshot's step
 
 
 @dataclass
 class ClosedLoopPath:
     """A particle: running score after each control step from step 0, its snapshots at the steps
-    where the score rose (inherited from the parent up to the branch step), and its cost."""
+    where the score rose (inherited from the parent up to the branch step), its cost, and its
+    noise lineage: (control step, branch id) pairs, after each of which its noise came from that
+    branch of the episode key, which is what ``noise.branch_after_steps`` / ``noise.branch_ids``
+    re-simulate from step 0."""
 
     episode_id: int
     scores: np.ndarray
     snapshots: dict[int, EpisodeSnapshot]
     steps: int
     cpu_s: float
+    lineage: tuple[tuple[int, int], ...] = ()
 
     def snapshot(self, step: int) -> BranchPoint:
         return BranchPoint(self.snapshots[step], self.scores[: step + 1],
-                           {s: v for s, v in self.snapshots.items() if s <= step})
+                           {s: v for s, v in self.snapshots.items() if s <= step},
+                           tuple((s, b) for s, b in self.lineage if s < step))
+
+    def replay_record(self) -> dict[str, Any]:
+        """What re-simulates this particle as an ordinary episode (:mod:`mcverify.estimate.replay`): the
+        episode id, its noise branches, and the running score after its last step, to check."""
+        return {"episode_id": int(self.episode_id), "branch_after_steps": [s for s, _ in self.lineage],
+                "branch_ids": [b for _, b in self.lineage], "end_step": int(self.scores.size - 1),
+                "score": float(self.scores[-1])}
 
 
 @dataclass
@@ -155,10 +169,11 @@ class ClosedLoopProcess:
             return score_of(view, self.score) >= stop_level
 
         if start is None:
-            episode, prefix, snaps = int(branch_id), np.zeros(0), {}
+            episode, prefix, snaps, lineage = int(branch_id), np.zeros(0), {}, ()
             branching = Branching(keep=self._rose(-np.inf), stop=reached)
         else:
             episode, prefix, snaps = start.snapshot.episode_id, start.scores, dict(start.snapshots)
+            lineage = (*start.lineage, (int(start.snapshot.step), int(branch_id)))
             branching = Branching(start=start.snapshot, branch_id=int(branch_id), keep=self._rose(float(prefix[-1])),
                                   stop=reached)
         t0 = time.process_time()
@@ -171,7 +186,7 @@ class ClosedLoopProcess:
         self.steps += branching.steps
         if start is None:
             self.fresh_steps.append(branching.steps)
-        return ClosedLoopPath(episode, scores, snaps, branching.steps, cpu)
+        return ClosedLoopPath(episode, scores, snaps, branching.steps, cpu, lineage)
 
     @staticmethod
     def _keep_rule(score: str, best: float):

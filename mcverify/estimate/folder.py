@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import math
+import shlex
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -120,6 +121,15 @@ def write_cells_table(path: Path, spec: dict[str, Any], cells: Sequence[dict[str
     keys = list(dict.fromkeys(k for r in rows for k in r))
     table = pa.table({k: [r.get(k) for r in rows] for k in keys}) if rows else pa.table({})
     store.atomic_write(path, lambda tmp: pq.write_table(table, tmp))
+
+
+def replay_text(out: Path, result: dict[str, Any], failing: Sequence[Any] | None, first: int, cells: int) -> str:
+    """The replay command of a cell's first failing draw or particle (id ``first``), with how many
+    failed, or "-" when none did (or the folder predates the list)."""
+    if not failing:
+        return "-"
+    cell = f" --cell {shlex.quote(result['cell'])}" if cells > 1 else ""
+    return f"`mcverify replay {shlex.quote(str(out))} {first}{cell}` ({len(failing)} failing)"
 
 
 def estimate_text(x: float | None) -> str:

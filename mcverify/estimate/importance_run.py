@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import functools
 import math
-import shlex
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
@@ -338,10 +337,7 @@ def resume(out: Path, campaign: Campaign, *, progress=print, executor: Executor 
 def _replay_text(out: Path, result: dict[str, Any], cells: int) -> str:
     """The replay command of a cell's first failing final draw (``mcverify.estimate.replay``), or "-"."""
     failing = result.get("failing_draws") or []
-    if not failing:
-        return "-"
-    cell = f" --cell {shlex.quote(result['cell'])}" if cells > 1 else ""
-    return f"`mcverify replay {shlex.quote(str(out))} {failing[0]}{cell}` ({len(failing)} failing)"
+    return folder.replay_text(out, result, failing, failing[0] if failing else 0, cells)
 
 
 def _cells(campaign: Campaign, spec: ImportanceSpec, out: Path, done: dict[int, dict], progress,

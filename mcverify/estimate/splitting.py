@@ -92,6 +92,9 @@ class AMSRun:
     reached: int  # particles at the failure level at the end
     killed: tuple[int, ...] = ()  # particles killed at each iteration (> k with ties)
     capped: bool = False  # stopped by max_iterations before the level reached the failure set: estimate NaN
+    #: the particles at the failure level at the end, as their process describes them for a replay
+    #: (``path.replay_record()``; empty for a process whose paths have none)
+    failing: tuple[dict[str, Any], ...] = ()
 
 
 def ams(process: BranchingProcess, *, n: int, k: int = 1, failure_level: float, seed: int,
@@ -140,7 +143,9 @@ def ams(process: BranchingProcess, *, n: int, k: int = 1, failure_level: float, 
     # a capped run stopped before its levels reached the failure set: weight * reached / n is not an
     # unbiased estimate (it reads low, often 0), so it gives none
     value = math.nan if capped else math.exp(log_weight) * reached / n
-    return AMSRun(value, iterations, levels, n, k, steps, False, reached, tuple(killed_counts), capped)
+    failing = tuple(p.replay_record() for p in particles
+                    if float(p.scores[-1]) >= failure_level and hasattr(p, "replay_record"))
+    return AMSRun(value, iterations, levels, n, k, steps, False, reached, tuple(killed_counts), capped, failing)
 
 
 @dataclass(frozen=True)
@@ -228,6 +233,11 @@ def t_interval(values: np.ndarray, level: float = 0.95) -> tuple[float, float, f
         runs = f"{values.size} uncapped runs" if capped else f"{values.size} runs"
         warnings.append(f"{zero} of {runs} estimate 0 (extinct: every particle killed at one level): "
                         "the t interval is unreliable; use more particles")
+    if mean > 0 and np.all(values == values[0]):
+        # with few particles an AMS run's estimate takes few values ((1 - K/n)^levels * reached / n), so
+        # runs can agree exactly: a zero-width interval then says nothing about the estimate's spread
+        warnings.append(f"all {values.size} runs gave the same estimate {values[0]:.3g}: the t interval has width "
+                        "0 and means nothing; add runs or particles")
     positive = values[values > 0]
     if positive.size >= 2 and positive.max() > SPREAD_WARNING * positive.min():
         warnings.append(f"the runs' estimates span {positive.max() / positive.min():.0f}x "

@@ -208,7 +208,8 @@ def cell_result(index: int, name: str, spec: SplittingSpec, est: splitting.Split
                 runs: list[splitting.AMSRun], process: _Cost | ClosedLoopProcess) -> dict[str, Any]:
     episode_steps = sum(process.fresh_steps) / max(1, len(process.fresh_steps))
     crude = (splitting.crude_steps_for(est.estimate, est.relative_halfwidth, episode_steps, spec.level)
-             if est.estimate > 0 and math.isfinite(est.relative_halfwidth) else math.nan)
+             if est.estimate > 0 and math.isfinite(est.relative_halfwidth) and est.relative_halfwidth > 0
+             else math.nan)  # a zero-width interval (runs that agree exactly) has no crude equivalent
     if len(runs) < FEW_RUNS:
         est = dataclasses.replace(est, warnings=[*est.warnings, (
             f"only {len(runs)} AMS runs: on the closed loop the t interval of fewer than {FEW_RUNS} runs covered "
@@ -217,6 +218,9 @@ def cell_result(index: int, name: str, spec: SplittingSpec, est: splitting.Split
         "cell_index": index, "cell": name, "method": "splitting", "target": spec.target, **est.as_dict(),
         "iterations": [r.iterations for r in runs], "extinct": [r.extinct for r in runs],
         "capped": [r.capped for r in runs],
+        # every particle at the failure level at the end of an uncapped run, in run order: what
+        # `mcverify replay DIR K` re-simulates (K its place in this list)
+        "failing_particles": [{"run": i, **f} for i, r in enumerate(runs) if not r.capped for f in r.failing],
         "last_level": [r.levels[-1] if r.levels else None for r in runs],  # how close each run got (score)
         "cpu_s": process.cpu_s, "steps": process.steps,
         "mean_episode_steps": episode_steps, "crude_steps_same_width": crude,
@@ -224,14 +228,18 @@ def cell_result(index: int, name: str, spec: SplittingSpec, est: splitting.Split
     }
 
 
-COLUMNS: list[folder.Column] = [
-    ("cell", lambda c: c["cell"]), ("estimate", lambda c: folder.estimate_text(c["estimate"])),
-    ("interval", lambda c: folder.interval_text(c["low"], c["high"])),
-    ("rel. half-width", lambda c: num(c["relative_halfwidth"], ".2f")), ("control steps", lambda c: str(c["steps"])),
-    ("CPU (s)", lambda c: num(c["cpu_s"], ".0f")),
-    ("crude MC steps, same width", lambda c: num(c["crude_steps_same_width"])),
-    ("ratio", lambda c: num(c["steps_ratio_vs_crude"], ".2f")), ("warnings", lambda c: "; ".join(c["warnings"]) or "-"),
-]
+def columns(out: Path, cells: int) -> list[folder.Column]:
+    """The report's table: one row per cell (``cells``: how many the campaign has, for --cell)."""
+    return [
+        ("cell", lambda c: c["cell"]), ("estimate", lambda c: folder.estimate_text(c["estimate"])),
+        ("interval", lambda c: folder.interval_text(c["low"], c["high"])),
+        ("rel. half-width", lambda c: num(c["relative_halfwidth"], ".2f")),
+        ("control steps", lambda c: str(c["steps"])), ("CPU (s)", lambda c: num(c["cpu_s"], ".0f")),
+        ("crude MC steps, same width", lambda c: num(c["crude_steps_same_width"])),
+        ("ratio", lambda c: num(c["steps_ratio_vs_crude"], ".2f")),
+        ("warnings", lambda c: "; ".join(c["warnings"]) or "-"),
+        ("replay a failing particle", lambda c: folder.replay_text(out, c, c.get("failing_particles"), 0, cells)),
+    ]
 
 
 def _write(out: Path, spec: SplittingSpec, campaign: Campaign, results: dict[int, dict]) -> Path:
@@ -239,4 +247,4 @@ def _write(out: Path, spec: SplittingSpec, campaign: Campaign, results: dict[int
              f"{spec.replicates} independent runs of {spec.particles} particles (k = {spec.k}); the interval is "
              f"asymptotic ({spec.level:.0%} Student t on the runs' estimates).")
     return folder.write(out, f"mcverify splitting estimate: {campaign.name}", intro,
-                        {"method": "splitting", **asdict(spec)}, results, COLUMNS)
+                        {"method": "splitting", **asdict(spec)}, results, columns(out, len(campaign.cells)))

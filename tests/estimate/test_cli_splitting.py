@@ -107,3 +107,29 @@ def test_splitting_runs_on_local_workers_give_the_same_estimate(tmp_path: Path):
     assert len(a) == len(b) == 1
     drop = lambda c: {k: v for k, v in c.items() if k != "cpu_s"}  # noqa: E731 - CPU time is the machine's
     assert drop(a[0]) == drop(b[0]) and len(a[0]["iterations"]) == 2
+
+
+@pytest.mark.slow  # two AMS runs on the 8 s validation cell (about 50 s) and two replays
+def test_a_failing_particle_replays_from_its_noise_lineage(tmp_path: Path, capsys):
+    """Every particle at the failure level is kept with its lineage (episode id, noise branches) and
+    `mcverify replay DIR K` re-simulates it from step 0 to the same running score, bit for bit."""
+    campaign = Path(__file__).resolve().parents[2] / "campaigns" / "rare_validation_10hz.toml"
+    out = tmp_path / "spl"
+    assert main(["estimate", str(campaign), "--method", "splitting", "--target", "ellipse", "--score", "h_ef_run",
+                 "--particles", "4", "--replicates", "2", "--seed", "3", "--set", "noise.scale=3",
+                 "--set", "barrier.epsilon=0", "--run-dir", str(out), "-q"]) == 0
+    (cell,) = json.loads((out / "estimate.json").read_text())["cells"]
+    failing = cell["failing_particles"]
+    assert len(failing) == 8 and all(p["score"] >= 0 and p["branch_after_steps"] for p in failing)
+    assert "`mcverify replay " in (out / "report.md").read_text()
+    capsys.readouterr()
+    assert main(["replay", str(out), "5"]) == 0
+    assert "failing particle 5 reproduced exactly" in capsys.readouterr().out
+    assert (out / "replay" / "cell000-particle-0005.png").stat().st_size > 0
+    assert main(["replay", str(out), "8"]) == 2
+    assert "has 8 failing particles (0 to 7), not 8" in capsys.readouterr().err
+    est = json.loads((out / "estimate.json").read_text())
+    est["cells"][0]["failing_particles"][5]["score"] += 1e-12
+    (out / "estimate.json").write_text(json.dumps(est))
+    assert main(["replay", str(out), "5"]) == 1
+    assert "particle 5 does not reproduce" in capsys.readouterr().err

@@ -138,3 +138,40 @@ def test_the_step_views_carry_the_planners_current_run(repo_root):
     assert np.all((runs[1:] == 0) | (runs[1:] == runs[:-1] + 1))
     assert np.array_equal(np.diff(totals), (runs[1:] > 0).astype(int))
     assert runs.max() == row["both_infeasible_longest_run"] and totals[-1] == row["both_infeasible_steps"]
+
+
+def _replayed_scores(proc: ClosedLoopProcess, record: dict) -> np.ndarray:
+    """The running score of ``record``'s particle re-simulated from step 0 as an ordinary episode with
+    its noise branches scheduled (what ``mcverify replay`` of a splitting folder does)."""
+    import dataclasses  # noqa: PLC0415
+
+    from mcverify.campaign.spec import apply_overrides  # noqa: PLC0415
+    from mcverify.episode.rollout import run_episodes  # noqa: PLC0415
+    from mcverify.episode.snapshot import Branching  # noqa: PLC0415
+
+    lineage = {"noise.branch_after_steps": record["branch_after_steps"], "noise.branch_ids": record["branch_ids"]}
+    cell = dataclasses.replace(proc.cell, params=apply_overrides(proc.cell.params, lineage, "test"))
+    watch = Branching()
+    run_episodes(cell, [record["episode_id"]], proc.seed, proc.planner, branching=watch)
+    return np.maximum.accumulate([score_of(v, proc.score) for v in watch.views])
+
+
+def test_a_particles_lineage_replays_it_from_step_0(process):
+    """A branch of a branch (later than its parent's branch step, and earlier, on an inherited snapshot)
+    carries the noise branches that re-simulate it bit for bit as an ordinary episode."""
+    proc = process()
+    parent = proc.run(None, 4, np.inf)
+    t = splitting.first_step_above(parent, 0.5 * (parent.scores[0] + parent.scores[-1]))
+    child = proc.run(parent.snapshot(t), 77, np.inf)
+    later = proc.run(child.snapshot(splitting.first_step_above(child, 0.5 * (child.scores[t] + child.scores[-1]))),
+                     91, np.inf)
+    earlier_step = min(child.snapshots)
+    assert earlier_step < t
+    earlier = proc.run(child.snapshot(earlier_step), 93, np.inf)
+    assert parent.lineage == () and child.lineage == ((t, 77),)
+    assert later.lineage[0] == (t, 77) and later.lineage[1][1] == 91 and later.lineage[1][0] > t
+    assert earlier.lineage == ((earlier_step, 93),)  # the child's own branch came after: not inherited
+    for path in (parent, child, later, earlier):
+        record = path.replay_record()
+        assert record["end_step"] == path.scores.size - 1 and record["score"] == path.scores[-1]
+        np.testing.assert_array_equal(_replayed_scores(proc, record)[: path.scores.size], path.scores)

@@ -173,7 +173,7 @@ def test_a_cell_without_an_estimate_is_null_in_strict_json_and_not_estimated_in_
     cost = splitting_run._Cost(1.0, 200, [80, 80])
     result = splitting_run.cell_result(0, "c0", spec, splitting.from_runs(runs), runs, cost)
     assert result["capped"] == [True, False] and result["extinct"] == [False, False]
-    folder.write(tmp_path, "t", "intro", {"method": "splitting"}, {0: result}, splitting_run.COLUMNS)
+    folder.write(tmp_path, "t", "intro", {"method": "splitting"}, {0: result}, splitting_run.columns(tmp_path, 1))
 
     def no_constant(name: str):
         raise AssertionError(f"{name} in estimate.json")
@@ -184,3 +184,20 @@ def test_a_cell_without_an_estimate_is_null_in_strict_json_and_not_estimated_in_
     (row,) = pq.read_table(tmp_path / "cells.parquet").to_pylist()
     assert row["estimate"] is None and row["capped"] == "True; False"
     assert "| c0 | not estimated | - |" in (tmp_path / "report.md").read_text()
+
+
+def test_runs_that_agree_exactly_get_a_warning_and_no_crude_ratio(tmp_path):
+    """Two AMS runs of 4 particles gave 0.0033 each on the closed loop (stop 41): a zero-width interval,
+    which once divided by zero in the crude comparison."""
+    from mcverify.estimate import splitting_run  # noqa: PLC0415
+
+    runs = [_run(0.0033), _run(0.0033)]
+    est = splitting.from_runs(runs)
+    assert est.low == est.high == est.estimate and est.relative_halfwidth == 0.0
+    assert any(w.startswith("all 2 runs gave the same estimate 0.0033") for w in est.warnings)
+    spec = splitting_run.SplittingSpec("gap", particles=4, replicates=2)
+    result = splitting_run.cell_result(0, "c0", spec, est, runs, splitting_run._Cost(1.0, 200, [80, 80]))
+    assert math.isnan(result["crude_steps_same_width"]) and math.isnan(result["steps_ratio_vs_crude"])
+    assert splitting.t_interval(np.array([0.0, 0.0]))[4] == [
+        "2 of 2 runs estimate 0 (extinct: every particle killed at one level): the t interval is unreliable; "
+        "use more particles"]  # all-zero runs keep their own warning only
