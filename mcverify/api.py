@@ -118,11 +118,22 @@ def resume(run_dir: PathLike, *, executor: str = "local", workers: int | None = 
     return Run(Path(run_dir))
 
 
-def replay(run_dir: PathLike, episode_id: int, out_dir: PathLike | None = None) -> ReplayResult:
-    """Re-simulate one stored episode; raises ``ReplayMismatch`` if any stored metric differs."""
+def replay(run_dir: PathLike, episode_id: int, out_dir: PathLike | None = None, *,
+           cell: str | None = None) -> ReplayResult:
+    """Re-simulate one stored episode; raises ``ReplayMismatch`` if any stored metric differs. In an
+    importance-sampling or splitting estimate folder ``episode_id`` is a final draw's ``cell_episode``
+    or a failing particle's place in ``failing_particles``, and ``cell`` names its cell where the
+    folder estimates several (:mod:`mcverify.estimate.replay`)."""
     from mcverify.campaign.replay import replay as _replay
+    from mcverify.estimate.replay import estimate_method, replay_counterexample
 
-    return _replay(Path(run_dir), episode_id, Path(out_dir) if out_dir is not None else None)
+    out = Path(out_dir) if out_dir is not None else None
+    if estimate_method(Path(run_dir)):
+        return replay_counterexample(Path(run_dir), episode_id, out, cell)
+    if cell is not None:
+        raise RunError(f"--cell is for estimate folders (importance sampling, splitting); {run_dir} is not one "
+                       "(a run folder's episode ids already name the cell)")
+    return _replay(Path(run_dir), episode_id, out)
 
 
 def report(run_dir: PathLike, *, level: float = 0.95, method: str = "clopper-pearson") -> Path:

@@ -713,19 +713,13 @@ def _cmd_estimate_in_process(args, method: str) -> int:
 
 
 def _cmd_replay(args) -> int:
-    from mcverify.campaign.replay import ReplayMismatch, replay
-    from mcverify.errors import RunError
-    from mcverify.estimate.replay import estimate_method, replay_counterexample
+    from mcverify import api
+    from mcverify.campaign.replay import ReplayMismatch
+    from mcverify.estimate.replay import estimate_method
 
     method = estimate_method(args.run_dir)
     try:
-        if method:
-            res = replay_counterexample(args.run_dir, args.episode_id, args.out, args.cell)
-        elif args.cell is not None:
-            raise RunError(f"--cell is for estimate folders (importance sampling, splitting); {args.run_dir} is "
-                           "not one (a run folder's episode ids already name the cell)")
-        else:
-            res = replay(args.run_dir, args.episode_id, args.out)
+        res = api.replay(args.run_dir, args.episode_id, args.out, cell=args.cell)
     except ReplayMismatch as err:
         print(f"mcverify: replay FAILED: {err}", file=sys.stderr)
         return EXIT_MISMATCH
