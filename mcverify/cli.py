@@ -288,7 +288,8 @@ def _parser() -> argparse.ArgumentParser:
 
     rep = sub.add_parser("replay", help="re-simulate one stored episode and write its trajectory")
     rep.add_argument("run_dir", type=Path,
-                     help="run folder (a search's generation folder, e.g. SEARCH/generations/g000, is one)")
+                     help="run folder (a search's generation folder, e.g. SEARCH/generations/g000, is one), or "
+                          "an importance-sampling or splitting estimate folder")
     rep.add_argument("episode_id", type=_nonneg_int,
                      help="the episode's id (column episode_id, from 0); in an importance-sampling estimate "
                           "folder a final draw's cell_episode, in a splitting one a failing particle's place in "
