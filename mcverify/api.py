@@ -16,6 +16,7 @@ Example::
 
 from __future__ import annotations
 
+import numbers
 import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -127,6 +128,9 @@ def replay(run_dir: PathLike, episode_id: int, out_dir: PathLike | None = None, 
     from mcverify.campaign.replay import replay as _replay
     from mcverify.estimate.replay import estimate_method, replay_counterexample
 
+    if isinstance(episode_id, bool) or not isinstance(episode_id, numbers.Integral) or episode_id < 0:
+        raise RunError(f"the episode id must be an integer >= 0, not {episode_id!r}")
+    episode_id = int(episode_id)
     out = Path(out_dir) if out_dir is not None else None
     if estimate_method(Path(run_dir)):
         return replay_counterexample(Path(run_dir), episode_id, out, cell)

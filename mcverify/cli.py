@@ -679,6 +679,9 @@ def _cmd_estimate_in_process(args, method: str) -> int:
 
         if args.out is not None or args.new_run_dir is not None:
             raise RunError("--resume writes into RUN_DIR: leave out --out and --run-dir")
+        if args.campaign or args.seed is not None or args.settings:
+            raise RunError("--resume keeps the estimate's campaign, seed and settings: give only RUN_DIR (and the "
+                           "executor)")
         manifest = store.read_manifest(args.resume)
         camp = manifest["campaign"]
         raw = runner.pin_changed_defaults(camp["raw"], manifest.get("cells", []))  # a changed default keeps the run's
@@ -704,8 +707,10 @@ def _cmd_estimate_in_process(args, method: str) -> int:
             raise RunError(str(err)) from None
         campaign = load_campaign(args.campaign, seed=args.seed, settings=args.settings)
         folder.check_noise_is_drawn(campaign)
+        if method == "importance":
+            importance_run.check_cells_have_ranges(campaign, args.cell or None)  # before any folder is made
         out = args.run_dir = new_folder(args, lambda parent: runner.default_run_dir(campaign, parent))
-        log(runner.describe(campaign))
+        log(runner.describe(campaign, episodes=False))  # the estimator chooses how many episodes
         log(f"estimate folder: {out}")
         path = module.run(campaign, spec, out, progress=log, cells=args.cell or None, **_executor_for(args, method))
     print(path.read_text())

@@ -456,9 +456,13 @@ def _session(executor: Executor, *, resumed: bool) -> dict[str, Any]:
     return {"started_utc": provenance.now_utc(), "resumed": resumed, **executor.describe()}
 
 
-def describe(campaign: Campaign) -> str:
-    lines = [f"{campaign.name}: {len(campaign.cells)} cells, {campaign.total_episodes} episodes"]
+def describe(campaign: Campaign, *, episodes: bool = True) -> str:
+    """The campaign and its cells in a few lines; ``episodes=False`` leaves out the episode counts (an
+    estimator that chooses its own episodes)."""
+    count = f", {campaign.total_episodes} episodes" if episodes else ""
+    lines = [f"{campaign.name}: {len(campaign.cells)} cells{count}"]
     for c in campaign.cells:
-        lines.append(f"  [{c.index}] {c.name}  episodes={c.episodes} eps={c.epsilon:.3g} lambda0={c.lambda0:.4g}")
+        each = f"  episodes={c.episodes}" if episodes else ""
+        lines.append(f"  [{c.index}] {c.name}{each} eps={c.epsilon:.3g} lambda0={c.lambda0:.4g}")
     return "\n".join(lines)
 

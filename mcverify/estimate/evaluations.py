@@ -21,6 +21,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from mcverify.errors import RunError
+
 
 def cache_file(out: Path, cell_index: int) -> Path:
     """Where cell ``cell_index`` keeps its evaluated episodes while it runs."""
@@ -43,9 +45,15 @@ class EvaluationCache:
             if not text.endswith("\n"):  # a killed append: drop its fragment, so the next append starts a line
                 text = text[:text.rfind("\n") + 1]
                 self.path.write_text(text)
-            for line in text.splitlines():
-                rec = json.loads(line)
-                self._records[int(rec["episode"])] = rec
+            for number, line in enumerate(text.splitlines(), start=1):
+                try:
+                    rec = json.loads(line)
+                    if not isinstance(rec["row"], dict) or not isinstance(rec["values"], list) or "tilt" not in rec:
+                        raise ValueError("not an evaluated episode")
+                    self._records[int(rec["episode"])] = rec
+                except (ValueError, KeyError, TypeError) as err:
+                    raise RunError(f"{self.path} line {number} is damaged ({err}); delete the file to run the cell "
+                                   "in progress from its start") from None
 
     def __len__(self) -> int:
         return len(self._records)

@@ -318,10 +318,20 @@ class ImportanceSpec:
         return 1.0 if tilt is None else tilt.max_ratio()
 
 
+def check_cells_have_ranges(campaign: Campaign, cells: Sequence[str] | None = None) -> None:
+    """Refuse a campaign with a cell to estimate (all, or those named in ``cells``) that draws no
+    scenario parameter from a range: importance sampling has nothing to sample there."""
+    for cell in campaign.cells:
+        if (not cells or cell.name in cells) and not scenario_bounds(cell):
+            raise RunError(f"cell {cell.name} draws no scenario parameter from a range: nothing to sample "
+                           "(give e.g. scenario.front_accel_range_mps2)")
+
+
 def run(campaign: Campaign, spec: ImportanceSpec, out: Path, *, progress=print,
         cells: list[str] | None = None, executor: Executor | None = None) -> Path:
     """Estimate every cell of ``campaign`` (or those named in ``cells``) into the new folder ``out``.
     executor: where the batches of episodes go (default: this process, one after the other)."""
+    check_cells_have_ranges(campaign, cells)
     folder.create(out, campaign, {"method": "importance", **asdict(spec)}, cells)
     return _cells(campaign, spec, Path(out), {}, progress, cells, executor)
 
@@ -386,9 +396,6 @@ def _cells_on(campaign: Campaign, spec: ImportanceSpec, out: Path, done: dict[in
         if cell.index in results or (only and cell.name not in only):
             continue
         bounds = scenario_bounds(cell)
-        if not bounds:
-            raise RunError(f"cell {cell.name} draws no scenario parameter from a range: nothing to sample "
-                           "(give e.g. scenario.front_accel_range_mps2)")
         progress(f"cell {cell.name}: importance sampling over {', '.join(bounds)}")
         planner = executors.solver_for(cell.params) if executor is None else None
         cache = EvaluationCache(evaluations.cache_file(out, cell.index))

@@ -7,7 +7,9 @@ campaign seed, the cell, its id, its scenario values (the ``sample_*`` columns) 
 final draws came from (``noise_tilt`` of the cell in ``estimate.json``, none when the noise stayed
 nominal), exactly as :func:`mcverify.estimate.importance_run.scenario_unit` ran it; every value the
 file kept (:data:`~mcverify.estimate.importance_run.SAMPLE_COLUMNS` and the scenario values) is
-compared bit for bit. The cross-entropy iterations' episodes are not kept.
+compared bit for bit, and so is its weight, recomputed from the fitted proposal (``proposal_a``,
+``proposal_b``), the defensive share and the replayed noise ratio. The cross-entropy iterations'
+episodes are not kept.
 
 **Splitting**: K is the place of a particle in the cell's ``failing_particles`` (every particle at
 the failure level at the end of an uncapped AMS run, in run order). A particle is its fresh episode
@@ -16,16 +18,22 @@ re-simulate from step 0 as an ordinary episode; the check is its running score a
 bit for bit (a particle ended there, at the failure level: the rest of the replayed episode is
 simulated on, as any episode).
 
+A folder whose kept values cannot be read as written (a missing column or field, a wrong type, an
+unreadable file) gives one :class:`~mcverify.errors.RunError` naming it, not a traceback.
+
 Either writes the trajectory and plot as a run's replay does.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
 import pyarrow.parquet as pq
 
 from mcverify import store
@@ -38,7 +46,8 @@ from mcverify.episode.snapshot import Branching
 from mcverify.errors import RunError
 from mcverify.estimate import folder
 from mcverify.estimate.closed_loop import score_of
-from mcverify.estimate.importance_run import samples_file
+from mcverify.estimate.importance import Proposal
+from mcverify.estimate.importance_run import samples_file, scenario_bounds
 from mcverify.sim.noise import NoiseTilt
 
 
@@ -61,26 +70,59 @@ def replay_counterexample(est_dir: Path, k: int, out_dir: Path | None = None,
     return replay_draw(est_dir, k, out_dir, cell_name)
 
 
+@contextlib.contextmanager
+def _reading(est_dir: Path):
+    """Turn what a damaged folder raises while its kept values are read into one clear error."""
+    try:
+        yield
+    except (KeyError, TypeError, ValueError, IndexError, pa.ArrowException) as err:
+        raise RunError(f"{est_dir}: its kept estimate is damaged ({type(err).__name__}: {err}); estimate the cell "
+                       "again to replay it") from None
+
+
 def replay_draw(est_dir: Path, episode_id: int, out_dir: Path | None = None,
                 cell_name: str | None = None) -> ReplayResult:
     """Re-simulate final draw ``episode_id`` of cell ``cell_name`` (may be left out when one cell is
-    estimated) and check it; the trajectory and plot go to ``out_dir`` (default ESTIMATE_DIR/replay)."""
+    estimated) and check it, its weight recomputed from the fitted proposal as well; the trajectory
+    and plot go to ``out_dir`` (default ESTIMATE_DIR/replay)."""
     est_dir = Path(est_dir)
-    result = _cell_result(est_dir, cell_name)
-    stored = _stored_draw(est_dir, result, episode_id)
-    campaign = campaign_from_manifest(store.read_manifest(est_dir))
-    cell = campaign.cells[result["cell_index"]]
-    scenario = {name: stored[f"sample_{name}"] for name in result["parameters"]}
-    tilt = result.get("noise_tilt")
+    manifest = store.read_manifest(est_dir)
+    with _reading(est_dir):
+        result = _cell_result(est_dir, cell_name)
+        stored = _stored_draw(est_dir, result, episode_id)
+        campaign = campaign_from_manifest(manifest)
+        cell = campaign.cells[result["cell_index"]]
+        scenario = {name: float(stored[f"sample_{name}"]) for name in result["parameters"]}
+        tilt = result.get("noise_tilt")
+        noise_tilt = None if tilt is None else NoiseTilt(**{**tilt, "theta": tuple(tilt["theta"])})
+        weigh = _weight_of(cell, result, float(manifest["estimate"]["alpha"]))
     replayed = run_episodes(cell, [episode_id], campaign.seed, executors.solver_for(cell.params),
-                            scenarios={episode_id: scenario}, record=True,
-                            noise_tilt=None if tilt is None else NoiseTilt(**{**tilt, "theta": tuple(tilt["theta"])}))
+                            scenarios={episode_id: scenario}, record=True, noise_tilt=noise_tilt)
     row = replayed.rows[0]
     stem = f"cell{result['cell_index']:03d}-episode-{episode_id:06d}"
     traj, plot = write_recording(replayed.recordings[episode_id], cell, row,
                                  Path(out_dir) if out_dir else est_dir / "replay", stem)
+    # the weight is no simulated value but the estimate's factor: recomputed from the proposal (the same
+    # operations as the estimator's, so bit for bit) with the replayed noise ratio
+    row = {**row, "weight": weigh([scenario[n] for n in result["parameters"]], row.get("noise_log_lr"))}
     # the folder keeps a few of a row's values: the others are not "newer than the run"
     return dataclasses.replace(checked(episode_id, stored, row, traj, plot), not_stored=())
+
+
+def _weight_of(cell, result: dict[str, Any], alpha: float):
+    """weight(theta, noise log ratio) of a final draw: nominal over the defensive mixture, as
+    :func:`mcverify.estimate.importance.estimate` weighs it."""
+    nominal = Proposal.nominal(list(scenario_bounds(cell).values()))
+    fitted = Proposal(nominal.low, nominal.high, np.array(result["proposal_a"], dtype=float),
+                      np.array(result["proposal_b"], dtype=float))
+
+    def weigh(theta: list[float], log_lr: float | None) -> float:
+        point = np.array([theta], dtype=float)
+        log_p = nominal.logpdf(point)
+        log_q = np.logaddexp(math.log(alpha) + log_p, math.log1p(-alpha) + fitted.logpdf(point))
+        return float(np.exp(log_p - log_q + (log_lr or 0.0))[0])
+
+    return weigh
 
 
 def _cell_result(est_dir: Path, cell_name: str | None) -> dict[str, Any]:
@@ -117,28 +159,20 @@ def replay_particle(est_dir: Path, k: int, out_dir: Path | None = None,
     """Re-simulate failing particle ``k`` of a splitting estimate's cell and check its running score;
     the trajectory and plot go to ``out_dir`` (default ESTIMATE_DIR/replay)."""
     est_dir = Path(est_dir)
-    result = _cell_result(est_dir, cell_name)
-    particles = result.get("failing_particles")
-    if particles is None:
-        raise RunError(f"{est_dir}: cell {result['cell']} was estimated before failing particles were kept "
-                       "(no failing_particles in estimate.json)")
-    if not particles:
-        raise RunError(f"{est_dir}: no particle of cell {result['cell']} reached the failure level: nothing to replay")
-    if k >= len(particles):
-        raise RunError(f"{est_dir}: cell {result['cell']} has {len(particles)} failing particles (0 to "
-                       f"{len(particles) - 1}), not {k}")
-    particle = particles[k]
     manifest = store.read_manifest(est_dir)
-    campaign = campaign_from_manifest(manifest)
-    cell = campaign.cells[result["cell_index"]]
-    lineage = {"noise.branch_after_steps": particle["branch_after_steps"], "noise.branch_ids": particle["branch_ids"]}
-    cell = dataclasses.replace(cell, params=apply_overrides(cell.params, lineage, f"particle {k}"))
+    with _reading(est_dir):
+        result = _cell_result(est_dir, cell_name)
+        particle = _failing_particle(est_dir, result, k)
+        campaign = campaign_from_manifest(manifest)
+        lineage = {"noise.branch_after_steps": particle["branch_after_steps"],
+                   "noise.branch_ids": particle["branch_ids"]}
+        cell = campaign.cells[result["cell_index"]]
+        cell = dataclasses.replace(cell, params=apply_overrides(cell.params, lineage, f"particle {k}"))
+        score = manifest["estimate"]["score"]
     planner = executors.solver_for(cell.params)
-    episode = int(particle["episode_id"])
-    score = manifest["estimate"]["score"]
+    episode, end = particle["episode_id"], particle["end_step"]
     watch = Branching()
     run_episodes(cell, [episode], campaign.seed, planner, branching=watch)
-    end = int(particle["end_step"])
     reached = max((score_of(v, score) for v in watch.views if v.step <= end), default=float("-inf"))
     replayed = run_episodes(cell, [episode], campaign.seed, planner, record=True)
     row = replayed.rows[0]
@@ -149,3 +183,24 @@ def replay_particle(est_dir: Path, k: int, out_dir: Path | None = None,
         raise ReplayMismatch(f"particle {k} does not reproduce: its running {score} score after step {end} was "
                              f"{particle['score']!r}, replayed {reached!r}")
     return ReplayResult(k, traj, plot, row, ())
+
+
+def _failing_particle(est_dir: Path, result: dict[str, Any], k: int) -> dict[str, Any]:
+    """Failing particle ``k`` of a cell result, its fields checked (a damaged record is a RunError)."""
+    particles = result.get("failing_particles")
+    if particles is None:
+        raise RunError(f"{est_dir}: cell {result['cell']} was estimated before failing particles were kept "
+                       "(no failing_particles in estimate.json)")
+    if not particles:
+        raise RunError(f"{est_dir}: no particle of cell {result['cell']} reached the failure level: nothing to replay")
+    if k >= len(particles):
+        raise RunError(f"{est_dir}: cell {result['cell']} has {len(particles)} failing particles (0 to "
+                       f"{len(particles) - 1}), not {k}")
+    p = particles[k]
+    steps, ids = p["branch_after_steps"], p["branch_ids"]
+    whole = [p["episode_id"], p["end_step"], *steps, *ids]
+    if (not all(isinstance(x, int) and not isinstance(x, bool) and x >= 0 for x in whole)
+            or len(steps) != len(ids) or not isinstance(p["score"], (int, float))):
+        raise ValueError(f"failing particle {k} is not (episode id, end step, branch steps and ids: integers >= 0, "
+                         "as many ids as steps; a score)")
+    return p

@@ -12,6 +12,7 @@ import pyarrow.parquet as pq
 import pytest
 
 import mcverify
+import mcverify.errors
 from mcverify.campaign import executors
 from mcverify.campaign.spec import campaign_from_dict
 from mcverify.cli import main
@@ -74,12 +75,16 @@ def test_importance_cli_writes_its_estimate_and_resumes(tmp_path: Path, campaign
     before = (out / "estimate.json").read_text()
     assert main(["estimate", "--resume", str(out)]) == 0
     assert (out / "estimate.json").read_text() == before
+    for extra in (["--set", "noise.scale=2"], ["--seed", "3"]):  # the folder keeps its model and seed
+        assert main(["estimate", "--resume", str(out), *extra]) == 2
+        assert "--resume keeps the estimate's campaign, seed and settings" in capsys.readouterr().err
     assert json.loads((out / "manifest.json").read_text())["finished_utc"] == finished
 
 
 def test_a_cell_without_ranges_is_refused(tmp_path: Path, capsys):
     assert main(["estimate", str(FIXTURE), "--method", "importance", "--run-dir", str(tmp_path / "x")]) == 2
     assert "draws no scenario parameter from a range" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()  # refused before any folder is made, so a retry is not blocked
 
 
 def test_the_score_that_steers_cross_entropy_is_the_splitting_score_at_the_episode_end():
@@ -320,6 +325,22 @@ def test_a_final_draw_replays_bit_for_bit_with_the_fitted_noise_tilt(tmp_path: P
                    out / "samples_cell000.parquet")
     assert main(["replay", str(out), "13"]) == 1
     assert "noise_log_lr: stored" in capsys.readouterr().err
+    lr[5] -= 1e-12
+    weight = table.column("weight").to_pylist()
+    weight[5] *= 2  # the estimate is mean(weight * failed): a weight that the proposal does not give is caught
+    table = table.set_column(table.schema.get_field_index("noise_log_lr"), "noise_log_lr", [lr])
+    pq.write_table(table.set_column(table.schema.get_field_index("weight"), "weight", [weight]),
+                   out / "samples_cell000.parquet")
+    assert main(["replay", str(out), "13"]) == 1
+    assert "weight: stored" in capsys.readouterr().err
+    pq.write_table(table.drop_columns(["sample_front_accel_mps2"]), out / "samples_cell000.parquet")
+    assert main(["replay", str(out), "13"]) == 2  # a damaged folder is one line, not a traceback
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "its kept estimate is damaged (KeyError" in err
+    with pytest.raises(mcverify.errors.RunError, match="must be an integer >= 0, not -1"):
+        mcverify.replay(out, -1)
+    with pytest.raises(mcverify.errors.RunError, match="must be an integer >= 0, not '13'"):
+        mcverify.replay(out, "13")
 
 
 def test_the_report_names_the_replay_of_the_first_failing_draw():
@@ -331,3 +352,13 @@ def test_the_report_names_the_replay_of_the_first_failing_draw():
         "`mcverify replay /r/e 131 --cell 'scenario=A,method=MPC-DC eps=0.3'` (2 failing)")
     assert _replay_text(Path("/r/e"), {"cell": "all", "failing_draws": []}, 1) == "-"
     assert _replay_text(Path("/r/e"), {"cell": "all"}, 1) == "-"  # a folder from before the column
+
+
+def test_an_estimate_describes_its_cells_without_the_campaigns_episode_counts(tmp_path: Path, campaign_file: Path,
+                                                                               capsys):
+    """The estimator chooses its episodes: the start notice must not promise the file's `episodes`."""
+    args = ["estimate", str(campaign_file), "--method", "importance", "--target", "ellipse", "--samples", "2",
+            "--ce-samples", "2", "--ce-iterations", "0", "--run-dir", str(tmp_path / "e")]
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    assert "tiny: 1 cells\n  [0] all eps=" in err and "episodes=" not in err

@@ -133,3 +133,9 @@ def test_a_failing_particle_replays_from_its_noise_lineage(tmp_path: Path, capsy
     (out / "estimate.json").write_text(json.dumps(est))
     assert main(["replay", str(out), "5"]) == 1
     assert "particle 5 does not reproduce" in capsys.readouterr().err
+    for damage in ({"end_step": -3}, {"branch_ids": None}):  # a damaged record: one line, exit 2
+        est["cells"][0]["failing_particles"][5].update(damage)
+        (out / "estimate.json").write_text(json.dumps(est))
+        assert main(["replay", str(out), "5"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "its kept estimate is damaged" in err

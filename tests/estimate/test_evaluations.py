@@ -39,3 +39,18 @@ def test_a_line_cut_short_by_a_kill_is_cut_off(tmp_path):
                                                                                {"cell_episode": 1, "x": 2.5}]
     kept.remove()
     assert not path.exists()
+
+
+def test_a_damaged_line_inside_the_file_is_one_clear_error(tmp_path):
+    import pytest  # noqa: PLC0415
+
+    from mcverify.errors import RunError  # noqa: PLC0415
+
+    path = cache_file(tmp_path, 0)
+    EvaluationCache(path).add([{"cell_episode": 0, "x": 1.5}], {0: (0.5,)}, None)
+    path.write_text("{oops\n" + path.read_text())
+    with pytest.raises(RunError, match=r"evaluated_cell000.jsonl line 1 is damaged .*delete the file"):
+        EvaluationCache(path)
+    path.write_text('{"episode": 0, "values": [0.5], "tilt": null}\n')  # no row
+    with pytest.raises(RunError, match="line 1 is damaged"):
+        EvaluationCache(path)
