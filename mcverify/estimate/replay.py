@@ -43,7 +43,7 @@ from mcverify.campaign.runner import campaign_from_manifest
 from mcverify.campaign.spec import apply_overrides
 from mcverify.episode.rollout import run_episodes
 from mcverify.episode.snapshot import Branching
-from mcverify.errors import RunError
+from mcverify.errors import RunError, UserError
 from mcverify.estimate import folder
 from mcverify.estimate.closed_loop import score_of
 from mcverify.estimate.importance import Proposal
@@ -75,6 +75,8 @@ def _reading(est_dir: Path):
     """Turn what a damaged folder raises while its kept values are read into one clear error."""
     try:
         yield
+    except UserError:
+        raise  # already one clear line (RunError is a ValueError too)
     except (KeyError, TypeError, ValueError, IndexError, pa.ArrowException) as err:
         raise RunError(f"{est_dir}: its kept estimate is damaged ({type(err).__name__}: {err}); estimate the cell "
                        "again to replay it") from None

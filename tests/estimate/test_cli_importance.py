@@ -317,7 +317,11 @@ def test_a_final_draw_replays_bit_for_bit_with_the_fitted_noise_tilt(tmp_path: P
     assert "episode 13 reproduced exactly (the values its estimate folder keeps)" in said
     assert (out / "replay" / "cell000-episode-000013.parquet").is_file()
     assert main(["replay", str(out), "3"]) == 2  # a cross-entropy episode: not kept
-    assert "not a kept final draw; the final draws are episodes 8 to 15" in capsys.readouterr().err
+    assert capsys.readouterr().err.strip() == (f"mcverify: error: {out}: episode 3 of cell all is not a kept final "
+                                               "draw; the final draws are episodes 8 to 15 (the cross-entropy "
+                                               "iterations' are not kept)")
+    assert main(["replay", str(out), "13", "--cell", "nope"]) == 2
+    assert capsys.readouterr().err.strip() == f"mcverify: error: {out}: no estimated cell 'nope'; cells: all"
     table = pq.read_table(out / "samples_cell000.parquet")
     lr = table.column("noise_log_lr").to_pylist()
     lr[5] += 1e-12  # the draw of episode 13

@@ -127,7 +127,8 @@ def test_a_failing_particle_replays_from_its_noise_lineage(tmp_path: Path, capsy
     assert "failing particle 5 reproduced exactly" in capsys.readouterr().out
     assert (out / "replay" / "cell000-particle-0005.png").stat().st_size > 0
     assert main(["replay", str(out), "8"]) == 2
-    assert "has 8 failing particles (0 to 7), not 8" in capsys.readouterr().err
+    said = capsys.readouterr().err.strip()
+    assert said == f"mcverify: error: {out}: cell all has 8 failing particles (0 to 7), not 8"
     est = json.loads((out / "estimate.json").read_text())
     est["cells"][0]["failing_particles"][5]["score"] += 1e-12
     (out / "estimate.json").write_text(json.dumps(est))
