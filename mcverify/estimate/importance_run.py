@@ -393,7 +393,10 @@ def _cells_on(campaign: Campaign, spec: ImportanceSpec, out: Path, done: dict[in
                             {"method": "importance", **asdict(spec)}, results, columns, figures)
 
     for cell in campaign.cells:
-        if cell.index in results or (only and cell.name not in only):
+        if cell.index in results:
+            evaluations.cache_file(out, cell.index).unlink(missing_ok=True)  # left by a kill after its result
+            continue
+        if only and cell.name not in only:
             continue
         bounds = scenario_bounds(cell)
         progress(f"cell {cell.name}: importance sampling over {', '.join(bounds)}")
