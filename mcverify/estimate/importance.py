@@ -184,6 +184,13 @@ def cross_entropy(score: ScoreFn, nominal: Proposal, rng: np.random.Generator, *
     return g, levels, evaluations
 
 
+def log_defensive_weights(nominal: Proposal, g: Proposal, alpha: float, theta: np.ndarray) -> np.ndarray:
+    """(m,) log weights log p(theta) - log q(theta) of ``theta`` (m, d) under the defensive mixture
+    q = alpha p + (1 - alpha) g (the scenario part of a final draw's weight)."""
+    log_p = nominal.logpdf(theta)
+    return log_p - np.logaddexp(math.log(alpha) + log_p, math.log1p(-alpha) + g.logpdf(theta))
+
+
 def estimate(score: ScoreFn, bounds: Sequence[tuple[float, float]], *, samples: int = 2000, alpha: float = 0.1,
              level: float = 0.95, seed: int = 0, per_iteration: int = 200, rho: float = 0.1,
              max_iterations: int = 20, stream: int = 0, max_extra_ratio: float = 1.0,
@@ -208,10 +215,9 @@ def estimate(score: ScoreFn, bounds: Sequence[tuple[float, float]], *, samples: 
         progress(f"  {samples} evaluations from the defensive mixture ({alpha:g} nominal)")
     from_nominal = rng.random(samples) < alpha
     theta = np.where(from_nominal[:, None], nominal.sample(rng, samples), g.sample(rng, samples))
-    log_p = nominal.logpdf(theta)
-    log_q = np.logaddexp(math.log(alpha) + log_p, math.log1p(-alpha) + g.logpdf(theta))
+    log_w = log_defensive_weights(nominal, g, alpha, theta)
     s, log_lr = _scored(score(theta))
-    w = np.exp(log_p - log_q + log_lr)
+    w = np.exp(log_w + log_lr)
     fail = s >= 0.0
     if on_samples is not None:
         on_samples(theta, w, fail)

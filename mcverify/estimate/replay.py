@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import math
 from pathlib import Path
 from typing import Any
 
@@ -46,7 +45,7 @@ from mcverify.episode.snapshot import Branching
 from mcverify.errors import RunError, UserError
 from mcverify.estimate import folder
 from mcverify.estimate.closed_loop import score_of
-from mcverify.estimate.importance import Proposal
+from mcverify.estimate.importance import Proposal, log_defensive_weights
 from mcverify.estimate.importance_run import samples_file, scenario_bounds
 from mcverify.sim.noise import NoiseTilt
 
@@ -60,14 +59,6 @@ def estimate_method(path: Path) -> str | None:
     except (RunError, AttributeError):
         return None
     return method if method in ("importance", "splitting") else None
-
-
-def replay_counterexample(est_dir: Path, k: int, out_dir: Path | None = None,
-                          cell_name: str | None = None) -> ReplayResult:
-    """Replay draw or particle ``k`` of an importance-sampling or splitting estimate folder."""
-    if estimate_method(est_dir) == "splitting":
-        return replay_particle(est_dir, k, out_dir, cell_name)
-    return replay_draw(est_dir, k, out_dir, cell_name)
 
 
 @contextlib.contextmanager
@@ -88,16 +79,14 @@ def replay_draw(est_dir: Path, episode_id: int, out_dir: Path | None = None,
     estimated) and check it, its weight recomputed from the fitted proposal as well; the trajectory
     and plot go to ``out_dir`` (default ESTIMATE_DIR/replay)."""
     est_dir = Path(est_dir)
-    manifest = store.read_manifest(est_dir)
+    manifest, campaign, result = _open(est_dir, cell_name)
     with _reading(est_dir):
-        result = _cell_result(est_dir, cell_name)
         stored = _stored_draw(est_dir, result, episode_id)
-        campaign = campaign_from_manifest(manifest)
         cell = campaign.cells[result["cell_index"]]
         scenario = {name: float(stored[f"sample_{name}"]) for name in result["parameters"]}
         tilt = result.get("noise_tilt")
         noise_tilt = None if tilt is None else NoiseTilt(**{**tilt, "theta": tuple(tilt["theta"])})
-        weigh = _weight_of(cell, result, float(manifest["estimate"]["alpha"]))
+        log_weigh = _log_weights_of(cell, result, float(manifest["estimate"]["alpha"]))
     replayed = run_episodes(cell, [episode_id], campaign.seed, executors.solver_for(cell.params),
                             scenarios={episode_id: scenario}, record=True, noise_tilt=noise_tilt)
     row = replayed.rows[0]
@@ -106,25 +95,27 @@ def replay_draw(est_dir: Path, episode_id: int, out_dir: Path | None = None,
                                  Path(out_dir) if out_dir else est_dir / "replay", stem)
     # the weight is no simulated value but the estimate's factor: recomputed from the proposal (the same
     # operations as the estimator's, so bit for bit) with the replayed noise ratio
-    row = {**row, "weight": weigh([scenario[n] for n in result["parameters"]], row.get("noise_log_lr"))}
+    theta = np.array([[scenario[n] for n in result["parameters"]]], dtype=float)
+    row = {**row, "weight": float(np.exp(log_weigh(theta) + (row.get("noise_log_lr") or 0.0))[0])}
     # the folder keeps a few of a row's values: the others are not "newer than the run"
     return dataclasses.replace(checked(episode_id, stored, row, traj, plot), not_stored=())
 
 
-def _weight_of(cell, result: dict[str, Any], alpha: float):
-    """weight(theta, noise log ratio) of a final draw: nominal over the defensive mixture, as
-    :func:`mcverify.estimate.importance.estimate` weighs it."""
+def _log_weights_of(cell, result: dict[str, Any], alpha: float):
+    """theta (m, d) -> the scenario part of the final draws' log weights, by the estimator's own function
+    (:func:`mcverify.estimate.importance.log_defensive_weights`), with the cell's fitted proposal."""
     nominal = Proposal.nominal(list(scenario_bounds(cell).values()))
     fitted = Proposal(nominal.low, nominal.high, np.array(result["proposal_a"], dtype=float),
                       np.array(result["proposal_b"], dtype=float))
+    return lambda theta: log_defensive_weights(nominal, fitted, alpha, theta)
 
-    def weigh(theta: list[float], log_lr: float | None) -> float:
-        point = np.array([theta], dtype=float)
-        log_p = nominal.logpdf(point)
-        log_q = np.logaddexp(math.log(alpha) + log_p, math.log1p(-alpha) + fitted.logpdf(point))
-        return float(np.exp(log_p - log_q + (log_lr or 0.0))[0])
 
-    return weigh
+def _open(est_dir: Path, cell_name: str | None) -> tuple[dict[str, Any], Any, dict[str, Any]]:
+    """(manifest, campaign, the cell's result) of an estimate folder."""
+    manifest = store.read_manifest(est_dir)
+    with _reading(est_dir):
+        result = _cell_result(est_dir, cell_name)  # first: "nothing estimated yet" before the campaign is read
+        return manifest, campaign_from_manifest(manifest), result
 
 
 def _cell_result(est_dir: Path, cell_name: str | None) -> dict[str, Any]:
@@ -161,11 +152,9 @@ def replay_particle(est_dir: Path, k: int, out_dir: Path | None = None,
     """Re-simulate failing particle ``k`` of a splitting estimate's cell and check its running score;
     the trajectory and plot go to ``out_dir`` (default ESTIMATE_DIR/replay)."""
     est_dir = Path(est_dir)
-    manifest = store.read_manifest(est_dir)
+    manifest, campaign, result = _open(est_dir, cell_name)
     with _reading(est_dir):
-        result = _cell_result(est_dir, cell_name)
         particle = _failing_particle(est_dir, result, k)
-        campaign = campaign_from_manifest(manifest)
         lineage = {"noise.branch_after_steps": particle["branch_after_steps"],
                    "noise.branch_ids": particle["branch_ids"]}
         cell = campaign.cells[result["cell_index"]]
@@ -173,10 +162,9 @@ def replay_particle(est_dir: Path, k: int, out_dir: Path | None = None,
         score = manifest["estimate"]["score"]
     planner = executors.solver_for(cell.params)
     episode, end = particle["episode_id"], particle["end_step"]
-    watch = Branching()
-    run_episodes(cell, [episode], campaign.seed, planner, branching=watch)
+    watch = Branching()  # only watches: the step views give the running score
+    replayed = run_episodes(cell, [episode], campaign.seed, planner, branching=watch, record=True)
     reached = max((score_of(v, score) for v in watch.views if v.step <= end), default=float("-inf"))
-    replayed = run_episodes(cell, [episode], campaign.seed, planner, record=True)
     row = replayed.rows[0]
     stem = f"cell{result['cell_index']:03d}-particle-{k:04d}"
     traj, plot = write_recording(replayed.recordings[episode], cell, row,
