@@ -1,11 +1,13 @@
 """The folder of an estimate that does not run through the campaign runner (splitting, importance):
 ``manifest.json`` (the campaign record, the estimator's specification, the code version),
 ``estimate.json`` (the specification and one result per finished cell, rewritten after every cell),
-``cells.parquet`` (the same results, one row per finished cell, for tables and pandas) and
-``report.md`` (a table of the results, and the estimator's figures). ``--resume`` keeps the finished cells: each cell's
-result is deterministic, so running it again would give the same numbers. Once every cell is estimated
-the manifest gets ``finished_utc`` (:func:`finish`), as a run folder's does, so that
-``mcverify.open_run(DIR).finished`` says the estimate is complete.
+``cells.parquet`` (the same results, one row per finished cell, for tables and pandas),
+``summary.json`` (the results as a run folder's ``summary.json`` gives an estimate: ``estimates``),
+``report.md`` and ``report.html`` (a table of the results, the estimator's figures and, where the
+campaign has a numeric sweep axis such as ε, the estimates against it). ``--resume`` keeps the
+finished cells: each cell's result is deterministic, so running it again would give the same
+numbers. Once every cell is estimated the manifest gets ``finished_utc`` (:func:`finish`), as a run
+folder's does, so that ``mcverify.open_run(DIR).finished`` says the estimate is complete.
 """
 
 from __future__ import annotations
@@ -18,14 +20,20 @@ from pathlib import Path
 from typing import Any
 
 from mcverify import provenance, store
+from mcverify.analysis import summary
 from mcverify.analysis.cells import json_ready
 from mcverify.campaign import runner
 from mcverify.campaign.spec import Campaign
 from mcverify.errors import RunError
+from mcverify.reporting import estimate_report
+from mcverify.reporting.run_figures import FigureResult
+from mcverify.reporting.tables import Table
 
 ESTIMATE = "estimate.json"
 CELLS = "cells.parquet"
+SUMMARY = "summary.json"
 REPORT = "report.md"
+HTML = "report.html"
 
 #: A report column: (header, cell result -> text).
 Column = tuple[str, Callable[[dict[str, Any]], str]]
@@ -87,19 +95,55 @@ def finish(out: Path) -> None:
 
 
 def write(out: Path, title: str, intro: str, spec: dict[str, Any], results: dict[int, dict[str, Any]],
-          columns: Sequence[Column], figures: Sequence[str] = ()) -> Path:
-    """Rewrite ``estimate.json``, ``cells.parquet`` and ``report.md`` with the results so far (``figures``:
-    paths relative to ``out`` shown at the end of the report); returns the report path."""
+          columns: Sequence[Column], figures: Sequence[FigureResult] = ()) -> Path:
+    """Rewrite ``estimate.json``, ``cells.parquet``, ``summary.json``, ``report.md`` and ``report.html``
+    with the results so far (``figures``: the estimator's own figures, drawn already; the estimates
+    against the campaign's sweep axis are drawn here); returns the ``report.md`` path."""
     out = Path(out)
     cells = [json_ready(results[i]) for i in sorted(results)]
     store.write_json_atomic(out / ESTIMATE, {"spec": json_ready(spec), "cells": cells})
     write_cells_table(out / CELLS, spec, cells)
-    lines = [f"# {title}", "", intro, "", "| " + " | ".join(h for h, _ in columns) + " |",
-             "|" + "---|" * len(columns)]
-    lines += ["| " + " | ".join(fn(c) for _, fn in columns) + " |" for c in cells]
-    lines += [line for fig in figures for line in ("", f"![{Path(fig).stem}]({fig})")]
-    store.atomic_write(out / REPORT, lambda tmp: Path(tmp).write_text("\n".join(lines) + "\n", encoding="utf-8"))
+    manifest = store.read_json(out / store.MANIFEST)
+    store.write_json_atomic(out / SUMMARY, summary_record(manifest, spec, intro, cells))
+    sweep = estimate_report.estimate_figure(out, manifest["cells"], cells, method=str(spec["method"]),
+                                            target=str(spec["target"]), level=float(spec["level"]))
+    shown = [*figures, *([sweep] if sweep else [])]
+    table = Table("estimates", f"Estimated {spec['target']} probability per cell", [h for h, _ in columns],
+                  [[fn(c) for _, fn in columns] for c in cells],
+                  [f"Interval: {kind}." for kind in dict.fromkeys(str(c["interval"]) for c in cells
+                                                                  if c.get("interval"))],
+                  align="l" * len(columns))
+    store.atomic_write(out / REPORT, lambda tmp: Path(tmp).write_text(
+        estimate_report.markdown(title, intro, table, shown), encoding="utf-8"))
+    facts = [("campaign", f"{manifest['campaign']['name']} ({manifest['campaign'].get('source', '')})"),
+             ("estimator", intro), ("cells estimated", f"{len(cells)} of {len(expected_cells(manifest))}"),
+             ("code", f"mcverify source {str(manifest.get('code', {}).get('source_sha256', ''))[:12]}"),
+             ("finished", manifest.get("finished_utc") or "not yet: `mcverify estimate --resume " + str(out) + "`")]
+    store.atomic_write(out / HTML, lambda tmp: Path(tmp).write_text(
+        estimate_report.html_page(out, title, facts, table, shown), encoding="utf-8"))
     return out / REPORT
+
+
+def expected_cells(manifest: dict[str, Any]) -> list[dict[str, Any]]:
+    """The manifest's cells the estimate covers (all, or those named with ``--cell``)."""
+    only = manifest.get("only_cells")
+    return [c for c in manifest["cells"] if not only or c["name"] in only]
+
+
+def summary_record(manifest: dict[str, Any], spec: dict[str, Any], intro: str,
+                   cells: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """``summary.json`` of an estimate folder: what a run folder's ``summary.json`` says of an estimate
+    (``estimates``: the specification, the method's description and one result per finished cell),
+    with the campaign's varying axes and each estimated cell's labels, so that a script reads a
+    splitting, importance or crude estimate the same way."""
+    labels = {int(c["index"]): c.get("labels", {}) for c in manifest["cells"]}
+    return json_ready({
+        "format": store.FORMAT, "kind": "estimate", "campaign": manifest["campaign"]["name"],
+        "axes": summary.varying_axes(manifest["cells"]),
+        "cells_expected": len(expected_cells(manifest)), "finished": bool(manifest.get("finished_utc")),
+        "estimates": {"spec": spec, "method_description": intro,
+                      "cells": [{**c, "labels": labels.get(int(c["cell_index"]), {})} for c in cells]},
+    })
 
 
 def write_cells_table(path: Path, spec: dict[str, Any], cells: Sequence[dict[str, Any]]) -> None:

@@ -50,6 +50,7 @@ from mcverify.estimate import evaluations, folder, importance
 from mcverify.estimate.closed_loop import H_EF_SCORES, SCORES, gap_score, h_ef_score
 from mcverify.estimate.evaluations import EvaluationCache
 from mcverify.estimate.folder import num
+from mcverify.reporting.run_figures import FigureResult
 from mcverify.sim import noise
 from mcverify.sim.noise import NoiseTilt
 
@@ -388,7 +389,10 @@ def _cells_on(campaign: Campaign, spec: ImportanceSpec, out: Path, done: dict[in
              "and a red tick per failing draw.")
 
     def write():
-        figures = [figure_file(i) for i in sorted(results) if (out / figure_file(i)).exists()]
+        figures = [FigureResult(f"importance-cell{i:03d}", f"Cell {results[i]['cell']}: nominal, proposal and draws",
+                                "Per scenario parameter: the nominal density, the proposal the final draws came from, "
+                                "their histogram and a red tick per failing draw.", figure_file(i))
+                   for i in sorted(results) if (out / figure_file(i)).exists()]
         return folder.write(out, f"mcverify importance-sampling estimate: {campaign.name}", intro,
                             {"method": "importance", **asdict(spec)}, results, columns, figures)
 
@@ -427,6 +431,5 @@ def _cells_on(campaign: Campaign, spec: ImportanceSpec, out: Path, done: dict[in
         draw_cell(out, results[cell.index], bounds, spec.alpha, final)
         write()
         cache.remove()
-    path = write()
     folder.finish(out)
-    return path
+    return write()  # after finish, so that the report says the estimate is complete

@@ -190,9 +190,8 @@ def _cells(campaign: Campaign, spec: SplittingSpec, out: Path, done: dict[int, d
             results[cell.index] = cell_result(cell.index, cell.name, spec, splitting.from_runs(runs, spec.level),
                                               runs, cost)
             _write(out, spec, campaign, results)
-    path = _write(out, spec, campaign, results)
     folder.finish(out)
-    return path
+    return _write(out, spec, campaign, results)  # after finish, so that the report says the estimate is complete
 
 
 @dataclass
@@ -247,4 +246,5 @@ def _write(out: Path, spec: SplittingSpec, campaign: Campaign, results: dict[int
              f"{spec.replicates} independent runs of {spec.particles} particles (k = {spec.k}); the interval is "
              f"asymptotic ({spec.level:.0%} Student t on the runs' estimates).")
     return folder.write(out, f"mcverify splitting estimate: {campaign.name}", intro,
-                        {"method": "splitting", **asdict(spec)}, results, columns(out, len(campaign.cells)))
+                        {"method": "splitting", **asdict(spec), "target": spec.target}, results,
+                        columns(out, len(campaign.cells)))

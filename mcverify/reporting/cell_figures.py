@@ -8,6 +8,7 @@ written in (:func:`rate_heatmap`) and minimum-distance histograms per cell
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -144,27 +145,29 @@ def estimate_vs_axis(
     target: str,
     x_label: str,
 ) -> dict[str, int]:
-    """The estimated rate of ``target`` per cell (``summary.json`` ``estimates``, one per cell, in
-    cell order) against ``x_values``, one line per group, with its interval as error bars on a log
-    scale; a cell whose estimate is 0 shows its upper end as ▼ (a bound, not an estimate)."""
+    """The estimated rate of ``target`` per cell (one record per cell, in cell order, with
+    ``estimate``, ``low`` and ``high``; an empty record for a cell not estimated) against
+    ``x_values``, one line per group, with its interval as error bars on a log scale; a cell whose
+    estimate is 0 shows its upper end as ▼ (a bound, not an estimate). Serves crude Monte Carlo
+    (``summary.json`` ``estimates``) and the splitting and importance folders alike."""
     fig, ax = plt.subplots(figsize=inches(7, 4.4))
     xs, gs = np.asarray(x_values, dtype=float), list(groups)
     colours = plt.get_cmap("tab10")
     lowest = 1.0
     for gi, group in enumerate(dict.fromkeys(gs)):
-        idx = sorted((i for i, g in enumerate(gs) if g == group and estimates[i].get("n")), key=lambda i: xs[i])
-        if not idx:
-            continue
+        idx = sorted((i for i, g in enumerate(gs) if g == group and _finite(estimates[i].get("estimate"))),
+                     key=lambda i: xs[i])
         colour = colours(gi % 10)
-        pos = [i for i in idx if estimates[i]["k"] > 0]
+        pos = [i for i in idx if estimates[i]["estimate"] > 0]
         if pos:
-            est = np.array([estimates[i]["estimate"] for i in pos])
-            low = np.array([max(estimates[i]["low"], 1e-12) for i in pos])
-            high = np.array([estimates[i]["high"] for i in pos])
-            ax.errorbar(xs[pos], est, yerr=[est - low, high - est], fmt="o-", color=colour, ms=4, lw=1.2,
-                        capsize=3, label=group or "all cells")
-            lowest = min(lowest, float(low.min()))
-        zero = [i for i in idx if estimates[i]["k"] == 0]
+            est = np.array([estimates[i]["estimate"] for i in pos], dtype=float)
+            low = np.array([max(_value(estimates[i].get("low"), 0.0), 1e-12) for i in pos])
+            high = np.array([_value(estimates[i].get("high"), est[k]) for k, i in enumerate(pos)])
+            ax.errorbar(xs[pos], est, yerr=[est - np.minimum(low, est), np.maximum(high, est) - est], fmt="o-",
+                        color=colour, ms=4, lw=1.2, capsize=3, label=group or "all cells")
+            lowest = min(lowest, float(np.minimum(low, est).min()))
+        # an estimate of 0 shows its interval's upper end; one whose interval is [0, 0] has nothing to show
+        zero = [i for i in idx if estimates[i]["estimate"] == 0 and _value(estimates[i].get("high"), 0.0) > 0]
         if zero:
             ax.plot(xs[zero], [estimates[i]["high"] for i in zero], "v", color=colour, ms=6,
                     label=None if pos else (group or "all cells"))
@@ -177,9 +180,18 @@ def estimate_vs_axis(
     ax.set_ylabel(f"P({target}) with {level:.0%} interval")
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=8, loc="best")
-    ax.set_title(f"estimated P({target}); ▼: upper end where no event occurred", fontsize=9)
+    ax.set_title(f"estimated P({target}); ▼: upper end where the estimate is 0", fontsize=9)
     fig.tight_layout()
     return save(fig, path)
+
+
+def _finite(x: Any) -> bool:
+    return x is not None and math.isfinite(float(x))
+
+
+def _value(x: Any, default: float) -> float:
+    """``x`` as a float, ``default`` where it is missing (None in JSON) or not finite."""
+    return float(x) if _finite(x) else default
 
 
 def rate_heatmap(

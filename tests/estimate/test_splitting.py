@@ -5,6 +5,7 @@ noise (tests/synthetic_walk.py): branches replay exactly, the estimate is determ
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -166,6 +167,7 @@ def test_a_cell_without_an_estimate_is_null_in_strict_json_and_not_estimated_in_
 
     import pyarrow.parquet as pq
 
+    from mcverify.campaign.spec import load_campaign
     from mcverify.estimate import folder, splitting_run
 
     spec = splitting_run.SplittingSpec("gap", particles=5, replicates=2, max_iterations=3)
@@ -173,7 +175,10 @@ def test_a_cell_without_an_estimate_is_null_in_strict_json_and_not_estimated_in_
     cost = splitting_run._Cost(1.0, 200, [80, 80])
     result = splitting_run.cell_result(0, "c0", spec, splitting.from_runs(runs), runs, cost)
     assert result["capped"] == [True, False] and result["extinct"] == [False, False]
-    folder.write(tmp_path, "t", "intro", {"method": "splitting"}, {0: result}, splitting_run.columns(tmp_path, 1))
+    campaign = load_campaign(Path(__file__).resolve().parents[1] / "fixtures" / "tiny.toml")
+    folder.create(tmp_path, campaign, {"method": "splitting"}, ["front_speed_kmh=25"])
+    folder.write(tmp_path, "t", "intro", {"method": "splitting", "target": "collision", "level": 0.95}, {0: result},
+                 splitting_run.columns(tmp_path, 1))
 
     def no_constant(name: str):
         raise AssertionError(f"{name} in estimate.json")
