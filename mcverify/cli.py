@@ -271,6 +271,9 @@ def _parser() -> argparse.ArgumentParser:
                      help="importance: episodes drawn from the defensive mixture (default 400)")
     est.add_argument("--ce-samples", type=_positive_int, default=None,
                      help="importance: episodes per cross-entropy iteration (default 100)")
+    est.add_argument("--elite-share", type=_open_unit, default=None, metavar="RHO",
+                     help="importance: share of each cross-entropy iteration's episodes kept as its elite "
+                          "(default 0.1; with few episodes per iteration a larger share keeps the elite at 10 or more)")
     est.add_argument("--ce-iterations", type=_nonneg_int, default=None,
                      help="importance: most cross-entropy iterations (default 10; 0: the scenario stays nominal, "
                           "e.g. with --noise-tilt when the score would steer the scenario away from the event)")
@@ -571,12 +574,13 @@ _ESTIMATE_METHOD_OPTIONS: tuple[tuple[str, str, tuple[str, ...]], ...] = (
     ("samples", "--samples", ("importance",)),
     ("ce_samples", "--ce-samples", ("importance",)),
     ("ce_iterations", "--ce-iterations", ("importance",)),
+    ("elite_share", "--elite-share", ("importance",)),
     ("noise_tilt", "--noise-tilt", ("importance",)),
 )
 #: Their defaults (None on the command line, so that a given option can be told from a default).
 _ESTIMATE_DEFAULTS: dict[str, object] = {
     "method": "mc", "target": "collision", "budget": 1000, "level": 0.95, "particles": 20, "replicates": 8,
-    "samples": 400, "ce_samples": 100, "ce_iterations": 10, "max_iterations": 2000,
+    "samples": 400, "ce_samples": 100, "ce_iterations": 10, "elite_share": 0.1, "max_iterations": 2000,
 }
 
 
@@ -700,8 +704,9 @@ def _cmd_estimate_in_process(args, method: str) -> int:
                 if spec.target != args.target:
                     raise RunError(f"--score {score} estimates {spec.target}, not --target {args.target}")
             else:
-                spec = importance_run.ImportanceSpec(args.target, args.samples, args.ce_samples, level=args.level,
-                                                     max_ce_iterations=args.ce_iterations, score=args.score,
+                spec = importance_run.ImportanceSpec(args.target, args.samples, args.ce_samples, rho=args.elite_share,
+                                                     level=args.level, max_ce_iterations=args.ce_iterations,
+                                                     score=args.score,
                                                      noise_tilt=args.noise_tilt)
         except ValueError as err:
             raise RunError(str(err)) from None
@@ -977,6 +982,17 @@ def _noise_tilt(text: str) -> dict:
         raise argparse.ArgumentTypeError("gap_max_m is required (the tilt acts where veh_f's gap is at most that)")
     theta = [values.pop(t, 0.0) for t in tilts]
     return {**NoiseTilt(**values)._asdict(), "theta": theta}
+
+
+def _open_unit(text: str) -> float:
+    """A number strictly between 0 and 1 (argparse type)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number between 0 and 1, got {text!r}") from None
+    if not 0.0 < value < 1.0:
+        raise argparse.ArgumentTypeError(f"must be between 0 and 1 (exclusive), got {text}")
+    return value
 
 
 def _positive_int(text: str) -> int:

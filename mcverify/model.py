@@ -491,7 +491,9 @@ class Opposing:
       overtake meets it mid-overtake. ``spawn_gap_range_m`` = (lo, hi), when given,
       draws the gap per episode uniformly in (lo, hi] from the episode's key;
       ``speed_range_mps`` = (lo, hi) likewise draws veh_o's speed (either spawn mode), and
-      ``spawn_delay_range_s`` = (lo, hi) the delay after the lane entry (when veh_o arrives).
+      ``spawn_delay_range_s`` = (lo, hi) the delay after the lane entry (when veh_o arrives);
+      with ``spawn_delay_sd_s`` > 0 that delay is a normal around ``spawn_delay_s`` truncated to the
+      range instead.
     """
 
     kind: str = "none"
@@ -527,6 +529,11 @@ class Opposing:
     """With lane_entry, how long after the lane entry veh_o appears. Valid: >= 0."""
     spawn_delay_range_s: tuple[float, ...] = ()
     """(lo, hi): draws the spawn delay per episode uniformly in (lo, hi]; replaces spawn_delay_s."""
+    spawn_delay_sd_s: float = 0.0
+    """> 0 with spawn_delay_range_s: the delay is normal with mean spawn_delay_s and this standard deviation,
+    truncated to the range, instead of uniform (the timing of veh_o's arrival as a jitter around a nominal time).
+    The range may lie in a tail (e.g. [1.9, 8] around 1.5: the normal conditioned on a late arrival). Valid: >= 0;
+    needs spawn_delay_range_s holding more than 1e-12 of the normal's mass."""
     speed_range_mps: tuple[float, ...] = ()
     """(lo, hi): draws veh_o's speed per episode uniformly in (lo, hi]; replaces speed_mps."""
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import statistics
 from typing import Any
 
 from mcverify import levels
@@ -38,6 +39,8 @@ SPAWN_MODES = ("start", "lane_entry")
 MAX_HORIZON = 500
 MAX_SUBSTEPS = 1000
 MAX_CONTROL_STEPS = 1_000_000
+#: The least share of a normal spawn delay's mass its range may hold (below it the draws lose precision).
+MIN_NORMAL_SHARE = 1e-12
 
 
 def validate_params(p: ModelParams, where: str) -> None:
@@ -249,7 +252,26 @@ def _validate_front_and_opposing(p: ModelParams, bad) -> None:
         raise bad("opposing.spawn_delay_s", f"must be a finite number >= 0, got {_short(o.spawn_delay_s)}")
     _check_range(bad, "opposing.spawn_gap_range_m", o.spawn_gap_range_m, lo_min=p.geometry.length_m)
     _check_range(bad, "opposing.spawn_delay_range_s", o.spawn_delay_range_s, lo_min=0.0)
+    if not (math.isfinite(o.spawn_delay_sd_s) and o.spawn_delay_sd_s >= 0):
+        raise bad("opposing.spawn_delay_sd_s", f"must be a finite number >= 0, got {_short(o.spawn_delay_sd_s)}")
+    if o.spawn_delay_sd_s > 0:
+        _check_normal_range(bad, o)
     _check_range(bad, "opposing.speed_range_mps", o.speed_range_mps, lo_min=0.0, hi_max=o.speed_limit_mps)
+
+
+def _check_normal_range(bad, o) -> None:
+    """A normal spawn delay needs a range holding a share of its mass that double precision can draw from
+    (the range may lie in a tail: [1.9, 8] s around 1.5 s is the normal conditioned on a late arrival)."""
+    if not o.spawn_delay_range_s:
+        raise bad("opposing.spawn_delay_sd_s", "a normal spawn delay needs opposing.spawn_delay_range_s = [lo, hi] "
+                  "to truncate it to")
+    lo, hi = ((x - o.spawn_delay_s) / o.spawn_delay_sd_s for x in o.spawn_delay_range_s)
+    unit = statistics.NormalDist()
+    share = unit.cdf(hi) - unit.cdf(lo) if lo < 0 else unit.cdf(-lo) - unit.cdf(-hi)  # the far tail from its side
+    if not share > MIN_NORMAL_SHARE:
+        raise bad("opposing.spawn_delay_sd_s", f"the range {list(o.spawn_delay_range_s)} s holds {share:.3g} of "
+                  f"the normal({o.spawn_delay_s:.4g}, {o.spawn_delay_sd_s:.4g}) spawn delay, less than "
+                  f"{MIN_NORMAL_SHARE:g}")
 
 
 def _check_branches(bad, n) -> None:

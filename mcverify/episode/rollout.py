@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import statistics
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
@@ -120,17 +121,39 @@ def sample_scenario(key: Array, params) -> dict[str, float]:
         "front_accel_mps2": _draw(key, 0, sc.front_accel_range_mps2, sc.front_accel_mps2),
         "opp_speed_mps": _draw(key, 1, o.speed_range_mps, o.speed_mps) if has_opp else math.nan,
         "opp_spawn_gap_m": _draw(key, 2, o.spawn_gap_range_m, o.spawn_gap_m) if at_entry else math.nan,
-        "opp_spawn_delay_s": _draw(key, 3, o.spawn_delay_range_s, o.spawn_delay_s) if at_entry else math.nan,
+        "opp_spawn_delay_s": (_draw(key, 3, o.spawn_delay_range_s, o.spawn_delay_s, sd=o.spawn_delay_sd_s)
+                              if at_entry else math.nan),
     }
 
 
-def _draw(key: Array, stream: int, rng: Sequence[float], fixed: float) -> float:
-    """Uniform in (lo, hi] of ``rng`` from scenario stream ``stream`` of ``key``; ``fixed`` without a range."""
+def _draw(key: Array, stream: int, rng: Sequence[float], fixed: float, *, sd: float = 0.0) -> float:
+    """Uniform in (lo, hi] of ``rng`` from scenario stream ``stream`` of ``key``; ``fixed`` without a range.
+    With ``sd`` > 0: a normal of mean ``fixed`` and standard deviation ``sd`` truncated to the range
+    (:func:`truncated_normal`), from the same unit draw."""
     if not rng:
         return float(fixed)
     lo, hi = rng
-    unit = jax.random.uniform(jax.random.fold_in(key, SCENARIO_STREAM + stream), (), dtype=float)  # [0, 1)
-    return float(hi - (hi - lo) * float(unit))
+    unit = float(jax.random.uniform(jax.random.fold_in(key, SCENARIO_STREAM + stream), (), dtype=float))  # [0, 1)
+    if sd > 0:
+        return truncated_normal(1.0 - unit, float(fixed), float(sd), float(lo), float(hi))
+    return float(hi - (hi - lo) * unit)
+
+
+def truncated_normal(u: float, mean: float, sd: float, lo: float, hi: float) -> float:
+    """The ``u``-quantile (0 < u <= 1) of a normal (``mean``, ``sd``) truncated to [lo, hi], by inverting its
+    distribution function. The upper tail is inverted through the survival function, so a value 4-8 sd
+    above the mean keeps its precision (where a rare event of the scenario lives)."""
+    norm = statistics.NormalDist(mean, sd)
+    below, above = norm.cdf(lo), 1.0 - norm.cdf(hi)
+    mass = 1.0 - below - above
+    tail = (1.0 - u) * mass  # the probability above the value, within the range
+    if tail + above <= 0.0:  # u = 1 (or a range beyond the normal's double precision): the top
+        return hi
+    if tail + above < 0.5:  # upper half: invert the survival function (by symmetry)
+        x = 2.0 * mean - norm.inv_cdf(tail + above)
+    else:
+        x = norm.inv_cdf(min(max(below + u * mass, 1e-300), 1.0 - 1e-16))
+    return min(max(x, lo), hi)
 
 
 def _spawn_opposing(world: LaneGroups, states: list[EpisodeState], samples: list[dict[str, float]],

@@ -2,12 +2,13 @@
 diagnostics.
 
 The nominal distribution p is independent uniforms on boxes (how a campaign draws its scenario
-ranges: alpha_f, veh_o's speed and spawn gap). The proposal family is independent scaled Beta(a, b)
-on the same boxes (Beta(1, 1) is the nominal), fitted by the cross-entropy method [RK04]: draw from
-the current proposal, keep the elite (score >= the (1 - rho) quantile, capped at the failure level
-0), refit each coordinate's Beta to the elite's weighted moments, repeat until the level reaches 0.
-Samples are then drawn from the defensive mixture q = alpha p + (1 - alpha) g [Hes95], so every
-weight w = p / q is at most 1 / alpha, and
+ranges: alpha_f, veh_o's speed and spawn gap), or on a coordinate a normal truncated to its box
+(veh_o's spawn delay with ``opposing.spawn_delay_sd_s``; :class:`Nominal`). The proposal family is
+independent scaled Beta(a, b) on the same boxes (Beta(1, 1) is the flat member), fitted by the
+cross-entropy method [RK04]: draw from the current proposal, keep the elite (score >= the (1 - rho)
+quantile, capped at the failure level 0), refit each coordinate's Beta to the elite's weighted
+moments, repeat until the level reaches 0. Samples are then drawn from the defensive mixture q =
+alpha p + (1 - alpha) g [Hes95], so every weight w = p / q is at most 1 / alpha, and
 
     p_hat = mean(w_i 1{score_i >= 0}),  interval p_hat +- z sd(w 1) / sqrt(M)   (asymptotic).
 
@@ -129,6 +130,88 @@ class Proposal:
 
 
 @dataclass(frozen=True)
+class Nominal:
+    """The nominal distribution of the scenario parameters: independent per coordinate j, uniform on
+    [low_j, high_j] where ``sd_j`` is NaN, else a normal of mean ``mean_j`` and standard deviation ``sd_j``
+    truncated to [low_j, high_j] (``opposing.spawn_delay_sd_s``).
+
+    Every coordinate is drawn from one Beta(1, 1) unit per draw, exactly as :meth:`Proposal.sample` draws the
+    nominal Beta(1, 1), so a nominal without a normal coordinate draws the numbers it always drew; a normal
+    coordinate maps its unit through the truncated normal's quantile function."""
+
+    low: np.ndarray
+    high: np.ndarray
+    mean: np.ndarray
+    sd: np.ndarray
+
+    @classmethod
+    def uniform(cls, bounds: Sequence[tuple[float, float]]) -> Nominal:
+        box = Proposal.nominal(bounds)
+        return cls(box.low, box.high, np.full(box.low.size, math.nan), np.full(box.low.size, math.nan))
+
+    @classmethod
+    def of(cls, bounds: Sequence[tuple[float, float]], normals: Sequence[tuple[float, float] | None]) -> Nominal:
+        """``normals[j]``: (mean, sd) where coordinate j is a truncated normal, None where it is uniform."""
+        box = cls.uniform(bounds)
+        mean = np.array([n[0] if n else math.nan for n in normals], dtype=float)
+        sd = np.array([n[1] if n else math.nan for n in normals], dtype=float)
+        return cls(box.low, box.high, mean, sd)
+
+    @property
+    def box(self) -> Proposal:
+        """Beta(1, 1) on the same boxes: the proposal family's flat member, the anchor of the first refit."""
+        return Proposal(self.low, self.high, np.ones(self.low.size), np.ones(self.low.size))
+
+    @property
+    def a(self) -> np.ndarray:
+        """As a proposal (no cross-entropy iteration ran): Beta(1, 1) where uniform, NaN where normal (not a Beta)."""
+        return np.where(self._normal, math.nan, 1.0)
+
+    @property
+    def b(self) -> np.ndarray:
+        return self.a
+
+    @property
+    def _normal(self) -> np.ndarray:
+        return np.isfinite(self.sd)
+
+    def _standard(self, j: int) -> tuple[float, float, float]:
+        """(a, b, log mass) of coordinate j: the box's bounds in standard units and log(Phi(b) - Phi(a))."""
+        a = (self.low[j] - self.mean[j]) / self.sd[j]
+        b = (self.high[j] - self.mean[j]) / self.sd[j]
+        mass = sps.norm.sf(a) - sps.norm.sf(b) if a > 0 else sps.norm.cdf(b) - sps.norm.cdf(a)
+        return float(a), float(b), math.log(mass)
+
+    def sample(self, rng: np.random.Generator, m: int) -> np.ndarray:
+        theta = self.box.sample(rng, m)
+        for j in np.flatnonzero(self._normal):
+            a, b, _ = self._standard(j)
+            u = (theta[:, j] - self.low[j]) / (self.high[j] - self.low[j])
+            theta[:, j] = self.mean[j] + self.sd[j] * sps.truncnorm.ppf(u, a, b)
+        return theta
+
+    def logpdf(self, theta: np.ndarray) -> np.ndarray:
+        out = self.box.logpdf(theta)  # a uniform nominal's value exactly as it always was
+        for j in np.flatnonzero(self._normal):  # the flat density of the box replaced by the normal's
+            out = out + self.marginal_logpdf(j, theta[:, j]) + math.log(self.high[j] - self.low[j])
+        return out
+
+    def marginal_logpdf(self, j: int, x: np.ndarray) -> np.ndarray:
+        """Coordinate j's own log density at ``x`` (inside its box)."""
+        x = np.asarray(x, dtype=float)
+        if not self._normal[j]:
+            return np.full(x.shape, -math.log(self.high[j] - self.low[j]))
+        _, _, log_mass = self._standard(j)
+        return sps.norm.logpdf((x - self.mean[j]) / self.sd[j]) - math.log(self.sd[j]) - log_mass
+
+    def describe(self, names: Sequence[str]) -> list[str]:
+        """One phrase per coordinate, e.g. "opp_spawn_delay_s ~ normal(1.5, 0.125) on [0, 8]"."""
+        return [f"{n} ~ " + (f"normal({self.mean[j]:.4g}, {self.sd[j]:.4g}) truncated to "
+                             if self._normal[j] else "uniform on ") + f"[{self.low[j]:.4g}, {self.high[j]:.4g}]"
+                for j, n in enumerate(names)]
+
+
+@dataclass(frozen=True)
 class ISEstimate:
     """The importance-sampling estimate with its asymptotic interval, diagnostics and cost."""
 
@@ -156,7 +239,7 @@ class ISEstimate:
         return bool(self.low <= p <= self.high)
 
 
-def cross_entropy(score: ScoreFn, nominal: Proposal, rng: np.random.Generator, *, per_iteration: int = 200,
+def cross_entropy(score: ScoreFn, nominal: Nominal | Proposal, rng: np.random.Generator, *, per_iteration: int = 200,
                   rho: float = 0.1, max_iterations: int = 20,
                   progress: Callable[[str], None] | None = None) -> tuple[Proposal, list[float], int]:
     """Fit the proposal (see the module docstring); returns (proposal, levels, score evaluations).
@@ -172,7 +255,7 @@ def cross_entropy(score: ScoreFn, nominal: Proposal, rng: np.random.Generator, *
         levels.append(gamma)
         elite = s >= gamma
         w = np.exp(nominal.logpdf(theta[elite]) - g.logpdf(theta[elite]) + log_lr[elite])
-        g = g.refit(theta[elite], w)
+        g = (g if isinstance(g, Proposal) else g.box).refit(theta[elite], w)  # a normal nominal: from the flat Beta
         refit_noise = getattr(score, "refit_noise", None)  # a score that draws noise from a proposal of its own
         if refit_noise is not None:
             refit_noise(elite, w)
@@ -184,7 +267,7 @@ def cross_entropy(score: ScoreFn, nominal: Proposal, rng: np.random.Generator, *
     return g, levels, evaluations
 
 
-def log_defensive_weights(nominal: Proposal, g: Proposal, alpha: float, theta: np.ndarray) -> np.ndarray:
+def log_defensive_weights(nominal: Nominal | Proposal, g: Proposal, alpha: float, theta: np.ndarray) -> np.ndarray:
     """(m,) log weights log p(theta) - log q(theta) of ``theta`` (m, d) under the defensive mixture
     q = alpha p + (1 - alpha) g (the scenario part of a final draw's weight)."""
     log_p = nominal.logpdf(theta)
@@ -195,12 +278,15 @@ def estimate(score: ScoreFn, bounds: Sequence[tuple[float, float]], *, samples: 
              level: float = 0.95, seed: int = 0, per_iteration: int = 200, rho: float = 0.1,
              max_iterations: int = 20, stream: int = 0, max_extra_ratio: float = 1.0,
              progress: Callable[[str], None] | None = None,
-             on_samples: Callable[[np.ndarray, np.ndarray, np.ndarray], None] | None = None) -> ISEstimate:
+             on_samples: Callable[[np.ndarray, np.ndarray, np.ndarray], None] | None = None,
+             nominal: Nominal | None = None) -> ISEstimate:
     """Cross-entropy fit, then ``samples`` draws from the defensive mixture; see the module docstring.
     max_extra_ratio: the largest likelihood ratio a :class:`Scored` result can carry (1 when the
     score function draws nothing but theta); it bounds the weights for the anytime lower bound.
     on_samples: given the final draws as (theta (M, d), weights (M,), failed (M,) bool), from which
     the estimate is mean(weights * failed) (to store them).
+    nominal: the nominal distribution on ``bounds`` (default: uniform on each; a :class:`Nominal` with
+    truncated-normal coordinates where the campaign draws them so).
 
     The draws come from a generator keyed by (``seed``, ``stream``): estimates that share a seed but
     must be independent (the cells of one campaign) pass distinct streams. Stream 0 is the stream of
@@ -208,7 +294,10 @@ def estimate(score: ScoreFn, bounds: Sequence[tuple[float, float]], *, samples: 
     if not 0.0 < alpha < 1.0:
         raise ValueError(f"the defensive share alpha must be in (0, 1), got {alpha}")
     rng = np.random.default_rng([seed, 0xCE, stream])
-    nominal = Proposal.nominal(bounds)
+    nominal = Nominal.uniform(bounds) if nominal is None else nominal
+    if not (np.array_equal(nominal.low, Proposal.nominal(bounds).low)
+            and np.array_equal(nominal.high, Proposal.nominal(bounds).high)):
+        raise ValueError("the nominal distribution's boxes must be the bounds")
     g, levels, evaluations = cross_entropy(score, nominal, rng, per_iteration=per_iteration, rho=rho,
                                            max_iterations=max_iterations, progress=progress)
     if progress:

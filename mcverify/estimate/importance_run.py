@@ -83,14 +83,16 @@ def figure_file(cell_index: int) -> str:
 
 
 def draw_cell(out: Path, result: dict[str, Any], bounds: dict[str, tuple[float, float]], alpha: float,
-              final: Mapping[str, np.ndarray]) -> None:
+              final: Mapping[str, np.ndarray], nominal: importance.Nominal | None = None) -> None:
     """Draw a finished cell's figure (:mod:`mcverify.reporting.importance_figures`)."""
+    nominal_logpdf = (nominal or importance.Nominal.uniform(list(bounds.values()))).marginal_logpdf
+
     from mcverify.reporting import importance_figures  # noqa: PLC0415 - matplotlib only where a figure is drawn
     title = (f"{result['cell']}: P({result['target']}) = {num(result['estimate'])} "
              f"[{num(result['low'])}, {num(result['high'])}], {result['failures']} failing of {len(final['weight'])}")
     importance_figures.draw_importance_cell(Path(out) / figure_file(result["cell_index"]), title, list(bounds),
                                             list(bounds.values()), result["proposal_a"], result["proposal_b"],
-                                            alpha, final["theta"], final["failed"])
+                                            alpha, final["theta"], final["failed"], nominal_logpdf=nominal_logpdf)
 
 
 def write_samples(out: Path, cell_index: int, names: Sequence[str], rows: Sequence[dict[str, Any]],
@@ -130,6 +132,17 @@ def scenario_bounds(cell: Cell) -> dict[str, tuple[float, float]]:
         if rng:
             out[key] = (float(rng[0]), float(rng[1]))
     return out
+
+
+def scenario_nominal(cell: Cell) -> importance.Nominal:
+    """The nominal distribution of the cell's drawn scenario parameters (:func:`scenario_bounds`), as
+    :func:`mcverify.episode.rollout.sample_scenario` draws them: uniform on each range, but veh_o's spawn
+    delay a truncated normal where ``opposing.spawn_delay_sd_s`` > 0."""
+    bounds = scenario_bounds(cell)
+    o = cell.params.opposing
+    normals = [(float(o.spawn_delay_s), float(o.spawn_delay_sd_s))
+               if key == "opp_spawn_delay_s" and o.spawn_delay_sd_s > 0 else None for key in bounds]
+    return importance.Nominal.of(list(bounds.values()), normals)
 
 
 def scenario_unit(cell: Cell, episode_ids: tuple[int, ...], seed: int, common_random_numbers: bool,
@@ -363,7 +376,8 @@ def _cells_on(campaign: Campaign, spec: ImportanceSpec, out: Path, done: dict[in
               only: list[str] | None, executor: Executor | None) -> Path:
     results = dict(done)
     columns: list[folder.Column] = [
-        ("cell", lambda c: c["cell"]), ("parameters", lambda c: ", ".join(c["parameters"])),
+        ("cell", lambda c: c["cell"]),
+        ("parameters (nominal)", lambda c: "; ".join(c.get("nominal") or c["parameters"])),
         ("estimate", lambda c: num(c["estimate"])), ("interval", lambda c: f"[{num(c['low'])}, {num(c['high'])}]"),
         ("anytime lower bound", lambda c: num(c["anytime_lower"])),
         ("failing samples", lambda c: str(c["failures"])), ("ESS", lambda c: num(c["ess"], ".0f")),
@@ -415,20 +429,23 @@ def _cells_on(campaign: Campaign, spec: ImportanceSpec, out: Path, done: dict[in
         # does), so that estimates with distinct --seed are independent repetitions and the cells of
         # one campaign are independent estimates (shared draws only under common random numbers)
         final: dict[str, np.ndarray] = {}
+        nominal = scenario_nominal(cell)
         est = importance.estimate(score, list(bounds.values()), samples=spec.samples, alpha=spec.alpha,
                                   level=spec.level, seed=campaign.seed, per_iteration=spec.ce_samples, rho=spec.rho,
                                   max_iterations=spec.max_ce_iterations, max_extra_ratio=spec.max_noise_ratio(),
                                   stream=0 if campaign.common_random_numbers else cell.index, progress=progress,
-                                  on_samples=lambda t, w, f, kept=final: kept.update(theta=t, weight=w, failed=f))
+                                  on_samples=lambda t, w, f, kept=final: kept.update(theta=t, weight=w, failed=f),
+                                  nominal=nominal)
         drawn = score.final_rows(len(final["weight"]))
         write_samples(out, cell.index, list(bounds), drawn, final)
         failing = [int(r["cell_episode"]) for r, f in zip(drawn, final["failed"], strict=False) if f]
         results[cell.index] = {"cell_index": cell.index, "cell": cell.name, "method": "importance",
-                               "target": spec.target, "parameters": list(bounds), **est.as_dict(),
+                               "target": spec.target, "parameters": list(bounds),
+                               "nominal": nominal.describe(list(bounds)), **est.as_dict(),
                                "failing_draws": failing,
                                "episodes": score.episodes, "steps": score.steps, "cpu_s": score.cpu_s,
                                **({} if score.noise_tilt is None else {"noise_tilt": score.noise_tilt._asdict()})}
-        draw_cell(out, results[cell.index], bounds, spec.alpha, final)
+        draw_cell(out, results[cell.index], bounds, spec.alpha, final, nominal)
         write()
         cache.remove()
     folder.finish(out)

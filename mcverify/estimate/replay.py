@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import math
 from pathlib import Path
 from typing import Any
 
@@ -46,7 +47,7 @@ from mcverify.errors import RunError, UserError
 from mcverify.estimate import folder
 from mcverify.estimate.closed_loop import score_of
 from mcverify.estimate.importance import Proposal, log_defensive_weights
-from mcverify.estimate.importance_run import samples_file, scenario_bounds
+from mcverify.estimate.importance_run import samples_file, scenario_nominal
 from mcverify.sim.noise import NoiseTilt
 
 
@@ -104,9 +105,11 @@ def replay_draw(est_dir: Path, episode_id: int, out_dir: Path | None = None,
 def _log_weights_of(cell, result: dict[str, Any], alpha: float):
     """theta (m, d) -> the scenario part of the final draws' log weights, by the estimator's own function
     (:func:`mcverify.estimate.importance.log_defensive_weights`), with the cell's fitted proposal."""
-    nominal = Proposal.nominal(list(scenario_bounds(cell).values()))
-    fitted = Proposal(nominal.low, nominal.high, np.array(result["proposal_a"], dtype=float),
-                      np.array(result["proposal_b"], dtype=float))
+    nominal = scenario_nominal(cell)
+    a, b = (np.array([math.nan if v is None else v for v in result[k]], dtype=float)
+            for k in ("proposal_a", "proposal_b"))
+    # NaN: no cross-entropy iteration ran and the nominal has a normal coordinate, so the proposal is the nominal
+    fitted = nominal if np.isnan(a).any() else Proposal(nominal.low, nominal.high, a, b)
     return lambda theta: log_defensive_weights(nominal, fitted, alpha, theta)
 
 

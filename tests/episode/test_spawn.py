@@ -135,6 +135,10 @@ def test_spawn_at_start_is_recorded_as_zero() -> None:
     ({"spawn": "lane_entry", "spawn_gap_range_m": [200.0, 100.0]}, "opposing.spawn_gap_range_m"),
     ({"spawn": "lane_entry", "spawn_delay_range_s": [-1.0, 2.0]}, "opposing.spawn_delay_range_s"),
     ({"speed_range_mps": [10.0, 25.0]}, "opposing.speed_range_mps"),
+    ({"spawn": "lane_entry", "spawn_delay_sd_s": -0.1}, "opposing.spawn_delay_sd_s"),
+    ({"spawn": "lane_entry", "spawn_delay_sd_s": 0.1}, "opposing.spawn_delay_sd_s: a normal spawn delay needs"),
+    ({"spawn": "lane_entry", "spawn_delay_s": 1.0, "spawn_delay_sd_s": 0.1, "spawn_delay_range_s": [3.0, 8.0]},
+     r"opposing.spawn_delay_sd_s: the range \[3.0, 8.0\] s holds 0 of the normal\(1, 0.1\) spawn delay"),
 ])
 def test_bad_spawn_settings_are_one_line(opposing, field) -> None:
     with pytest.raises(CampaignError, match=field.replace(".", r"\.")) as err:

@@ -17,7 +17,7 @@ from mcverify.campaign import executors
 from mcverify.campaign.spec import campaign_from_dict
 from mcverify.cli import main
 from mcverify.episode.rollout import run_episodes
-from mcverify.estimate.importance_run import scenario_bounds
+from mcverify.estimate.importance_run import scenario_bounds, scenario_nominal
 
 FIXTURE = Path(__file__).resolve().parents[1] / "fixtures" / "tiny.toml"
 
@@ -53,6 +53,11 @@ def test_veh_o_arrival_draws_are_sampling_parameters():
     at_start = campaign_from_dict({"campaign": {"name": "r", "seed": 1, "episodes": 1},
                                    "model": {"opposing": {**opposing, "spawn": "start"}}})
     assert scenario_bounds(at_start.cells[0]) == {"opp_speed_mps": (8.0, 18.0)}  # gap and delay do not apply
+    jitter = campaign_from_dict({"campaign": {"name": "r", "seed": 1, "episodes": 1},
+                                 "model": {"opposing": {**opposing, "spawn_delay_s": 1.5, "spawn_delay_sd_s": 0.125}}})
+    assert scenario_nominal(jitter.cells[0]).describe(list(scenario_bounds(jitter.cells[0]))) == [
+        "opp_speed_mps ~ uniform on [8, 18]", "opp_spawn_gap_m ~ uniform on [100, 200]",
+        "opp_spawn_delay_s ~ normal(1.5, 0.125) truncated to [0, 8]"]
 
 
 def test_importance_cli_writes_its_estimate_and_resumes(tmp_path: Path, campaign_file: Path, capsys):
