@@ -30,6 +30,21 @@ def mixture_density(x: np.ndarray, low: float, high: float, a: float, b: float, 
     return alpha * p + (1.0 - alpha) * sps.beta.pdf((x - low) / width, a, b) / width
 
 
+def _shown_range(low: float, high: float, draws: np.ndarray, densities) -> tuple[float, float]:
+    """The part of [low, high] worth showing: where the draws fall and either density exceeds a thousandth
+    of its peak, padded by a tenth; the whole range unless that part is under half of it (a nominal normal
+    in a wide box, or a proposal narrowed onto a window, would otherwise be a spike at one side)."""
+    x = np.linspace(low, high, 20 * CURVE_POINTS)
+    nominal, proposal = densities(x)
+    mass = (nominal > 1e-3 * nominal.max()) | (proposal > 1e-3 * proposal.max())
+    lo = min(float(x[mass].min()), float(np.min(draws))) if mass.any() else float(np.min(draws))
+    hi = max(float(x[mass].max()), float(np.max(draws))) if mass.any() else float(np.max(draws))
+    if hi - lo >= 0.5 * (high - low):
+        return low, high
+    pad = 0.1 * max(hi - lo, 1e-9 * (high - low))
+    return max(low, lo - pad), min(high, hi + pad)
+
+
 def draw_importance_cell(path: Path, title: str, names: Sequence[str], bounds: Sequence[tuple[float, float]],
                          proposal_a: Sequence[float], proposal_b: Sequence[float], alpha: float,
                          theta: np.ndarray, failed: np.ndarray,
@@ -43,18 +58,23 @@ def draw_importance_cell(path: Path, title: str, names: Sequence[str], bounds: S
     width_in = max(6.0, 4.2 * len(names))
     fig, axes = plt.subplots(1, len(names), figsize=(width_in, 3.4), squeeze=False)
     for j, (ax, name, (low, high)) in enumerate(zip(axes[0], names, bounds, strict=True)):
-        x = np.linspace(low, high, CURVE_POINTS)
-        ax.hist(theta[:, j], bins=30, range=(low, high), density=True, color="0.85", label="final draws")
-        nominal = (np.exp(nominal_logpdf(j, x)) if nominal_logpdf is not None
-                   else np.full_like(x, 1.0 / (high - low)))
+
+        def densities(x: np.ndarray, j: int = j, low: float = low, high: float = high) -> tuple[np.ndarray, np.ndarray]:
+            nominal = (np.exp(nominal_logpdf(j, x)) if nominal_logpdf is not None
+                       else np.full_like(x, 1.0 / (high - low)))
+            return nominal, mixture_density(x, low, high, proposal_a[j], proposal_b[j], alpha, nominal)
+
+        shown = _shown_range(low, high, theta[:, j], densities)
+        x = np.linspace(*shown, CURVE_POINTS)
+        nominal, proposal = densities(x)
+        ax.hist(theta[:, j], bins=30, range=shown, density=True, color="0.85", label="final draws")
         ax.plot(x, nominal, "--", color="0.4", label="nominal")
-        ax.plot(x, mixture_density(x, low, high, proposal_a[j], proposal_b[j], alpha, nominal), color="tab:blue",
-                label="proposal")
+        ax.plot(x, proposal, color="tab:blue", label="proposal")
         fails = theta[failed, j]
         if fails.size:
             ax.plot(fails, np.zeros_like(fails), "|", color="tab:red", markersize=12, label="failing draws")
-        ax.set_xlim(low, high)
-        ax.set_xlabel(name)
+        ax.set_xlim(*shown)
+        ax.set_xlabel(name if shown == (low, high) else f"{name} (range {low:g} to {high:g}; shown where the mass is)")
         ax.set_ylabel("density")
         ax.legend(fontsize=7, loc="upper right")
     fig.suptitle(title, fontsize=9)
