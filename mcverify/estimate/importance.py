@@ -205,7 +205,7 @@ class Nominal:
         return sps.norm.logpdf((x - self.mean[j]) / self.sd[j]) - math.log(self.sd[j]) - log_mass
 
     def describe(self, names: Sequence[str]) -> list[str]:
-        """One phrase per coordinate, e.g. "opp_spawn_delay_s ~ normal(1.5, 0.125) on [0, 8]"."""
+        """One phrase per coordinate, e.g. "opp_spawn_delay_s ~ normal(1.5, 0.125) truncated to [0, 8]"."""
         return [f"{n} ~ " + (f"normal({self.mean[j]:.4g}, {self.sd[j]:.4g}) truncated to "
                              if self._normal[j] else "uniform on ") + f"[{self.low[j]:.4g}, {self.high[j]:.4g}]"
                 for j, n in enumerate(names)]

@@ -46,7 +46,7 @@ from mcverify.cell import Cell
 from mcverify.control.planner import Planner
 from mcverify.episode.rollout import ChunkResult, run_episodes
 from mcverify.errors import RunError
-from mcverify.estimate import evaluations, folder, importance
+from mcverify.estimate import evaluations, folder, importance, splitting
 from mcverify.estimate.closed_loop import H_EF_SCORES, SCORES, gap_score, h_ef_score
 from mcverify.estimate.evaluations import EvaluationCache
 from mcverify.estimate.folder import num
@@ -132,6 +132,21 @@ def scenario_bounds(cell: Cell) -> dict[str, tuple[float, float]]:
         if rng:
             out[key] = (float(rng[0]), float(rng[1]))
     return out
+
+
+def crude_comparison(est: importance.ISEstimate, rows: Sequence[dict[str, Any]], weights: np.ndarray,
+                     steps: int) -> dict[str, float]:
+    """What crude Monte Carlo would need for the estimate's relative half-width, in control steps: its
+    episodes (from the estimate, :func:`mcverify.estimate.splitting.crude_steps_for`) times a nominal
+    episode's steps, the final draws' steps weighted by their likelihood ratios (self-normalised: the
+    nominal mean, whichever proposal drew them); and the ratio to the steps this estimate took."""
+    w = np.asarray(weights, dtype=float)
+    episode_steps = float(np.sum(w * [r.get("steps", math.nan) for r in rows]) / np.sum(w)) if w.size else math.nan
+    half = (est.high - est.estimate) / est.estimate if est.estimate > 0 else math.nan  # the low end is clipped at 0
+    crude = (splitting.crude_steps_for(est.estimate, half, episode_steps, est.level)
+             if math.isfinite(half) and half > 0 else math.nan)
+    return {"relative_halfwidth": half, "mean_episode_steps": episode_steps, "crude_steps_same_width": crude,
+            "steps_ratio_vs_crude": crude / steps if steps and math.isfinite(crude) else math.nan}
 
 
 def scenario_nominal(cell: Cell) -> importance.Nominal:
@@ -382,7 +397,11 @@ def _cells_on(campaign: Campaign, spec: ImportanceSpec, out: Path, done: dict[in
         ("anytime lower bound", lambda c: num(c["anytime_lower"])),
         ("failing samples", lambda c: str(c["failures"])), ("ESS", lambda c: num(c["ess"], ".0f")),
         ("largest weight share", lambda c: num(c["max_weight_share"], ".2f")),
-        ("episodes", lambda c: str(c["episodes"])), ("CPU (s)", lambda c: num(c["cpu_s"], ".0f")),
+        ("rel. half-width", lambda c: num(c.get("relative_halfwidth"), ".2f")),
+        ("episodes", lambda c: str(c["episodes"])), ("control steps", lambda c: str(c["steps"])),
+        ("CPU (s)", lambda c: num(c["cpu_s"], ".0f")),
+        ("crude MC steps, same width", lambda c: num(c.get("crude_steps_same_width"))),
+        ("ratio", lambda c: num(c.get("steps_ratio_vs_crude"), ".3g")),
         ("warnings", lambda c: "; ".join(c["warnings"]) or "-"),
         ("replay the first failing draw", lambda c: _replay_text(out, c, len(campaign.cells))),
     ]
@@ -444,6 +463,7 @@ def _cells_on(campaign: Campaign, spec: ImportanceSpec, out: Path, done: dict[in
                                "nominal": nominal.describe(list(bounds)), **est.as_dict(),
                                "failing_draws": failing,
                                "episodes": score.episodes, "steps": score.steps, "cpu_s": score.cpu_s,
+                               **crude_comparison(est, drawn, final["weight"], score.steps),
                                **({} if score.noise_tilt is None else {"noise_tilt": score.noise_tilt._asdict()})}
         draw_cell(out, results[cell.index], bounds, spec.alpha, final, nominal)
         write()

@@ -5,6 +5,7 @@ veh_o arriving about 3.7 standard deviations late) with an interval that covers 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import jax
@@ -105,3 +106,18 @@ def test_without_cross_entropy_a_normal_nominal_is_its_own_proposal():
     np.testing.assert_allclose(kept["weight"], 1.0, rtol=1e-12)
     assert sps.kstest(kept["theta"][:, 0], sps.truncnorm(A, B, loc=MEAN_S, scale=SD_S).cdf).pvalue > 1e-3
     assert math.isnan(est.proposal_a[0]) and est.estimate == 0.0
+
+
+def test_the_crude_comparison_uses_the_estimates_half_width_and_a_nominal_episodes_steps():
+    from mcverify.estimate import importance_run
+
+    est = importance.ISEstimate(1e-4, 0.7e-4, 1.3e-4, 0.95, 100, 50, 20.0, 0.1, 3, [-1.0, 0.0], 200, [5.0], [9.0],
+                                0.5e-4)
+    # weights 3 and 1: the self-normalised mean of the steps is (3 * 100 + 1 * 300) / 4 = 150
+    out = importance_run.crude_comparison(est, [{"steps": 100}, {"steps": 300}], np.array([3.0, 1.0]), 20_000)
+    assert out["relative_halfwidth"] == pytest.approx(0.3) and out["mean_episode_steps"] == pytest.approx(150.0)
+    episodes = sps.norm.ppf(0.975) ** 2 * (1 - 1e-4) / (1e-4 * 0.09)
+    assert out["crude_steps_same_width"] == pytest.approx(episodes * 150.0)
+    assert out["steps_ratio_vs_crude"] == pytest.approx(episodes * 150.0 / 20_000)
+    nothing = importance_run.crude_comparison(dataclasses.replace(est, estimate=0.0, high=0.0), [], np.zeros(0), 10)
+    assert all(math.isnan(v) for v in nothing.values())
