@@ -121,3 +121,18 @@ def test_the_crude_comparison_uses_the_estimates_half_width_and_a_nominal_episod
     assert out["steps_ratio_vs_crude"] == pytest.approx(episodes * 150.0 / 20_000)
     nothing = importance_run.crude_comparison(dataclasses.replace(est, estimate=0.0, high=0.0), [], np.zeros(0), 10)
     assert all(math.isnan(v) for v in nothing.values())
+
+
+@pytest.mark.slow
+def test_coverage_at_the_rare_cells_settings():
+    """campaigns/veh_o_arrival_jitter.toml's command (40 episodes per cross-entropy iteration, elite share
+    0.25, at most 8 iterations, 120 final draws) on the window of the same shape: 200 repetitions. Measured:
+    178 of 200 cover (89 %), bias -3 % +- 1.3 %; the misses are mostly low (a skewed estimator) and most
+    carry a warning (few failing samples' ESS, or levels that stopped below 0)."""
+    nominal = importance.Nominal.of([BOX], [(MEAN_S, SD_S)])
+    ests = [importance.estimate(window_score, [BOX], samples=120, per_iteration=40, rho=0.25, max_iterations=8,
+                                seed=1000 + r, nominal=nominal) for r in range(200)]
+    values = np.array([e.estimate for e in ests])
+    assert np.mean([e.contains(P_WINDOW) for e in ests]) >= 0.85
+    assert abs(values.mean() / P_WINDOW - 1) < 0.06
+    assert np.mean([e.anytime_lower <= P_WINDOW for e in ests]) >= 0.95
