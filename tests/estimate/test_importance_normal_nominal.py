@@ -123,16 +123,37 @@ def test_the_crude_comparison_uses_the_estimates_half_width_and_a_nominal_episod
     assert all(math.isnan(v) for v in nothing.values())
 
 
+#: The closed loop's soft edge: P(collision | arrival x) = logistic((x - EDGE_S) / EDGE_SCALE_S), fitted to the
+#: 300 episodes with arrivals >= 1.9 s of docs/rare_events.md (1 % at 1.91 s, 37 % at 1.95 s, 78 % at 1.97 s).
+EDGE_S, EDGE_SCALE_S = 1.956, 0.0111
+
+
+def soft_window_score(seed: int):
+    """A score whose failure probability rises smoothly across the edge (the noise decides there), as the gap
+    to veh_f does: x plus logistic noise, minus the edge; falling after the window's end."""
+    rng = np.random.default_rng(seed)
+
+    def score(theta: np.ndarray) -> np.ndarray:
+        x, u = theta[:, 0], rng.random(theta.shape[0])
+        return np.minimum(x + EDGE_SCALE_S * np.log(u / (1 - u)) - EDGE_S, WINDOW[1] - x)
+
+    return score
+
+
 @pytest.mark.slow
 def test_coverage_at_the_rare_cells_settings():
     """campaigns/veh_o_arrival_jitter.toml's command (40 episodes per cross-entropy iteration, elite share
-    0.25, at most 8 iterations, 120 final draws) on the window of the same shape: 200 repetitions. Measured:
-    178 of 200 cover (89 %), bias -3 % +- 1.3 %; the misses are mostly low (a skewed estimator) and most
-    carry a warning (few failing samples' ESS, or levels that stopped below 0)."""
+    0.25, at most 8 iterations, 120 final draws), 200 repetitions, on the closed loop's soft edge (measured:
+    186 of 200 cover, bias 2 % +- 2 %) and on a hard window of the same place (178 of 200, bias -3 % +- 1 %;
+    the misses mostly low, a skewed estimator, and most of them warned)."""
     nominal = importance.Nominal.of([BOX], [(MEAN_S, SD_S)])
-    ests = [importance.estimate(window_score, [BOX], samples=120, per_iteration=40, rho=0.25, max_iterations=8,
-                                seed=1000 + r, nominal=nominal) for r in range(200)]
-    values = np.array([e.estimate for e in ests])
-    assert np.mean([e.contains(P_WINDOW) for e in ests]) >= 0.85
-    assert abs(values.mean() / P_WINDOW - 1) < 0.06
-    assert np.mean([e.anytime_lower <= P_WINDOW for e in ests]) >= 0.95
+    density = sps.truncnorm(A, B, loc=MEAN_S, scale=SD_S).pdf
+    p_soft, _ = integrate.quad(lambda x: density(x) / (1 + math.exp(-(x - EDGE_S) / EDGE_SCALE_S)), 1.6, WINDOW[1],
+                               points=[EDGE_S], limit=200)
+    for score, p, floor in ((soft_window_score, p_soft, 0.9), (lambda seed: window_score, P_WINDOW, 0.85)):
+        ests = [importance.estimate(score(9000 + r), [BOX], samples=120, per_iteration=40, rho=0.25,
+                                    max_iterations=8, seed=1000 + r, nominal=nominal) for r in range(200)]
+        values = np.array([e.estimate for e in ests])
+        assert np.mean([e.contains(p) for e in ests]) >= floor
+        assert abs(values.mean() / p - 1) < 0.06
+        assert np.mean([e.anytime_lower <= p for e in ests]) >= 0.95
