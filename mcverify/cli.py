@@ -984,17 +984,6 @@ def _noise_tilt(text: str) -> dict:
     return {**NoiseTilt(**values)._asdict(), "theta": theta}
 
 
-def _open_unit(text: str) -> float:
-    """A number strictly between 0 and 1 (argparse type)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number between 0 and 1, got {text!r}") from None
-    if not 0.0 < value < 1.0:
-        raise argparse.ArgumentTypeError(f"must be between 0 and 1 (exclusive), got {text}")
-    return value
-
-
 def _positive_int(text: str) -> int:
     value = _int(text)
     if value < 1:
@@ -1022,14 +1011,19 @@ def _halfwidth(text: str) -> tuple[float, bool]:
     return value, relative
 
 
-def _level(text: str) -> float:
+def _open_unit(text: str, example: str = "") -> float:
+    """A number strictly between 0 and 1 (argparse type)."""
     try:
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {text!r}") from None
     if not 0.0 < value < 1.0:
-        raise argparse.ArgumentTypeError(f"must be in (0, 1), e.g. 0.95, got {value}")
+        raise argparse.ArgumentTypeError(f"must be in (0, 1){', e.g. ' + example if example else ''}, got {value}")
     return value
+
+
+def _level(text: str) -> float:
+    return _open_unit(text, "0.95")
 
 
 def _int(text: str) -> int:

@@ -103,8 +103,8 @@ def test_a_set_of_a_field_only_falsify_sets_names_the_option(tmp_path, capsys):
     (["--method", "importance", "--replicates", "4"], "--replicates is for --method splitting, not importance"),
     (["--method", "splitting", "--ce-samples", "4"], "--ce-samples is for --method importance, not splitting"),
     (["--method", "splitting", "--elite-share", "0.2"], "--elite-share is for --method importance, not splitting"),
-    (["--method", "importance", "--elite-share", "1"], "--elite-share: must be between 0 and 1 (exclusive), got 1"),
-    (["--method", "importance", "--elite-share", "x"], "--elite-share: expected a number between 0 and 1, got 'x'"),
+    (["--method", "importance", "--elite-share", "1"], "--elite-share: must be in (0, 1), got 1.0"),
+    (["--method", "importance", "--elite-share", "x"], "--elite-share: expected a number in (0, 1), got 'x'"),
 ])
 def test_estimate_refuses_an_option_its_method_would_ignore(tmp_path, capsys, options, fragment):
     f = Path(__file__).parent / "fixtures" / "tiny.toml"
