@@ -84,10 +84,10 @@ def figure_file(cell_index: int) -> str:
 
 def draw_cell(out: Path, result: dict[str, Any], bounds: dict[str, tuple[float, float]], alpha: float,
               final: Mapping[str, np.ndarray], nominal: importance.Nominal | None = None) -> None:
-    """Draw a finished cell's figure (:mod:`mcverify.reporting.importance_figures`)."""
-    nominal_logpdf = (nominal or importance.Nominal.uniform(list(bounds.values()))).marginal_logpdf
-
+    """Draw a finished cell's figure (:mod:`mcverify.reporting.importance_figures`); ``nominal``: the cell's
+    nominal distribution (default: uniform on the bounds)."""
     from mcverify.reporting import importance_figures  # noqa: PLC0415 - matplotlib only where a figure is drawn
+    nominal_logpdf = (nominal or importance.Nominal.uniform(list(bounds.values()))).marginal_logpdf
     title = (f"{result['cell']}: P({result['target']}) = {num(result['estimate'])} "
              f"[{num(result['low'])}, {num(result['high'])}], {result['failures']} failing of {len(final['weight'])}")
     importance_figures.draw_importance_cell(Path(out) / figure_file(result["cell_index"]), title, list(bounds),
