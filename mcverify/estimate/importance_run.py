@@ -141,7 +141,8 @@ def crude_comparison(est: importance.ISEstimate, rows: Sequence[dict[str, Any]],
     episode's steps, the final draws' steps weighted by their likelihood ratios (self-normalised: the
     nominal mean, whichever proposal drew them); and the ratio to the steps this estimate took."""
     w = np.asarray(weights, dtype=float)
-    episode_steps = float(np.sum(w * [r.get("steps", math.nan) for r in rows]) / np.sum(w)) if w.size else math.nan
+    kept = w.size and len(rows) == w.size  # a score function that keeps no rows (a test's stub) has no steps
+    episode_steps = float(np.sum(w * [r.get("steps", math.nan) for r in rows]) / np.sum(w)) if kept else math.nan
     half = (est.high - est.estimate) / est.estimate if est.estimate > 0 else math.nan  # the low end is clipped at 0
     crude = (splitting.crude_steps_for(est.estimate, half, episode_steps, est.level)
              if math.isfinite(half) and half > 0 else math.nan)

@@ -121,6 +121,8 @@ def test_the_crude_comparison_uses_the_estimates_half_width_and_a_nominal_episod
     assert out["steps_ratio_vs_crude"] == pytest.approx(episodes * 150.0 / 20_000)
     nothing = importance_run.crude_comparison(dataclasses.replace(est, estimate=0.0, high=0.0), [], np.zeros(0), 10)
     assert all(math.isnan(v) for v in nothing.values())
+    no_rows = importance_run.crude_comparison(est, [], np.array([3.0, 1.0]), 10)  # rows not kept: no step count
+    assert math.isnan(no_rows["crude_steps_same_width"]) and no_rows["relative_halfwidth"] == pytest.approx(0.3)
 
 
 #: The closed loop's soft edge: P(collision | arrival x) = logistic((x - EDGE_S) / EDGE_SCALE_S), fitted to the
