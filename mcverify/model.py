@@ -11,6 +11,7 @@ resolved values are written to every run's ``manifest.json``.
 from __future__ import annotations
 
 import math
+import statistics
 from dataclasses import asdict, dataclass, field
 
 
@@ -542,6 +543,17 @@ class Opposing:
         """Whether there is a veh_o and it appears at the ego's lane entry (where the spawn gap and
         delay apply)."""
         return self.kind != "none" and self.spawn == "lane_entry"
+
+
+def normal_masses(mean: float, sd: float, lo: float, hi: float) -> tuple[float, float, float]:
+    """(below lo, inside [lo, hi], above hi): the probabilities of a normal (``mean``, ``sd``), each tail taken
+    from its own side so that a range far in a tail keeps its precision (the normal spawn delay,
+    ``OpposingParams.spawn_delay_sd_s``: its validation, its draws and the importance sampler's nominal)."""
+    unit = statistics.NormalDist()
+    a, b = (lo - mean) / sd, (hi - mean) / sd
+    below, above = unit.cdf(a), unit.cdf(-b)
+    inside = unit.cdf(-a) - unit.cdf(-b) if a > 0 else unit.cdf(b) - unit.cdf(a)
+    return below, inside, above
 
 
 @dataclass(frozen=True)

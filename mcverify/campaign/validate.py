@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import statistics
 from typing import Any
 
 from mcverify import levels
@@ -25,6 +24,7 @@ from mcverify.model import (
     Q2_STOPPABLE_MODES,
     REQUIREMENT_NAMES,
     ModelParams,
+    normal_masses,
 )
 
 #: The piecewise-constant disturbance fields of [model.noise].
@@ -265,9 +265,7 @@ def _check_normal_range(bad, o) -> None:
     if not o.spawn_delay_range_s:
         raise bad("opposing.spawn_delay_sd_s", "a normal spawn delay needs opposing.spawn_delay_range_s = [lo, hi] "
                   "to truncate it to")
-    lo, hi = ((x - o.spawn_delay_s) / o.spawn_delay_sd_s for x in o.spawn_delay_range_s)
-    unit = statistics.NormalDist()
-    share = unit.cdf(hi) - unit.cdf(lo) if lo < 0 else unit.cdf(-lo) - unit.cdf(-hi)  # the far tail from its side
+    _, share, _ = normal_masses(o.spawn_delay_s, o.spawn_delay_sd_s, *o.spawn_delay_range_s)
     if not share > MIN_NORMAL_SHARE:
         raise bad("opposing.spawn_delay_sd_s", f"the range {list(o.spawn_delay_range_s)} s holds {share:.3g} of "
                   f"the normal({o.spawn_delay_s:.4g}, {o.spawn_delay_sd_s:.4g}) spawn delay, less than "

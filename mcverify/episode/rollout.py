@@ -42,6 +42,7 @@ from mcverify.episode import stop
 from mcverify.episode.recording import EpisodeRecording
 from mcverify.episode.row import EndState, Row, episode_row
 from mcverify.episode.snapshot import Branching, branch_key
+from mcverify.model import normal_masses
 from mcverify.sim.noise import NoiseTilt
 from mcverify.sim.plant import LaneGroups, SafetyTrace, Substep, footprint_top_y_m, initial_plant
 
@@ -144,8 +145,7 @@ def truncated_normal(u: float, mean: float, sd: float, lo: float, hi: float) -> 
     distribution function. The upper tail is inverted through the survival function, so a value 4-8 sd
     above the mean keeps its precision (where a rare event of the scenario lives)."""
     norm = statistics.NormalDist(mean, sd)
-    below, above = norm.cdf(lo), 1.0 - norm.cdf(hi)
-    mass = 1.0 - below - above
+    below, mass, above = normal_masses(mean, sd, lo, hi)
     tail = (1.0 - u) * mass  # the probability above the value, within the range
     if tail + above <= 0.0:  # u = 1 (or a range beyond the normal's double precision): the top
         return hi

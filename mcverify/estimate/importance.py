@@ -47,6 +47,7 @@ import numpy as np
 from scipy import stats as sps
 
 from mcverify.analysis import betting
+from mcverify.model import normal_masses
 
 
 class Scored(NamedTuple):
@@ -179,7 +180,7 @@ class Nominal:
         """(a, b, log mass) of coordinate j: the box's bounds in standard units and log(Phi(b) - Phi(a))."""
         a = (self.low[j] - self.mean[j]) / self.sd[j]
         b = (self.high[j] - self.mean[j]) / self.sd[j]
-        mass = sps.norm.sf(a) - sps.norm.sf(b) if a > 0 else sps.norm.cdf(b) - sps.norm.cdf(a)
+        _, mass, _ = normal_masses(float(self.mean[j]), float(self.sd[j]), float(self.low[j]), float(self.high[j]))
         return float(a), float(b), math.log(mass)
 
     def sample(self, rng: np.random.Generator, m: int) -> np.ndarray:
@@ -294,9 +295,9 @@ def estimate(score: ScoreFn, bounds: Sequence[tuple[float, float]], *, samples: 
     if not 0.0 < alpha < 1.0:
         raise ValueError(f"the defensive share alpha must be in (0, 1), got {alpha}")
     rng = np.random.default_rng([seed, 0xCE, stream])
+    box = Proposal.nominal(bounds)
     nominal = Nominal.uniform(bounds) if nominal is None else nominal
-    if not (np.array_equal(nominal.low, Proposal.nominal(bounds).low)
-            and np.array_equal(nominal.high, Proposal.nominal(bounds).high)):
+    if not (np.array_equal(nominal.low, box.low) and np.array_equal(nominal.high, box.high)):
         raise ValueError("the nominal distribution's boxes must be the bounds")
     g, levels, evaluations = cross_entropy(score, nominal, rng, per_iteration=per_iteration, rho=rho,
                                            max_iterations=max_iterations, progress=progress)
