@@ -287,6 +287,9 @@ def _parser() -> argparse.ArgumentParser:
                      help="splitting: iteration cap per run (default 2000; a capped run is flagged, not an estimate)")
     est.add_argument("--resume", type=Path, metavar="RUN_DIR", help="finish an interrupted estimate")
     est.add_argument("--no-progress", action="store_true", help="no progress bar")
+    est.add_argument("--dry-run", action="store_true",
+                     help="check the campaign and the options, say how many episodes the estimate may run and a "
+                          "rough CPU range, and run nothing")
     est.set_defaults(func=_cmd_estimate)
 
     rep = sub.add_parser("replay", help="re-simulate one stored episode and write its trajectory")
@@ -606,16 +609,18 @@ def _check_estimate_options(args, method: str) -> None:
 
 
 def _cmd_estimate(args) -> int:
-    from mcverify.analysis.estimates import EstimateSpec
     from mcverify.campaign import executors, runner
-    from mcverify.campaign.spec import load_campaign
     from mcverify.errors import RunError
-    from mcverify.estimate import folder, mc
+    from mcverify.estimate import mc
 
     method = _folder_method(args.resume) if args.resume else (args.method or "mc")
     if args.noise_tilt is not None and (args.resume or method != "importance"):
         raise RunError("--noise-tilt is a proposal of --method importance, given when the estimate starts")
+    if args.resume and args.dry_run:
+        raise RunError("--dry-run checks a campaign file; it does not apply to --resume")
     _check_estimate_options(args, method)
+    if args.dry_run:
+        return _estimate_dry_run(args, method)
     if method in ("splitting", "importance"):
         return _cmd_estimate_in_process(args, method)
     executor = executors.make_executor(args.executor, workers=args.workers, address=args.address)
@@ -629,15 +634,8 @@ def _cmd_estimate(args) -> int:
 
         path = mc.resume(args.resume, executor=executor, progress=not args.no_progress, on_start=resuming)
     else:
-        if args.campaign is None:
-            raise RunError("missing campaign file, e.g. `mcverify estimate campaigns/eps_sweep_rare.toml`")
-        halfwidth, relative = args.until_halfwidth or (None, False)
-        try:
-            spec = EstimateSpec(args.method, args.target, halfwidth, relative, args.budget, args.level)
-        except ValueError as err:
-            raise RunError(str(err)) from None
-        campaign = load_campaign(args.campaign, episodes=args.budget, seed=args.seed, settings=args.settings)
-        folder.check_noise_is_drawn(campaign)
+        spec = _estimate_spec(args, "mc")
+        campaign = _estimate_campaign(args, "mc")
         out = args.run_dir = new_folder(args, lambda parent: runner.default_run_dir(campaign, parent))
         _log.info("%s", runner.describe(campaign))
         _log.info("estimate folder: %s", out)
@@ -645,6 +643,68 @@ def _cmd_estimate(args) -> int:
                       chunk_size=args.chunk_size or runner.DEFAULT_CHUNK_SIZE, progress=not args.no_progress)
     print(path.read_text())
     _log.info("report: %s", path)
+    return 0
+
+
+def _estimate_spec(args, method: str):
+    """The estimate's rule from the command line (a new estimate), refused in one line if invalid."""
+    from mcverify.analysis.estimates import EstimateSpec
+    from mcverify.errors import RunError
+    from mcverify.estimate import importance_run, splitting_run
+
+    if args.campaign is None:
+        raise RunError("missing campaign file, e.g. `mcverify estimate campaigns/eps_sweep_rare.toml`")
+    if method != "mc" and args.target not in ("collision", "ellipse"):
+        raise RunError(f"{method} estimates --target collision or ellipse")
+    try:
+        if method == "mc":
+            halfwidth, relative = args.until_halfwidth or (None, False)
+            return EstimateSpec(args.method, args.target, halfwidth, relative, args.budget, args.level)
+        if method == "splitting":
+            score = args.score or ("gap" if args.target == "collision" else "h_ef")
+            spec = splitting_run.SplittingSpec(score, args.particles, 1, args.replicates, args.level,
+                                               args.max_iterations)
+            if spec.target != args.target:
+                raise RunError(f"--score {score} estimates {spec.target}, not --target {args.target}")
+            return spec
+        return importance_run.ImportanceSpec(args.target, args.samples, args.ce_samples, rho=args.elite_share,
+                                             level=args.level, max_ce_iterations=args.ce_iterations,
+                                             score=args.score, noise_tilt=args.noise_tilt)
+    except ValueError as err:
+        raise RunError(str(err)) from None
+
+
+def _estimate_campaign(args, method: str):
+    """The campaign of a new estimate, with every check an estimate makes before its folder exists."""
+    from mcverify.campaign.spec import load_campaign
+    from mcverify.estimate import folder, importance_run
+
+    budget = args.budget if method == "mc" else None
+    campaign = load_campaign(args.campaign, episodes=budget, seed=args.seed, settings=args.settings)
+    folder.check_noise_is_drawn(campaign)
+    if method != "mc":
+        folder.check_cells(campaign, args.cell)
+    if method == "importance":
+        importance_run.check_cells_have_ranges(campaign, args.cell or None)
+    return campaign
+
+
+def _estimate_dry_run(args, method: str) -> int:
+    """``estimate --dry-run``: every check of a new estimate, then its plan (:mod:`mcverify.estimate.plan`)."""
+    from mcverify.campaign import executors, lint
+    from mcverify.estimate import plan
+
+    _estimate_spec(args, method)
+    campaign = _estimate_campaign(args, method)
+    for warning in lint.warnings(campaign):
+        _log.warning("warning: %s", warning)
+    in_process = method != "mc" and args.executor == "local" and args.workers is None
+    workers = 1 if in_process else (args.workers or executors.default_workers())
+    options = plan.EstimateOptions(
+        method, args.target, budget=args.budget, samples=args.samples, ce_samples=args.ce_samples,
+        ce_iterations=args.ce_iterations, particles=args.particles, replicates=args.replicates,
+        max_iterations=args.max_iterations, cells=tuple(args.cell), workers=workers)
+    print(plan.render(campaign, options))
     return 0
 
 
@@ -671,9 +731,9 @@ def _folder_method(run_dir: Path) -> str | None:
 
 def _cmd_estimate_in_process(args, method: str) -> int:
     from mcverify.campaign import runner
-    from mcverify.campaign.spec import campaign_from_dict, load_campaign
+    from mcverify.campaign.spec import campaign_from_dict
     from mcverify.errors import RunError
-    from mcverify.estimate import folder, importance_run, splitting_run
+    from mcverify.estimate import importance_run, splitting_run
 
     module = splitting_run if method == "splitting" else importance_run
     # progress lines on stderr, unless -q ("only warnings and errors on stderr")
@@ -692,28 +752,8 @@ def _cmd_estimate_in_process(args, method: str) -> int:
         campaign = campaign_from_dict(raw, source=camp["source"], seed=camp["seed"])
         path = module.resume(args.resume, campaign, progress=log, **_executor_for(args, method))
     else:
-        if args.campaign is None:
-            raise RunError("missing campaign file, e.g. `mcverify estimate campaigns/eps_sweep_rare.toml`")
-        if args.target not in ("collision", "ellipse"):
-            raise RunError(f"{method} estimates --target collision or ellipse")
-        try:
-            if method == "splitting":
-                score = args.score or ("gap" if args.target == "collision" else "h_ef")
-                spec = splitting_run.SplittingSpec(score, args.particles, 1, args.replicates, args.level,
-                                                   args.max_iterations)
-                if spec.target != args.target:
-                    raise RunError(f"--score {score} estimates {spec.target}, not --target {args.target}")
-            else:
-                spec = importance_run.ImportanceSpec(args.target, args.samples, args.ce_samples, rho=args.elite_share,
-                                                     level=args.level, max_ce_iterations=args.ce_iterations,
-                                                     score=args.score,
-                                                     noise_tilt=args.noise_tilt)
-        except ValueError as err:
-            raise RunError(str(err)) from None
-        campaign = load_campaign(args.campaign, seed=args.seed, settings=args.settings)
-        folder.check_noise_is_drawn(campaign)
-        if method == "importance":
-            importance_run.check_cells_have_ranges(campaign, args.cell or None)  # before any folder is made
+        spec = _estimate_spec(args, method)
+        campaign = _estimate_campaign(args, method)  # checked before any folder is made
         out = args.run_dir = new_folder(args, lambda parent: runner.default_run_dir(campaign, parent))
         log(runner.describe(campaign, episodes=False))  # the estimator chooses how many episodes
         log(f"estimate folder: {out}")

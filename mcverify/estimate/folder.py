@@ -51,14 +51,19 @@ def check_noise_is_drawn(campaign: Campaign) -> None:
                            "their noise from the campaign seed; remove it to estimate this cell")
 
 
-def create(out: Path, campaign: Campaign, spec: dict[str, Any], cells: Sequence[str] | None) -> None:
-    """A new estimate folder ``out`` (refused if it holds anything); ``cells``: only these cells."""
-    out = Path(out)
+def check_cells(campaign: Campaign, cells: Sequence[str] | None) -> None:
+    """Refuse a ``--cell`` name that is not one of the campaign's cells."""
     if cells:
         known = [c.name for c in campaign.cells]
         missing = [c for c in cells if c not in known]
         if missing:
             raise RunError(f"no cell {missing[0]!r} in {campaign.name}; cells: {', '.join(known)}")
+
+
+def create(out: Path, campaign: Campaign, spec: dict[str, Any], cells: Sequence[str] | None) -> None:
+    """A new estimate folder ``out`` (refused if it holds anything); ``cells``: only these cells."""
+    out = Path(out)
+    check_cells(campaign, cells)
     if out.exists() and any(out.iterdir()):
         raise RunError(f"{out} exists and is not empty; choose another folder or use --resume {out}")
     out.mkdir(parents=True, exist_ok=True)

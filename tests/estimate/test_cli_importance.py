@@ -371,3 +371,44 @@ def test_an_estimate_describes_its_cells_without_the_campaigns_episode_counts(tm
     assert main(args) == 0
     err = capsys.readouterr().err
     assert "tiny: 1 cells\n  [0] all eps=" in err and "episodes=" not in err
+
+
+def test_estimate_dry_run_plans_each_method_and_makes_no_folder(tmp_path, capsys):
+    """``estimate --dry-run``: every check of a new estimate, the episodes each method may run (from its
+    options) and a CPU range; nothing is made."""
+    jitter = "campaigns/veh_o_arrival_jitter.toml"
+    out = str(tmp_path / "e")
+    assert main(["estimate", jitter, "--method", "importance", "--ce-samples", "40", "--ce-iterations", "8",
+                     "--samples", "200", "--dry-run", "--run-dir", out]) == 0
+    text = capsys.readouterr().out
+    assert "importance, target collision, 1 cell(s)" in text
+    assert "8 cross-entropy iterations of 40 episodes (320;" in text and "at most 520 episodes per cell" in text
+    assert "wall time on 1 worker(s)" in text, "importance runs in this process unless --workers is given"
+    assert main(["estimate", jitter, "--method", "mc", "--budget", "300", "--workers", "2", "--dry-run"]) == 0
+    text = capsys.readouterr().out
+    assert "at most 300 episodes per cell, 300 in all" in text and "wall time on 2 worker(s)" in text
+    assert main(["estimate", jitter, "--method", "splitting", "--particles", "10", "--replicates", "4",
+                     "--dry-run"]) == 0
+    text = capsys.readouterr().out
+    # 10 particles x 4 runs, then about 10 ln(100) = 47 and 10 ln(1e5) = 116 iterations per run
+    assert "40 whole episodes per cell" in text
+    assert "about 47 iterations per run, at most 228 episode equivalents" in text
+    assert "about 116 iterations per run, at most 504 episode equivalents" in text
+    assert not (tmp_path / "e").exists(), "a dry run makes no folder"
+
+
+@pytest.mark.parametrize(("options", "fragment"), [
+    (["--method", "importance", "--cell", "nope"], "no cell 'nope' in"),
+    (["--method", "splitting", "--target", "unsafe"], "splitting estimates --target collision or ellipse"),
+    (["--method", "importance", "--samples", "1"], "need at least 2 samples"),
+    (["--method", "mc", "--particles", "3"], "--particles is for --method splitting, not mc"),
+])
+def test_estimate_dry_run_refuses_what_the_estimate_would(capsys, options, fragment):
+    assert main(["estimate", "campaigns/veh_o_arrival_jitter.toml", *options, "--dry-run"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and fragment in err[0]
+
+
+def test_estimate_dry_run_does_not_apply_to_resume(tmp_path, capsys):
+    assert main(["estimate", "--resume", str(tmp_path), "--dry-run"]) == 2
+    assert "--dry-run checks a campaign file; it does not apply to --resume" in capsys.readouterr().err

@@ -1,0 +1,96 @@
+"""What an estimate would spend, before it runs (``mcverify estimate --dry-run``).
+
+The episode counts follow from each method's options; the CPU is the run dry run's per-episode
+model (:mod:`mcverify.campaign.cost`, a rough range measured on this project's machine):
+
+- ``mc``: at most ``budget`` episodes per cell; the anytime-valid stopping rule only saves.
+- ``importance``: at most ``ce_samples`` episodes per cross-entropy iteration, ``ce_iterations``
+  of them (fewer once the elite reaches the event), then ``samples`` final draws.
+- ``splitting``: ``particles`` whole episodes per AMS run, ``replicates`` runs, then one partial
+  re-simulation per iteration. With one particle killed per iteration an AMS run needs about
+  ``particles * ln(1 / p)`` iterations (Cerou and Guyader 2007), so the total depends on the
+  probability being estimated; the plan shows it for p = 1e-2 and 1e-5 (each restart counted as
+  a whole episode: an upper figure) and the cap ``max_iterations``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from mcverify.campaign import cost
+from mcverify.campaign.spec import Campaign
+from mcverify.cell import Cell
+
+#: Probabilities at which a splitting plan shows its expected iterations.
+SPLITTING_PROBABILITIES = (1e-2, 1e-5)
+
+
+@dataclass(frozen=True)
+class EstimateOptions:
+    """The options of ``mcverify estimate`` that decide how many episodes it may run (defaults filled)."""
+
+    method: str
+    target: str
+    budget: int = 1000
+    samples: int = 400
+    ce_samples: int = 100
+    ce_iterations: int = 10
+    particles: int = 20
+    replicates: int = 8
+    max_iterations: int = 2000
+    cells: tuple[str, ...] = ()
+    workers: int = 1
+
+
+def _selected(campaign: Campaign, cells: Sequence[str]) -> list[Cell]:
+    return [c for c in campaign.cells if not cells or c.name in cells]
+
+
+def _span(low_s: float, high_s: float) -> str:
+    a, b = cost.duration(low_s), cost.duration(high_s)
+    return a if a == b else f"{a} to {b}"
+
+
+def _cpu_line(cells: list[Cell], episodes_per_cell: float, workers: int, bound: str) -> str:
+    low = sum(cost.cell_seconds(c)[0] for c in cells) * episodes_per_cell
+    high = sum(cost.cell_seconds(c)[1] for c in cells) * episodes_per_cell
+    return (f"estimated CPU: {_span(low, high)} {bound}; wall time on {workers} worker(s): "
+            f"{_span(low / workers, high / workers)} {bound}")
+
+
+def render(campaign: Campaign, options: EstimateOptions) -> str:
+    """The dry run's report: the method, the cells, the episodes and a rough CPU range."""
+    cells = _selected(campaign, options.cells)
+    names = ", ".join(c.name for c in cells)
+    head = f"estimate {campaign.source}: {options.method}, target {options.target}, {len(cells)} cell(s): {names}"
+    rough = "(per-episode costs measured on a 2-core machine, results/BENCHMARKS.md; a rough range)"
+    if options.method == "mc":
+        n = options.budget
+        lines = [f"at most {n} episodes per cell, {n * len(cells)} in all (a cell stops earlier once its "
+                 "interval is narrow enough)",
+                 _cpu_line(cells, n, options.workers, "at most")]
+    elif options.method == "importance":
+        ce = options.ce_samples * options.ce_iterations
+        n = ce + options.samples
+        lines = [f"at most {options.ce_iterations} cross-entropy iterations of {options.ce_samples} episodes "
+                 f"({ce}; they stop once the elite reaches the event) and {options.samples} final draws: at most "
+                 f"{n} episodes per cell, {n * len(cells)} in all",
+                 _cpu_line(cells, n, options.workers, "at most")]
+    else:
+        lines = _splitting_lines(cells, options)
+    return "\n".join([head, *lines, rough])
+
+
+def _splitting_lines(cells: list[Cell], options: EstimateOptions) -> list[str]:
+    runs = options.replicates
+    first = options.particles * runs
+    lines = [f"{runs} AMS runs per cell of {options.particles} particles: {first} whole episodes per cell, then "
+             f"one partial re-simulation per iteration (at most {options.max_iterations} per run)"]
+    for p in SPLITTING_PROBABILITIES:
+        iterations = math.ceil(options.particles * math.log(1.0 / p))
+        per_cell = first + runs * min(iterations, options.max_iterations)
+        lines.append(f"at p = {p:.0e}: about {iterations} iterations per run, at most {per_cell} episode "
+                     f"equivalents per cell; " + _cpu_line(cells, per_cell, options.workers, "at most"))
+    return lines
