@@ -130,6 +130,8 @@ KKT_FACTORIZATIONS = ("lu", "ldlt", "ldlt_curvature")
 ABANDON_RULES = ("first_failure", "consecutive", "certified")
 #: Whose ipm backend tries the central warm attempt before IPOPT's rescue (:attr:`Mpc.ipm_central_attempt`).
 CENTRAL_ATTEMPT_POLICIES = ("off", "mpcdc", "all")
+#: Values of ``mpc.ipm_restoration``.
+RESTORATION_POLICIES = ("off", "mpcdc", "all")
 #: When the dual planner solves Q2 while overtaking (:attr:`Mpc.q2_solve`).
 Q2_SOLVE_POLICIES = ("every_step", "fast_when_unneeded", "when_needed")
 #: Where Q2 asks the ego to stay stoppable behind veh_f (:attr:`Mpc.q2_stoppable`; not in the paper).
@@ -263,9 +265,10 @@ class Mpc:
     infeasibility: str = "ipopt"
     """Who certifies infeasibility on the ipm backend: ipopt (its fallback) or phase1 (the C phase 1 from every start,
     IPOPT as scheduled auditor; docs/engine.md)."""
-    ipm_restoration: bool = False
-    """The ipm backend's cold IPM attempt of a full solve runs with the C restoration phase: a failed line search
-    restores feasibility instead of ending the attempt (docs/engine.md)."""
+    ipm_restoration: str = "off"
+    """Whose full solves run the ipm backend's cold IPM attempt with the C restoration phase (a failed line search
+    restores feasibility instead of ending the attempt; docs/engine.md): off, mpcdc (the MPC-DC baselines only) or
+    all; false and true, its values before it took policies, read as off and all."""
     ipm_central_attempt: str = "mpcdc"
     """A last IPM attempt of a full solve, after the two warm and the cold one failed and before IPOPT: the warm
     start again at barrier parameter 1e-2 (docs/engine.md, "A central attempt before the rescue"): off, mpcdc (the

@@ -43,8 +43,9 @@ from mcverify.bench.solve_classes import SolveClass
 #: Settings compared with the default (dotted keys of the model).
 VARIANTS: dict[str, dict[str, Any]] = {
     "phase1": {"mpc.infeasibility": "phase1"},
-    "restoration": {"mpc.ipm_restoration": True},
-    "phase1+restoration": {"mpc.infeasibility": "phase1", "mpc.ipm_restoration": True},
+    "restoration": {"mpc.ipm_restoration": "all"},
+    "restoration_mpcdc": {"mpc.ipm_restoration": "mpcdc"},
+    "phase1+restoration": {"mpc.infeasibility": "phase1", "mpc.ipm_restoration": "all"},
     "q2_when_needed": {"mpc.q2_solve": "when_needed"},
     "q2_fast_when_unneeded": {"mpc.q2_solve": "fast_when_unneeded"},
     "central_off": {"mpc.ipm_central_attempt": "off"},

@@ -23,6 +23,7 @@ from mcverify.model import (
     Q2_SOLVE_POLICIES,
     Q2_STOPPABLE_MODES,
     REQUIREMENT_NAMES,
+    RESTORATION_POLICIES,
     ModelParams,
     normal_masses,
 )
@@ -165,8 +166,9 @@ def validate_params(p: ModelParams, where: str) -> None:
     if m.ipm_central_attempt not in CENTRAL_ATTEMPT_POLICIES:
         raise bad("mpc.ipm_central_attempt", f"unknown policy {_short(m.ipm_central_attempt)}; valid: "
                   f"{', '.join(CENTRAL_ATTEMPT_POLICIES)}")
-    if not isinstance(m.ipm_restoration, bool):
-        raise bad("mpc.ipm_restoration", f"must be true or false, got {_short(m.ipm_restoration)}")
+    if m.ipm_restoration not in RESTORATION_POLICIES:
+        raise bad("mpc.ipm_restoration", f"unknown policy {_short(m.ipm_restoration)}; valid: "
+                  f"{', '.join(RESTORATION_POLICIES)} (or false, true)")
     if type(m.infeasibility_audit_every) is not int or m.infeasibility_audit_every < 1:
         raise bad("mpc.infeasibility_audit_every",
                   f"must be an integer >= 1, got {_short(m.infeasibility_audit_every)}")

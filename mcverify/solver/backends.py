@@ -272,7 +272,7 @@ class IpmBackend:
         # a full solve restores feasibility after a failed line search (not the warm attempts, whose
         # failures the cold start repairs cheaply, nor a presumed-infeasible fast-only solve, where a
         # restoration would mostly fail at a price)
-        self.cold_full = dataclasses.replace(self.cold, restoration=params.mpc.ipm_restoration)
+        self.cold_full = dataclasses.replace(self.cold, restoration=uses_restoration(params.mpc))
         # mpc.ipm_central_attempt (default mpcdc: the MPC-DC baselines): the warm start once more, more central,
         # before IPOPT
         self.central = (dataclasses.replace(CENTRAL_WARM, tol=params.mpc.tol, **kkt)
@@ -372,6 +372,12 @@ if set(KKT_FACTORIZATIONS) != set(KKT_FACTORISATIONS):  # likewise for mpc.kkt_f
 def uses_central_attempt(mpc: Mpc) -> bool:
     """Whether ``mpc.ipm_central_attempt`` gives this controller's full solves the central warm attempt."""
     return mpc.ipm_central_attempt == "all" or (mpc.ipm_central_attempt == "mpcdc" and mpc.is_mpcdc)
+
+
+def uses_restoration(mpc: Mpc) -> bool:
+    """Whether ``mpc.ipm_restoration`` gives this controller's cold IPM attempt of a full solve the restoration
+    phase."""
+    return mpc.ipm_restoration == "all" or (mpc.ipm_restoration == "mpcdc" and mpc.is_mpcdc)
 
 
 def create_backend(name: str, problem: Problem, params: ModelParams):

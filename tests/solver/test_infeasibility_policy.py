@@ -95,7 +95,7 @@ def test_campaign_rejects_a_bad_policy(key, value, match):
 
 
 def test_ipm_restoration_turns_on_the_restoration_phase_in_the_full_cold_attempt(monkeypatch):
-    on = dataclasses.replace(P_IPM, mpc=dataclasses.replace(P_IPM.mpc, ipm_restoration=True))
+    on = dataclasses.replace(P_IPM, mpc=dataclasses.replace(P_IPM.mpc, ipm_restoration="all"))
     backend = MpcSolver(on).backend
     assert backend.cold_full.restoration and not any(o.restoration for o in (*backend.warm_attempts, backend.cold))
     default = MpcSolver(P_IPM).backend
@@ -109,8 +109,21 @@ def test_ipm_restoration_turns_on_the_restoration_phase_in_the_full_cold_attempt
     solver.solve(EGO, INFEASIBLE_FRONT, 1, LAMBDA0)
     assert seen == [False, True]  # presumed: the plain cold attempt; full: with the restoration phase
     raw = {"campaign": {"name": "t", "seed": 1, "episodes": 1}, "model": {"mpc": {"ipm_restoration": "yes"}}}
-    with pytest.raises(campaign.CampaignError, match="mpc.ipm_restoration: expected bool"):
+    with pytest.raises(campaign.CampaignError, match="mpc.ipm_restoration: unknown policy 'yes'; valid: off, mpcdc"):
         campaign.campaign_from_dict(raw)
+
+
+@pytest.mark.parametrize(("value", "policy"), [(True, "all"), (False, "off"), ("mpcdc", "mpcdc")])
+def test_ipm_restoration_reads_its_old_true_false_as_policies(value, policy):
+    """Runs stored before the field took policies wrote true/false; they read as all/off."""
+    raw = {"campaign": {"name": "t", "seed": 1, "episodes": 1}, "model": {"mpc": {"ipm_restoration": value}}}
+    assert campaign.campaign_from_dict(raw).cells[0].params.mpc.ipm_restoration == policy
+
+
+def test_ipm_restoration_mpcdc_reaches_the_baselines_only():
+    for controller, restored in (("mpcdc", True), ("mpcdc_eps", True), ("vlcbf", False)):
+        mpc = dataclasses.replace(P_IPM.mpc, ipm_restoration="mpcdc", controller=controller)
+        assert backends.uses_restoration(mpc) is restored, controller
 
 
 def test_kkt_factorization_reaches_every_ipm_run_and_is_validated():
