@@ -265,10 +265,11 @@ class Mpc:
     infeasibility: str = "ipopt"
     """Who certifies infeasibility on the ipm backend: ipopt (its fallback) or phase1 (the C phase 1 from every start,
     IPOPT as scheduled auditor; docs/engine.md)."""
-    ipm_restoration: str = "off"
+    ipm_restoration: str = "mpcdc"
     """Whose full solves run the ipm backend's cold IPM attempt with the C restoration phase (a failed line search
-    restores feasibility instead of ending the attempt; docs/engine.md): off, mpcdc (the MPC-DC baselines only) or
-    all; false and true, its values before it took policies, read as off and all."""
+    restores feasibility instead of ending the attempt; docs/engine.md): off, mpcdc (the MPC-DC baselines only; the
+    default since 2026-11-28, ``off`` before, which runs made earlier keep: CHANGED_DEFAULTS) or all; false and true,
+    its values before it took policies, read as off and all."""
     ipm_central_attempt: str = "mpcdc"
     """A last IPM attempt of a full solve, after the two warm and the cold one failed and before IPOPT: the warm
     start again at barrier parameter 1e-2 (docs/engine.md, "A central attempt before the rescue"): off, mpcdc (the

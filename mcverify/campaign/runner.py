@@ -150,7 +150,10 @@ def manifest_for(campaign: Campaign, chunk_size: int, kernels: dict[str, str]) -
 #: (``(section, field) -> old default``). Rebuilding a run's campaign pins such a field to the run's own
 #: value where its campaign left it to the default, so a new default never changes how an old run
 #: replays or resumes.
-CHANGED_DEFAULTS: dict[tuple[str, str], Any] = {("mpc", "ipm_central_attempt"): "off"}
+CHANGED_DEFAULTS: dict[tuple[str, str], Any] = {
+    ("mpc", "ipm_central_attempt"): "off",  # mpcdc since 2026-11-26
+    ("mpc", "ipm_restoration"): "off",  # mpcdc since 2026-11-28 (stored as false before it took policies)
+}
 
 
 def _names_field(raw: Any, section: str, field: str, in_section: bool = False) -> bool:

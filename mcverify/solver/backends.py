@@ -268,10 +268,10 @@ class IpmBackend:
         kkt = {"kkt_factorisation": params.mpc.kkt_factorization}
         self.warm_attempts = tuple(dataclasses.replace(o, tol=params.mpc.tol, **kkt) for o in WARM_ATTEMPTS)
         self.cold = dataclasses.replace(COLD, tol=params.mpc.tol, **kkt)
-        # mpc.ipm_restoration (off by default: the attempts of ABI 1, bit for bit): the cold attempt of
-        # a full solve restores feasibility after a failed line search (not the warm attempts, whose
-        # failures the cold start repairs cheaply, nor a presumed-infeasible fast-only solve, where a
-        # restoration would mostly fail at a price)
+        # mpc.ipm_restoration (default mpcdc: the MPC-DC baselines; off gives the attempts of ABI 1, bit for
+        # bit): the cold attempt of a full solve restores feasibility after a failed line search (not the
+        # warm attempts, whose failures the cold start repairs cheaply, nor a presumed-infeasible fast-only
+        # solve, where a restoration would mostly fail at a price)
         self.cold_full = dataclasses.replace(self.cold, restoration=uses_restoration(params.mpc))
         # mpc.ipm_central_attempt (default mpcdc: the MPC-DC baselines): the warm start once more, more central,
         # before IPOPT

@@ -407,3 +407,18 @@ def test_a_changed_default_keeps_the_runs_value_when_its_campaign_is_rebuilt(mon
     assert rebuilt(None) == {"every_step"}  # the file's own value wins
     axes = {**raw, "axes": {"q2": {"a": {"mpc.q2_solve": "when_needed"}, "b": {"mpc.q2_solve": "every_step"}}}}
     assert runner.pin_changed_defaults(axes, manifest["cells"]) == axes
+
+
+def test_runs_before_the_restoration_policies_rebuild_with_restoration_off():
+    """mpc.ipm_restoration became a policy (off / mpcdc / all) and its default mpcdc: a run whose cells
+    stored false (or nothing) replays and resumes with "off", one that stored true with "all"."""
+    raw = {"campaign": {"name": "t", "seed": 3, "episodes": 1}, "model": {"mpc": {"controller": "mpcdc"}}}
+    manifest = runner.manifest_for(campaign_from_dict(raw, source="t.toml"), 8, {})
+    assert {c["params"]["mpc"]["ipm_restoration"] for c in manifest["cells"]} == {"mpcdc"}  # today's default
+    for stored, policy in ((False, "off"), (True, "all"), (None, "off")):
+        for cell in manifest["cells"]:
+            if stored is None:
+                cell["params"]["mpc"].pop("ipm_restoration")
+            else:
+                cell["params"]["mpc"]["ipm_restoration"] = stored
+        assert {c.params.mpc.ipm_restoration for c in runner.campaign_from_manifest(manifest).cells} == {policy}
