@@ -87,18 +87,23 @@ def duration(seconds: float) -> str:
     return f"{seconds / 86400:.0f} days"
 
 
+def duration_range(low_s: float, high_s: float) -> str:
+    """``7.5 min``, or ``7.5 min to 1.2 h`` where the two ends read differently."""
+    low, high = duration(low_s), duration(high_s)
+    return low if low == high else f"{low} to {high}"
+
+
 def render(campaign: Campaign, chunk_size: int, workers: int) -> str:
     """The dry run's report: the cells, the counts and the estimate."""
     from mcverify.campaign.runner import describe
 
     est = estimate(campaign, chunk_size)
     lo, hi = est.wall_s(workers)
-    span = lambda a, b: duration(a) if duration(a) == duration(b) else f"{duration(a)} to {duration(b)}"  # noqa: E731
     return "\n".join([
         describe(campaign),
         f"{est.episodes} episodes in {est.chunks} chunks of up to {chunk_size}",
-        f"estimated CPU: {span(est.cpu_s_low, est.cpu_s_high)}; wall time on {workers} worker(s): "
-        f"{span(lo, hi)}, plus about a minute of start-up (and 1-3 minutes per solver kernel "
+        f"estimated CPU: {duration_range(est.cpu_s_low, est.cpu_s_high)}; wall time on {workers} worker(s): "
+        f"{duration_range(lo, hi)}, plus about a minute of start-up (and 1-3 minutes per solver kernel "
         "not yet compiled)",
         "(per-episode costs measured on a 2-core machine, results/BENCHMARKS.md; a rough range)",
     ])

@@ -29,35 +29,31 @@ SPLITTING_PROBABILITIES = (1e-2, 1e-5)
 
 @dataclass(frozen=True)
 class EstimateOptions:
-    """The options of ``mcverify estimate`` that decide how many episodes it may run (defaults filled)."""
+    """The options of ``mcverify estimate`` that decide how many episodes it may run, as the command line
+    filled them (its defaults are the command's, not repeated here); ``cells`` empty: every cell."""
 
     method: str
     target: str
-    budget: int = 1000
-    samples: int = 400
-    ce_samples: int = 100
-    ce_iterations: int = 10
-    particles: int = 20
-    replicates: int = 8
-    max_iterations: int = 2000
-    cells: tuple[str, ...] = ()
-    workers: int = 1
+    budget: int
+    samples: int
+    ce_samples: int
+    ce_iterations: int
+    particles: int
+    replicates: int
+    max_iterations: int
+    cells: tuple[str, ...]
+    workers: int
 
 
 def _selected(campaign: Campaign, cells: Sequence[str]) -> list[Cell]:
     return [c for c in campaign.cells if not cells or c.name in cells]
 
 
-def _span(low_s: float, high_s: float) -> str:
-    a, b = cost.duration(low_s), cost.duration(high_s)
-    return a if a == b else f"{a} to {b}"
-
-
 def _cpu_line(cells: list[Cell], episodes_per_cell: float, workers: int, bound: str) -> str:
     low = sum(cost.cell_seconds(c)[0] for c in cells) * episodes_per_cell
     high = sum(cost.cell_seconds(c)[1] for c in cells) * episodes_per_cell
-    return (f"estimated CPU: {_span(low, high)} {bound}; wall time on {workers} worker(s): "
-            f"{_span(low / workers, high / workers)} {bound}")
+    return (f"estimated CPU: {cost.duration_range(low, high)} {bound}; wall time on {workers} worker(s): "
+            f"{cost.duration_range(low / workers, high / workers)} {bound}")
 
 
 def render(campaign: Campaign, options: EstimateOptions) -> str:

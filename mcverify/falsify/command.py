@@ -35,14 +35,14 @@ def _dry_run(config: Any, campaign: Any, workers: int | None) -> str:
     space = search.check(config)
     low, high = cost.cell_seconds(campaign.cells[0])
     n = workers or executors.default_workers()
-    span = lambda a, b: (cost.duration(a) if cost.duration(a) == cost.duration(b)  # noqa: E731
-                         else f"{cost.duration(a)} to {cost.duration(b)}")
+    cpu_range = cost.duration_range(low * config.budget, high * config.budget)
+    wall_range = cost.duration_range(low * config.budget / n, high * config.budget / n)
     return "\n".join([
         f"falsify {config.source}: {config.method}, budget {config.budget} episodes, requirement "
         f"{config.requirement}, seed {config.seed}",
         f"search space: {len(space.bounds)} field(s): {', '.join(b[0] for b in space.bounds)}",
-        f"estimated CPU: {span(low * config.budget, high * config.budget)} at most; wall time on {n} worker(s): "
-        f"{span(low * config.budget / n, high * config.budget / n)} at most (a rough range from measured rates; "
+        f"estimated CPU: {cpu_range} at most; wall time on {n} worker(s): {wall_range} at most (a rough range from "
+        "measured rates; "
         + ("the search stops after the generation of its first counterexample)" if space.stop_at_first
            else "[falsify] stop_at_first = false: the search spends its whole budget)"),
     ])
