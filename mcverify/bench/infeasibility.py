@@ -10,7 +10,8 @@ Two measurements, written together into a generated section of results/BENCHMARK
    (``mpc.ipm_restoration``: the IPM attempts with the restoration phase), both, "q2_when_needed" or
    "q2_fast_when_unneeded" (``mpc.q2_solve``: a Q2 the step's decision ignores not solved, or given
    the fast path only), "central_off", "central_mpcdc" or "central_all" (``mpc.ipm_central_attempt``,
-   whose default is ``mpcdc``): CPU per episode by solve class, the audit counters, and the
+   whose default is ``mpcdc``), "central_first_mpcdc" (``mpc.ipm_central_first``): CPU per episode
+   by solve class, the audit counters, and the
    episode-by-episode agreement of safety verdicts and outcomes.
 2. **Recorded solves** (:func:`replay_verdicts`): every solve of a recording
    (:mod:`mcverify.bench.recorded_ipm`) the IPM did not converge on, replayed under phase 1 from the
@@ -51,6 +52,7 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "central_off": {"mpc.ipm_central_attempt": "off"},
     "central_mpcdc": {"mpc.ipm_central_attempt": "mpcdc"},
     "central_all": {"mpc.ipm_central_attempt": "all"},
+    "central_first_mpcdc": {"mpc.ipm_central_first": "mpcdc"},
 }
 #: The heading of a variant's section (default: the infeasibility certificates').
 HEADINGS: dict[str, str] = {"q2_when_needed": "Q2 solved only when Algorithm 1 reads it (`mpc.q2_solve`)",
@@ -58,7 +60,9 @@ HEADINGS: dict[str, str] = {"q2_when_needed": "Q2 solved only when Algorithm 1 r
                             "central_mpcdc": "A central IPM attempt before IPOPT's rescue, MPC-DC only "
                                              "(`mpc.ipm_central_attempt`)",
                             "central_all": "A central IPM attempt before IPOPT's rescue, every controller "
-                                           "(`mpc.ipm_central_attempt`)"}
+                                           "(`mpc.ipm_central_attempt`)",
+                            "central_first_mpcdc": "The central IPM attempt first after a hard solve, MPC-DC only "
+                                                   "(`mpc.ipm_central_first`)"}
 #: The default side's label.
 DEFAULT = "default"
 BEGIN_MARK = "<!-- BEGIN mcverify bench infeasibility (generated) -->"

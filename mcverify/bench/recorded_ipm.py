@@ -83,10 +83,11 @@ class RecordingBackend:
         g = np.array(guess(), dtype=float)
         before = dict(self.backend.ipm_outcomes)
         res = self.backend.solve(p, warm, lambda: g.copy(), fast_only=fast_only)
-        # this solve's attempt tags ("warm1:<status>", ..., "cold3:<status>"), in attempt order
+        # this solve's attempt tags ("warm1:<status>", ..., "cold3:<status>"), in the order they ran
         new = [t for t, n in self.backend.ipm_outcomes.items() if n > before.get(t, 0)]
-        attempts = tuple(sorted(new, key=lambda t: int(t.split(":")[0].lstrip("warmcold"))))
-        w = None if warm is None else Start(np.array(warm.x), np.array(warm.lam_x), np.array(warm.lam_g))
+        order = [number for number, _, _ in self.backend.attempts(warm, fast_only)]
+        attempts = tuple(sorted(new, key=lambda t: order.index(int(t.split(":")[0].lstrip("warmcold")))))
+        w = None if warm is None else Start(np.array(warm.x), np.array(warm.lam_x), np.array(warm.lam_g), warm.after_hard)
         self.recording.solves.append(RecordedSolve(
             self.index, np.array(p, dtype=float), w, g, bool(fast_only), str(res.status), bool(res.success), attempts))
         return res

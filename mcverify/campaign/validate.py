@@ -16,6 +16,7 @@ from mcverify.model import (
     ABANDON_RULES,
     BACKEND_NAMES,
     CENTRAL_ATTEMPT_POLICIES,
+    CENTRAL_FIRST_POLICIES,
     INFEASIBILITY_POLICIES,
     KKT_FACTORIZATIONS,
     MAX_BRANCHES,
@@ -166,6 +167,9 @@ def validate_params(p: ModelParams, where: str) -> None:
     if m.ipm_central_attempt not in CENTRAL_ATTEMPT_POLICIES:
         raise bad("mpc.ipm_central_attempt", f"unknown policy {_short(m.ipm_central_attempt)}; valid: "
                   f"{', '.join(CENTRAL_ATTEMPT_POLICIES)}")
+    if m.ipm_central_first not in CENTRAL_FIRST_POLICIES:
+        raise bad("mpc.ipm_central_first", f"unknown policy {_short(m.ipm_central_first)}; valid: "
+                  f"{', '.join(CENTRAL_FIRST_POLICIES)}")
     if m.ipm_restoration not in RESTORATION_POLICIES:
         raise bad("mpc.ipm_restoration", f"unknown policy {_short(m.ipm_restoration)}; valid: "
                   f"{', '.join(RESTORATION_POLICIES)} (or false, true)")

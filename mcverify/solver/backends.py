@@ -58,7 +58,7 @@ import numpy as np
 from mcverify.errors import raise_noted_interrupt
 from mcverify.model import BACKEND_NAMES, KKT_FACTORIZATIONS, ModelParams, Mpc
 from mcverify.solver.cfun import CFunction
-from mcverify.solver.ipm import CENTRAL_WARM, COLD, KKT_FACTORISATIONS, WARM_ATTEMPTS, Ipm, IpmResult
+from mcverify.solver.ipm import CENTRAL_WARM, COLD, KKT_FACTORISATIONS, WARM_ATTEMPTS, Ipm, IpmOptions, IpmResult
 from mcverify.solver.kernels import Kernel, get_runtime_library
 from mcverify.solver.status import SolveRoute, SolveStatus
 
@@ -68,11 +68,16 @@ MAX_VIOLATION = 1e-5
 
 @dataclass(frozen=True)
 class Start:
-    """A primal-dual start: x (n_w,), lam_x (n_w,), lam_g (n_g,), in the layout of the NLP."""
+    """A primal-dual start: x (n_w,), lam_x (n_w,), lam_g (n_g,), in the layout of the NLP.
+
+    after_hard: the solve that produced it was hard (:attr:`BackendResult.hard`); read by
+    ``mpc.ipm_central_first``.
+    """
 
     x: np.ndarray
     lam_x: np.ndarray
     lam_g: np.ndarray
+    after_hard: bool = False
 
 
 @dataclass(frozen=True)
@@ -83,6 +88,7 @@ class BackendResult:
     converged), then combined by :meth:`Problem.accept` with the common feasibility check.
     status: what the solver reported and which path answered (``status.fallback``: the IPM handed
     this solve to IPOPT). retried_cold: a warm IPOPT start failed and this is its cold retry.
+    hard: (ipm backend) the IPM's two warm attempts did not solve it; another attempt or IPOPT answered.
     """
 
     w: np.ndarray
@@ -93,6 +99,7 @@ class BackendResult:
     success: bool
     max_violation: float = float("nan")
     retried_cold: bool = False
+    hard: bool = False
 
 
 class Problem:
@@ -275,8 +282,10 @@ class IpmBackend:
         self.cold_full = dataclasses.replace(self.cold, restoration=uses_restoration(params.mpc))
         # mpc.ipm_central_attempt (default mpcdc: the MPC-DC baselines): the warm start once more, more central,
         # before IPOPT
-        self.central = (dataclasses.replace(CENTRAL_WARM, tol=params.mpc.tol, **kkt)
-                        if uses_central_attempt(params.mpc) else None)
+        central = dataclasses.replace(CENTRAL_WARM, tol=params.mpc.tol, **kkt)
+        self.central = central if uses_central_attempt(params.mpc) else None
+        # mpc.ipm_central_first (default off): after a hard solve, the next one starts with the central attempt
+        self.central_first = central if uses_central_first(params.mpc) else None
         self.ipm_outcomes: Counter[str] = Counter()
         self.ipm_cpu_s: Counter[str] = Counter()
         self.infeasibility = params.mpc.infeasibility
@@ -291,32 +300,46 @@ class IpmBackend:
         IPM is returned with the route :attr:`~mcverify.solver.status.SolveRoute.PRESUMED` (see
         :attr:`mcverify.model.Mpc.infeasible_recheck_steps`)."""
         iterations = 0
-        attempts = [] if warm is None else [(o, warm.x, warm.lam_x, warm.lam_g) for o in self.warm_attempts]
-        attempts.append((self.cold if fast_only else self.cold_full, None, None, None))
-        if self.central is not None and warm is not None and not fast_only:
-            attempts.append((self.central, warm.x, warm.lam_x, warm.lam_g))
-        for k, (opts, x0, lx0, lg0) in enumerate(attempts):
+        for number, opts, start in self.attempts(warm, fast_only):
+            x0, lx0, lg0 = (guess(), None, None) if start is None else (start.x, start.lam_x, start.lam_g)
             cpu0 = time.process_time()
-            r = self.ipm.solve(p, guess() if x0 is None else x0, lx0, lg0, opts)
+            r = self.ipm.solve(p, x0, lx0, lg0, opts)
             iterations += r.iterations
-            tag = f"{'warm' if lx0 is not None else 'cold'}{k + 1}:{r.status}"
+            tag = f"{'cold' if start is None else 'warm'}{number}:{r.status}"
             self.ipm_outcomes[tag] += 1
             self.ipm_cpu_s[tag] += time.process_time() - cpu0
+            hard = start is None or number > len(self.warm_attempts)  # not one of the two warm attempts
             res = self.problem.accept(
-                BackendResult(r.w, r.lam_x, r.lam_g, SolveStatus.ipm(r.status), iterations, r.success), p
+                BackendResult(r.w, r.lam_x, r.lam_g, SolveStatus.ipm(r.status), iterations, r.success, hard=hard), p
             )
             if res.success:
                 return res
+        res = dataclasses.replace(res, hard=True)
         if fast_only:
             return dataclasses.replace(res, status=res.status.via(SolveRoute.PRESUMED))
         if self.infeasibility == "phase1":
             cert = self.certify(p, warm, guess, iterations)
             if cert is not None:
-                return self.audit(p, warm, guess, cert) if self.audit_due(p) else cert
+                return dataclasses.replace(self.audit(p, warm, guess, cert) if self.audit_due(p) else cert, hard=True)
         ref = self.reference.solve(p, warm, guess)
         return dataclasses.replace(
-            ref, status=ref.status.via(SolveRoute.FALLBACK), iterations=iterations + ref.iterations
+            ref, status=ref.status.via(SolveRoute.FALLBACK), iterations=iterations + ref.iterations, hard=True
         )
+
+    def attempts(self, warm: Start | None, fast_only: bool) -> list[tuple[int, IpmOptions, Start | None]]:
+        """The IPM attempts of a solve in order, as (number, options, start or None for the cold guess). The
+        numbers name the attempts in :attr:`ipm_outcomes` whatever their order: 1 and 2 the warm ones, 3 the cold
+        one (1 without a warm start), 4 the central one."""
+        if warm is None:
+            return [(1, self.cold if fast_only else self.cold_full, None)]
+        usual = [(k + 1, o, warm) for k, o in enumerate(self.warm_attempts)]
+        cold = (len(usual) + 1, self.cold if fast_only else self.cold_full, None)
+        central = len(usual) + 2
+        if fast_only:
+            return [*usual, cold]
+        if self.central_first is not None and warm.after_hard:
+            return [(central, self.central_first, warm), *usual, cold]
+        return [*usual, cold, *([(central, self.central, warm)] if self.central is not None else [])]
 
 
     # ---------------------------------------------------------------- Mpc.infeasibility = "phase1"
@@ -372,6 +395,12 @@ if set(KKT_FACTORIZATIONS) != set(KKT_FACTORISATIONS):  # likewise for mpc.kkt_f
 def uses_central_attempt(mpc: Mpc) -> bool:
     """Whether ``mpc.ipm_central_attempt`` gives this controller's full solves the central warm attempt."""
     return mpc.ipm_central_attempt == "all" or (mpc.ipm_central_attempt == "mpcdc" and mpc.is_mpcdc)
+
+
+def uses_central_first(mpc: Mpc) -> bool:
+    """Whether ``mpc.ipm_central_first`` starts this controller's full solves after a hard one with the central
+    attempt."""
+    return mpc.ipm_central_first == "all" or (mpc.ipm_central_first == "mpcdc" and mpc.is_mpcdc)
 
 
 def uses_restoration(mpc: Mpc) -> bool:

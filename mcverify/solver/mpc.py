@@ -38,12 +38,14 @@ class WarmStart:
 
     x (n_w,), lam_x (n_w,), lam_g (n_g,) in the layout of :class:`~mcverify.ocp.problem.NlpLayout`;
     direction: the problem (+1 Q1, -1 Q2) it solved; a warm start of the other direction is ignored.
+    hard: the solve was hard (:attr:`mcverify.solver.backends.BackendResult.hard`; ``mpc.ipm_central_first``).
     """
 
     x: np.ndarray
     lam_x: np.ndarray
     lam_g: np.ndarray
     direction: int
+    hard: bool = False
 
 
 @dataclass(frozen=True)
@@ -123,7 +125,7 @@ class MpcSolver:
         if not np.all(np.isfinite(p)):
             return self._failure(SolveStatus.invalid_input("non-finite ego_state, front_xyv or lambda0"), t0)
         use_warm = warm is not None and warm.direction == direction and warm.x.size == self.layout.n_w
-        start = Start(warm.x, warm.lam_x, warm.lam_g) if use_warm else None
+        start = Start(warm.x, warm.lam_x, warm.lam_g, after_hard=warm.hard) if use_warm else None
 
         def cold_guess() -> np.ndarray:
             if guess is not None:
@@ -155,7 +157,7 @@ class MpcSolver:
 
     def _solution(self, res: BackendResult, direction: int, t0: float) -> MpcSolution:
         x_plan, u_plan, dt_plan = self.layout.unpack(res.w)
-        warm = WarmStart(res.w, res.lam_x, res.lam_g, int(direction)) if res.success else None
+        warm = WarmStart(res.w, res.lam_x, res.lam_g, int(direction), hard=res.hard) if res.success else None
         return MpcSolution(
             success=bool(res.success),
             status=res.status,

@@ -118,3 +118,61 @@ def test_singular_matrix_fails_the_refinement_or_breaks_down(lib):
     A = np.array([[1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, -1.0]])  # rank 2
     rc, *_ = band_solve(lib, A, 1, np.array([1.0, 0.0, 1.0]), True, np.array([0, 0, 1]), 1e-9)
     assert rc != 0
+
+
+def dgbtf2_solve(A: np.ndarray, bw: int, b: np.ndarray) -> np.ndarray:
+    """LAPACK's dgbtf2 + dgbtrs in numpy, every row update over the whole lower band (no extents), in
+    the operation order of the C band LU: products and differences rounded one by one, as in C built
+    without FMA."""
+    n, kl, kv = A.shape[0], bw, 2 * bw
+    ab = np.zeros((n, 3 * bw + 1))  # ab[c, kv + r - c] = A[r, c]
+    for c in range(n):
+        for r in range(max(0, c - bw), min(n, c + bw + 1)):
+            ab[c, kv + r - c] = A[r, c]
+    ipiv, ju = np.zeros(n, int), 0
+    for j in range(n):
+        km = min(kl, n - 1 - j)
+        col = ab[j, kv:kv + km + 1]
+        jp, amax = 0, abs(col[0])
+        for i in range(1, km + 1):
+            if abs(col[i]) > amax:
+                amax, jp = abs(col[i]), i
+        ipiv[j] = j + jp
+        ju = max(ju, min(j + bw + jp, n - 1))
+        if jp:
+            for c in range(j, ju + 1):
+                o = kv + j - c
+                ab[c, o], ab[c, o + jp] = ab[c, o + jp], ab[c, o]
+        if km:
+            col[1:] *= 1.0 / col[0]
+            for c in range(j + 1, ju + 1):
+                o = kv + j - c
+                if ab[c, o] != 0.0:
+                    ab[c, o + 1:o + km + 1] -= col[1:] * ab[c, o]
+    x = b.copy()
+    for j in range(n - 1):
+        km = min(kl, n - 1 - j)
+        x[j], x[ipiv[j]] = x[ipiv[j]], x[j]
+        if x[j] != 0.0:
+            x[j + 1:j + km + 1] -= ab[j, kv + 1:kv + km + 1] * x[j]
+    for j in range(n - 1, -1, -1):
+        x[j] /= ab[j, kv]
+        if x[j] != 0.0:
+            i0 = max(0, j - kv)
+            x[i0:j] -= ab[j, kv - (j - i0):kv] * x[j]
+    return x
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_band_lu_with_column_extents_is_dgbtf2_bit_for_bit(lib, seed):
+    """The C LU restricts each column's update to its structural extent (fill_extents); on indefinite
+    KKT-like matrices with zeros inside the band (so rows are swapped and extents vary) its solution
+    is the same bits as dgbtf2's over the whole band."""
+    rng = np.random.default_rng(300 + seed)
+    A, dual = kkt_like(rng, 30, 20, 6, convex=False)
+    b = rng.normal(size=A.shape[0])
+    rc, x, *_ = band_solve(lib, A, 6, b, False, dual, 0.0)
+    ref = dgbtf2_solve(A, 6, b)
+    assert rc == 0
+    assert np.array_equal(x, ref)
+    assert np.allclose(A @ x, b, atol=1e-8 * np.max(np.abs(b)))

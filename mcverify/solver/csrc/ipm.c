@@ -42,17 +42,24 @@
 
 /* ----------------------------------------------------------------------------- band LU ---- */
 
-static int band_lu(double *ab, int n, int bw, int ldab, int *ipiv) {
+/* LAPACK's dgbtf2 (partial pivoting) on the band, with the rank-1 update of column j restricted to the
+   rows j + 1 .. j + mcol[j] (fill_extents: no row below can hold a nonzero of column j, with or
+   without the row swaps, since a pivot row is one of them). The updates skipped subtract an exact
+   zero (column j's entry, +-0, times f): they leave every nonzero as it is, so the factor is the
+   same bits, up to the sign of an exact zero (-0 - (-0) = +0), which no pivot test and no nonzero
+   of a solution depends on. The fill rows of ab (the first bw of each column) must be zero on entry
+   (assemble_kkt zeroes the whole band), as dgbtf2 would zero them itself. */
+static int band_lu(double *ab, int n, int bw, int ldab, const int *mcol, int *ipiv) {
   const int kl = bw, kv = 2 * bw;
   int ju = 0;
-  for (int j = 0; j < n; ++j)
-    for (int i = 0; i < kl; ++i) ab[i + (int64_t)ldab * j] = 0.0;
   for (int j = 0; j < n; ++j) {
     int km = kl < n - 1 - j ? kl : n - 1 - j;
+    const int m = mcol[j] < km ? mcol[j] : km;
     double *col = ab + (int64_t)ldab * j + kv;
     int jp = 0;
     double amax = fabs(col[0]);
-    for (int i = 1; i <= km; ++i)
+    /* rows below j + m hold exact zeros, which never beat amax: the same pivot as over all km rows */
+    for (int i = 1; i <= m; ++i)
       if (fabs(col[i]) > amax) { amax = fabs(col[i]); jp = i; }
     ipiv[j] = j + jp;
     if (col[jp] == 0.0) return j + 1;
@@ -71,7 +78,7 @@ static int band_lu(double *ab, int n, int bw, int ldab, int *ipiv) {
         double *a = ab + (int64_t)ldab * c + kv + j - c;
         double f = a[0];
         if (f != 0.0)
-          for (int i = 1; i <= km; ++i) a[i] -= col[i] * f;
+          for (int i = 1; i <= m; ++i) a[i] -= col[i] * f;
       }
     }
   }
@@ -370,7 +377,7 @@ static void carve_workspace(ipm_ws *S, double *wd, int *wi) {
   S->lpos = (int64_t *)wi;
   wi += 2 * st->n_ent;
   S->mcol = wi;
-  if (S->o->kkt_ldlt != IPM_KKT_LU) { /* once per solve: the integer divisions are not free */
+  { /* once per solve (both factorisations use the extents): the integer divisions are not free */
     for (int k = 0; k < n; ++k) S->mcol[k] = 0;
     for (int e = 0; e < st->n_ent; ++e) {
       int64_t q = S->lpos[e] = lower_position(st->ent_pos[e], st->bw, st->ldab);
@@ -816,7 +823,7 @@ static int newton_step(ipm_ws *S, double mu, double dw_last, double *dw_out, ipm
     if (have < 0) {
       S->ldlt_live = 0;
       assemble_kkt(S, dw, dcr);
-      int info = band_lu(S->ab, S->n, st->bw, st->ldab, S->ipiv);
+      int info = band_lu(S->ab, S->n, st->bw, st->ldab, S->mcol, S->ipiv);
       stats->factorisations++;
       if (info != 0) {
         /* singular: regularise the constraints as well as the primal block */
@@ -1501,7 +1508,15 @@ int ipm_band_test_solve(int n, int bw, int ldlt, const double *ab, const int *du
   double *A = work, *r = work + (int64_t)ldab * n, *xb = r + n;
   if (!ldlt) {
     memcpy(A, ab, sizeof(double) * (size_t)ldab * (size_t)n);
-    int info = band_lu(A, n, bw, ldab, iwork);
+    for (int j = 0; j < n; ++j) memset(A + (int64_t)ldab * j, 0, sizeof(double) * (size_t)bw); /* fill rows */
+    int *lu_mcol = (int *)r; /* r and xb are free on the LU path: n ints fit in their 2 n doubles */
+    for (int j = 0; j < n; ++j) {
+      lu_mcol[j] = 0;
+      for (int i = 1; i <= bw && j + i < n; ++i)
+        if (ab[2 * bw + i + (int64_t)ldab * j] != 0.0) lu_mcol[j] = i;
+    }
+    fill_extents(lu_mcol, n);
+    int info = band_lu(A, n, bw, ldab, lu_mcol, iwork);
     if (info) return info;
     memcpy(x, b, sizeof(double) * (size_t)n);
     band_solve(A, n, bw, ldab, iwork, x);

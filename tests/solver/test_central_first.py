@@ -1,0 +1,73 @@
+"""``mpc.ipm_central_first``: after a hard solve (the two warm IPM attempts failed and another attempt or
+IPOPT answered), the next full solve of the same problem starts with the central warm attempt; the
+flag travels with the warm start (per episode, so chunking and workers cannot change it); only the
+controllers the policy names; never in a presumed-infeasible (fast-only) solve."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from test_backends import EGO, LAMBDA0, P_IPM
+
+from mcverify.campaign import spec as campaign
+from mcverify.model import Mpc
+from mcverify.solver import backends
+from mcverify.solver.ipm import CENTRAL_WARM, IpmResult
+from mcverify.solver.mpc import MpcSolver, WarmStart
+
+FRONT = np.array([64.0, 0.0, 25.0 / 3.6])
+
+
+@pytest.mark.parametrize(("policy", "controller", "used"), [
+    ("off", "vlcbf", False), ("off", "mpcdc", False), ("mpcdc", "vlcbf", False), ("mpcdc", "mpcdc", True),
+    ("mpcdc", "mpcdc_eps", True), ("all", "vlcbf", True)])
+def test_the_policy_names_the_controllers(policy, controller, used):
+    assert backends.uses_central_first(Mpc(controller=controller, ipm_central_first=policy)) is used
+    assert Mpc().ipm_central_first == "off"
+
+
+def _solver(policy: str = "all") -> MpcSolver:
+    return MpcSolver(dataclasses.replace(P_IPM, mpc=dataclasses.replace(P_IPM.mpc, ipm_central_first=policy)))
+
+
+def _mu_inits(solver: MpcSolver, warm: WarmStart, monkeypatch, fast_only: bool = False) -> list[tuple[float, bool]]:
+    """(mu_init, warm) of every IPM run of one solve from ``warm`` whose IPM attempts all fail."""
+    backend = solver.backend
+    failed = IpmResult(np.zeros(solver.layout.n_w), np.zeros(solver.layout.n_w), np.zeros(solver.layout.n_g),
+                       False, "Line_Search_Failed", 30, 30, 0, 0, 0, 1.0, 1.0)
+    seen = []
+    monkeypatch.setattr(backend.ipm, "solve", lambda p, w0, lx, lg, o: seen.append((o.mu_init, lx is not None))
+                        or failed)
+    solver.solve(EGO, FRONT, 1, LAMBDA0, warm=warm, fast_only=fast_only)
+    monkeypatch.undo()
+    return seen
+
+
+def test_a_solve_after_a_hard_one_starts_with_the_central_attempt(monkeypatch):
+    on = _solver()
+    cold = on.solve(EGO, FRONT, 1, LAMBDA0)  # no warm start: the cold attempt answers, a hard solve
+    assert cold.success and cold.warm.hard
+    easy = on.solve(EGO, FRONT, 1, LAMBDA0, warm=dataclasses.replace(cold.warm, hard=False))
+    assert easy.success and not easy.warm.hard  # warm attempt 1 solves the same problem again
+    usual = [(1e-7, True), (1e-5, True), (0.1, False)]
+    assert _mu_inits(on, easy.warm, monkeypatch) == usual
+    assert _mu_inits(on, cold.warm, monkeypatch) == [(CENTRAL_WARM.mu_init, True), *usual]
+    assert on.backend.ipm_outcomes["warm4:Line_Search_Failed"] == 1  # the central attempt keeps its name
+    assert _mu_inits(on, cold.warm, monkeypatch, fast_only=True) == usual  # a presumed solve: never
+    assert _mu_inits(_solver("off"), cold.warm, monkeypatch) == usual
+
+
+def test_a_solve_the_central_attempt_answers_stays_hard():
+    on = _solver()
+    cold = on.solve(EGO, FRONT, 1, LAMBDA0)
+    again = on.solve(EGO, FRONT, 1, LAMBDA0, warm=cold.warm)
+    assert again.success and again.warm.hard  # the central attempt converged: not one of the warm attempts
+    assert on.backend.ipm_outcomes["warm4:Converged"] == 1
+
+
+def test_a_bad_policy_is_one_line():
+    raw = {"campaign": {"name": "t", "seed": 1, "episodes": 1}, "model": {"mpc": {"ipm_central_first": "yes"}}}
+    with pytest.raises(campaign.CampaignError, match="mpc.ipm_central_first: unknown policy 'yes'"):
+        campaign.campaign_from_dict(raw)
