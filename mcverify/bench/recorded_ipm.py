@@ -87,7 +87,8 @@ class RecordingBackend:
         new = [t for t, n in self.backend.ipm_outcomes.items() if n > before.get(t, 0)]
         order = [number for number, _, _ in self.backend.attempts(warm, fast_only)]
         attempts = tuple(sorted(new, key=lambda t: order.index(int(t.split(":")[0].lstrip("warmcold")))))
-        w = None if warm is None else Start(np.array(warm.x), np.array(warm.lam_x), np.array(warm.lam_g), warm.after_hard)
+        w = (None if warm is None
+             else Start(np.array(warm.x), np.array(warm.lam_x), np.array(warm.lam_g), warm.after_hard))
         self.recording.solves.append(RecordedSolve(
             self.index, np.array(p, dtype=float), w, g, bool(fast_only), str(res.status), bool(res.success), attempts))
         return res
