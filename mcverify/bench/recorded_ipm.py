@@ -232,3 +232,39 @@ def verdict_table(rows: Sequence[Verdicts]) -> dict[str, dict[str, int]]:
         warm_cert = v.phase1_warm == "Infeasible_Problem_Detected"
         d["warm_only_infeasible"] += int(warm_cert and v.phase1_cold != "Infeasible_Problem_Detected")
     return out
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m mcverify.bench.recorded_ipm CAMPAIGN --out FILE [--episodes 0,1] [--seed S] [--cell NAME]``:
+    record the engine's solves of those episodes of every cell (or one) into a pickle."""
+    import argparse
+    import sys
+
+    from mcverify.campaign.spec import load_campaign
+    from mcverify.errors import CampaignError
+
+    ap = argparse.ArgumentParser(prog="python -m mcverify.bench.recorded_ipm", description=main.__doc__.split("\n")[1])
+    ap.add_argument("campaign")
+    ap.add_argument("--out", required=True, help="the pickle to write")
+    ap.add_argument("--episodes", default="0", help="comma-separated episode ids per cell (default 0)")
+    ap.add_argument("--seed", type=int, help="campaign seed instead of the file's")
+    ap.add_argument("--cell", help="one cell's name (default: every cell)")
+    args = ap.parse_args(argv)
+    try:
+        camp = load_campaign(args.campaign, seed=args.seed)
+        episodes = [int(e) for e in args.episodes.split(",")]
+    except (CampaignError, ValueError) as err:
+        print(f"mcverify: error: {err}", file=sys.stderr)
+        return 2
+    cells = [c for c in camp.cells if args.cell in (None, c.name)]
+    if not cells:
+        print(f"mcverify: error: no cell {args.cell!r} in {args.campaign}", file=sys.stderr)
+        return 2
+    rec = record_engine(cells, camp.seed, episodes, camp.common_random_numbers)
+    save(rec, args.out)
+    print(f"{len(rec.solves)} solves of {len(cells)} cell(s) x {len(episodes)} episode(s) -> {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

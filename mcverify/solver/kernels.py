@@ -178,8 +178,7 @@ def get_runtime_library(name: str, kernel_dir: str | os.PathLike | None = None) 
         for file in (src, *runtime_headers()):  # the folder holds everything the library was built from
             shutil.copy(file, tmp / file.name)
         so = tmp / f"{name}.so"
-        cmd = [COMPILER, *RUNTIME_CFLAGS, str(tmp / src.name), "-o", str(so), "-lm"]
-        _run_compiler(cmd, so, what=f"the {name} runtime library")
+        compile_runtime(tmp / src.name, so, what=f"the {name} runtime library")
         manifest = {
             "name": folder,
             "hash": runtime_hash(name),
@@ -194,6 +193,11 @@ def get_runtime_library(name: str, kernel_dir: str | os.PathLike | None = None) 
         return manifest
 
     return _get_or_build(resolve_kernel_dir(kernel_dir), folder, build, so_file=f"{name}.so")
+
+
+def compile_runtime(c_file: Path, so_path: Path, what: str) -> None:
+    """Compile a runtime library's C file (its headers next to it) with :data:`RUNTIME_CFLAGS`."""
+    _run_compiler([COMPILER, *RUNTIME_CFLAGS, str(c_file), "-o", str(so_path), "-lm"], so_path, what=what)
 
 
 def _get_or_build(root: Path, name: str, build, so_file: str = SO_FILE) -> Kernel:

@@ -58,3 +58,17 @@ def test_verdicts_of_a_recorded_infeasible_solve():
     assert table == {"certified": {"solves": 1, "infeasible": 1, "feasible": 0, "undecided": 0,
                                    "warm_only_infeasible": 0, "resto_converged": 0, "warm_started": 1,
                                    "central_converged": 0}}
+
+
+def test_the_command_records_a_campaign_and_refuses_bad_input_in_one_line(tmp_path, capsys):
+    toml = tmp_path / "c.toml"
+    toml.write_text('[campaign]\nname = "c"\nseed = 3\nepisodes = 1\n[model.sim]\nmax_time_s = 0.2\n'
+                    '[model.noise]\nkind = "paper"\n')
+    out = tmp_path / "rec.pkl"
+    assert R.main([str(toml), "--out", str(out), "--episodes", "0"]) == 0
+    rec = R.load(out)
+    assert len(rec.solves) >= 10 and capsys.readouterr().out.startswith(f"{len(rec.solves)} solves of 1 cell(s)")
+    assert R.main([str(toml), "--out", str(out), "--cell", "nope"]) == 2
+    assert R.main([str(toml), "--out", str(out), "--episodes", "zero"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[0] == "mcverify: error: no cell 'nope' in " + str(toml) and len(err) == 2

@@ -29,8 +29,8 @@
  *
  * Deterministic (fixed orders, no threads); no allocation (workspace from the caller). The results
  * depend on the exact order of the floating-point operations: a refactoring must keep it (compare
- * recorded solves bit for bit), and the build must not allow contraction into FMAs or reassociation
- * (mcverify.solver.kernels.RUNTIME_CFLAGS).
+ * recorded solves bit for bit: python -m mcverify.bench.ipm_builds --baseline-rev REV), and the build
+ * must not allow contraction into FMAs or reassociation (mcverify.solver.kernels.RUNTIME_CFLAGS).
  */
 #include <math.h>
 #include <stddef.h>
