@@ -277,11 +277,11 @@ class Mpc:
     start again at barrier parameter 1e-2 (docs/engine.md, "A central attempt before the rescue"): off, mpcdc (the
     MPC-DC baselines only; the default since 2026-11-26, ``off`` before, which runs made earlier keep:
     :data:`mcverify.campaign.runner.CHANGED_DEFAULTS`) or all."""
-    ipm_central_first: str = "off"
+    ipm_central_first: str = "mpcdc"
     """After a full solve that the two warm IPM attempts did not solve (the cold or central attempt, or IPOPT, did),
     the next full solve of the same problem in the episode starts with the central warm attempt, then the usual ones
-    (docs/engine.md, "The central attempt first after a hard solve"): off (the default), mpcdc (the MPC-DC baselines
-    only) or all."""
+    (docs/engine.md, "The central attempt first after a hard solve"): off, mpcdc (the MPC-DC baselines only; the
+    default since 2026-11-28, ``off`` before, which runs made earlier keep: CHANGED_DEFAULTS) or all."""
     kkt_factorization: str = "lu"
     """How the ipm backend factorises its KKT system: lu (banded LU, the default), ldlt (banded LDL^T with the inertia
     test) or ldlt_curvature (banded LDL^T with the LU's curvature test); docs/engine.md, "The LDL^T path"."""

@@ -10,7 +10,8 @@ Two measurements, written together into a generated section of results/BENCHMARK
    (``mpc.ipm_restoration``: the IPM attempts with the restoration phase), both, "q2_when_needed" or
    "q2_fast_when_unneeded" (``mpc.q2_solve``: a Q2 the step's decision ignores not solved, or given
    the fast path only), "central_off", "central_mpcdc" or "central_all" (``mpc.ipm_central_attempt``,
-   whose default is ``mpcdc``), "central_first_mpcdc" (``mpc.ipm_central_first``): CPU per episode
+   whose default is ``mpcdc``), "central_first_off" or "central_first_mpcdc" (``mpc.ipm_central_first``,
+   likewise): CPU per episode
    by solve class, the audit counters, and the
    episode-by-episode agreement of safety verdicts and outcomes.
 2. **Recorded solves** (:func:`replay_verdicts`): every solve of a recording
@@ -52,6 +53,7 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "central_off": {"mpc.ipm_central_attempt": "off"},
     "central_mpcdc": {"mpc.ipm_central_attempt": "mpcdc"},
     "central_all": {"mpc.ipm_central_attempt": "all"},
+    "central_first_off": {"mpc.ipm_central_first": "off"},
     "central_first_mpcdc": {"mpc.ipm_central_first": "mpcdc"},
 }
 #: The heading of a variant's section (default: the infeasibility certificates').
@@ -62,7 +64,9 @@ HEADINGS: dict[str, str] = {"q2_when_needed": "Q2 solved only when Algorithm 1 r
                             "central_all": "A central IPM attempt before IPOPT's rescue, every controller "
                                            "(`mpc.ipm_central_attempt`)",
                             "central_first_mpcdc": "The central IPM attempt first after a hard solve, MPC-DC only "
-                                                   "(`mpc.ipm_central_first`)"}
+                                                   "(`mpc.ipm_central_first`)",
+                            "central_first_off": "Without the central IPM attempt first after a hard solve "
+                                                 "(`mpc.ipm_central_first = off`)"}
 #: The default side's label.
 DEFAULT = "default"
 BEGIN_MARK = "<!-- BEGIN mcverify bench infeasibility (generated) -->"

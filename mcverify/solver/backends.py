@@ -284,7 +284,8 @@ class IpmBackend:
         # before IPOPT
         central = dataclasses.replace(CENTRAL_WARM, tol=params.mpc.tol, **kkt)
         self.central = central if uses_central_attempt(params.mpc) else None
-        # mpc.ipm_central_first (default off): after a hard solve, the next one starts with the central attempt
+        # mpc.ipm_central_first (default mpcdc: the MPC-DC baselines): after a hard solve, the next one starts with
+        # the central attempt
         self.central_first = central if uses_central_first(params.mpc) else None
         self.ipm_outcomes: Counter[str] = Counter()
         self.ipm_cpu_s: Counter[str] = Counter()

@@ -422,3 +422,15 @@ def test_runs_before_the_restoration_policies_rebuild_with_restoration_off():
             else:
                 cell["params"]["mpc"]["ipm_restoration"] = stored
         assert {c.params.mpc.ipm_restoration for c in runner.campaign_from_manifest(manifest).cells} == {policy}
+
+
+def test_runs_before_the_central_first_default_rebuild_with_it_off():
+    """mpc.ipm_central_first defaults to mpcdc since 2026-11-28: a run whose cells predate the field replays and
+    resumes with "off"; a run that stored a value keeps it."""
+    raw = {"campaign": {"name": "t", "seed": 3, "episodes": 1}, "model": {"mpc": {"controller": "mpcdc"}}}
+    manifest = runner.manifest_for(campaign_from_dict(raw, source="t.toml"), 8, {})
+    assert {c["params"]["mpc"]["ipm_central_first"] for c in manifest["cells"]} == {"mpcdc"}  # today's default
+    assert {c.params.mpc.ipm_central_first for c in runner.campaign_from_manifest(manifest).cells} == {"mpcdc"}
+    for cell in manifest["cells"]:
+        cell["params"]["mpc"].pop("ipm_central_first")
+    assert {c.params.mpc.ipm_central_first for c in runner.campaign_from_manifest(manifest).cells} == {"off"}

@@ -25,7 +25,7 @@ FRONT = np.array([64.0, 0.0, 25.0 / 3.6])
     ("mpcdc", "mpcdc_eps", True), ("all", "vlcbf", True)])
 def test_the_policy_names_the_controllers(policy, controller, used):
     assert backends.uses_central_first(Mpc(controller=controller, ipm_central_first=policy)) is used
-    assert Mpc().ipm_central_first == "off"
+    assert Mpc().ipm_central_first == "mpcdc"  # the default since 2026-11-28 (MPC-DC only)
 
 
 def _solver(policy: str = "all") -> MpcSolver:
