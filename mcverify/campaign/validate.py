@@ -17,6 +17,7 @@ from mcverify.model import (
     BACKEND_NAMES,
     CENTRAL_ATTEMPT_POLICIES,
     CENTRAL_FIRST_POLICIES,
+    CENTRAL_RETRY_POLICIES,
     INFEASIBILITY_POLICIES,
     KKT_FACTORIZATIONS,
     MAX_BRANCHES,
@@ -170,6 +171,9 @@ def validate_params(p: ModelParams, where: str) -> None:
     if m.ipm_central_first not in CENTRAL_FIRST_POLICIES:
         raise bad("mpc.ipm_central_first", f"unknown policy {_short(m.ipm_central_first)}; valid: "
                   f"{', '.join(CENTRAL_FIRST_POLICIES)}")
+    if m.ipm_central_retry not in CENTRAL_RETRY_POLICIES:
+        raise bad("mpc.ipm_central_retry", f"unknown policy {_short(m.ipm_central_retry)}; valid: "
+                  f"{', '.join(CENTRAL_RETRY_POLICIES)}")
     if m.ipm_restoration not in RESTORATION_POLICIES:
         raise bad("mpc.ipm_restoration", f"unknown policy {_short(m.ipm_restoration)}; valid: "
                   f"{', '.join(RESTORATION_POLICIES)} (or false, true)")

@@ -58,7 +58,16 @@ import numpy as np
 from mcverify.errors import raise_noted_interrupt
 from mcverify.model import BACKEND_NAMES, KKT_FACTORIZATIONS, ModelParams, Mpc
 from mcverify.solver.cfun import CFunction
-from mcverify.solver.ipm import CENTRAL_WARM, COLD, KKT_FACTORISATIONS, WARM_ATTEMPTS, Ipm, IpmOptions, IpmResult
+from mcverify.solver.ipm import (
+    CENTRAL_RETRY,
+    CENTRAL_WARM,
+    COLD,
+    KKT_FACTORISATIONS,
+    WARM_ATTEMPTS,
+    Ipm,
+    IpmOptions,
+    IpmResult,
+)
 from mcverify.solver.kernels import Kernel, get_runtime_library
 from mcverify.solver.status import SolveRoute, SolveStatus
 
@@ -287,6 +296,9 @@ class IpmBackend:
         # mpc.ipm_central_first (default mpcdc: the MPC-DC baselines): after a hard solve, the next one starts with
         # the central attempt
         self.central_first = central if uses_central_first(params.mpc) else None
+        # mpc.ipm_central_retry (default off): the warm start once more, more central still, last before IPOPT
+        self.central_retry = (dataclasses.replace(CENTRAL_RETRY, tol=params.mpc.tol, **kkt)
+                              if uses_policy(params.mpc.ipm_central_retry, params.mpc) else None)
         self.ipm_outcomes: Counter[str] = Counter()
         self.ipm_cpu_s: Counter[str] = Counter()
         self.infeasibility = params.mpc.infeasibility
@@ -330,7 +342,7 @@ class IpmBackend:
     def attempts(self, warm: Start | None, fast_only: bool) -> list[tuple[int, IpmOptions, Start | None]]:
         """The IPM attempts of a solve in order, as (number, options, start or None for the cold guess). The
         numbers name the attempts in :attr:`ipm_outcomes` whatever their order: 1 and 2 the warm ones, 3 the cold
-        one (1 without a warm start), 4 the central one."""
+        one (1 without a warm start), 4 the central one, 5 the central retry."""
         if warm is None:
             return [(1, self.cold if fast_only else self.cold_full, None)]
         usual = [(k + 1, o, warm) for k, o in enumerate(self.warm_attempts)]
@@ -338,9 +350,10 @@ class IpmBackend:
         central = len(usual) + 2
         if fast_only:
             return [*usual, cold]
+        retry = [(central + 1, self.central_retry, warm)] if self.central_retry is not None else []
         if self.central_first is not None and warm.after_hard:
-            return [(central, self.central_first, warm), *usual, cold]
-        return [*usual, cold, *([(central, self.central, warm)] if self.central is not None else [])]
+            return [(central, self.central_first, warm), *usual, cold, *retry]
+        return [*usual, cold, *([(central, self.central, warm)] if self.central is not None else []), *retry]
 
 
     # ---------------------------------------------------------------- Mpc.infeasibility = "phase1"
@@ -395,19 +408,24 @@ if set(KKT_FACTORIZATIONS) != set(KKT_FACTORISATIONS):  # likewise for mpc.kkt_f
 
 def uses_central_attempt(mpc: Mpc) -> bool:
     """Whether ``mpc.ipm_central_attempt`` gives this controller's full solves the central warm attempt."""
-    return mpc.ipm_central_attempt == "all" or (mpc.ipm_central_attempt == "mpcdc" and mpc.is_mpcdc)
+    return uses_policy(mpc.ipm_central_attempt, mpc)
+
+
+def uses_policy(policy: str, mpc: Mpc) -> bool:
+    """Whether a controller policy of the ipm backend (off / mpcdc / all) applies to this controller."""
+    return policy == "all" or (policy == "mpcdc" and mpc.is_mpcdc)
 
 
 def uses_central_first(mpc: Mpc) -> bool:
     """Whether ``mpc.ipm_central_first`` starts this controller's full solves after a hard one with the central
     attempt."""
-    return mpc.ipm_central_first == "all" or (mpc.ipm_central_first == "mpcdc" and mpc.is_mpcdc)
+    return uses_policy(mpc.ipm_central_first, mpc)
 
 
 def uses_restoration(mpc: Mpc) -> bool:
     """Whether ``mpc.ipm_restoration`` gives this controller's cold IPM attempt of a full solve the restoration
     phase."""
-    return mpc.ipm_restoration == "all" or (mpc.ipm_restoration == "mpcdc" and mpc.is_mpcdc)
+    return uses_policy(mpc.ipm_restoration, mpc)
 
 
 def create_backend(name: str, problem: Problem, params: ModelParams):

@@ -114,6 +114,10 @@ WARM_ATTEMPTS: tuple[IpmOptions, ...] = (
 #: bounds at mu 1e-7 to 1e-5) and the cold one fails its line search, a barrier this large frees the
 #: point and keeps the warm start's shape (docs/engine.md, "A central attempt before the rescue").
 CENTRAL_WARM = IpmOptions(mu_init=1e-2, bound_push=1e-3, mult_push=1e-6, max_iter=60)
+#: The central retry (``mpc.ipm_central_retry``): the warm start once more after the central attempt
+#: failed, at mu_init 3e-2 and up to 100 iterations, before IPOPT's rescue (docs/engine.md, "A central
+#: retry before the rescue").
+CENTRAL_RETRY = IpmOptions(mu_init=3e-2, bound_push=1e-3, mult_push=1e-6, max_iter=100)
 #: Cold starts (no multipliers): IPOPT's defaults (mu_init 0.1, bound_push 0.01).
 COLD = IpmOptions(mu_init=0.1, bound_push=1e-2, mult_push=1e-2, max_iter=150)
 

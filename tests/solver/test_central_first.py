@@ -71,3 +71,22 @@ def test_a_bad_policy_is_one_line():
     raw = {"campaign": {"name": "t", "seed": 1, "episodes": 1}, "model": {"mpc": {"ipm_central_first": "yes"}}}
     with pytest.raises(campaign.CampaignError, match="mpc.ipm_central_first: unknown policy 'yes'"):
         campaign.campaign_from_dict(raw)
+
+
+def test_the_central_retry_comes_last_before_ipopt_in_a_full_solve(monkeypatch):
+    """mpc.ipm_central_retry: after every other attempt (the central one first or fourth), the warm start at
+    mu_init 3e-2 (tag warm5); never in a presumed solve; only for the controllers the policy names."""
+    from mcverify.solver.ipm import CENTRAL_RETRY
+    params = dataclasses.replace(P_IPM, mpc=dataclasses.replace(P_IPM.mpc, ipm_central_retry="all",
+                                                                ipm_central_attempt="all"))
+    on = MpcSolver(params)
+    cold = on.solve(EGO, FRONT, 1, LAMBDA0)
+    easy = dataclasses.replace(cold.warm, hard=False)
+    usual = [(1e-7, True), (1e-5, True), (0.1, False)]
+    retry = (CENTRAL_RETRY.mu_init, True)
+    assert _mu_inits(on, easy, monkeypatch) == [*usual, (CENTRAL_WARM.mu_init, True), retry]
+    assert on.backend.ipm_outcomes["warm5:Line_Search_Failed"] == 1
+    assert _mu_inits(on, easy, monkeypatch, fast_only=True) == usual
+    assert backends.uses_policy("mpcdc", Mpc(controller="mpcdc_eps")) and not backends.uses_policy(
+        "mpcdc", Mpc(controller="vlcbf"))
+    assert Mpc().ipm_central_retry == "off"
