@@ -57,6 +57,22 @@ def closed_loop_states(solver: MpcSolver, front: np.ndarray, direction: int, ste
 # ------------------------------------------------------------------------------------- selection
 
 
+def attempt_starts(solver: MpcSolver, warm, monkeypatch, fast_only: bool = False,
+                   front: np.ndarray | None = None) -> list[tuple[float, bool]]:
+    """(mu_init, warm-started) of every IPM run of one solve from ``warm`` (a WarmStart) whose IPM attempts all
+    fail (IPOPT then answers, unless ``fast_only``)."""
+    backend = solver.backend
+    failed = IpmResult(np.zeros(solver.layout.n_w), np.zeros(solver.layout.n_w), np.zeros(solver.layout.n_g),
+                       False, "Line_Search_Failed", 30, 30, 0, 0, 0, 1.0, 1.0)
+    seen = []
+    monkeypatch.setattr(backend.ipm, "solve", lambda p, w0, lx, lg, o: seen.append((o.mu_init, lx is not None))
+                        or failed)
+    front = np.array([64.0, 0.0, 25.0 / 3.6]) if front is None else front
+    solver.solve(EGO, front, 1, LAMBDA0, warm=warm, fast_only=fast_only)
+    monkeypatch.undo()
+    return seen
+
+
 def test_registry_implements_every_backend_name():
     assert set(backends.REGISTRY) == set(BACKEND_NAMES)
     assert all(cls.name == name for name, cls in backends.REGISTRY.items())

@@ -8,7 +8,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from test_backends import EGO, LAMBDA0, P_IPM
+from test_backends import EGO, LAMBDA0, P_IPM, attempt_starts
 
 from mcverify.campaign import spec as campaign
 from mcverify.model import Mpc
@@ -31,15 +31,7 @@ def _attempts(solver: MpcSolver, monkeypatch) -> list[tuple[float, bool]]:
     """(mu_init, warm) of every IPM run of one warm-started full solve whose IPM attempts all fail."""
     warm = solver.solve(EGO, FRONT, 1, LAMBDA0)
     assert warm.success
-    backend = solver.backend
-    failed = IpmResult(np.zeros(solver.layout.n_w), np.zeros(solver.layout.n_w), np.zeros(solver.layout.n_g),
-                       False, "Line_Search_Failed", 30, 30, 0, 0, 0, 1.0, 1.0)
-    seen = []
-    monkeypatch.setattr(backend.ipm, "solve", lambda p, w0, lx, lg, o: seen.append((o.mu_init, lx is not None))
-                        or failed)
-    assert solver.solve(EGO, FRONT, 1, LAMBDA0, warm=warm.warm).success  # rescued by IPOPT
-    monkeypatch.undo()
-    return seen
+    return attempt_starts(solver, warm.warm, monkeypatch)
 
 
 def test_the_central_attempt_comes_after_the_cold_one_and_only_in_a_full_solve(monkeypatch):

@@ -9,12 +9,12 @@ import dataclasses
 
 import numpy as np
 import pytest
-from test_backends import EGO, LAMBDA0, P_IPM
+from test_backends import EGO, LAMBDA0, P_IPM, attempt_starts
 
 from mcverify.campaign import spec as campaign
 from mcverify.model import Mpc
 from mcverify.solver import backends
-from mcverify.solver.ipm import CENTRAL_WARM, IpmResult
+from mcverify.solver.ipm import CENTRAL_WARM
 from mcverify.solver.mpc import MpcSolver, WarmStart
 
 FRONT = np.array([64.0, 0.0, 25.0 / 3.6])
@@ -33,16 +33,7 @@ def _solver(policy: str = "all") -> MpcSolver:
 
 
 def _mu_inits(solver: MpcSolver, warm: WarmStart, monkeypatch, fast_only: bool = False) -> list[tuple[float, bool]]:
-    """(mu_init, warm) of every IPM run of one solve from ``warm`` whose IPM attempts all fail."""
-    backend = solver.backend
-    failed = IpmResult(np.zeros(solver.layout.n_w), np.zeros(solver.layout.n_w), np.zeros(solver.layout.n_g),
-                       False, "Line_Search_Failed", 30, 30, 0, 0, 0, 1.0, 1.0)
-    seen = []
-    monkeypatch.setattr(backend.ipm, "solve", lambda p, w0, lx, lg, o: seen.append((o.mu_init, lx is not None))
-                        or failed)
-    solver.solve(EGO, FRONT, 1, LAMBDA0, warm=warm, fast_only=fast_only)
-    monkeypatch.undo()
-    return seen
+    return attempt_starts(solver, warm, monkeypatch, fast_only)
 
 
 def test_a_solve_after_a_hard_one_starts_with_the_central_attempt(monkeypatch):
