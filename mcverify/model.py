@@ -284,10 +284,11 @@ class Mpc:
     the next full solve of the same problem in the episode starts with the central warm attempt, then the usual ones
     (docs/engine.md, "The central attempt first after a hard solve"): off, mpcdc (the MPC-DC baselines only; the
     default since 2026-11-28, ``off`` before, which runs made earlier keep: CHANGED_DEFAULTS) or all."""
-    ipm_central_retry: str = "off"
+    ipm_central_retry: str = "mpcdc"
     """After every other IPM attempt of a full solve failed (the central one included) and before IPOPT: the warm
     start once more at barrier parameter 3e-2 for up to 100 iterations (docs/engine.md, "A central retry before the
-    rescue"): off (the default), mpcdc (the MPC-DC baselines only) or all."""
+    rescue"): off, mpcdc (the MPC-DC baselines only; the default since 2026-11-28, ``off`` before, which runs made
+    earlier keep: CHANGED_DEFAULTS) or all."""
     kkt_factorization: str = "lu"
     """How the ipm backend factorises its KKT system: lu (banded LU, the default), ldlt (banded LDL^T with the inertia
     test) or ldlt_curvature (banded LDL^T with the LU's curvature test); docs/engine.md, "The LDL^T path"."""

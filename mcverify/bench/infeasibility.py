@@ -11,7 +11,7 @@ Two measurements, written together into a generated section of results/BENCHMARK
    "q2_fast_when_unneeded" (``mpc.q2_solve``: a Q2 the step's decision ignores not solved, or given
    the fast path only), "central_off", "central_mpcdc" or "central_all" (``mpc.ipm_central_attempt``,
    whose default is ``mpcdc``), "central_first_off" or "central_first_mpcdc" (``mpc.ipm_central_first``,
-   likewise), "central_retry_mpcdc" (``mpc.ipm_central_retry``): CPU per episode
+   likewise), "central_retry_off" or "central_retry_mpcdc" (``mpc.ipm_central_retry``, likewise): CPU per episode
    by solve class, the audit counters, and the
    episode-by-episode agreement of safety verdicts and outcomes.
 2. **Recorded solves** (:func:`replay_verdicts`): every solve of a recording
@@ -55,6 +55,7 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "central_all": {"mpc.ipm_central_attempt": "all"},
     "central_first_off": {"mpc.ipm_central_first": "off"},
     "central_first_mpcdc": {"mpc.ipm_central_first": "mpcdc"},
+    "central_retry_off": {"mpc.ipm_central_retry": "off"},
     "central_retry_mpcdc": {"mpc.ipm_central_retry": "mpcdc"},
 }
 #: The heading of a variant's section (default: the infeasibility certificates').
@@ -69,7 +70,9 @@ HEADINGS: dict[str, str] = {"q2_when_needed": "Q2 solved only when Algorithm 1 r
                             "central_first_off": "Without the central IPM attempt first after a hard solve "
                                                  "(`mpc.ipm_central_first = off`)",
                             "central_retry_mpcdc": "A central IPM retry before IPOPT's rescue, MPC-DC only "
-                                                   "(`mpc.ipm_central_retry`)"}
+                                                   "(`mpc.ipm_central_retry`)",
+                            "central_retry_off": "Without the central IPM retry before IPOPT's rescue "
+                                                 "(`mpc.ipm_central_retry = off`)"}
 #: The default side's label.
 DEFAULT = "default"
 BEGIN_MARK = "<!-- BEGIN mcverify bench infeasibility (generated) -->"

@@ -296,7 +296,7 @@ class IpmBackend:
         # mpc.ipm_central_first (default mpcdc: the MPC-DC baselines): after a hard solve, the next one starts with
         # the central attempt
         self.central_first = central if uses_central_first(params.mpc) else None
-        # mpc.ipm_central_retry (default off): the warm start once more, more central still, last before IPOPT
+        # mpc.ipm_central_retry (default mpcdc): the warm start once more, more central still, last before IPOPT
         self.central_retry = (dataclasses.replace(CENTRAL_RETRY, tol=params.mpc.tol, **kkt)
                               if uses_policy(params.mpc.ipm_central_retry, params.mpc) else None)
         self.ipm_outcomes: Counter[str] = Counter()

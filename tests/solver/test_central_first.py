@@ -80,4 +80,4 @@ def test_the_central_retry_comes_last_before_ipopt_in_a_full_solve(monkeypatch):
     assert _mu_inits(on, easy, monkeypatch, fast_only=True) == usual
     assert backends.uses_policy("mpcdc", Mpc(controller="mpcdc_eps")) and not backends.uses_policy(
         "mpcdc", Mpc(controller="vlcbf"))
-    assert Mpc().ipm_central_retry == "off"
+    assert Mpc().ipm_central_retry == "mpcdc"  # the default since 2026-11-28 (MPC-DC only)
