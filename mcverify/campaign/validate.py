@@ -165,15 +165,10 @@ def validate_params(p: ModelParams, where: str) -> None:
     if m.kkt_factorization not in KKT_FACTORIZATIONS:
         raise bad("mpc.kkt_factorization",
                   f"unknown factorization {_short(m.kkt_factorization)}; valid: {', '.join(KKT_FACTORIZATIONS)}")
-    if m.ipm_central_attempt not in CENTRAL_ATTEMPT_POLICIES:
-        raise bad("mpc.ipm_central_attempt", f"unknown policy {_short(m.ipm_central_attempt)}; valid: "
-                  f"{', '.join(CENTRAL_ATTEMPT_POLICIES)}")
-    if m.ipm_central_first not in CENTRAL_FIRST_POLICIES:
-        raise bad("mpc.ipm_central_first", f"unknown policy {_short(m.ipm_central_first)}; valid: "
-                  f"{', '.join(CENTRAL_FIRST_POLICIES)}")
-    if m.ipm_central_retry not in CENTRAL_RETRY_POLICIES:
-        raise bad("mpc.ipm_central_retry", f"unknown policy {_short(m.ipm_central_retry)}; valid: "
-                  f"{', '.join(CENTRAL_RETRY_POLICIES)}")
+    for name, valid in (("ipm_central_attempt", CENTRAL_ATTEMPT_POLICIES),
+                        ("ipm_central_first", CENTRAL_FIRST_POLICIES), ("ipm_central_retry", CENTRAL_RETRY_POLICIES)):
+        if getattr(m, name) not in valid:
+            raise bad(f"mpc.{name}", f"unknown policy {_short(getattr(m, name))}; valid: {', '.join(valid)}")
     if m.ipm_restoration not in RESTORATION_POLICIES:
         raise bad("mpc.ipm_restoration", f"unknown policy {_short(m.ipm_restoration)}; valid: "
                   f"{', '.join(RESTORATION_POLICIES)} (or false, true)")

@@ -327,7 +327,6 @@ class IpmBackend:
             )
             if res.success:
                 return res
-        res = dataclasses.replace(res, hard=True)
         if fast_only:
             return dataclasses.replace(res, status=res.status.via(SolveRoute.PRESUMED))
         if self.infeasibility == "phase1":
