@@ -11,7 +11,8 @@ Two measurements, written together into a generated section of results/BENCHMARK
    "q2_fast_when_unneeded" (``mpc.q2_solve``: a Q2 the step's decision ignores not solved, or given
    the fast path only), "central_off", "central_mpcdc" or "central_all" (``mpc.ipm_central_attempt``,
    whose default is ``mpcdc``), "central_first_off" or "central_first_mpcdc" (``mpc.ipm_central_first``,
-   likewise), "central_retry_off" or "central_retry_mpcdc" (``mpc.ipm_central_retry``, likewise): CPU per episode
+   likewise), "central_retry_off" or "central_retry_mpcdc" (``mpc.ipm_central_retry``, likewise),
+   "after_hard_central" or "after_hard_lower_mu" (``mpc.ipm_after_hard_attempt``): CPU per episode
    by solve class, the audit counters, and the
    episode-by-episode agreement of safety verdicts and outcomes.
 2. **Recorded solves** (:func:`replay_verdicts`): every solve of a recording
@@ -57,6 +58,8 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "central_first_mpcdc": {"mpc.ipm_central_first": "mpcdc"},
     "central_retry_off": {"mpc.ipm_central_retry": "off"},
     "central_retry_mpcdc": {"mpc.ipm_central_retry": "mpcdc"},
+    "after_hard_central": {"mpc.ipm_after_hard_attempt": "central"},
+    "after_hard_lower_mu": {"mpc.ipm_after_hard_attempt": "lower_mu"},
 }
 #: The heading of a variant's section (default: the infeasibility certificates').
 HEADINGS: dict[str, str] = {"q2_when_needed": "Q2 solved only when Algorithm 1 reads it (`mpc.q2_solve`)",
@@ -72,7 +75,11 @@ HEADINGS: dict[str, str] = {"q2_when_needed": "Q2 solved only when Algorithm 1 r
                             "central_retry_mpcdc": "A central IPM retry before IPOPT's rescue, MPC-DC only "
                                                    "(`mpc.ipm_central_retry`)",
                             "central_retry_off": "Without the central IPM retry before IPOPT's rescue "
-                                                 "(`mpc.ipm_central_retry = off`)"}
+                                                 "(`mpc.ipm_central_retry = off`)",
+                            "after_hard_central": "The central attempt first after a hard solve "
+                                                  "(`mpc.ipm_after_hard_attempt = central`)",
+                            "after_hard_lower_mu": "The lower-mu attempt first after a hard solve "
+                                                   "(`mpc.ipm_after_hard_attempt = lower_mu`)"}
 #: The default side's label.
 DEFAULT = "default"
 BEGIN_MARK = "<!-- BEGIN mcverify bench infeasibility (generated) -->"

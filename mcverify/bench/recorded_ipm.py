@@ -124,8 +124,17 @@ def save(rec: Recording, path: str | Path) -> None:
     Path(path).write_bytes(pickle.dumps(rec, protocol=pickle.HIGHEST_PROTOCOL))
 
 
+class _Unpickler(pickle.Unpickler):
+    """Reads recordings whose classes were pickled as ``__main__.Recording`` (files written by
+    ``python -m`` before the command line imported this module by its name)."""
+
+    def find_class(self, module: str, name: str):
+        return super().find_class(__name__ if module == "__main__" else module, name)
+
+
 def load(path: str | Path) -> Recording:
-    return pickle.loads(Path(path).read_bytes())  # noqa: S301 - our own benchmark files
+    with open(path, "rb") as f:
+        return _Unpickler(f).load()  # noqa: S301 - our own benchmark files
 
 
 class Replayer:
@@ -267,4 +276,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    # the module by its package name, so that the pickle's classes are not "__main__.Recording"
+    from mcverify.bench import recorded_ipm
+
+    raise SystemExit(recorded_ipm.main())

@@ -14,6 +14,7 @@ from mcverify import levels
 from mcverify.errors import CampaignError
 from mcverify.model import (
     ABANDON_RULES,
+    AFTER_HARD_ATTEMPTS,
     BACKEND_NAMES,
     CENTRAL_ATTEMPT_POLICIES,
     CENTRAL_FIRST_POLICIES,
@@ -166,9 +167,11 @@ def validate_params(p: ModelParams, where: str) -> None:
         raise bad("mpc.kkt_factorization",
                   f"unknown factorization {_short(m.kkt_factorization)}; valid: {', '.join(KKT_FACTORIZATIONS)}")
     for name, valid in (("ipm_central_attempt", CENTRAL_ATTEMPT_POLICIES),
-                        ("ipm_central_first", CENTRAL_FIRST_POLICIES), ("ipm_central_retry", CENTRAL_RETRY_POLICIES)):
+                        ("ipm_central_first", CENTRAL_FIRST_POLICIES), ("ipm_central_retry", CENTRAL_RETRY_POLICIES),
+                        ("ipm_after_hard_attempt", AFTER_HARD_ATTEMPTS)):
         if getattr(m, name) not in valid:
-            raise bad(f"mpc.{name}", f"unknown policy {_short(getattr(m, name))}; valid: {', '.join(valid)}")
+            kind = "attempt" if name == "ipm_after_hard_attempt" else "policy"
+            raise bad(f"mpc.{name}", f"unknown {kind} {_short(getattr(m, name))}; valid: {', '.join(valid)}")
     if m.ipm_restoration not in RESTORATION_POLICIES:
         raise bad("mpc.ipm_restoration", f"unknown policy {_short(m.ipm_restoration)}; valid: "
                   f"{', '.join(RESTORATION_POLICIES)} (or false, true)")

@@ -59,6 +59,7 @@ from mcverify.errors import raise_noted_interrupt
 from mcverify.model import BACKEND_NAMES, KKT_FACTORIZATIONS, ModelParams, Mpc
 from mcverify.solver.cfun import CFunction
 from mcverify.solver.ipm import (
+    AFTER_HARD_WARM,
     CENTRAL_RETRY,
     CENTRAL_WARM,
     COLD,
@@ -294,8 +295,11 @@ class IpmBackend:
         central = dataclasses.replace(CENTRAL_WARM, tol=params.mpc.tol, **kkt)
         self.central = central if uses_central_attempt(params.mpc) else None
         # mpc.ipm_central_first (default mpcdc: the MPC-DC baselines): after a hard solve, the next one starts with
-        # the central attempt
-        self.central_first = central if uses_central_first(params.mpc) else None
+        # the attempt mpc.ipm_after_hard_attempt names: the central one (number 4) or the lower-mu one (number 6)
+        lower_mu = params.mpc.ipm_after_hard_attempt == "lower_mu"
+        first = dataclasses.replace(AFTER_HARD_WARM, tol=params.mpc.tol, **kkt) if lower_mu else central
+        self.central_first = first if uses_central_first(params.mpc) else None
+        self.central_first_number = 6 if lower_mu else 4
         # mpc.ipm_central_retry (default mpcdc): the warm start once more, more central still, last before IPOPT
         self.central_retry = (dataclasses.replace(CENTRAL_RETRY, tol=params.mpc.tol, **kkt)
                               if uses_policy(params.mpc.ipm_central_retry, params.mpc) else None)
@@ -341,7 +345,8 @@ class IpmBackend:
     def attempts(self, warm: Start | None, fast_only: bool) -> list[tuple[int, IpmOptions, Start | None]]:
         """The IPM attempts of a solve in order, as (number, options, start or None for the cold guess). The
         numbers name the attempts in :attr:`ipm_outcomes` whatever their order: 1 and 2 the warm ones, 3 the cold
-        one (1 without a warm start), 4 the central one, 5 the central retry."""
+        one (1 without a warm start), 4 the central one, 5 the central retry, 6 the lower-mu one after a hard
+        solve (``mpc.ipm_after_hard_attempt``)."""
         if warm is None:
             return [(1, self.cold if fast_only else self.cold_full, None)]
         usual = [(k + 1, o, warm) for k, o in enumerate(self.warm_attempts)]
@@ -351,7 +356,7 @@ class IpmBackend:
             return [*usual, cold]
         retry = [(central + 1, self.central_retry, warm)] if self.central_retry is not None else []
         if self.central_first is not None and warm.after_hard:
-            return [(central, self.central_first, warm), *usual, cold, *retry]
+            return [(self.central_first_number, self.central_first, warm), *usual, cold, *retry]
         return [*usual, cold, *([(central, self.central, warm)] if self.central is not None else []), *retry]
 
 

@@ -72,3 +72,19 @@ def test_the_command_records_a_campaign_and_refuses_bad_input_in_one_line(tmp_pa
     assert R.main([str(toml), "--out", str(out), "--episodes", "zero"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err[0] == "mcverify: error: no cell 'nope' in " + str(toml) and len(err) == 2
+
+
+def test_a_recording_pickled_under_dunder_main_loads(tmp_path, monkeypatch):
+    """``python -m mcverify.bench.recorded_ipm`` used to pickle its classes as ``__main__.Recording``."""
+    import sys
+
+    rec = R.Recording(solves=[R.RecordedSolve(0, np.ones(2), None, np.zeros(3), False, "Solve_Succeeded", True,
+                                              ("cold1:Converged",))])
+    for cls in (R.Recording, R.RecordedSolve):
+        monkeypatch.setattr(cls, "__module__", "__main__")
+        monkeypatch.setattr(sys.modules["__main__"], cls.__name__, cls, raising=False)
+    R.save(rec, tmp_path / "rec.pkl")
+    monkeypatch.undo()
+    assert b"__main__" in (tmp_path / "rec.pkl").read_bytes()
+    loaded = R.load(tmp_path / "rec.pkl")
+    assert isinstance(loaded, R.Recording) and loaded.solves[0].attempts == ("cold1:Converged",)

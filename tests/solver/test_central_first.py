@@ -81,3 +81,29 @@ def test_the_central_retry_comes_last_before_ipopt_in_a_full_solve(monkeypatch):
     assert backends.uses_policy("mpcdc", Mpc(controller="mpcdc_eps")) and not backends.uses_policy(
         "mpcdc", Mpc(controller="vlcbf"))
     assert Mpc().ipm_central_retry == "mpcdc"  # the default since 2026-11-28 (MPC-DC only)
+
+
+def test_the_after_hard_attempt_can_be_the_lower_mu_one(monkeypatch):
+    """mpc.ipm_after_hard_attempt = lower_mu: the first attempt after a hard solve is AFTER_HARD_WARM (tag warm6),
+    then the usual ones; an easy warm start and a presumed solve are untouched; a solve it answers stays hard."""
+    from mcverify.solver.ipm import AFTER_HARD_WARM
+    params = dataclasses.replace(P_IPM, mpc=dataclasses.replace(P_IPM.mpc, ipm_central_first="all",
+                                                                ipm_after_hard_attempt="lower_mu"))
+    on = MpcSolver(params)
+    cold = on.solve(EGO, FRONT, 1, LAMBDA0)
+    usual = [(1e-7, True), (1e-5, True), (0.1, False)]
+    assert _mu_inits(on, cold.warm, monkeypatch) == [(AFTER_HARD_WARM.mu_init, True), *usual]
+    assert on.backend.ipm_outcomes["warm6:Line_Search_Failed"] == 1
+    assert _mu_inits(on, dataclasses.replace(cold.warm, hard=False), monkeypatch) == usual
+    assert _mu_inits(on, cold.warm, monkeypatch, fast_only=True) == usual
+    fresh = MpcSolver(params)
+    again = fresh.solve(EGO, FRONT, 1, LAMBDA0, warm=fresh.solve(EGO, FRONT, 1, LAMBDA0).warm)
+    assert again.success and again.warm.hard and fresh.backend.ipm_outcomes["warm6:Converged"] == 1
+    assert (AFTER_HARD_WARM.mu_init, AFTER_HARD_WARM.bound_push, AFTER_HARD_WARM.mult_push) == (3e-3, 3e-3, 3e-2)
+
+
+def test_a_bad_after_hard_attempt_is_one_line():
+    raw = {"campaign": {"name": "t", "seed": 1, "episodes": 1}, "model": {"mpc": {"ipm_after_hard_attempt": "x"}}}
+    with pytest.raises(campaign.CampaignError,
+                       match="mpc.ipm_after_hard_attempt: unknown attempt 'x'; valid: central, lower_mu"):
+        campaign.campaign_from_dict(raw)
