@@ -286,11 +286,11 @@ class Mpc:
     the next full solve of the same problem in the episode starts with the central warm attempt, then the usual ones
     (docs/engine.md, "The central attempt first after a hard solve"): off, mpcdc (the MPC-DC baselines only; the
     default since 2026-11-28, ``off`` before, which runs made earlier keep: CHANGED_DEFAULTS) or all."""
-    ipm_after_hard_attempt: str = "central"
+    ipm_after_hard_attempt: str = "lower_mu"
     """Which warm attempt ``ipm_central_first`` runs first after a hard solve: central (the central attempt: barrier
     parameter 1e-2, bound push 1e-3) or lower_mu (barrier parameter 3e-3, bound push 3e-3, bound multipliers at least
-    3e-2: a third of the iterations' cost on recorded MPC-DC solves; docs/engine.md, "The central attempt first
-    after a hard solve")."""
+    3e-2; the default since 2026-11-28, ``central`` before, which runs made earlier keep: CHANGED_DEFAULTS);
+    docs/engine.md, "The lower-mu attempt after a hard solve"."""
     ipm_central_retry: str = "mpcdc"
     """After every other IPM attempt of a full solve failed (the central one included) and before IPOPT: the warm
     start once more at barrier parameter 3e-2 for up to 100 iterations (docs/engine.md, "A central retry before the

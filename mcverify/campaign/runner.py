@@ -155,6 +155,7 @@ CHANGED_DEFAULTS: dict[tuple[str, str], Any] = {
     ("mpc", "ipm_restoration"): "off",  # mpcdc since 2026-11-28 (stored as false before it took policies)
     ("mpc", "ipm_central_first"): "off",  # mpcdc since 2026-11-28 (the option is as old)
     ("mpc", "ipm_central_retry"): "off",  # mpcdc since 2026-11-28 (the option is as old)
+    ("mpc", "ipm_after_hard_attempt"): "central",  # lower_mu since 2026-11-28 (the option is as old)
 }
 
 

@@ -424,14 +424,17 @@ def test_runs_before_the_restoration_policies_rebuild_with_restoration_off():
         assert {c.params.mpc.ipm_restoration for c in runner.campaign_from_manifest(manifest).cells} == {policy}
 
 
-@pytest.mark.parametrize("field", ["ipm_central_first", "ipm_central_retry"])
-def test_runs_before_the_central_defaults_rebuild_with_them_off(field):
-    """mpc.ipm_central_first and ipm_central_retry default to mpcdc since 2026-11-28: a run whose cells predate the
-    field replays and resumes with "off"; a run that stored a value keeps it."""
+@pytest.mark.parametrize(("field", "today", "before"), [("ipm_central_first", "mpcdc", "off"),
+                                                        ("ipm_central_retry", "mpcdc", "off"),
+                                                        ("ipm_after_hard_attempt", "lower_mu", "central")])
+def test_runs_before_the_central_defaults_rebuild_with_the_old_ones(field, today, before):
+    """mpc.ipm_central_first and ipm_central_retry default to mpcdc, ipm_after_hard_attempt to lower_mu, since
+    2026-11-28: a run whose cells predate the field replays and resumes with the old value; a run that stored a
+    value keeps it."""
     raw = {"campaign": {"name": "t", "seed": 3, "episodes": 1}, "model": {"mpc": {"controller": "mpcdc"}}}
     manifest = runner.manifest_for(campaign_from_dict(raw, source="t.toml"), 8, {})
-    assert {c["params"]["mpc"][field] for c in manifest["cells"]} == {"mpcdc"}  # today's default
-    assert {getattr(c.params.mpc, field) for c in runner.campaign_from_manifest(manifest).cells} == {"mpcdc"}
+    assert {c["params"]["mpc"][field] for c in manifest["cells"]} == {today}
+    assert {getattr(c.params.mpc, field) for c in runner.campaign_from_manifest(manifest).cells} == {today}
     for cell in manifest["cells"]:
         cell["params"]["mpc"].pop(field)
-    assert {getattr(c.params.mpc, field) for c in runner.campaign_from_manifest(manifest).cells} == {"off"}
+    assert {getattr(c.params.mpc, field) for c in runner.campaign_from_manifest(manifest).cells} == {before}

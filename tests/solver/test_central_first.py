@@ -29,7 +29,8 @@ def test_the_policy_names_the_controllers(policy, controller, used):
 
 
 def _solver(policy: str = "all") -> MpcSolver:
-    return MpcSolver(dataclasses.replace(P_IPM, mpc=dataclasses.replace(P_IPM.mpc, ipm_central_first=policy)))
+    return MpcSolver(dataclasses.replace(P_IPM, mpc=dataclasses.replace(P_IPM.mpc, ipm_central_first=policy,
+                                                                        ipm_after_hard_attempt="central")))
 
 
 def _mu_inits(solver: MpcSolver, warm: WarmStart, monkeypatch, fast_only: bool = False) -> list[tuple[float, bool]]:
@@ -87,8 +88,8 @@ def test_the_after_hard_attempt_can_be_the_lower_mu_one(monkeypatch):
     """mpc.ipm_after_hard_attempt = lower_mu: the first attempt after a hard solve is AFTER_HARD_WARM (tag warm6),
     then the usual ones; an easy warm start and a presumed solve are untouched; a solve it answers stays hard."""
     from mcverify.solver.ipm import AFTER_HARD_WARM
-    params = dataclasses.replace(P_IPM, mpc=dataclasses.replace(P_IPM.mpc, ipm_central_first="all",
-                                                                ipm_after_hard_attempt="lower_mu"))
+    params = dataclasses.replace(P_IPM, mpc=dataclasses.replace(P_IPM.mpc, ipm_central_first="all"))
+    assert params.mpc.ipm_after_hard_attempt == "lower_mu"  # the default since 2026-11-28
     on = MpcSolver(params)
     cold = on.solve(EGO, FRONT, 1, LAMBDA0)
     usual = [(1e-7, True), (1e-5, True), (0.1, False)]
