@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 
 from mcverify import errors
+from mcverify.model import INFEASIBILITY_POLICIES
 
 _log = logging.getLogger("mcverify.cli")
 
@@ -332,7 +333,7 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--naive-episodes", type=_nonneg_int, default=0,
                        help="paired episodes per cell, the paper-style Opti loop (0: skip, the default)")
     bench.add_argument("--backend", help="the engine's solver backend (default: the cell's)")
-    bench.add_argument("--infeasibility", choices=("ipopt", "phase1"),
+    bench.add_argument("--infeasibility", choices=INFEASIBILITY_POLICIES,
                        help="the engine's mpc.infeasibility policy (default: the cell's)")
     bench.add_argument("--seed", type=_nonneg_int, help="campaign seed (overrides the file: other episodes)")
     bench.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", dest="settings",

@@ -122,7 +122,7 @@ BACKEND_NAMES = ("ipopt", "ipm")
 #: at the level of the cell (h >= barrier.epsilon); everything else about them is the same.
 MPCDC_CONTROLLERS = ("mpcdc", "mpcdc_eps")
 #: Who certifies that a problem is infeasible on the ipm backend (:attr:`Mpc.infeasibility`).
-INFEASIBILITY_POLICIES = ("ipopt", "phase1")
+INFEASIBILITY_POLICIES = ("ipopt", "phase1", "phase1_mpcdc")
 #: How the ipm backend factorises the KKT system (:attr:`Mpc.kkt_factorization`; the names of
 #: ``mcverify.solver.ipm.KKT_FACTORISATIONS``, checked there).
 KKT_FACTORIZATIONS = ("lu", "ldlt", "ldlt_curvature")
@@ -268,9 +268,11 @@ class Mpc:
     """Failed Q1 solves in a row that abandon with abandon_rule = consecutive. Valid: >= 1."""
     tol: float = 1e-6
     """Solver tolerance on the scaled KKT error. Valid: > 0."""
-    infeasibility: str = "ipopt"
-    """Who certifies infeasibility on the ipm backend: ipopt (its fallback) or phase1 (the C phase 1 from every start,
-    IPOPT as scheduled auditor; docs/engine.md)."""
+    infeasibility: str = "phase1_mpcdc"
+    """Who certifies infeasibility on the ipm backend: ipopt (its fallback), phase1 (the C phase 1 from every start,
+    IPOPT as scheduled auditor; docs/engine.md) or phase1_mpcdc (phase1 for the MPC-DC baselines, ipopt for the
+    VL-CBF controllers; the default since 2026-11-28, ``ipopt`` before, which runs made earlier keep:
+    CHANGED_DEFAULTS)."""
     ipm_restoration: str = "mpcdc"
     """Whose full solves run the ipm backend's cold IPM attempt with the C restoration phase (a failed line search
     restores feasibility instead of ending the attempt; docs/engine.md): off, mpcdc (the MPC-DC baselines only; the

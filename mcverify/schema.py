@@ -170,7 +170,7 @@ EPISODE_COLUMNS: tuple[Column, ...] = (
     _c("cold_retries", _INT, "", "failed warm IPOPT starts retried cold"),
     _c("presumed_infeasible_solves", _INT, "", "fast-path-only solves of a problem IPOPT certified infeasible"),
     _c("infeasibility_audits", _INT, "", "C certificates of infeasibility IPOPT re-checked as the scheduled auditor "
-       "(mpc.infeasibility = phase1; 0 otherwise)"),
+       "(mpc.infeasibility = phase1, or phase1_mpcdc for the MPC-DC baselines; 0 otherwise)"),
     _c("infeasibility_audit_disagreements", _INT, "", "infeasibility_audits where IPOPT solved the problem (its "
        "solution was used)"),
     _c("iterations_mean", _FLOAT, "", "mean solver iterations per solve"),

@@ -6,7 +6,8 @@ Two measurements, written together into a generated section of results/BENCHMARK
 1. **Paired episodes** (:func:`compare_policies`): ``mcverify bench``'s engine side
    (:func:`mcverify.bench.engine.run`, no baseline) on the same (seed, cell, episode id) with the
    default settings and with one :data:`VARIANTS` entry: "phase1" (``mpc.infeasibility``: the C
-   phase-1 certificate from every start, IPOPT as scheduled auditor), "restoration"
+   phase-1 certificate from every start, IPOPT as scheduled auditor), "phase1_mpcdc" (the same for the
+   MPC-DC baselines only), "restoration"
    (``mpc.ipm_restoration``: the IPM attempts with the restoration phase), both, "q2_when_needed" or
    "q2_fast_when_unneeded" (``mpc.q2_solve``: a Q2 the step's decision ignores not solved, or given
    the fast path only), "central_off", "central_mpcdc" or "central_all" (``mpc.ipm_central_attempt``,
@@ -46,6 +47,7 @@ from mcverify.bench.solve_classes import SolveClass
 #: Settings compared with the default (dotted keys of the model).
 VARIANTS: dict[str, dict[str, Any]] = {
     "phase1": {"mpc.infeasibility": "phase1"},
+    "phase1_mpcdc": {"mpc.infeasibility": "phase1_mpcdc"},
     "restoration": {"mpc.ipm_restoration": "all"},
     "restoration_mpcdc": {"mpc.ipm_restoration": "mpcdc"},
     "phase1+restoration": {"mpc.infeasibility": "phase1", "mpc.ipm_restoration": "all"},

@@ -156,6 +156,7 @@ CHANGED_DEFAULTS: dict[tuple[str, str], Any] = {
     ("mpc", "ipm_central_first"): "off",  # mpcdc since 2026-11-28 (the option is as old)
     ("mpc", "ipm_central_retry"): "off",  # mpcdc since 2026-11-28 (the option is as old)
     ("mpc", "ipm_after_hard_attempt"): "central",  # lower_mu since 2026-11-28 (the option is as old)
+    ("mpc", "infeasibility"): "ipopt",  # phase1_mpcdc since 2026-11-28
 }
 
 

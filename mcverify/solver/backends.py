@@ -305,7 +305,8 @@ class IpmBackend:
                               if uses_policy(params.mpc.ipm_central_retry, params.mpc) else None)
         self.ipm_outcomes: Counter[str] = Counter()
         self.ipm_cpu_s: Counter[str] = Counter()
-        self.infeasibility = params.mpc.infeasibility
+        # mpc.infeasibility: "phase1_mpcdc" is "phase1" for the MPC-DC baselines and "ipopt" for the others
+        self.infeasibility = "phase1" if uses_phase1(params.mpc) else "ipopt"
         self.audit_every = params.mpc.infeasibility_audit_every
         self.phase1_warm = dataclasses.replace(WARM_ATTEMPTS[0], tol=params.mpc.tol, phase1=True, **kkt)
         self.phase1_cold = dataclasses.replace(COLD, tol=params.mpc.tol, phase1=True, **kkt)
@@ -418,6 +419,11 @@ def uses_central_attempt(mpc: Mpc) -> bool:
 def uses_policy(policy: str, mpc: Mpc) -> bool:
     """Whether a controller policy of the ipm backend (off / mpcdc / all) applies to this controller."""
     return policy == "all" or (policy == "mpcdc" and mpc.is_mpcdc)
+
+
+def uses_phase1(mpc: Mpc) -> bool:
+    """Whether ``mpc.infeasibility`` lets the C phase 1 certify this controller's infeasible problems."""
+    return mpc.infeasibility == "phase1" or (mpc.infeasibility == "phase1_mpcdc" and mpc.is_mpcdc)
 
 
 def uses_central_first(mpc: Mpc) -> bool:

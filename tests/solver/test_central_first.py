@@ -108,3 +108,13 @@ def test_a_bad_after_hard_attempt_is_one_line():
     with pytest.raises(campaign.CampaignError,
                        match="mpc.ipm_after_hard_attempt: unknown attempt 'x'; valid: central, lower_mu"):
         campaign.campaign_from_dict(raw)
+
+
+@pytest.mark.parametrize(("policy", "controller", "used"), [
+    ("ipopt", "mpcdc", False), ("phase1", "vlcbf", True), ("phase1_mpcdc", "vlcbf", False),
+    ("phase1_mpcdc", "mpcdc", True), ("phase1_mpcdc", "mpcdc_eps", True)])
+def test_phase1_mpcdc_certifies_with_phase1_for_the_baselines_only(policy, controller, used):
+    mpc = Mpc(controller=controller, infeasibility=policy)
+    assert backends.uses_phase1(mpc) is used
+    params = dataclasses.replace(P_IPM, mpc=dataclasses.replace(P_IPM.mpc, controller=controller, infeasibility=policy))
+    assert MpcSolver(params).backend.infeasibility == ("phase1" if used else "ipopt")

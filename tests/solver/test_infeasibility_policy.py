@@ -67,9 +67,9 @@ def test_audit_schedule_depends_on_the_problem_only():
     assert 0.08 <= due.mean() <= 0.12  # about one in ten (binomial sd 0.005)
 
 
-def test_default_policy_is_ipopt_and_runs_no_phase1():
+def test_default_policy_is_ipopt_for_the_vlcbf_controllers_and_runs_no_phase1():
     solver = MpcSolver(P_IPM)
-    assert P_IPM.mpc.infeasibility == "ipopt"
+    assert P_IPM.mpc.infeasibility == "phase1_mpcdc" and P_IPM.mpc.controller == "vlcbf"  # the default since 2026-11-28
     sol = solver.solve(EGO, INFEASIBLE_FRONT, 1, LAMBDA0)
     assert sol.status.fallback and not any(t.startswith("phase1") for t in solver.backend.ipm_outcomes)
 
