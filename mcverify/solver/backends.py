@@ -23,7 +23,8 @@ started like the reference, with a second, more central attempt; IPOPT is its fa
   reference could not solve it either", never "the fast path gave up";
 * an IPM success has IPOPT's contract: scaled KKT error <= ``params.mpc.tol``, unscaled
   constraint violation <= 1e-7, then the common 1e-5 check;
-* with ``params.mpc.infeasibility = "phase1"`` (default "ipopt"), before the fallback the C phase 1
+* with ``params.mpc.infeasibility = "phase1"`` (or "phase1_mpcdc", the default, for the MPC-DC
+  baselines; the VL-CBF controllers then keep the rule above), before the fallback the C phase 1
   runs from the warm start and the cold guess; if both certify local infeasibility the certificate
   is the answer (status ``IPM_Infeasible_Problem_Detected``) and IPOPT runs only as the scheduled
   auditor (:meth:`IpmBackend.audit_due`): docs/engine.md, "The restoration phase and what

@@ -122,7 +122,7 @@ CENTRAL_RETRY = IpmOptions(mu_init=3e-2, bound_push=1e-3, mult_push=1e-6, max_it
 #: mu_init 3e-3 with bound push 3e-3 and bound multipliers of at least 3e-2. On recorded MPC-DC solves after a
 #: hard one, the central attempt spends its first iterations on steps of 1e-5 to 1e-3 (the pushed point sits
 #: at bounds the Newton step must cross, with multipliers of 1e-6); these settings converge more often and in
-#: about 30 instead of 50 iterations per solve (docs/engine.md, "The central attempt first after a hard solve").
+#: about 30 instead of 50 iterations per solve (docs/engine.md, "The lower-mu attempt after a hard solve").
 AFTER_HARD_WARM = IpmOptions(mu_init=3e-3, bound_push=3e-3, mult_push=3e-2, max_iter=60)
 #: Cold starts (no multipliers): IPOPT's defaults (mu_init 0.1, bound_push 0.01).
 COLD = IpmOptions(mu_init=0.1, bound_push=1e-2, mult_push=1e-2, max_iter=150)
