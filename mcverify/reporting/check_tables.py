@@ -149,7 +149,8 @@ def solver_table(summ: Mapping[str, Any]) -> Table:
     notes = ["Solve times are the only machine-dependent numbers of the report (they come from the stored "
              "episodes, so regenerating the report does not change them)."]
     if split:
-        notes.append("Q1 failures by kind: certified infeasible by IPOPT / presumed infeasible (fast path only, "
+        notes.append("Q1 failures by kind: certified infeasible (by IPOPT; for the MPC-DC baselines by default by "
+                     "the C phase 1 from every start, mpc.infeasibility) / presumed infeasible (fast path only, "
                      "after a certificate) / out of iterations / other (numerical). Q1 held: overtaking steps where "
                      "Q1 failed, Q2 solved and the abandonment rule (mpc.abandon_rule) had not fired, so the ego kept "
                      "its last Q1 plan.")
