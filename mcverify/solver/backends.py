@@ -297,10 +297,9 @@ class IpmBackend:
         self.central = central if uses_central_attempt(params.mpc) else None
         # mpc.ipm_central_first (default mpcdc: the MPC-DC baselines): after a hard solve, the next one starts with
         # the attempt mpc.ipm_after_hard_attempt names: the central one (number 4) or the lower-mu one (number 6)
-        lower_mu = params.mpc.ipm_after_hard_attempt == "lower_mu"
-        first = dataclasses.replace(AFTER_HARD_WARM, tol=params.mpc.tol, **kkt) if lower_mu else central
-        self.central_first = first if uses_central_first(params.mpc) else None
-        self.central_first_number = 6 if lower_mu else 4
+        first = ((6, dataclasses.replace(AFTER_HARD_WARM, tol=params.mpc.tol, **kkt))
+                 if params.mpc.ipm_after_hard_attempt == "lower_mu" else (4, central))
+        self.first_after_hard: tuple[int, IpmOptions] | None = first if uses_central_first(params.mpc) else None
         # mpc.ipm_central_retry (default mpcdc): the warm start once more, more central still, last before IPOPT
         self.central_retry = (dataclasses.replace(CENTRAL_RETRY, tol=params.mpc.tol, **kkt)
                               if uses_policy(params.mpc.ipm_central_retry, params.mpc) else None)
@@ -357,8 +356,8 @@ class IpmBackend:
         if fast_only:
             return [*usual, cold]
         retry = [(central + 1, self.central_retry, warm)] if self.central_retry is not None else []
-        if self.central_first is not None and warm.after_hard:
-            return [(self.central_first_number, self.central_first, warm), *usual, cold, *retry]
+        if self.first_after_hard is not None and warm.after_hard:
+            return [(*self.first_after_hard, warm), *usual, cold, *retry]
         return [*usual, cold, *([(central, self.central, warm)] if self.central is not None else []), *retry]
 
 
