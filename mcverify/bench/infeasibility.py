@@ -13,7 +13,8 @@ Two measurements, written together into a generated section of results/BENCHMARK
    the fast path only), "central_off", "central_mpcdc" or "central_all" (``mpc.ipm_central_attempt``,
    whose default is ``mpcdc``), "central_first_off" or "central_first_mpcdc" (``mpc.ipm_central_first``,
    likewise), "central_retry_off" or "central_retry_mpcdc" (``mpc.ipm_central_retry``, likewise),
-   "after_hard_central" or "after_hard_lower_mu" (``mpc.ipm_after_hard_attempt``): CPU per episode
+   "after_hard_central" or "after_hard_lower_mu" (``mpc.ipm_after_hard_attempt``), "after_hard_solves_1" or
+   "after_hard_solves_2" (``mpc.ipm_after_hard_solves``): CPU per episode
    by solve class, the audit counters, and the
    episode-by-episode agreement of safety verdicts and outcomes.
 2. **Recorded solves** (:func:`replay_verdicts`): every solve of a recording
@@ -62,6 +63,8 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "central_retry_mpcdc": {"mpc.ipm_central_retry": "mpcdc"},
     "after_hard_central": {"mpc.ipm_after_hard_attempt": "central"},
     "after_hard_lower_mu": {"mpc.ipm_after_hard_attempt": "lower_mu"},
+    "after_hard_solves_1": {"mpc.ipm_after_hard_solves": 1},
+    "after_hard_solves_2": {"mpc.ipm_after_hard_solves": 2},
 }
 #: The heading of a variant's section (default: the infeasibility certificates').
 HEADINGS: dict[str, str] = {"q2_when_needed": "Q2 solved only when Algorithm 1 reads it (`mpc.q2_solve`)",
@@ -81,7 +84,11 @@ HEADINGS: dict[str, str] = {"q2_when_needed": "Q2 solved only when Algorithm 1 r
                             "after_hard_central": "The central attempt first after a hard solve "
                                                   "(`mpc.ipm_after_hard_attempt = central`)",
                             "after_hard_lower_mu": "The lower-mu attempt first after a hard solve "
-                                                   "(`mpc.ipm_after_hard_attempt = lower_mu`)"}
+                                                   "(`mpc.ipm_after_hard_attempt = lower_mu`)",
+                            "after_hard_solves_1": "The after-hard attempt first after every hard solve "
+                                                   "(`mpc.ipm_after_hard_solves = 1`)",
+                            "after_hard_solves_2": "The after-hard attempt first after two hard solves in a row "
+                                                   "(`mpc.ipm_after_hard_solves = 2`)"}
 #: The default side's label.
 DEFAULT = "default"
 BEGIN_MARK = "<!-- BEGIN mcverify bench infeasibility (generated) -->"

@@ -88,7 +88,7 @@ class RecordingBackend:
         order = [number for number, _, _ in self.backend.attempts(warm, fast_only)]
         attempts = tuple(sorted(new, key=lambda t: order.index(int(t.split(":")[0].lstrip("warmcold")))))
         w = (None if warm is None
-             else Start(np.array(warm.x), np.array(warm.lam_x), np.array(warm.lam_g), warm.after_hard))
+             else Start(np.array(warm.x), np.array(warm.lam_x), np.array(warm.lam_g), warm.hard_run))
         self.recording.solves.append(RecordedSolve(
             self.index, np.array(p, dtype=float), w, g, bool(fast_only), str(res.status), bool(res.success), attempts))
         return res
@@ -134,7 +134,11 @@ class _Unpickler(pickle.Unpickler):
 
 def load(path: str | Path) -> Recording:
     with open(path, "rb") as f:
-        return _Unpickler(f).load()  # noqa: S301 - our own benchmark files
+        rec = _Unpickler(f).load()  # noqa: S301 - our own benchmark files
+    for s in rec.solves:  # files written before Start counted hard solves in a row held a flag, after_hard
+        if s.warm is not None and "after_hard" in vars(s.warm):
+            object.__setattr__(s.warm, "hard_run", int(vars(s.warm).pop("after_hard")))
+    return rec
 
 
 class Replayer:

@@ -172,6 +172,9 @@ def validate_params(p: ModelParams, where: str) -> None:
         if getattr(m, name) not in valid:
             kind = "attempt" if name == "ipm_after_hard_attempt" else "policy"
             raise bad(f"mpc.{name}", f"unknown {kind} {_short(getattr(m, name))}; valid: {', '.join(valid)}")
+    if type(m.ipm_after_hard_solves) is not int or m.ipm_after_hard_solves < 1:
+        raise bad("mpc.ipm_after_hard_solves",
+                  f"must be an integer >= 1 (hard solves in a row), got {_short(m.ipm_after_hard_solves)}")
     if m.ipm_restoration not in RESTORATION_POLICIES:
         raise bad("mpc.ipm_restoration", f"unknown policy {_short(m.ipm_restoration)}; valid: "
                   f"{', '.join(RESTORATION_POLICIES)} (or false, true)")

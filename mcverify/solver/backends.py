@@ -81,14 +81,14 @@ MAX_VIOLATION = 1e-5
 class Start:
     """A primal-dual start: x (n_w,), lam_x (n_w,), lam_g (n_g,), in the layout of the NLP.
 
-    after_hard: the solve that produced it was hard (:attr:`BackendResult.hard`); read by
-    ``mpc.ipm_central_first``.
+    hard_run: how many solves in a row, the one that produced it the last, were hard (:attr:`BackendResult.hard`;
+    0: that one was not); read by ``mpc.ipm_central_first`` and ``mpc.ipm_after_hard_solves``.
     """
 
     x: np.ndarray
     lam_x: np.ndarray
     lam_g: np.ndarray
-    after_hard: bool = False
+    hard_run: int = 0
 
 
 @dataclass(frozen=True)
@@ -300,6 +300,8 @@ class IpmBackend:
         first = ((6, dataclasses.replace(AFTER_HARD_WARM, tol=params.mpc.tol, **kkt))
                  if params.mpc.ipm_after_hard_attempt == "lower_mu" else (4, central))
         self.first_after_hard: tuple[int, IpmOptions] | None = first if uses_central_first(params.mpc) else None
+        # mpc.ipm_after_hard_solves: ... once this many solves in a row were hard
+        self.after_hard_solves = params.mpc.ipm_after_hard_solves
         # mpc.ipm_central_retry (default mpcdc): the warm start once more, more central still, last before IPOPT
         self.central_retry = (dataclasses.replace(CENTRAL_RETRY, tol=params.mpc.tol, **kkt)
                               if uses_policy(params.mpc.ipm_central_retry, params.mpc) else None)
@@ -347,7 +349,8 @@ class IpmBackend:
         """The IPM attempts of a solve in order, as (number, options, start or None for the cold guess). The
         numbers name the attempts in :attr:`ipm_outcomes` whatever their order: 1 and 2 the warm ones, 3 the cold
         one (1 without a warm start), 4 the central one, 5 the central retry, 6 the lower-mu one after a hard
-        solve (``mpc.ipm_after_hard_attempt``)."""
+        solve (``mpc.ipm_after_hard_attempt``), run first once ``mpc.ipm_after_hard_solves`` solves in a row were
+        hard."""
         if warm is None:
             return [(1, self.cold if fast_only else self.cold_full, None)]
         usual = [(k + 1, o, warm) for k, o in enumerate(self.warm_attempts)]
@@ -356,7 +359,7 @@ class IpmBackend:
         if fast_only:
             return [*usual, cold]
         retry = [(central + 1, self.central_retry, warm)] if self.central_retry is not None else []
-        if self.first_after_hard is not None and warm.after_hard:
+        if self.first_after_hard is not None and warm.hard_run >= self.after_hard_solves:
             return [(*self.first_after_hard, warm), *usual, cold, *retry]
         return [*usual, cold, *([(central, self.central, warm)] if self.central is not None else []), *retry]
 

@@ -38,14 +38,15 @@ class WarmStart:
 
     x (n_w,), lam_x (n_w,), lam_g (n_g,) in the layout of :class:`~mcverify.ocp.problem.NlpLayout`;
     direction: the problem (+1 Q1, -1 Q2) it solved; a warm start of the other direction is ignored.
-    hard: the solve was hard (:attr:`mcverify.solver.backends.BackendResult.hard`; ``mpc.ipm_central_first``).
+    hard_run: how many solves in a row, this one the last, were hard
+    (:attr:`mcverify.solver.backends.BackendResult.hard`; 0: this one was not; ``mpc.ipm_central_first``).
     """
 
     x: np.ndarray
     lam_x: np.ndarray
     lam_g: np.ndarray
     direction: int
-    hard: bool = False
+    hard_run: int = 0
 
 
 @dataclass(frozen=True)
@@ -125,7 +126,7 @@ class MpcSolver:
         if not np.all(np.isfinite(p)):
             return self._failure(SolveStatus.invalid_input("non-finite ego_state, front_xyv or lambda0"), t0)
         use_warm = warm is not None and warm.direction == direction and warm.x.size == self.layout.n_w
-        start = Start(warm.x, warm.lam_x, warm.lam_g, after_hard=warm.hard) if use_warm else None
+        start = Start(warm.x, warm.lam_x, warm.lam_g, hard_run=warm.hard_run) if use_warm else None
 
         def cold_guess() -> np.ndarray:
             if guess is not None:
@@ -136,7 +137,7 @@ class MpcSolver:
             res = self.backend.solve(p, start, cold_guess, fast_only=fast_only)
         except Exception as exc:  # noqa: BLE001 - solver errors become a failed solution
             return self._failure(SolveStatus.exception(str(exc)), t0)
-        return self._solution(res, direction, t0)
+        return self._solution(res, direction, t0, 0 if start is None else start.hard_run)
 
     def guess_from_plan(self, plan: MpcSolution, opp_xv: np.ndarray | None) -> np.ndarray | None:
         """A primal guess for this solver's structure from a plan of another structure (the same
@@ -155,9 +156,11 @@ class MpcSolver:
         """Largest violation of g's bounds and of w's bounds at (w, p); inf if anything is NaN."""
         return self.problem.max_violation(w, p)
 
-    def _solution(self, res: BackendResult, direction: int, t0: float) -> MpcSolution:
+    def _solution(self, res: BackendResult, direction: int, t0: float, hard_run: int = 0) -> MpcSolution:
+        """hard_run: the warm start's (0 for a cold solve)."""
         x_plan, u_plan, dt_plan = self.layout.unpack(res.w)
-        warm = WarmStart(res.w, res.lam_x, res.lam_g, int(direction), hard=res.hard) if res.success else None
+        run = hard_run + 1 if res.hard else 0
+        warm = WarmStart(res.w, res.lam_x, res.lam_g, int(direction), hard_run=run) if res.success else None
         return MpcSolution(
             success=bool(res.success),
             status=res.status,

@@ -30,7 +30,8 @@ def test_the_policy_names_the_controllers(policy, controller, used):
 
 def _solver(policy: str = "all") -> MpcSolver:
     return MpcSolver(dataclasses.replace(P_IPM, mpc=dataclasses.replace(P_IPM.mpc, ipm_central_first=policy,
-                                                                        ipm_after_hard_attempt="central")))
+                                                                        ipm_after_hard_attempt="central",
+                                                                        ipm_after_hard_solves=1)))
 
 
 def _mu_inits(solver: MpcSolver, warm: WarmStart, monkeypatch, fast_only: bool = False) -> list[tuple[float, bool]]:
@@ -40,9 +41,9 @@ def _mu_inits(solver: MpcSolver, warm: WarmStart, monkeypatch, fast_only: bool =
 def test_a_solve_after_a_hard_one_starts_with_the_central_attempt(monkeypatch):
     on = _solver()
     cold = on.solve(EGO, FRONT, 1, LAMBDA0)  # no warm start: the cold attempt answers, a hard solve
-    assert cold.success and cold.warm.hard
-    easy = on.solve(EGO, FRONT, 1, LAMBDA0, warm=dataclasses.replace(cold.warm, hard=False))
-    assert easy.success and not easy.warm.hard  # warm attempt 1 solves the same problem again
+    assert cold.success and cold.warm.hard_run == 1
+    easy = on.solve(EGO, FRONT, 1, LAMBDA0, warm=dataclasses.replace(cold.warm, hard_run=0))
+    assert easy.success and easy.warm.hard_run == 0  # warm attempt 1 solves the same problem again
     usual = [(1e-7, True), (1e-5, True), (0.1, False)]
     assert _mu_inits(on, easy.warm, monkeypatch) == usual
     assert _mu_inits(on, cold.warm, monkeypatch) == [(CENTRAL_WARM.mu_init, True), *usual]
@@ -55,7 +56,7 @@ def test_a_solve_the_central_attempt_answers_stays_hard():
     on = _solver()
     cold = on.solve(EGO, FRONT, 1, LAMBDA0)
     again = on.solve(EGO, FRONT, 1, LAMBDA0, warm=cold.warm)
-    assert again.success and again.warm.hard  # the central attempt converged: not one of the warm attempts
+    assert again.success and again.warm.hard_run == 2  # the central attempt converged: not one of the warm attempts
     assert on.backend.ipm_outcomes["warm4:Converged"] == 1
 
 
@@ -73,7 +74,7 @@ def test_the_central_retry_comes_last_before_ipopt_in_a_full_solve(monkeypatch):
                                                                 ipm_central_attempt="all"))
     on = MpcSolver(params)
     cold = on.solve(EGO, FRONT, 1, LAMBDA0)
-    easy = dataclasses.replace(cold.warm, hard=False)
+    easy = dataclasses.replace(cold.warm, hard_run=0)
     usual = [(1e-7, True), (1e-5, True), (0.1, False)]
     retry = (CENTRAL_RETRY.mu_init, True)
     assert _mu_inits(on, easy, monkeypatch) == [*usual, (CENTRAL_WARM.mu_init, True), retry]
@@ -88,19 +89,42 @@ def test_the_after_hard_attempt_can_be_the_lower_mu_one(monkeypatch):
     """mpc.ipm_after_hard_attempt = lower_mu: the first attempt after a hard solve is AFTER_HARD_WARM (tag warm6),
     then the usual ones; an easy warm start and a presumed solve are untouched; a solve it answers stays hard."""
     from mcverify.solver.ipm import AFTER_HARD_WARM
-    params = dataclasses.replace(P_IPM, mpc=dataclasses.replace(P_IPM.mpc, ipm_central_first="all"))
+    params = dataclasses.replace(P_IPM, mpc=dataclasses.replace(P_IPM.mpc, ipm_central_first="all",
+                                                                ipm_after_hard_solves=1))
     assert params.mpc.ipm_after_hard_attempt == "lower_mu"  # the default since 2026-11-28
     on = MpcSolver(params)
     cold = on.solve(EGO, FRONT, 1, LAMBDA0)
     usual = [(1e-7, True), (1e-5, True), (0.1, False)]
     assert _mu_inits(on, cold.warm, monkeypatch) == [(AFTER_HARD_WARM.mu_init, True), *usual]
     assert on.backend.ipm_outcomes["warm6:Line_Search_Failed"] == 1
-    assert _mu_inits(on, dataclasses.replace(cold.warm, hard=False), monkeypatch) == usual
+    assert _mu_inits(on, dataclasses.replace(cold.warm, hard_run=0), monkeypatch) == usual
     assert _mu_inits(on, cold.warm, monkeypatch, fast_only=True) == usual
     fresh = MpcSolver(params)
     again = fresh.solve(EGO, FRONT, 1, LAMBDA0, warm=fresh.solve(EGO, FRONT, 1, LAMBDA0).warm)
-    assert again.success and again.warm.hard and fresh.backend.ipm_outcomes["warm6:Converged"] == 1
+    assert again.success and again.warm.hard_run == 2 and fresh.backend.ipm_outcomes["warm6:Converged"] == 1
     assert (AFTER_HARD_WARM.mu_init, AFTER_HARD_WARM.bound_push, AFTER_HARD_WARM.mult_push) == (3e-3, 3e-3, 3e-2)
+
+
+def test_the_after_hard_attempt_waits_for_two_hard_solves_in_a_row(monkeypatch):
+    """mpc.ipm_after_hard_solves = 2 (the default since 2026-11-28): one hard solve leaves the usual order, two in a
+    row put the after-hard attempt first; the count travels with the warm start and an easy solve resets it."""
+    from mcverify.solver.ipm import AFTER_HARD_WARM
+    assert Mpc().ipm_after_hard_solves == 2
+    on = MpcSolver(dataclasses.replace(P_IPM, mpc=dataclasses.replace(P_IPM.mpc, ipm_central_first="all")))
+    cold = on.solve(EGO, FRONT, 1, LAMBDA0)  # the cold attempt answers: the first hard solve
+    assert cold.success and cold.warm.hard_run == 1
+    usual = [(1e-7, True), (1e-5, True), (0.1, False)]
+    assert _mu_inits(on, cold.warm, monkeypatch) == usual
+    assert _mu_inits(on, dataclasses.replace(cold.warm, hard_run=2), monkeypatch) == [
+        (AFTER_HARD_WARM.mu_init, True), *usual]
+    easy = on.solve(EGO, FRONT, 1, LAMBDA0, warm=cold.warm)  # warm attempt 1 solves it again
+    assert easy.success and easy.warm.hard_run == 0 and on.backend.ipm_outcomes["warm1:Converged"] == 1
+
+
+def test_a_bad_after_hard_solves_is_one_line():
+    raw = {"campaign": {"name": "t", "seed": 1, "episodes": 1}, "model": {"mpc": {"ipm_after_hard_solves": 0}}}
+    with pytest.raises(campaign.CampaignError, match="mpc.ipm_after_hard_solves: must be an integer >= 1"):
+        campaign.campaign_from_dict(raw)
 
 
 def test_a_bad_after_hard_attempt_is_one_line():
