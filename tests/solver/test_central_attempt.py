@@ -24,7 +24,7 @@ FRONT = np.array([64.0, 0.0, 25.0 / 3.6])
     ("mpcdc", "mpcdc_eps", True), ("all", "vlcbf", True), ("all", "mpcdc", True)])
 def test_the_policy_names_the_controllers(policy, controller, used):
     assert backends.uses_central_attempt(Mpc(controller=controller, ipm_central_attempt=policy)) is used
-    assert Mpc().ipm_central_attempt == "mpcdc"  # the default since 2026-11-26 (MPC-DC only)
+    assert Mpc().ipm_central_attempt == "all"  # the default since 2026-11-28 (mpcdc from 2026-11-26)
 
 
 def _attempts(solver: MpcSolver, monkeypatch) -> list[tuple[float, bool]]:
@@ -40,8 +40,8 @@ def test_the_central_attempt_comes_after_the_cold_one_and_only_in_a_full_solve(m
     full = _attempts(on, monkeypatch)
     assert full == [(1e-7, True), (1e-5, True), (0.1, False), (CENTRAL_WARM.mu_init, True)]
     assert on.backend.ipm_outcomes["warm4:Line_Search_Failed"] == 1
-    off = MpcSolver(P_IPM)
-    assert off.backend.central is None
+    off = MpcSolver(dataclasses.replace(P_IPM, mpc=dataclasses.replace(P_IPM.mpc, ipm_central_attempt="mpcdc")))
+    assert off.backend.central is None  # mpcdc: the MPC-DC baselines only
     assert _attempts(off, monkeypatch) == full[:3]
 
 

@@ -18,6 +18,9 @@ from mcverify.solver.ipm import CENTRAL_WARM
 from mcverify.solver.mpc import MpcSolver, WarmStart
 
 FRONT = np.array([64.0, 0.0, 25.0 / 3.6])
+#: The VL-CBF controller without the central attempt at the end (ipm_central_attempt = mpcdc), so that a failed
+#: solve's attempts are the two warm ones and the cold one.
+P_NO_CENTRAL = dataclasses.replace(P_IPM, mpc=dataclasses.replace(P_IPM.mpc, ipm_central_attempt="mpcdc"))
 
 
 @pytest.mark.parametrize(("policy", "controller", "used"), [
@@ -29,7 +32,7 @@ def test_the_policy_names_the_controllers(policy, controller, used):
 
 
 def _solver(policy: str = "all") -> MpcSolver:
-    return MpcSolver(dataclasses.replace(P_IPM, mpc=dataclasses.replace(P_IPM.mpc, ipm_central_first=policy,
+    return MpcSolver(dataclasses.replace(P_IPM, mpc=dataclasses.replace(P_NO_CENTRAL.mpc, ipm_central_first=policy,
                                                                         ipm_after_hard_attempt="central",
                                                                         ipm_after_hard_solves=1)))
 
@@ -89,7 +92,7 @@ def test_the_after_hard_attempt_can_be_the_lower_mu_one(monkeypatch):
     """mpc.ipm_after_hard_attempt = lower_mu: the first attempt after a hard solve is AFTER_HARD_WARM (tag warm6),
     then the usual ones; an easy warm start and a presumed solve are untouched; a solve it answers stays hard."""
     from mcverify.solver.ipm import AFTER_HARD_WARM
-    params = dataclasses.replace(P_IPM, mpc=dataclasses.replace(P_IPM.mpc, ipm_central_first="all",
+    params = dataclasses.replace(P_IPM, mpc=dataclasses.replace(P_NO_CENTRAL.mpc, ipm_central_first="all",
                                                                 ipm_after_hard_solves=1))
     assert params.mpc.ipm_after_hard_attempt == "lower_mu"  # the default since 2026-11-28
     on = MpcSolver(params)
@@ -110,7 +113,7 @@ def test_the_after_hard_attempt_waits_for_two_hard_solves_in_a_row(monkeypatch):
     row put the after-hard attempt first; the count travels with the warm start and an easy solve resets it."""
     from mcverify.solver.ipm import AFTER_HARD_WARM
     assert Mpc().ipm_after_hard_solves == 2
-    on = MpcSolver(dataclasses.replace(P_IPM, mpc=dataclasses.replace(P_IPM.mpc, ipm_central_first="all")))
+    on = MpcSolver(dataclasses.replace(P_IPM, mpc=dataclasses.replace(P_NO_CENTRAL.mpc, ipm_central_first="all")))
     cold = on.solve(EGO, FRONT, 1, LAMBDA0)  # the cold attempt answers: the first hard solve
     assert cold.success and cold.warm.hard_run == 1
     usual = [(1e-7, True), (1e-5, True), (0.1, False)]
