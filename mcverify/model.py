@@ -294,12 +294,11 @@ class Mpc:
     parameter 1e-2, bound push 1e-3) or lower_mu (barrier parameter 3e-3, bound push 3e-3, bound multipliers at least
     3e-2; the default since 2026-11-28, ``central`` before, which runs made earlier keep: CHANGED_DEFAULTS);
     docs/engine.md, "The lower-mu attempt after a hard solve"."""
-    ipm_after_hard_solves: int = 2
+    ipm_after_hard_solves: int = 1
     """How many hard solves in a row (each answered by neither warm attempt: the cold, central or lower-mu attempt,
-    or IPOPT) make ``ipm_central_first`` start the next full solve with the ``ipm_after_hard_attempt`` one: 1 (after
-    every hard solve; the default before 2026-11-28, which runs made earlier keep: CHANGED_DEFAULTS) or 2 (the
-    default: an isolated hard solve leaves the usual order; docs/engine.md, "After two hard solves in a row"). Valid:
-    >= 1."""
+    or IPOPT) make ``ipm_central_first`` start the next full solve with the ``ipm_after_hard_attempt`` one: 1 (the
+    default: after every hard solve) or more (2: an isolated hard solve leaves the usual order; measured dearer on
+    the Table IV mix, docs/engine.md, "Two hard solves in a row"). Valid: >= 1."""
     ipm_central_retry: str = "mpcdc"
     """After every other IPM attempt of a full solve failed (the central one included) and before IPOPT: the warm
     start once more at barrier parameter 3e-2 for up to 100 iterations (docs/engine.md, "A central retry before the

@@ -157,7 +157,6 @@ CHANGED_DEFAULTS: dict[tuple[str, str], Any] = {
     ("mpc", "ipm_central_retry"): "off",  # mpcdc since 2026-11-28 (the option is as old)
     ("mpc", "ipm_after_hard_attempt"): "central",  # lower_mu since 2026-11-28 (the option is as old)
     ("mpc", "infeasibility"): "ipopt",  # phase1_mpcdc since 2026-11-28
-    ("mpc", "ipm_after_hard_solves"): 1,  # 2 since 2026-11-28 (the option is as old)
 }
 
 

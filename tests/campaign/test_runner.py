@@ -427,8 +427,7 @@ def test_runs_before_the_restoration_policies_rebuild_with_restoration_off():
 @pytest.mark.parametrize(("field", "today", "before"), [("ipm_central_first", "mpcdc", "off"),
                                                         ("ipm_central_retry", "mpcdc", "off"),
                                                         ("ipm_after_hard_attempt", "lower_mu", "central"),
-                                                        ("infeasibility", "phase1_mpcdc", "ipopt"),
-                                                        ("ipm_after_hard_solves", 2, 1)])
+                                                        ("infeasibility", "phase1_mpcdc", "ipopt")])
 def test_runs_before_the_central_defaults_rebuild_with_the_old_ones(field, today, before):
     """mpc.ipm_central_first and ipm_central_retry default to mpcdc, ipm_after_hard_attempt to lower_mu,
     infeasibility to phase1_mpcdc, since 2026-11-28: a run whose cells predate the value replays and resumes with the

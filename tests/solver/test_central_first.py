@@ -108,12 +108,13 @@ def test_the_after_hard_attempt_can_be_the_lower_mu_one(monkeypatch):
     assert (AFTER_HARD_WARM.mu_init, AFTER_HARD_WARM.bound_push, AFTER_HARD_WARM.mult_push) == (3e-3, 3e-3, 3e-2)
 
 
-def test_the_after_hard_attempt_waits_for_two_hard_solves_in_a_row(monkeypatch):
-    """mpc.ipm_after_hard_solves = 2 (the default since 2026-11-28): one hard solve leaves the usual order, two in a
-    row put the after-hard attempt first; the count travels with the warm start and an easy solve resets it."""
+def test_the_after_hard_attempt_can_wait_for_two_hard_solves_in_a_row(monkeypatch):
+    """mpc.ipm_after_hard_solves = 2 (the default is 1): one hard solve leaves the usual order, two in a row put the
+    after-hard attempt first; the count travels with the warm start and an easy solve resets it."""
     from mcverify.solver.ipm import AFTER_HARD_WARM
-    assert Mpc().ipm_after_hard_solves == 2
-    on = MpcSolver(dataclasses.replace(P_IPM, mpc=dataclasses.replace(P_NO_CENTRAL.mpc, ipm_central_first="all")))
+    assert Mpc().ipm_after_hard_solves == 1
+    on = MpcSolver(dataclasses.replace(P_IPM, mpc=dataclasses.replace(P_NO_CENTRAL.mpc, ipm_central_first="all",
+                                                                      ipm_after_hard_solves=2)))
     cold = on.solve(EGO, FRONT, 1, LAMBDA0)  # the cold attempt answers: the first hard solve
     assert cold.success and cold.warm.hard_run == 1
     usual = [(1e-7, True), (1e-5, True), (0.1, False)]
