@@ -88,3 +88,19 @@ def test_a_recording_pickled_under_dunder_main_loads(tmp_path, monkeypatch):
     assert b"__main__" in (tmp_path / "rec.pkl").read_bytes()
     loaded = R.load(tmp_path / "rec.pkl")
     assert isinstance(loaded, R.Recording) and loaded.solves[0].attempts == ("cold1:Converged",)
+
+
+def test_a_recording_with_the_old_after_hard_flag_loads_as_a_hard_run(tmp_path):
+    """Recordings made before ``Start.hard_run`` held a boolean ``after_hard``; it loads as a run of 1 or 0."""
+    def old_start(flag: bool) -> Start:
+        start = Start(np.zeros(2), np.zeros(2), np.zeros(1))
+        del start.__dict__["hard_run"]  # the instance as an old pickle restores it: after_hard, no hard_run
+        start.__dict__["after_hard"] = flag
+        return start
+
+    solves = [R.RecordedSolve(0, np.ones(2), old_start(flag), np.zeros(2), False, "IPM_Converged", True,
+                              ("warm1:Converged",)) for flag in (True, False)]
+    R.save(R.Recording(solves=solves), tmp_path / "old.pkl")
+    loaded = R.load(tmp_path / "old.pkl")
+    assert [s.warm.hard_run for s in loaded.solves] == [1, 0]
+    assert all("after_hard" not in vars(s.warm) for s in loaded.solves)
