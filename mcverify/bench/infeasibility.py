@@ -11,8 +11,8 @@ Two measurements, written together into a generated section of results/BENCHMARK
    (``mpc.ipm_restoration``: the IPM attempts with the restoration phase), both, "q2_when_needed" or
    "q2_fast_when_unneeded" (``mpc.q2_solve``: a Q2 the step's decision ignores not solved, or given
    the fast path only), "central_off", "central_mpcdc" or "central_all" (``mpc.ipm_central_attempt``,
-   whose default is ``all``), "central_first_off" or "central_first_mpcdc" (``mpc.ipm_central_first``,
-   whose default is ``mpcdc``), "central_retry_off" or "central_retry_mpcdc" (``mpc.ipm_central_retry``, likewise),
+   whose default is ``mpcdc``), "central_first_off" or "central_first_mpcdc" (``mpc.ipm_central_first``,
+   likewise), "central_retry_off" or "central_retry_mpcdc" (``mpc.ipm_central_retry``, likewise),
    "after_hard_central" or "after_hard_lower_mu" (``mpc.ipm_after_hard_attempt``), "after_hard_solves_1" or
    "after_hard_solves_2" (``mpc.ipm_after_hard_solves``): CPU per episode
    by solve class, the audit counters, and the

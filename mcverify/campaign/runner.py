@@ -151,7 +151,7 @@ def manifest_for(campaign: Campaign, chunk_size: int, kernels: dict[str, str]) -
 #: value where its campaign left it to the default, so a new default never changes how an old run
 #: replays or resumes.
 CHANGED_DEFAULTS: dict[tuple[str, str], Any] = {
-    ("mpc", "ipm_central_attempt"): "off",  # mpcdc since 2026-11-26, all since 2026-11-28 (runs since store it)
+    ("mpc", "ipm_central_attempt"): "off",  # mpcdc since 2026-11-26
     ("mpc", "ipm_restoration"): "off",  # mpcdc since 2026-11-28 (stored as false before it took policies)
     ("mpc", "ipm_central_first"): "off",  # mpcdc since 2026-11-28 (the option is as old)
     ("mpc", "ipm_central_retry"): "off",  # mpcdc since 2026-11-28 (the option is as old)

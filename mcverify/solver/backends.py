@@ -291,7 +291,7 @@ class IpmBackend:
         # warm attempts, whose failures the cold start repairs cheaply, nor a presumed-infeasible fast-only
         # solve, where a restoration would mostly fail at a price)
         self.cold_full = dataclasses.replace(self.cold, restoration=uses_restoration(params.mpc))
-        # mpc.ipm_central_attempt (default all: every controller): the warm start once more, more central,
+        # mpc.ipm_central_attempt (default mpcdc: the MPC-DC baselines): the warm start once more, more central,
         # before IPOPT
         central = dataclasses.replace(CENTRAL_WARM, tol=params.mpc.tol, **kkt)
         self.central = central if uses_central_attempt(params.mpc) else None

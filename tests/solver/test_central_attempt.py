@@ -24,7 +24,7 @@ FRONT = np.array([64.0, 0.0, 25.0 / 3.6])
     ("mpcdc", "mpcdc_eps", True), ("all", "vlcbf", True), ("all", "mpcdc", True)])
 def test_the_policy_names_the_controllers(policy, controller, used):
     assert backends.uses_central_attempt(Mpc(controller=controller, ipm_central_attempt=policy)) is used
-    assert Mpc().ipm_central_attempt == "all"  # the default since 2026-11-28 (mpcdc from 2026-11-26)
+    assert Mpc().ipm_central_attempt == "mpcdc"  # the default since 2026-11-26 (MPC-DC only)
 
 
 def _attempts(solver: MpcSolver, monkeypatch) -> list[tuple[float, bool]]:
