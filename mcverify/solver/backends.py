@@ -300,7 +300,7 @@ class IpmBackend:
         first = ((6, dataclasses.replace(AFTER_HARD_WARM, tol=params.mpc.tol, **kkt))
                  if params.mpc.ipm_after_hard_attempt == "lower_mu" else (4, central))
         self.first_after_hard: tuple[int, IpmOptions] | None = first if uses_central_first(params.mpc) else None
-        # mpc.ipm_after_hard_solves: ... once this many solves in a row were hard
+        # mpc.ipm_after_hard_solves: first_after_hard leads once this many solves in a row were hard (Start.hard_run)
         self.after_hard_solves = params.mpc.ipm_after_hard_solves
         # mpc.ipm_central_retry (default mpcdc): the warm start once more, more central still, last before IPOPT
         self.central_retry = (dataclasses.replace(CENTRAL_RETRY, tol=params.mpc.tol, **kkt)
