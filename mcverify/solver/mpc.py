@@ -156,10 +156,10 @@ class MpcSolver:
         """Largest violation of g's bounds and of w's bounds at (w, p); inf if anything is NaN."""
         return self.problem.max_violation(w, p)
 
-    def _solution(self, res: BackendResult, direction: int, t0: float, hard_run: int = 0) -> MpcSolution:
-        """hard_run: the warm start's (0 for a cold solve)."""
+    def _solution(self, res: BackendResult, direction: int, t0: float, start_hard_run: int) -> MpcSolution:
+        """start_hard_run: the hard solves in a row before this one (the warm start's count; 0 for a cold solve)."""
         x_plan, u_plan, dt_plan = self.layout.unpack(res.w)
-        run = hard_run + 1 if res.hard else 0
+        run = start_hard_run + 1 if res.hard else 0
         warm = WarmStart(res.w, res.lam_x, res.lam_g, int(direction), hard_run=run) if res.success else None
         return MpcSolution(
             success=bool(res.success),
