@@ -38,6 +38,7 @@ import jax
 import numpy as np
 
 from mcverify import provenance
+from mcverify.analysis.stats import Interval, ratio_of_sums_interval
 from mcverify.bench.agreement import agreement
 from mcverify.bench.ipopt_loop import ipopt_loop_planner
 from mcverify.bench.naive import naive_planner
@@ -94,6 +95,47 @@ class SideResult:
         n, c = self.per_cell.get(cell, [0, 0.0])
         self.per_cell[cell] = [n + len(rows), c + cpu_s]
         self.per_cell_classes.setdefault(cell, Counter()).update(class_cpu_s or {})
+
+
+def episode_cpu_s(side: SideResult) -> dict[Any, float]:
+    """Each episode's share of its cell's measured CPU seconds: ``{episode_id: cpu_s}``.
+
+    The engine runs a cell's episodes as one batch, so its process clock has no per-episode figure;
+    both sides are therefore split the same way, in proportion to each episode's own solver clock
+    (``solves * solve_time_mean_s``, where most of an episode's CPU goes), equally where a cell's
+    episodes made no solve. The shares of a cell add up to its measured CPU, so sums over whole cells
+    are the measured ones."""
+    out: dict[Any, float] = {}
+    for cell, (_, cpu_s) in side.per_cell.items():
+        rows = [r for r in side.rows if r["cell"] == cell]
+        clocks = np.array([r["solves"] * r["solve_time_mean_s"] if r.get("solves") else 0.0 for r in rows])
+        weights = clocks / clocks.sum() if clocks.sum() > 0 else np.full(len(rows), 1.0 / max(len(rows), 1))
+        out.update({r["episode_id"]: float(cpu_s * w) for r, w in zip(rows, weights, strict=True)})
+    return out
+
+
+def ratio_interval(engine: SideResult, other: SideResult, common_random_numbers: bool,
+                   level: float = 0.95) -> Interval | None:
+    """Interval for the engine's speed-up over ``other`` (episodes per CPU-minute over the mix) from the
+    episodes drawn: :func:`~mcverify.analysis.ratios.ratio_of_sums_interval` of ``other``'s CPU over the
+    engine's, per episode as :func:`episode_cpu_s` splits them. The sampling units are independent:
+    with common random numbers episode k of every cell shares its noise, so the unit is episode k of
+    the whole mix (its CPU summed over the cells); without, the episodes, the cells as strata. None
+    unless both sides ran the same episodes (the measured ratio is then the interval's point estimate)."""
+    mine, theirs = episode_cpu_s(engine), episode_cpu_s(other)
+    if not mine or set(mine) != set(theirs):
+        return None
+    where = {r["episode_id"]: (r["cell"], r["cell_episode"]) for r in engine.rows}
+    if not common_random_numbers:
+        ids = sorted(mine)
+        return ratio_of_sums_interval([theirs[e] for e in ids], [mine[e] for e in ids],
+                                      [where[e][0] for e in ids], level=level)
+    blocks = sorted({k for _, k in where.values()})
+    num, den = dict.fromkeys(blocks, 0.0), dict.fromkeys(blocks, 0.0)
+    for e, (_, k) in where.items():
+        num[k] += theirs[e]
+        den[k] += mine[e]
+    return ratio_of_sums_interval([num[k] for k in blocks], [den[k] for k in blocks], level=level)
 
 
 def _timed(name: str, fn) -> SideResult:
@@ -269,6 +311,7 @@ def run(
         "sides": {s: sides[s] for s in active},
         "ratios": {s: engine.episodes_per_cpu_min / sides[s].episodes_per_cpu_min
                    for s in ("baseline", "naive") if counts[s]},
+        "ratio_intervals": {s: ratio_interval(engine, sides[s], crn) for s in ("baseline", "naive") if counts[s]},
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
         "setup_cpu_s": setup_cpu_s,
         "plant_transfer": plant_transfer_ms(cells[0], engine_episodes, seed),

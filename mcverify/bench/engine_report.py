@@ -7,6 +7,7 @@ file is left as it is).
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -67,6 +68,19 @@ def cell_class_table(sides: dict[str, SideResult]) -> list[str]:
     return lines
 
 
+def ratio_text(result: dict[str, Any], side: str, bold: bool = False) -> str:
+    """``engine / compiled IPOPT loop: 5.27x episodes per CPU-minute (95 % interval 4.6-6.0 ...)``."""
+    r = result["ratios"][side]
+    text = f"engine / {LABELS[side]}: {f'**{r:.2f}x**' if bold else f'{r:.2f}x'} episodes per CPU-minute"
+    ci = result.get("ratio_intervals", {}).get(side)
+    if ci is None:
+        return text + " (no interval: the sides ran different episodes)"
+    if math.isnan(ci.low):
+        return text + " (no interval: fewer than 2 episodes per cell)"
+    return (text + f" ({100 * ci.level:.0f} % interval {ci.low:.2f}-{ci.high:.2f} over the episodes drawn, "
+            "ratio estimator; the machine's timing noise is not in it)")
+
+
 def agreement_line(name: str, ag: dict[str, Any]) -> str:
     diffs = ", ".join(f"{c} {ag[f'{c}_absdiff_max']:.3g}" for c in PAIRED_VALUES)
     line = (f"{LABELS[name]} vs engine on {ag['paired']} paired episodes: safety verdict {ag['safe_agree']}/"
@@ -84,8 +98,8 @@ def render(result: dict[str, Any]) -> str:
         lines.append(f"  {LABELS[s]:>20}: {len(side.rows)} episodes, {side.cpu_s:.1f} CPU-s, "
                      f"{side.cpu_s_per_episode:.2f} CPU-s per episode, {side.cpu_ms_per_solve:.1f} CPU-ms per solve, "
                      f"{side.episodes_per_cpu_min:.3g} episodes per CPU-minute")
-    for s, r in result["ratios"].items():
-        lines.append(f"  engine / {LABELS[s]}: {r:.2f}x episodes per CPU-minute")
+    for s in result["ratios"]:
+        lines.append("  " + ratio_text(result, s))
     lines.append(f"  peak memory {result['peak_rss_mb']:.0f} MB (the whole process); one-off set-up "
                  f"{result['setup_cpu_s']:.1f} CPU-s (solver set-up, XLA compile; counted on no side)")
     lines += ["  " + ln for ln in phase_lines(sides["engine"], result.get("plant_transfer"))]
@@ -130,8 +144,7 @@ def append_markdown(result: dict[str, Any], path: Path = BENCHMARKS_MD) -> None:
     """Append the run to the section :data:`MARKER` (created at the end of the file if missing): a
     paragraph with the command, the machine, the ratios, the solve-class and cell tables."""
     sides = result["sides"]
-    ratios = "; ".join(f"engine / {LABELS[s]}: **{r:.2f}x** episodes per CPU-minute"
-                       for s, r in result["ratios"].items())
+    ratios = "; ".join(ratio_text(result, s, bold=True) for s in result["ratios"])
     block = [
         f"### {result['date']}: `{result['command']}`",
         "",

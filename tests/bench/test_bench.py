@@ -7,6 +7,7 @@ from collections import Counter
 
 import pytest
 
+from mcverify.analysis.ratios import ratio_of_sums_interval
 from mcverify.bench import engine as bench
 from mcverify.bench import engine_report
 from mcverify.bench.agreement import agreement
@@ -111,6 +112,46 @@ def test_solve_classes_account_for_every_solve_of_every_side():
     assert all(a["cpu_s"] >= 0 for a in result["ipm_attempts"].values())
     ag = result["agreement"]["baseline"]
     assert ag["paired"] == 2 and ag["safe_agree"] == 2 and set(result["ratios"]) == {"baseline"}
+    assert result["ratio_intervals"] == {"baseline": None}  # the loop ran 1 of the engine's 2 episodes per cell
+
+
+def _cell_side(name, cpu_by_cell, clocks_by_cell):
+    """A side whose cells' episodes have the given solver clocks (one solve each) and measured CPU."""
+    side = bench.SideResult(name, [], 0.0, 0.0)
+    for k, (cell, clocks) in enumerate(clocks_by_cell.items()):
+        rows = [{"cell": cell, "episode_id": 10 * k + e, "cell_episode": e, "solves": 1, "solve_time_mean_s": c}
+                for e, c in enumerate(clocks)]
+        side.add(cell, rows, cpu_by_cell[cell], cpu_by_cell[cell])
+    return side
+
+
+def test_episode_cpu_is_the_cells_cpu_split_by_the_solver_clock():
+    side = _cell_side("engine", {"a": 10.0, "b": 3.0}, {"a": [1.0, 3.0], "b": [0.0, 0.0, 0.0]})
+    assert bench.episode_cpu_s(side) == {0: 2.5, 1: 7.5, 10: 1.0, 11: 1.0, 12: 1.0}  # b: no solver clock, equal
+
+
+def test_ratio_interval_needs_the_same_episodes_and_holds_the_measured_ratio():
+    engine = _cell_side("engine", {"a": 4.0, "b": 8.0}, {"a": [1.0, 2.0, 1.5], "b": [2.0, 5.0, 3.0]})
+    loop = _cell_side("baseline", {"a": 20.0, "b": 40.0}, {"a": [4.0, 9.0, 8.0], "b": [11.0, 20.0, 14.0]})
+    measured = engine.episodes_per_cpu_min / loop.episodes_per_cpu_min
+    assert measured == pytest.approx(5.0)
+    # independent episodes: the cells are strata (df 4); common random numbers: episode k of the mix is
+    # the unit (3 units, df 2), so the interval is wider here
+    strata, blocks = bench.ratio_interval(engine, loop, False), bench.ratio_interval(engine, loop, True)
+    for ci in (strata, blocks):
+        assert ci.low < measured < ci.high and ci.level == 0.95
+    assert blocks.high - blocks.low > strata.high - strata.low
+    cpu_e, cpu_l = bench.episode_cpu_s(engine), bench.episode_cpu_s(loop)
+    by_k = [(sum(cpu_l[i] for i in (k, 10 + k)), sum(cpu_e[i] for i in (k, 10 + k))) for k in range(3)]
+    assert blocks == ratio_of_sums_interval([n for n, _ in by_k], [d for _, d in by_k])
+    fewer = _cell_side("baseline", {"a": 20.0, "b": 40.0}, {"a": [4.0, 9.0], "b": [11.0, 20.0]})
+    assert bench.ratio_interval(engine, fewer, True) is None
+    result = {"ratios": {"baseline": measured}, "ratio_intervals": {"baseline": blocks}}
+    assert engine_report.ratio_text(result, "baseline", bold=True).startswith(
+        "engine / compiled IPOPT loop: **5.00x** episodes per CPU-minute "
+        f"(95 % interval {blocks.low:.2f}-{blocks.high:.2f} ")
+    result["ratio_intervals"] = {"baseline": None}
+    assert "(no interval: the sides ran different episodes)" in engine_report.ratio_text(result, "baseline")
 
 
 def test_attempt_lines_count_the_cpu_of_attempts_that_did_not_converge():
