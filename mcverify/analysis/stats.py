@@ -13,8 +13,8 @@ paired units (a benchmark's speed-up over a mix of cells): :func:`ratio_of_sums_
 
 This module is the statistics API the rest of the package uses; the code lives in
 :mod:`mcverify.analysis.intervals` (one proportion), :mod:`mcverify.analysis.comparisons` (two
-cells) and :mod:`mcverify.analysis.bootstrap` (continuous values, quantiles) and :mod:`mcverify.analysis.ratios`
-(a ratio of sums).
+cells), :mod:`mcverify.analysis.bootstrap` (continuous values, quantiles) and
+:mod:`mcverify.analysis.ratios` (a ratio of sums).
 
 References:
     [CP34] Clopper, C. J. & Pearson, E. S. (1934). The use of confidence or fiducial limits
