@@ -125,17 +125,17 @@ def ratio_interval(engine: SideResult, other: SideResult, common_random_numbers:
     mine, theirs = episode_cpu_s(engine), episode_cpu_s(other)
     if not mine or set(mine) != set(theirs):
         return None
-    where = {r["episode_id"]: (r["cell"], r["cell_episode"]) for r in engine.rows}
-    if not common_random_numbers:
-        ids = sorted(mine)
-        return ratio_of_sums_interval([theirs[e] for e in ids], [mine[e] for e in ids],
-                                      [where[e][0] for e in ids], level=level)
-    blocks = sorted({k for _, k in where.values()})
-    num, den = dict.fromkeys(blocks, 0.0), dict.fromkeys(blocks, 0.0)
-    for e, (_, k) in where.items():
-        num[k] += theirs[e]
-        den[k] += mine[e]
-    return ratio_of_sums_interval([num[k] for k in blocks], [den[k] for k in blocks], level=level)
+    units: dict[Any, list[float]] = {}  # unit -> [other's CPU, engine's CPU]
+    strata: dict[Any, str] = {}
+    for r in engine.rows:
+        unit = r["cell_episode"] if common_random_numbers else r["episode_id"]
+        sums = units.setdefault(unit, [0.0, 0.0])
+        sums[0] += theirs[r["episode_id"]]
+        sums[1] += mine[r["episode_id"]]
+        strata[unit] = r["cell"]
+    keys = sorted(units)
+    return ratio_of_sums_interval([units[u][0] for u in keys], [units[u][1] for u in keys],
+                                  None if common_random_numbers else [strata[u] for u in keys], level=level)
 
 
 def _timed(name: str, fn) -> SideResult:
