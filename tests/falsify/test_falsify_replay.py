@@ -14,6 +14,7 @@ from mcverify.campaign.replay import replay
 from mcverify.falsify import search
 
 CAMPAIGN = Path(__file__).resolve().parents[2] / "campaigns" / "falsify_mpcdc_table4b.toml"
+STUDIES = Path(__file__).resolve().parents[2] / "studies"
 
 
 @pytest.mark.slow  # two closed-loop episodes and a replay: about a minute of CPU
@@ -32,7 +33,7 @@ def test_a_searched_episode_with_disturbances_replays_bit_for_bit(tmp_path):
 
 @pytest.mark.slow  # four short closed-loop episodes and a replay
 def test_a_splitting_branch_replays_bit_for_bit(tmp_path):
-    rare = CAMPAIGN.with_name("falsify_vlcbf_eps0_noise2_ellipse.toml")  # no violation in 4 episodes
+    rare = STUDIES / "rare-ellipse-target" / "falsify_vlcbf_eps0_noise2_ellipse.toml"  # no violation in 4 episodes
     raw = copy.deepcopy(tomllib.loads(rare.read_text(encoding="utf-8")))
     raw["model"]["sim"] = {"control_period_s": 0.1, "substeps": 20}
     raw["falsify"].update(population=2, stop_at_first=False)  # one survivor, one noise branch per generation
@@ -49,11 +50,12 @@ def test_a_splitting_branch_replays_bit_for_bit(tmp_path):
 
 @pytest.mark.slow  # 16 closed-loop episodes at 50 Hz and a replay: about three minutes of CPU
 def test_the_lateral_jump_finding_gives_certified_theorem5_steps_that_replay(tmp_path):
-    """campaigns/finding_lateral_jump_theorem5.toml (README, "What the falsifier found"): with veh_f
-    measured jumping towards the ego at a 3 m gap, some of 8 random scenarios have a step where IPOPT
-    certified both Q1 and Q2 infeasible, located in the trajectory and replayed bit for bit; with the
-    paper's random lateral noise instead (the same scenarios and keys) no step goes unsolved."""
-    finding = CAMPAIGN.with_name("finding_lateral_jump_theorem5.toml")
+    """studies/lateral-measurement/finding_lateral_jump_theorem5.toml (docs/results.md, "What the
+    falsifier found"): with veh_f measured jumping towards the ego at a 3 m gap, some of 8 random
+    scenarios have a step where IPOPT certified both Q1 and Q2 infeasible, located in the trajectory
+    and replayed bit for bit; with the paper's random lateral noise instead (the same scenarios and
+    keys) no step goes unsolved."""
+    finding = STUDIES / "lateral-measurement" / "finding_lateral_jump_theorem5.toml"
     raw = tomllib.loads(finding.read_text(encoding="utf-8"))
     config = search.SearchConfig(copy.deepcopy(raw), str(finding), "random", budget=8, seed=17,
                                  requirement="theorem5_certified")
