@@ -244,7 +244,8 @@ def _parser() -> argparse.ArgumentParser:
     p = section.parser("engine", "The engine against the compiled IPOPT loop (and the naive loop), in one run.")
     p.add_argument("--campaign", default=DEFAULT_CAMPAIGN,
                    help="campaign file (default: Table IV with veh_o on the road from the start)")
-    p.add_argument("--cell", default=ALL_CELLS, help="cell name of that campaign, or 'all' (default: all, the Table IV mix)")
+    p.add_argument("--cell", default=ALL_CELLS,
+                   help="cell name of that campaign, or 'all' (default: all, the Table IV mix)")
     p.add_argument("--engine-episodes", type=positive_int, default=2, help="episodes per cell, engine")
     p.add_argument("--baseline-episodes", type=nonneg_int, default=2,
                    help="paired episodes per cell, compiled warm-started IPOPT loop (0: skip)")

@@ -16,15 +16,15 @@ from __future__ import annotations
 import argparse
 import platform
 import sys
-from collections.abc import Sequence
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from benchmarks import section
-from mcverify import provenance, store
+from mcverify import provenance
 from mcverify.cli.options import positive_int
 from mcverify.errors import UserError
 from mcverify.estimate import splitting

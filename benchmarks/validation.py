@@ -48,7 +48,7 @@ from mcverify.analysis.columns import Columns, floats
 from mcverify.analysis.estimates import ordered_prefix, target_events
 from mcverify.analysis.intervals import proportion_interval
 from mcverify.analysis.sequential import StopRule, sequential_estimate
-from mcverify.cli.options import halfwidth, positive_int
+from mcverify.cli import options
 from mcverify.errors import RunError
 from mcverify.estimate import splitting
 from mcverify.estimate.folder import ESTIMATE
@@ -463,13 +463,10 @@ def _importance_line(imp: dict[str, Any]) -> str:
 def figure(res: dict[str, Any], path: Path) -> Path:
     """One panel per estimator row: every repetition's interval (sorted by estimate; red where it
     misses the reference's p) against the reference's p and its interval (grey band)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from mcverify.reporting.figure_common import subplots  # noqa: PLC0415 - matplotlib only when drawing
 
     ref, rows = res["reference"], res["estimators"]
-    fig, axes = plt.subplots(1, len(rows), figsize=(3.2 * len(rows), 4.2), sharex=True, squeeze=False)
+    fig, axes = subplots(1, len(rows), figsize=(3.2 * len(rows), 4.2), sharex=True, squeeze=False)
     for ax, row in zip(axes[0], rows, strict=True):
         targets = row.get("reference_ps") or [ref["p"]] * len(row["intervals"])
         reps = sorted(zip(row["intervals"], targets, strict=True))
@@ -489,7 +486,6 @@ def figure(res: dict[str, Any], path: Path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
-    plt.close(fig)
     return path
 
 
@@ -507,10 +503,10 @@ def _parser() -> argparse.ArgumentParser:
                    "(repeat the option for another pool, e.g. another score)")
     p.add_argument("--importance", type=Path, nargs="+", default=[], metavar="DIR",
                    help="importance estimate folders of the same cell and target, distinct seeds")
-    p.add_argument("--group", type=positive_int, nargs="+", default=[4], metavar="R",
+    p.add_argument("--group", type=options.positive_int, nargs="+", default=[4], metavar="R",
                    help="splitting: AMS runs per repetition (the estimator's --replicates), one row per value "
                    "(default 4)")
-    p.add_argument("--sequential", type=halfwidth, nargs="+", default=[], metavar="H",
+    p.add_argument("--sequential", type=options.halfwidth, nargs="+", default=[], metavar="H",
                    help="crude Monte Carlo with sequential stopping: the reference's episodes cut into consecutive "
                    "runs of --until-halfwidth H (absolute, e.g. 0.08, or relative, e.g. 50%%), each checked against "
                    "the reference without its episodes; one row per H, and the invalid fixed-n Clopper-Pearson "

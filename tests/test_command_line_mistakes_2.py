@@ -3,11 +3,9 @@ the folders that are not runs, each now one clear line (exit 2) or a report that
 
 from __future__ import annotations
 
-import pytest
 import synthetic
 
 from mcverify import cli
-from mcverify.errors import RunError
 from mcverify.falsify import search
 from tests.falsify import fake_episodes
 from tests.test_command_line_mistakes import CAMPAIGN, _one_error_line

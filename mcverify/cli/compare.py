@@ -10,7 +10,8 @@ from mcverify.cli import options
 
 
 def add(sub, parents: list[argparse.ArgumentParser]) -> None:
-    p = sub.add_parser("compare", parents=parents, help="per-cell differences between two runs (paired when they share episode keys)")
+    p = sub.add_parser("compare", parents=parents,
+                       help="per-cell differences between two runs (paired when they share episode keys)")
     p.add_argument("run_a", type=Path)
     p.add_argument("run_b", type=Path)
     p.add_argument("--level", type=options.level, default=0.95, help="confidence level of the intervals (default 0.95)")

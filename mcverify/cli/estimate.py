@@ -25,58 +25,60 @@ def add(sub, parents: list[argparse.ArgumentParser]) -> None:
 def _add_method_options(p: argparse.ArgumentParser) -> None:
     """The method, its target, the stopping rule and crude Monte Carlo's options."""
     p.add_argument("--method", choices=("mc", "splitting", "importance"), default=None,
-                     help="mc: crude Monte Carlo stopped on an anytime-valid interval (default); splitting: "
-                          "adaptive multilevel splitting on the per-step noise; importance: cross-entropy "
-                          "importance sampling over the scenario ranges (both in this process unless --workers "
-                          "or --executor ray is given)")
+                   help="mc: crude Monte Carlo stopped on an anytime-valid interval (default); splitting: "
+                        "adaptive multilevel splitting on the per-step noise; importance: cross-entropy "
+                        "importance sampling over the scenario ranges (both in this process unless --workers "
+                        "or --executor ray is given)")
     p.add_argument("--target", default=None,
-                     help="event whose rate is estimated: collision (default), ellipse, unsafe, invariance, "
-                          "opp_invariance")
+                   help="event whose rate is estimated: collision (default), ellipse, unsafe, invariance, "
+                        "opp_invariance")
     p.add_argument("--until-halfwidth", type=options.halfwidth, default=None, metavar="H",
-                     help="stop a cell when the interval's half-width is <= H (absolute, e.g. 0.01) or <= H "
-                          "of the estimate (relative, e.g. 30%%)")
-    p.add_argument("--budget", type=options.positive_int, default=None, help="mc: most episodes per cell (default 1000)")
+                   help="stop a cell when the interval's half-width is <= H (absolute, e.g. 0.01) or <= H "
+                        "of the estimate (relative, e.g. 30%%)")
+    p.add_argument("--budget", type=options.positive_int, default=None,
+                   help="mc: most episodes per cell (default 1000)")
     p.add_argument("--level", type=options.level, default=None, help="confidence level of the interval (default 0.95)")
     p.add_argument("--chunk-size", type=options.positive_int, default=None, metavar="K",
-                     help="mc: episodes per chunk, the unit of work and of the stopping checks (default 8)")
+                   help="mc: episodes per chunk, the unit of work and of the stopping checks (default 8)")
     p.add_argument("--dry-run", action="store_true",
-                     help="check the campaign and the options, say how many episodes the estimate may run and a "
-                          "rough CPU range, and run nothing")
+                   help="check the campaign and the options, say how many episodes the estimate may run and a "
+                        "rough CPU range, and run nothing")
 
 
 def _add_rare_event_options(p: argparse.ArgumentParser) -> None:
     """Splitting's and importance sampling's options."""
     p.add_argument("--score", choices=("gap", "gap_run", "h_ef", "h_ef_held", "h_ef_run"), default=None,
-                     help="splitting, importance: footprint gap (target collision, the default) or gap_run (the gap "
-                     "brought forward by the current run of steps with neither problem solved; target collision), "
-                     "h_ef, h_ef_held or h_ef_run (h_ef brought forward by all such steps, or by the current run; "
-                     "all three target ellipse); for importance it steers the cross-entropy stages only")
-    p.add_argument("--particles", type=options.positive_int, default=None, help="splitting: particles per run (default 20)")
+                   help="splitting, importance: footprint gap (target collision, the default) or gap_run (the gap "
+                   "brought forward by the current run of steps with neither problem solved; target collision), "
+                   "h_ef, h_ef_held or h_ef_run (h_ef brought forward by all such steps, or by the current run; "
+                   "all three target ellipse); for importance it steers the cross-entropy stages only")
+    p.add_argument("--particles", type=options.positive_int, default=None,
+                   help="splitting: particles per run (default 20)")
     p.add_argument("--replicates", type=options.positive_int, default=None,
-                     help="splitting: independent runs whose spread gives the interval (default 8; "
-                          "fewer under-cover, docs/rare_events.md)")
+                   help="splitting: independent runs whose spread gives the interval (default 8; "
+                        "fewer under-cover, docs/rare_events.md)")
     p.add_argument("--cell", action="append", default=[], metavar="NAME",
-                     help="splitting, importance: only this cell (repeatable; default: every cell); splitting runs its "
-                          "AMS runs, importance its batches of 8 episodes, in this process unless --workers (local) "
-                          "or --executor ray is given")
+                   help="splitting, importance: only this cell (repeatable; default: every cell); splitting runs its "
+                        "AMS runs, importance its batches of 8 episodes, in this process unless --workers (local) "
+                        "or --executor ray is given")
     p.add_argument("--samples", type=options.positive_int, default=None,
-                     help="importance: episodes drawn from the defensive mixture (default 400)")
+                   help="importance: episodes drawn from the defensive mixture (default 400)")
     p.add_argument("--ce-samples", type=options.positive_int, default=None,
-                     help="importance: episodes per cross-entropy iteration (default 100)")
+                   help="importance: episodes per cross-entropy iteration (default 100)")
     p.add_argument("--elite-share", type=options.open_unit, default=None, metavar="RHO",
-                     help="importance: share of each cross-entropy iteration's episodes kept as its elite "
-                          "(default 0.1; with few episodes per iteration a larger share keeps the elite at 10 or more)")
+                   help="importance: share of each cross-entropy iteration's episodes kept as its elite "
+                        "(default 0.1; with few episodes per iteration a larger share keeps the elite at 10 or more)")
     p.add_argument("--ce-iterations", type=options.nonneg_int, default=None,
-                     help="importance: most cross-entropy iterations (default 10; 0: the scenario stays nominal, "
-                          "e.g. with --noise-tilt when the score would steer the scenario away from the event)")
+                   help="importance: most cross-entropy iterations (default 10; 0: the scenario stays nominal, "
+                        "e.g. with --noise-tilt when the score would steer the scenario away from the event)")
     p.add_argument("--noise-tilt", type=options.noise_tilt, metavar="KEY=VALUE,...",
-                     help="importance: draw veh_f's measurement noise near veh_f from exponential tilts, refitted "
-                          "by the cross-entropy iterations, and weight each episode by its likelihood ratio; keys "
-                          "gap_max_m (required), split_m, band_steps, defensive, theta_max and starting tilts "
-                          "UNIT_BAND (x|y|v _ approach|jump|alongside) (docs/rare_events.md), e.g. "
-                          "gap_max_m=4.1,split_m=3.05,y_approach=-5,y_jump=5")
+                   help="importance: draw veh_f's measurement noise near veh_f from exponential tilts, refitted "
+                        "by the cross-entropy iterations, and weight each episode by its likelihood ratio; keys "
+                        "gap_max_m (required), split_m, band_steps, defensive, theta_max and starting tilts "
+                        "UNIT_BAND (x|y|v _ approach|jump|alongside) (docs/rare_events.md), e.g. "
+                        "gap_max_m=4.1,split_m=3.05,y_approach=-5,y_jump=5")
     p.add_argument("--max-iterations", type=options.positive_int, default=None,
-                     help="splitting: iteration cap per run (default 2000; a capped run is flagged, not an estimate)")
+                   help="splitting: iteration cap per run (default 2000; a capped run is flagged, not an estimate)")
 
 
 #: ``mcverify estimate`` options that only some methods read: (attribute, option, methods).

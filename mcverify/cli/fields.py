@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import argparse
 
-from mcverify.cli import options
-
 
 def add(sub, parents: list[argparse.ArgumentParser]) -> None:
-    p = sub.add_parser("fields", parents=parents, help="every model field a campaign can set: type, unit, default, meaning")
+    p = sub.add_parser("fields", parents=parents,
+                       help="every model field a campaign can set: type, unit, default, meaning")
     p.add_argument("pattern", nargs="?", default="", help="only fields whose name contains this text")
     p.set_defaults(handler="fields")
 

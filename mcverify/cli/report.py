@@ -9,11 +9,11 @@ from mcverify.cli import options
 
 
 def add(sub, parents: list[argparse.ArgumentParser]) -> None:
-    p = sub.add_parser(
-        "report", parents=parents, help="regenerate summary.json, cells.parquet, tables, figures, report.md and report.html"
-    )
+    p = sub.add_parser("report", parents=parents,
+                       help="regenerate summary.json, cells.parquet, tables, figures, report.md and report.html")
     p.add_argument("run_dir", type=Path)
-    p.add_argument("--level", type=options.level, default=0.95, help="confidence level of every interval (default 0.95)")
+    p.add_argument("--level", type=options.level, default=0.95,
+                   help="confidence level of every interval (default 0.95)")
     p.add_argument("--method", choices=("clopper-pearson", "wilson"), default="clopper-pearson",
                    help="two-sided interval for rates (default: exact Clopper-Pearson)")
     p.add_argument("--bootstrap-resamples", type=options.positive_int, default=2000,

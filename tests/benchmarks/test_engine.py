@@ -1,4 +1,5 @@
-"""The engine benchmark's bookkeeping (the benchmark itself is a command, `python -m benchmarks.engine`, not a timed test)."""
+"""The engine benchmark's bookkeeping (the benchmark itself is a command, ``python -m benchmarks.engine``,
+not a timed test)."""
 
 from __future__ import annotations
 
@@ -7,10 +8,10 @@ from collections import Counter
 
 import pytest
 
-from benchmarks.ratios import ratio_of_sums_interval
 from benchmarks import engine as bench
 from benchmarks import engine_report, section, sides
 from benchmarks.agreement import agreement
+from benchmarks.ratios import ratio_of_sums_interval
 from benchmarks.solve_classes import SolveClass
 
 

@@ -7,8 +7,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from mcverify import ocp
 from benchmarks.naive import NaiveOptiSolver, run_naive
+from mcverify import ocp
 from mcverify.model import ModelParams
 from mcverify.solver.mpc import MpcSolver
 

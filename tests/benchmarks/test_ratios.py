@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from mcverify.analysis.intervals import Interval
 from benchmarks.ratios import METHOD, ratio_of_sums_interval
+from mcverify.analysis.intervals import Interval
 
 
 def test_pairs_and_strata_are_kept():

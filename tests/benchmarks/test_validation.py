@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mcverify import store
 from benchmarks import validation
+from mcverify import store
 from mcverify.errors import RunError
 from mcverify.estimate import splitting
 from mcverify.estimate.folder import ESTIMATE
