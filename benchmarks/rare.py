@@ -1,5 +1,5 @@
 """``python -m benchmarks.rare``: adaptive multilevel splitting against crude Monte Carlo on the calibration
-random walk (:mod:`mcverify.estimate.synthetic`), at a failure probability around 1e-4.
+random walk (:mod:`benchmarks.walk`), at a failure probability around 1e-4.
 
 One run measures: a crude Monte Carlo reference (vectorised numpy, ``reference_episodes`` walks);
 ``repetitions`` independent splitting estimates (each ``replicates`` AMS runs of ``particles``
@@ -28,7 +28,7 @@ from mcverify import provenance
 from mcverify.cli.options import positive_int
 from mcverify.errors import UserError
 from mcverify.estimate import splitting
-from mcverify.estimate.synthetic import Walk
+from benchmarks.walk import Walk
 
 BEGIN_MARK, END_MARK = section.markers("rare")
 

@@ -1,4 +1,4 @@
-"""A calibration process for the rare-event estimators (tests and ``mcverify bench-rare``): a cheap
+"""A calibration process for the rare-event estimators (their tests and ``python -m benchmarks.rare``): a cheap
 episode driven by per-step noise, a Gaussian random
 walk x_{t+1} = x_t + drift + sigma * e_t over ``horizon`` control steps, whose score is the running
 maximum of x and whose "collision" is max x >= barrier. The noise of branch b at step t is the t-th
