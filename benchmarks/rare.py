@@ -24,11 +24,11 @@ from typing import Any
 import numpy as np
 
 from benchmarks import section
+from benchmarks.walk import Walk
 from mcverify import provenance
 from mcverify.cli.options import positive_int
 from mcverify.errors import UserError
 from mcverify.estimate import splitting
-from benchmarks.walk import Walk
 
 BEGIN_MARK, END_MARK = section.markers("rare")
 

@@ -59,8 +59,8 @@ def _side(name, n, cpu):
 def test_the_section_replaces_the_last_run_and_keeps_the_rest_of_the_page(tmp_path):
     path = tmp_path / "BENCHMARKS.md"
     path.write_text("# Benchmarks\n\n## Other section\n\ntext\n")
-    sides = {"engine": _side("engine", 4, 60.0), "baseline": _side("baseline", 4, 120.0)}
-    result = {"sides": sides, "ratios": {"baseline": 2.0}, "peak_rss_mb": 500.0, "machine": "m", "cells": ["c"],
+    by_side = {"engine": _side("engine", 4, 60.0), "baseline": _side("baseline", 4, 120.0)}
+    result = {"sides": by_side, "ratios": {"baseline": 2.0}, "peak_rss_mb": 500.0, "machine": "m", "cells": ["c"],
               "backend": "ipm", "load_average": [1.0, 1.0, 1.0], "setup_cpu_s": 1.0,
               "agreement": {"baseline": agreement([row(0)], [row(0)], key="episode_id", values=sides.PAIRED_VALUES)},
               "command": "python -m benchmarks.engine", "campaign": "x"}
@@ -77,7 +77,7 @@ def test_the_section_replaces_the_last_run_and_keeps_the_rest_of_the_page(tmp_pa
     # where each cell's solver time goes, by class in SolveClass order
     assert ("| cell | engine: converged / rescued / certified infeasible / presumed infeasible / other failure |"
             in text) and "| c | 7.50 / 0.00 / 0.00 / 0.00 / 0.00 | 15.00 / 0.00 / 0.00 / 0.00 / 0.00 |" in text
-    assert sides["engine"].episodes_per_cpu_min == 4.0 and sides["engine"].cpu_ms_per_solve == 150.0
+    assert by_side["engine"].episodes_per_cpu_min == 4.0 and by_side["engine"].cpu_ms_per_solve == 150.0
     assert "engine / compiled IPOPT loop: 2.00x" in engine_report.render(result)
 
 
