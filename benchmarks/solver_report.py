@@ -23,7 +23,7 @@ def _fmt(x: float, nd: int = 2) -> str:
 
 
 def markdown(results: dict[str, Any], command: str) -> str:
-    """The generated section of results/BENCHMARKS.md."""
+    """The generated section of results/BENCHMARKS.md (markers included)."""
     m = results["machine"]
     lines = [
         BEGIN_MARK,
@@ -37,6 +37,15 @@ def markdown(results: dict[str, Any], command: str) -> str:
         f"load average at the start {m.get('load_average')} (the machine is shared: absolute times vary with "
         f"the load, ratios are taken within this run); Python {m['python']}, CasADi {m['casadi']}, JAX {m['jax']}.",
         "",
+    ]
+    lines += _replay_lines(results) + _paired_lines(results) + _jax_lines(results["jax_step"])
+    lines += ["", END_MARK, ""]
+    return "\n".join(lines)
+
+
+def _replay_lines(results: dict[str, Any]) -> list[str]:
+    """Per-solve CPU of every backend on the recorded states, warm and cold."""
+    lines = [
         f"### Per-solve CPU on recorded states ({results['campaign']}, cell `{results['replays'][0]['cell']}`)",
         "",
         "Every solve of an IPOPT-reference closed loop, re-solved warm (from the reference's warm start) and "
@@ -64,8 +73,13 @@ def markdown(results: dict[str, Any], command: str) -> str:
             ratios.append(f"{b}, {states}: {ratio:.1f}x")
     if ratios:
         lines += ["", "Warm-solve speed-up over IPOPT (mean CPU): " + ", ".join(ratios) + "."]
+    return lines
+
+
+def _paired_lines(results: dict[str, Any]) -> list[str]:
+    """Throughput of the paired closed-loop episodes and the agreement of every backend with IPOPT."""
     p = results["paired"]
-    lines += [
+    lines = [
         "",
         f"### Paired closed-loop episodes ({results['campaign']}, {results['episodes_per_cell']} per cell, "
         f"{p['workers']} worker(s), chunks of {p['chunk_size']}, interleaved)",
@@ -83,34 +97,44 @@ def markdown(results: dict[str, Any], command: str) -> str:
                 lines += ["", f"Throughput ratio {b} / ipopt: **{t['episodes_per_cpu_minute'] / base:.2f}x** "
                           f"(same episodes, same run; wall time of the whole paired run {p['wall_s']:.0f} s)."]
     for b, a in p["agreement"].items():
-        n = a["paired"]
-        lines += [
-            "",
-            f"Agreement {b} vs ipopt on {n} paired episodes (95% Clopper-Pearson intervals):",
-            "",
-            f"- safety verdict (`safe`): {a['safe_agree']}/{n} = {100 * a['safe_agree'] / max(n, 1):.1f}% "
-            f"[{100 * a['safe_agree_ci'][0]:.1f}%, {100 * a['safe_agree_ci'][1]:.1f}%]",
-            f"- outcome (overtook / went back / timeout): {a['outcome_agree']}/{n} = "
-            f"{100 * a['outcome_agree'] / max(n, 1):.1f}% [{100 * a['outcome_agree_ci'][0]:.1f}%, "
-            f"{100 * a['outcome_agree_ci'][1]:.1f}%]",
-            f"- min distance to veh_f: |difference| median {a['min_dist_front_m_absdiff_median']:.2e} m, "
-            f"max {a['min_dist_front_m_absdiff_max']:.2e} m",
-            f"- overtaking time: |difference| median {a['overtake_time_s_absdiff_median']:.2e} s, "
-            f"max {a['overtake_time_s_absdiff_max']:.2e} s",
-            f"- solver statuses of {b}: {a['new_statuses']}",
-        ]
-        if a["disagreements"]:
-            lines += ["", "Disagreements:", "", "| episode | cell | safe (ipopt / new) | outcome (ipopt / new) | "
-                      "min dist m (ipopt / new) | overtake s (ipopt / new) |", "| ---: | --- | --- | --- | --- | --- |"]
-            for d in a["disagreements"]:
-                lines.append(
-                    f"| {d['episode_id']} | {d['cell']} | {d['safe_ref']} / {d['safe_new']} | {d['outcome_ref']} / "
-                    f"{d['outcome_new']} | {d['min_dist_front_m_ref']:.3f} / {d['min_dist_front_m_new']:.3f} | "
-                    f"{_fmt(d['overtake_time_s_ref'])} / {_fmt(d['overtake_time_s_new'])} |")
-        else:
-            lines += ["", "No disagreement in safety verdict or outcome."]
-    j = results["jax_step"]
-    lines += [
+        lines += _agreement_lines(b, a)
+    return lines
+
+
+def _agreement_lines(b: str, a: dict[str, Any]) -> list[str]:
+    """One backend's agreement with IPOPT on the paired episodes, its disagreements listed."""
+    n = a["paired"]
+    lines = [
+        "",
+        f"Agreement {b} vs ipopt on {n} paired episodes (95% Clopper-Pearson intervals):",
+        "",
+        f"- safety verdict (`safe`): {a['safe_agree']}/{n} = {100 * a['safe_agree'] / max(n, 1):.1f}% "
+        f"[{100 * a['safe_agree_ci'][0]:.1f}%, {100 * a['safe_agree_ci'][1]:.1f}%]",
+        f"- outcome (overtook / went back / timeout): {a['outcome_agree']}/{n} = "
+        f"{100 * a['outcome_agree'] / max(n, 1):.1f}% [{100 * a['outcome_agree_ci'][0]:.1f}%, "
+        f"{100 * a['outcome_agree_ci'][1]:.1f}%]",
+        f"- min distance to veh_f: |difference| median {a['min_dist_front_m_absdiff_median']:.2e} m, "
+        f"max {a['min_dist_front_m_absdiff_max']:.2e} m",
+        f"- overtaking time: |difference| median {a['overtake_time_s_absdiff_median']:.2e} s, "
+        f"max {a['overtake_time_s_absdiff_max']:.2e} s",
+        f"- solver statuses of {b}: {a['new_statuses']}",
+    ]
+    if a["disagreements"]:
+        lines += ["", "Disagreements:", "", "| episode | cell | safe (ipopt / new) | outcome (ipopt / new) | "
+                  "min dist m (ipopt / new) | overtake s (ipopt / new) |", "| ---: | --- | --- | --- | --- | --- |"]
+        for d in a["disagreements"]:
+            lines.append(
+                f"| {d['episode_id']} | {d['cell']} | {d['safe_ref']} / {d['safe_new']} | {d['outcome_ref']} / "
+                f"{d['outcome_new']} | {d['min_dist_front_m_ref']:.3f} / {d['min_dist_front_m_new']:.3f} | "
+                f"{_fmt(d['overtake_time_s_ref'])} / {_fmt(d['overtake_time_s_new'])} |")
+    else:
+        lines += ["", "No disagreement in safety verdict or outcome."]
+    return lines
+
+
+def _jax_lines(j: dict[str, Any]) -> list[str]:
+    """CPU per control step of the JAX side with a stub solver."""
+    lines = [
         "",
         "### JAX side of a control step",
         "",
@@ -123,8 +147,7 @@ def markdown(results: dict[str, Any], command: str) -> str:
     for b, d in j.items():
         lines.append(f"| {b} | {_fmt(d['cpu_ms_per_step'], 3)} | {_fmt(d['cpu_ms_per_step'] / int(b), 3)} | "
                      f"{_fmt(d['first_run_cpu_s'], 2)} |")
-    lines += ["", END_MARK, ""]
-    return "\n".join(lines)
+    return lines
 
 
 def to_json(results: dict[str, Any]) -> str:

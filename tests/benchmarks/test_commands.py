@@ -68,3 +68,34 @@ def test_plant_refuses_backends_it_cannot_measure(tmp_path, capsys, monkeypatch)
 def test_rare_bad_options_are_one_line(capsys, options, fragment):
     assert rare.main(["--no-write", "--repetitions", "1", "--replicates", "2", *options]) == 2
     assert fragment in _one_error_line(capsys.readouterr().err, "rare")
+
+
+def test_the_solver_section_renders_every_part():
+    from benchmarks import solver_report
+
+    agree = {"paired": 2, "safe_agree": 2, "safe_agree_ci": [0.16, 1.0], "outcome_agree": 1,
+             "outcome_agree_ci": [0.01, 0.99], "min_dist_front_m_absdiff_median": 0.0,
+             "min_dist_front_m_absdiff_max": 1e-9, "overtake_time_s_absdiff_median": 0.0,
+             "overtake_time_s_absdiff_max": 0.0, "new_statuses": {"ipm": 9},
+             "disagreements": [{"episode_id": 1, "cell": "c", "safe_ref": True, "safe_new": True,
+                                "outcome_ref": "overtook", "outcome_new": "timeout", "min_dist_front_m_ref": 1.0,
+                                "min_dist_front_m_new": 1.0, "overtake_time_s_ref": 6.0,
+                                "overtake_time_s_new": float("nan")}]}
+    replay = {"cell": "c", "states": "noise-free", "warm": True, "solves": 10, "cpu_ms_mean": 4.0,
+              "cpu_ms_median": 4.0, "cpu_ms_p90": 5.0, "cpu_ms_max": 9.0, "iterations_mean": 7.0,
+              "success_rate": 1.0, "fallback_rate": 0.0}
+    results = {
+        "machine": {"python": "3", "casadi": "3.7", "jax": "0.5"}, "campaign": "t.toml", "episodes_per_cell": 2,
+        "replays": [{**replay, "backend": "ipopt", "cpu_ms_mean": 20.0}, {**replay, "backend": "ipm"}],
+        "paired": {"workers": 2, "chunk_size": 4, "wall_s": 30.0, "agreement": {"ipm": agree},
+                   "throughput": {b: {"episodes": 2, "cpu_s_per_episode": s, "episodes_per_cpu_minute": 60 / s,
+                                      "maxrss_mb": 500.0} for b, s in (("ipopt", 12.0), ("ipm", 3.0))}},
+        "jax_step": {"8": {"cpu_ms_per_step": 0.8, "first_run_cpu_s": 2.0}},
+    }
+    text = solver_report.markdown(results, "python -m benchmarks.solver")
+    begin, end = section.markers("solver")
+    assert text.startswith(begin) and text.rstrip().endswith(end)
+    assert "Warm-solve speed-up over IPOPT (mean CPU): ipm, noise-free: 5.0x." in text
+    assert "Throughput ratio ipm / ipopt: **4.00x**" in text
+    assert "| 1 | c | True / True | overtook / timeout | 1.000 / 1.000 | 6.00 / nan |" in text
+    assert "| 8 | 0.800 | 0.100 | 2.00 |" in text

@@ -1,4 +1,4 @@
-"""The fair baseline of `mcverify bench` (compiled, primal-dual warm-started IPOPT loop) and the
+"""The fair baseline of the engine benchmark (compiled, primal-dual warm-started IPOPT loop) and the
 solve-class bookkeeping."""
 
 from __future__ import annotations

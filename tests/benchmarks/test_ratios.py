@@ -1,4 +1,4 @@
-"""The ratio of two sums over stratified paired units (mcverify bench's speed-up) and its interval."""
+"""The ratio of two sums over stratified paired units (the engine benchmark's speed-up) and its interval."""
 
 from __future__ import annotations
 
@@ -52,7 +52,7 @@ def test_bad_input_is_refused(bad):
 @pytest.mark.parametrize(("per_cell", "spread", "least"), [(2, 0.5, 0.88), (4, 0.5, 0.88), (8, 0.5, 0.90),
                                                            (4, 1.0, 0.84)])
 def test_coverage_on_benchmark_like_data(per_cell, spread, least):
-    """Three cells of paired lognormal costs with known expected sums, like `mcverify bench`'s mix
+    """Three cells of paired lognormal costs with known expected sums, like the engine benchmark's mix
     (heavy and light cells, a different speed-up in each); 2,000 repetitions. The 95 % interval
     holds the true ratio at least ``least`` of the time (measured: 0.90, 0.92, 0.93, 0.87; a
     stratified percentile bootstrap, 1,000 resamples, gave 0.66, 0.85, 0.90, 0.84 on the first 1,000

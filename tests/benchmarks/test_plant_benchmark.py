@@ -1,4 +1,4 @@
-"""`mcverify bench-plant`: the scanned, vmapped rollout is the engine's plant, and the command's contracts."""
+"""`python -m benchmarks.plant`: the scanned, vmapped rollout is the engine's plant, and the command's contracts."""
 
 from __future__ import annotations
 
