@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import jax
 import jax.monitoring as monitoring
-from benchmarks.solver import stub_planner
 
+from benchmarks.solver import stub_planner
 from mcverify.campaign.spec import campaign_from_dict
 from mcverify.episode.rollout import run_episodes
 from mcverify.sim import plant
