@@ -31,8 +31,8 @@ SIMULATION_PARTS = (
 )
 #: Parts that only read, present or measure stored rows; editing them never refuses a resume.
 PRESENTATION_PARTS = (
-    "__init__.py", "api.py", "cli.py", "errors.py", "fields.py", "provenance.py", "store.py",
-    "analysis", "reporting", "bench",
+    "__init__.py", "api.py", "errors.py", "fields.py", "provenance.py", "store.py",
+    "analysis", "cli", "reporting",
     # falsify chooses candidates but simulates nothing itself; a resumed search re-checks that the
     # candidates it asks equal those its generation folders recorded (falsify.search._check_same).
     "falsify",

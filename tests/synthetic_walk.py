@@ -1,5 +1,5 @@
-"""The calibration random walk lives in mcverify.estimate.synthetic (the benchmark uses it too)."""
+"""The calibration random walk lives in benchmarks.walk (the rare-event benchmark uses it too)."""
 
-from mcverify.estimate.synthetic import Walk, WalkPath
+from benchmarks.walk import Walk, WalkPath
 
 __all__ = ["Walk", "WalkPath"]

@@ -25,7 +25,16 @@ def test_kernels_without_an_action_prints_the_kernels_help(capsys):
     out = capsys.readouterr().out
     assert out.startswith("usage: mcverify kernels")
     assert "list" in out and "clear" in out
-    assert "bench-solver" not in out, "the top-level help, not the kernels one"
+    assert "estimate" not in out, "the top-level help, not the kernels one"
+
+
+def test_the_user_commands_and_no_benchmark(capsys):
+    """The benchmarks are ``python -m benchmarks.NAME``, not commands of the installed tool."""
+    assert cli.main(["--help"]) == 0
+    out = capsys.readouterr().out
+    for command in ("run", "estimate", "replay", "report", "compare", "falsify", "fields", "kernels"):
+        assert f"\n    {command} " in out
+    assert "bench" not in out
 
 
 @pytest.mark.parametrize("sig, code, word", [(signal.SIGTERM, 143, "terminated (SIGTERM)"),

@@ -3,12 +3,10 @@ the folders that are not runs, each now one clear line (exit 2) or a report that
 
 from __future__ import annotations
 
-import pytest
 import synthetic
 
 from mcverify import cli
-from mcverify.errors import RunError
-from mcverify.falsify import bench, search
+from mcverify.falsify import search
 from tests.falsify import fake_episodes
 from tests.test_command_line_mistakes import CAMPAIGN, _one_error_line
 
@@ -17,49 +15,6 @@ def _kw():
     from mcverify.campaign import executors  # noqa: PLC0415
 
     return {"make_executor": executors.SerialExecutor, "episode_fn": fake_episodes.episodes}
-
-
-def test_bench_falsify_refuses_trial_folders_of_another_search(tmp_path):
-    f = tmp_path / "t.toml"
-    f.write_text(CAMPAIGN)
-    first = bench.run_trials([f], ["random"], 1, 4, 0, tmp_path / "b", **_kw())
-    assert bench.run_trials([f], ["random"], 1, 4, 0, tmp_path / "b", **_kw()) == first  # the same search: re-read
-    with pytest.raises(RunError, match=r"holds a trial of another search \(budget 4, not 8\); give another --out-dir"):
-        bench.run_trials([f], ["random"], 1, 8, 0, tmp_path / "b", **_kw())
-    with pytest.raises(RunError, match="another campaign content or --set"):
-        bench.run_trials([f], ["random"], 1, 4, 0, tmp_path / "b", settings=["noise.scale=2"], **_kw())
-
-
-def test_bench_falsify_checks_every_target_before_the_first_trial(tmp_path, capsys):
-    good, plain = tmp_path / "good.toml", tmp_path / "plain.toml"
-    good.write_text(CAMPAIGN)
-    plain.write_text('[campaign]\nname = "p"\nseed = 1\nepisodes = 1\n')
-    code = cli.main(["bench-falsify", str(good), str(plain), "--methods", "random", "--trials", "1", "--budget", "4",
-                     "--no-write", "--out-dir", str(tmp_path / "b")])
-    assert code == 2 and "plain.toml: no [falsify] table" in _one_error_line(capsys.readouterr().err)
-    assert not (tmp_path / "b").exists(), "nothing ran: the bad target was found first"
-
-
-def test_bench_plant_refuses_backends_it_cannot_measure(tmp_path, capsys, monkeypatch):
-    monkeypatch.chdir(tmp_path)
-    assert cli.main(["bench-plant", "--platforms", "cpuu"]) == 2
-    assert "unknown backend cpuu; known: cpu, gpu" in _one_error_line(capsys.readouterr().err)
-    from mcverify.bench import plant_scaling  # noqa: PLC0415
-
-    monkeypatch.setattr(plant_scaling, "run", lambda *a, **k: [])  # as on a machine without the backend
-    assert cli.main(["bench-plant", "--platforms", "gpu"]) == 2
-    assert "nothing was measured and results/BENCHMARKS.md was left as it was" in capsys.readouterr().err
-    assert not (tmp_path / "results").exists()
-
-
-@pytest.mark.parametrize(("options", "fragment"), [
-    (["--particles", "1"], "--particles must be at least 2 (got 1)"),
-    (["--barrier", "-1", "--reference-episodes", "100"], "--barrier -1: 99 of 100 reference walks reached it"),
-    (["--barrier", "60", "--reference-episodes", "100"], "--barrier 60: none of the 100 reference walks reached it"),
-])
-def test_bench_rare_bad_options_are_one_line(capsys, options, fragment):
-    assert cli.main(["bench-rare", "--no-write", "--repetitions", "1", "--replicates", "2", *options]) == 2
-    assert fragment in _one_error_line(capsys.readouterr().err)
 
 
 def test_the_serial_executor_refuses_workers(tmp_path, capsys):

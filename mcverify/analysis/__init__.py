@@ -2,7 +2,6 @@
 
 :mod:`~mcverify.analysis.stats` is the statistics API (rates with confidence intervals, comparisons
 of cells, bootstrap intervals), implemented in :mod:`~mcverify.analysis.intervals`,
-:mod:`~mcverify.analysis.comparisons`, :mod:`~mcverify.analysis.bootstrap` and
-:mod:`~mcverify.analysis.ratios`;
+:mod:`~mcverify.analysis.comparisons` and :mod:`~mcverify.analysis.bootstrap`;
 :mod:`~mcverify.analysis.summary` turns a run's episode rows into its per-cell summary.
 """

@@ -8,13 +8,11 @@ Comparisons of two cells: Newcombe's hybrid score interval for p1 - p2 (method 1
 with Fisher's or Boschloo's exact test for independent cells, and for paired episodes (the same
 seeds run under two configurations) Newcombe's method 10 for paired data [New98b] with the exact
 McNemar test; differences of means (e.g. of minimum distances) by a paired or unpaired
-percentile bootstrap (:func:`bootstrap_mean_difference`). A ratio of two sums over stratified
-paired units (a benchmark's speed-up over a mix of cells): :func:`ratio_of_sums_interval` [Coc77].
+percentile bootstrap (:func:`bootstrap_mean_difference`).
 
 This module is the statistics API the rest of the package uses; the code lives in
 :mod:`mcverify.analysis.intervals` (one proportion), :mod:`mcverify.analysis.comparisons` (two
-cells), :mod:`mcverify.analysis.bootstrap` (continuous values, quantiles) and
-:mod:`mcverify.analysis.ratios` (a ratio of sums).
+cells) and :mod:`mcverify.analysis.bootstrap` (continuous values, quantiles).
 
 References:
     [CP34] Clopper, C. J. & Pearson, E. S. (1934). The use of confidence or fiducial limits
@@ -33,7 +31,6 @@ References:
         proportions or percentages. Psychometrika 12(2), 153-157.
     [ET93] Efron, B. & Tibshirani, R. J. (1993). An Introduction to the Bootstrap, ch. 13
         (percentile intervals). Chapman & Hall.
-    [Coc77] Cochran, W. G. (1977). Sampling Techniques, 3rd ed., ch. 6 (ratio estimators). Wiley.
 """
 
 from __future__ import annotations
@@ -62,7 +59,6 @@ from mcverify.analysis.intervals import (
     wilson_arrays,
     zero_event_upper_bound,
 )
-from mcverify.analysis.ratios import ratio_of_sums_interval
 
 __all__ = [
     "PROPORTION_METHODS",
@@ -81,7 +77,6 @@ __all__ = [
     "quantile_key",
     "quantiles",
     "rate_summary",
-    "ratio_of_sums_interval",
     "wilson_arrays",
     "zero_event_upper_bound",
 ]

@@ -13,23 +13,38 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+from mcverify import store
+from mcverify.analysis import robustness as rb
+from mcverify.reporting import counterexample_report
+from mcverify.reporting import html as report_html
+from mcverify.reporting.figure_common import subplots
+from mcverify.reporting.run_figures import FigureResult
+from mcverify.reporting.tables import fmt_num, to_markdown
 
-from mcverify import store  # noqa: E402
-from mcverify.analysis import robustness as rb  # noqa: E402
-from mcverify.reporting import counterexample_report  # noqa: E402
-from mcverify.reporting import html as report_html  # noqa: E402
-from mcverify.reporting.run_figures import FigureResult  # noqa: E402
-from mcverify.reporting.tables import fmt_num, to_markdown  # noqa: E402
 
-if TYPE_CHECKING:
-    from mcverify.falsify.search import SearchResult
+class SearchResult(Protocol):
+    """What the report reads of a finished search (:class:`mcverify.falsify.search.SearchResult`),
+    declared here so that the report does not import the search that writes it (no import cycle)."""
+
+    @property
+    def out_dir(self) -> Path: ...
+    @property
+    def config(self) -> Any: ...  # SearchConfig: method, budget, seed, requirement, source
+    @property
+    def space(self) -> Any: ...  # SearchSpace: population, stop_at_first, guide, common_noise, describe()
+    @property
+    def evaluations(self) -> Sequence[Any]: ...
+    @property
+    def episodes(self) -> int: ...
+    @property
+    def min_robustness(self) -> float: ...
+    @property
+    def first_counterexample(self) -> int | None: ...
+    def first_counterexample_text(self) -> str | None: ...
 
 REPORT = "report.md"
 HTML = "report.html"
@@ -41,7 +56,7 @@ ROBUSTNESS_CAPTION = ("Each episode's robustness (dots) and the smallest so far 
 def robustness_curves(curves: Mapping[str, Sequence[float]], path: Path, requirement: str) -> None:
     """Robustness against episodes: one marker per episode and the running minimum, per method.
     The vertical axis is symmetric-log so that margins of metres and of hundredths both show."""
-    fig, ax = plt.subplots(figsize=(7.0, 3.6), dpi=150)
+    fig, ax = subplots(figsize=(7.0, 3.6), dpi=150)
     for k, (label, values) in enumerate(curves.items()):
         y = np.asarray(values, dtype=float)
         x = np.arange(1, y.size + 1)
@@ -57,7 +72,6 @@ def robustness_curves(curves: Mapping[str, Sequence[float]], path: Path, require
     ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, metadata={"Software": None})
-    plt.close(fig)
 
 
 def _label_symlog_axis(ax: Any, most: int = 9) -> None:

@@ -14,15 +14,13 @@ from pathlib import Path
 from typing import Any
 
 import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
+from matplotlib.patches import Rectangle
+from matplotlib.ticker import MaxNLocator
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.patches import Rectangle  # noqa: E402
-from matplotlib.ticker import MaxNLocator  # noqa: E402
-
-from mcverify.reporting.figure_common import MAX_PANELS, inches, panel_grid, save  # noqa: E402
-from mcverify.reporting.tables import fmt_p  # noqa: E402
+from mcverify.reporting.figure_common import MAX_PANELS, inches, panel_grid, save, subplots
+from mcverify.reporting.tables import fmt_p
 
 #: Outline and label colour of a cell with at least one unsafe episode.
 UNSAFE = "crimson"
@@ -36,7 +34,7 @@ def unsafe_cell(cell: Mapping[str, Any]) -> bool:
     return bool(r and r["n"] and r["k"] < r["n"])
 
 
-def _unsafe_legend(fig: plt.Figure, cells: Sequence[Mapping[str, Any]], text: str) -> None:
+def _unsafe_legend(fig: Figure, cells: Sequence[Mapping[str, Any]], text: str) -> None:
     """A legend line at the figure's foot for the cells drawn as unsafe (none if none is)."""
     n = sum(unsafe_cell(c) for c in cells)
     if n:
@@ -49,7 +47,7 @@ def rates_per_cell(cells: Sequence[Mapping[str, Any]], path: Path) -> dict[str, 
     (points and bars). Right: the share of each outcome per cell, with the counts."""
     n = len(cells)
     height = min(0.32 * n + 1.8, 0.32 * MAX_PANELS + 1.8)
-    fig, (ax, ax2) = plt.subplots(1, 2, figsize=inches(12, height), sharey=True, gridspec_kw={"width_ratios": [1.3, 1]})
+    fig, (ax, ax2) = subplots(1, 2, figsize=inches(12, height), sharey=True, gridspec_kw={"width_ratios": [1.3, 1]})
     y = np.arange(n)
     metrics = (("safe", "tab:green", -0.2), ("collision", "tab:red", 0.0), ("ellipse_violation", "tab:purple", 0.2))
     for name, colour, dy in metrics:
@@ -106,9 +104,9 @@ def rate_vs_axis(
     """One panel per ``(metric, title)``: the rate against ``x_values`` (one per cell), one line per
     group label (``groups``, one per cell), each with its two-sided interval as a band; zero-event
     points show the exact one-sided upper bound as a marker."""
-    fig, axes = plt.subplots(1, len(metrics), figsize=inches(6 * len(metrics), 4.2), squeeze=False)
+    fig, axes = subplots(1, len(metrics), figsize=inches(6 * len(metrics), 4.2), squeeze=False)
     xs, gs = np.asarray(x_values, dtype=float), list(groups)
-    colours = plt.get_cmap("tab10")
+    colours = matplotlib.colormaps.get_cmap("tab10")
     for ax, (metric, title) in zip(axes[0], metrics, strict=True):
         for gi, group in enumerate(dict.fromkeys(gs)):
             idx = [i for i, g in enumerate(gs) if g == group and cells[i]["rates"].get(metric, {}).get("n")]
@@ -150,9 +148,9 @@ def estimate_vs_axis(
     ``x_values``, one line per group, with its interval as error bars on a log scale; a cell whose
     estimate is 0 shows its upper end as ▼ (a bound, not an estimate). Serves crude Monte Carlo
     (``summary.json`` ``estimates``) and the splitting and importance folders alike."""
-    fig, ax = plt.subplots(figsize=inches(7, 4.4))
+    fig, ax = subplots(figsize=inches(7, 4.4))
     xs, gs = np.asarray(x_values, dtype=float), list(groups)
-    colours = plt.get_cmap("tab10")
+    colours = matplotlib.colormaps.get_cmap("tab10")
     lowest = 1.0
     for gi, group in enumerate(dict.fromkeys(gs)):
         idx = sorted((i for i, g in enumerate(gs) if g == group and _finite(estimates[i].get("estimate"))),
@@ -212,7 +210,7 @@ def rate_heatmap(
     placed by their labels; ``tick_labels`` (rows, columns) are the texts shown for them."""
     grid = np.full((len(row_labels), len(col_labels)), np.nan)
     size = inches(max(5.0, 1.9 * len(col_labels) + 2.5), max(3.0, 0.75 * len(row_labels) + 1.6))
-    fig, ax = plt.subplots(figsize=size)
+    fig, ax = subplots(figsize=size)
     for c in cells:
         lab = c["labels"]
         if lab.get(row_axis) not in row_labels or lab.get(col_axis) not in col_labels:
@@ -235,7 +233,7 @@ def rate_heatmap(
         if unsafe_cell(c):  # black, not red: it must show on the red end of the colour map too
             ax.add_patch(Rectangle((j - 0.46, i - 0.46), 0.92, 0.92, fill=False, edgecolor="black", lw=2.5, zorder=3))
             ax.text(j - 0.42, i - 0.40, "⚠", ha="left", va="top", fontsize=10, color="black", zorder=4)
-    cmap = plt.get_cmap("RdYlGn" if higher_is_better else "RdYlGn_r").with_extremes(bad="white")
+    cmap = matplotlib.colormaps.get_cmap("RdYlGn" if higher_is_better else "RdYlGn_r").with_extremes(bad="white")
     im = ax.imshow(np.ma.masked_invalid(grid), cmap=cmap, vmin=0.0, vmax=1.0, aspect="auto")
     ax.set_xticks(range(len(col_labels)), tick_labels[1] if tick_labels else col_labels, fontsize=8)
     ax.set_yticks(range(len(row_labels)), tick_labels[0] if tick_labels else row_labels, fontsize=8)

@@ -15,16 +15,14 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-import matplotlib
+import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from mcverify.reporting import road_panels, unsafe_event  # noqa: E402
-from mcverify.reporting.figure_common import column, inches, panel_grid, params_dict, save  # noqa: E402
-from mcverify.reporting.road_panels import EGO, FRONT, OPP, Q1_COLOUR, Q2_COLOUR, UNSAFE  # noqa: E402
-from mcverify.reporting.unsafe_event import UnsafeEvent  # noqa: E402
+from mcverify.reporting import road_panels, unsafe_event
+from mcverify.reporting.figure_common import column, inches, panel_grid, params_dict, save
+from mcverify.reporting.road_panels import EGO, FRONT, OPP, Q1_COLOUR, Q2_COLOUR, UNSAFE
+from mcverify.reporting.unsafe_event import UnsafeEvent
 
 #: Background colour per ``active_problem`` code (decision.Source): Q1, Q2, fallback, held MPC-DC plan.
 _PROBLEM_COLOURS = {1: Q1_COLOUR, 2: Q2_COLOUR, 3: "tab:red", 4: "tab:purple"}
@@ -67,7 +65,7 @@ def _with_event(times: list[float], event: UnsafeEvent | None) -> list[tuple[flo
 
 def _road_stack(fig_height_extra_in: float, traj: Trajectory, plans: Mapping[str, np.ndarray] | None,
                 p: Mapping[str, Any], times: list[float], event: UnsafeEvent | None, *, bottom_in: float = 0.45,
-                ) -> tuple[plt.Figure, list[plt.Axes], float]:
+                ) -> tuple[Figure, list[Axes], float]:
     """A figure whose top holds one road panel per moment (equal scale, one window width), with
     ``fig_height_extra_in`` inches left free below them; returns the figure, the road axes and the
     free height's top in figure coordinates."""
@@ -77,7 +75,7 @@ def _road_stack(fig_height_extra_in: float, traj: Trajectory, plans: Mapping[str
     panel_h = road_panels.panel_height_in(p, width, _ROAD_WIDTH_IN)
     roads_in = panel_h * len(moments)
     height = header_in + roads_in + bottom_in + fig_height_extra_in
-    fig = plt.figure(figsize=inches(_ROAD_WIDTH_IN, height))
+    fig = Figure(figsize=inches(_ROAD_WIDTH_IN, height))
     top = 1 - header_in / height
     road_bottom = (fig_height_extra_in + bottom_in) / height
     grid = fig.add_gridspec(len(moments), 1, left=0.05, right=0.99, top=top, bottom=road_bottom, hspace=0.35)
@@ -118,7 +116,7 @@ def snapshots(
     return save(fig, path)
 
 
-def _shade_problems(ax: plt.Axes, t: np.ndarray, problem: np.ndarray | None) -> None:
+def _shade_problems(ax: Axes, t: np.ndarray, problem: np.ndarray | None) -> None:
     """Background colour per active problem: Q1 green, Q2 orange, fallback red, held plan purple."""
     if problem is None or len(t) == 0:
         return
@@ -132,7 +130,7 @@ def _shade_problems(ax: plt.Axes, t: np.ndarray, problem: np.ndarray | None) -> 
 
 
 def barrier_panel(
-    ax: plt.Axes, traj: Trajectory, level: float, *, opp: bool = False, clip: float | None = None
+    ax: Axes, traj: Trajectory, level: float, *, opp: bool = False, clip: float | None = None
 ) -> None:
     """h_ef(t) (or h_eo(t) with ``opp``) along the true trajectory against its level and 0."""
     t = np.asarray(traj["t_s"], dtype=float)
@@ -156,7 +154,7 @@ def barrier_panel(
     ax.tick_params(labelsize=7)
 
 
-def mark_event(ax: plt.Axes, event: UnsafeEvent, *, text: bool = True) -> None:
+def mark_event(ax: Axes, event: UnsafeEvent, *, text: bool = True) -> None:
     """A red vertical line at the first unsafe moment (s), its cause written beside it."""
     ax.axvline(event.t_s, color=UNSAFE, lw=1.2, label="first unsafe moment")
     if text:
@@ -165,7 +163,7 @@ def mark_event(ax: plt.Axes, event: UnsafeEvent, *, text: bool = True) -> None:
                 bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none", "pad": 1.0})
 
 
-def speed_panel(ax: plt.Axes, traj: Trajectory, speed_limit_mps: float | None) -> None:
+def speed_panel(ax: Axes, traj: Trajectory, speed_limit_mps: float | None) -> None:
     """Speeds of the ego, front and opposing vehicles (those stored), the measured front speed
     (what the planner saw) faintly, and the ego speed limit."""
     t = np.asarray(traj["t_s"], dtype=float)

@@ -1,6 +1,8 @@
 """What every figure of a run shares: fixed pixel sizes, byte-stable PNGs, stored-data loading.
 
-Figures are drawn with matplotlib on the Agg backend (files only). Every figure has a fixed size in
+Figures are drawn with matplotlib as :class:`matplotlib.figure.Figure` objects saved to files
+(:func:`subplots`, :func:`save`): never through pyplot, so drawing neither needs nor changes
+matplotlib's global backend, and importing this package touches no global state. Every figure has a fixed size in
 pixels (``figsize`` x :data:`DPI`, no tight bounding box) and is saved without the matplotlib
 version in the PNG metadata, so the same data give the same bytes. Each drawing function returns
 :func:`artist_counts` of what it drew (through :func:`save`), for tests and the report.
@@ -20,14 +22,13 @@ from pathlib import Path
 from typing import Any
 
 import matplotlib
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pyarrow as pa  # noqa: E402
-import pyarrow.parquet as pq  # noqa: E402
-
-from mcverify.model import ModelParams  # noqa: E402
+from mcverify.model import ModelParams
 
 #: Dots per inch of every figure: pixel size = figsize * DPI.
 DPI = 100
@@ -95,7 +96,7 @@ def column(data: Mapping[str, np.ndarray] | None, name: str) -> np.ndarray | Non
 # --------------------------------------------------------------------------------------- saving
 
 
-def artist_counts(fig: plt.Figure) -> dict[str, int]:
+def artist_counts(fig: Figure) -> dict[str, int]:
     """How much was drawn: axes, lines, patches, collections, images and texts over all axes."""
     counts = {"axes": 0, "lines": 0, "patches": 0, "collections": 0, "images": 0, "texts": 0}
     for ax in fig.axes:
@@ -143,9 +144,9 @@ def export_paths(path: Path, formats: Sequence[str], dpi: int) -> list[Path]:
     return out
 
 
-def save(fig: plt.Figure, path: Path) -> dict[str, int]:
+def save(fig: Figure, path: Path) -> dict[str, int]:
     """Write ``fig`` as PNG at :data:`DPI` with fixed metadata (and the formats of :func:`exporting`),
-    close it, return its artist counts and its size in pixels (``width_px``, ``height_px``, as the PNG
+    return its artist counts and its size in pixels (``width_px``, ``height_px``, as the PNG
     has them)."""
     counts = artist_counts(fig)
     counts["width_px"], counts["height_px"] = (int(x * DPI) for x in fig.get_size_inches())  # Agg truncates
@@ -156,17 +157,24 @@ def save(fig: plt.Figure, path: Path) -> dict[str, int]:
     for extra in export_paths(path, formats, dpi):
         fmt = extra.suffix[1:]
         if fmt == "svg":
-            plt.rcParams["svg.hashsalt"] = "mcverify"  # fixed element ids: the same bytes every time
+            matplotlib.rcParams["svg.hashsalt"] = "mcverify"  # fixed element ids: the same bytes every time
         fig.savefig(extra, dpi=dpi, format=fmt, metadata=_EXPORT_METADATA[fmt])
-    plt.close(fig)
     return counts
 
 
-def panel_grid(n: int, ncols: int, panel_w: float, panel_h: float, **kw) -> tuple[plt.Figure, list[plt.Axes]]:
+def subplots(nrows: int = 1, ncols: int = 1, *, figsize: tuple[float, float], dpi: float | None = None,
+             **kw: Any) -> tuple[Figure, Any]:
+    """A new figure and its axes, as ``pyplot.subplots`` makes them but outside pyplot: the figure
+    is saved by its own canvas (Agg for PNG) and nothing global is registered or switched."""
+    fig = Figure(figsize=figsize, dpi=dpi)
+    return fig, fig.subplots(nrows, ncols, **kw)
+
+
+def panel_grid(n: int, ncols: int, panel_w: float, panel_h: float, **kw) -> tuple[Figure, list[Axes]]:
     """``n`` panels of ``panel_w`` x ``panel_h`` inches in rows of ``ncols`` (the unused axes removed)."""
     ncols = max(1, min(ncols, n))
     nrows = math.ceil(n / ncols)
-    fig, axes = plt.subplots(nrows, ncols, figsize=inches(panel_w * ncols, panel_h * nrows + 0.6), squeeze=False, **kw)
+    fig, axes = subplots(nrows, ncols, figsize=inches(panel_w * ncols, panel_h * nrows + 0.6), squeeze=False, **kw)
     flat = list(axes.ravel())
     for ax in flat[n:]:
         ax.remove()

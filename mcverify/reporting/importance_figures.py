@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 from scipy import stats as sps
 
-from mcverify.reporting.figure_common import plt, save
+from mcverify.reporting.figure_common import save, subplots
 
 #: Points on each density curve.
 CURVE_POINTS = 400
@@ -56,7 +56,7 @@ def draw_importance_cell(path: Path, title: str, names: Sequence[str], bounds: S
     theta = np.asarray(theta, dtype=float).reshape(-1, len(names))
     failed = np.asarray(failed, dtype=bool)
     width_in = max(6.0, 4.2 * len(names))
-    fig, axes = plt.subplots(1, len(names), figsize=(width_in, 3.4), squeeze=False)
+    fig, axes = subplots(1, len(names), figsize=(width_in, 3.4), squeeze=False)
     for j, (ax, name, (low, high)) in enumerate(zip(axes[0], names, bounds, strict=True)):
 
         def densities(x: np.ndarray, j: int = j, low: float = low, high: float = high) -> tuple[np.ndarray, np.ndarray]:

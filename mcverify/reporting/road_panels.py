@@ -17,15 +17,13 @@ import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-import matplotlib
+import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.lines import Line2D
+from matplotlib.patches import Ellipse, Polygon
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.patches import Ellipse, Polygon  # noqa: E402
-
-from mcverify.reporting.figure_common import column  # noqa: E402
-from mcverify.reporting.unsafe_event import UnsafeEvent  # noqa: E402
+from mcverify.reporting.figure_common import column
+from mcverify.reporting.unsafe_event import UnsafeEvent
 
 EGO, FRONT, OPP = "tab:green", "tab:red", "tab:blue"
 Q1_COLOUR, Q2_COLOUR = "tab:green", "tab:orange"
@@ -45,7 +43,7 @@ def index_at(t: np.ndarray, when: float) -> int:
     return int(np.clip(np.searchsorted(t, when, side="right") - 1, 0, len(t) - 1))
 
 
-def box(ax: plt.Axes, x: float, y: float, psi: float, p: Mapping[str, Any], colour: str, *, name: str = "",
+def box(ax: Axes, x: float, y: float, psi: float, p: Mapping[str, Any], colour: str, *, name: str = "",
         alpha: float = 0.65, zorder: int = 4, outline: bool = False) -> None:
     """The vehicle's footprint: a ``length_m`` x ``width_m`` rectangle centred at (x, y) (m),
     turned by ``psi`` (rad), with ``name`` written on it; ``outline``: a dotted outline only (where
@@ -64,7 +62,7 @@ def box(ax: plt.Axes, x: float, y: float, psi: float, p: Mapping[str, Any], colo
                 zorder=7, clip_on=True)  # above the plans' dots
 
 
-def road(ax: plt.Axes, p: Mapping[str, Any], *, y_low_m: float | None = None, y_high_m: float | None = None) -> None:
+def road(ax: Axes, p: Mapping[str, Any], *, y_low_m: float | None = None, y_high_m: float | None = None) -> None:
     """The ego lane (y = 0 at its centre) and the opposing lane above, the lane line dashed; the
     view spans both lanes, widened to ``y_low_m`` / ``y_high_m`` (e.g. the ellipse's extent)."""
     lane = p["road"]["lane_width_m"]
@@ -115,7 +113,7 @@ def panel_height_in(p: Mapping[str, Any], width_m: float, width_in: float) -> fl
     return 0.94 * width_in * span_m / width_m + 0.42
 
 
-def road_panel(ax: plt.Axes, traj: Trajectory, plans: Mapping[str, np.ndarray] | None, p: Mapping[str, Any],
+def road_panel(ax: Axes, traj: Trajectory, plans: Mapping[str, np.ndarray] | None, p: Mapping[str, Any],
                when: float, x0: float, width_m: float, *, event: UnsafeEvent | None = None) -> None:
     """The road at time ``when`` (s) in the window [x0, x0 + width_m] (m); ``event`` marks the
     first unsafe moment when this panel shows it (see the module docstring)."""
@@ -158,7 +156,7 @@ def road_panel(ax: plt.Axes, traj: Trajectory, plans: Mapping[str, np.ndarray] |
     ax.set_yticks([0.0, lane])
 
 
-def _plans(ax: plt.Axes, plans: Mapping[str, np.ndarray], when: float, lane: float) -> None:
+def _plans(ax: Axes, plans: Mapping[str, np.ndarray], when: float, lane: float) -> None:
     problems = plans.get("problem")
     for name, colour in (("Q1", Q1_COLOUR), ("Q2", Q2_COLOUR)):
         sel = plans["t_s"] == when
@@ -174,7 +172,7 @@ def _plans(ax: plt.Axes, plans: Mapping[str, np.ndarray], when: float, lane: flo
                     zorder=6)
 
 
-def _mark(ax: plt.Axes, traj: Trajectory, event: UnsafeEvent, opp_x, opp_y, lane: float) -> None:
+def _mark(ax: Axes, traj: Trajectory, event: UnsafeEvent, opp_x, opp_y, lane: float) -> None:
     """Red frame, a cross where it happened (the ego c.g. for the ellipse, midway to the other
     vehicle for a collision) and the cause written in."""
     k = event.index
@@ -196,26 +194,26 @@ def _mark(ax: plt.Axes, traj: Trajectory, event: UnsafeEvent, opp_x, opp_y, lane
 
 
 def legend_handles(traj: Trajectory, plans: Mapping[str, np.ndarray] | None,
-                   event: UnsafeEvent | None) -> list[plt.Line2D]:
+                   event: UnsafeEvent | None) -> list[Line2D]:
     """One legend entry per thing :func:`road_panel` draws for this episode."""
     box_kw = {"marker": "s", "ls": "", "ms": 9, "alpha": 0.65, "mec": "black", "mew": 0.4}
     handles = [
-        plt.Line2D([], [], color=EGO, label="ego", **box_kw),
-        plt.Line2D([], [], color=FRONT, label="veh_f (front)", **box_kw),
-        plt.Line2D([], [], color=FRONT, ls="--", label="safety ellipse h_ef = 0"),
+        Line2D([], [], color=EGO, label="ego", **box_kw),
+        Line2D([], [], color=FRONT, label="veh_f (front)", **box_kw),
+        Line2D([], [], color=FRONT, ls="--", label="safety ellipse h_ef = 0"),
     ]
     if column(traj, "meas_front_x_m") is not None:
-        handles.append(plt.Line2D([], [], color=FRONT, marker="s", ls="", ms=9, mfc="none", mec=FRONT,
+        handles.append(Line2D([], [], color=FRONT, marker="s", ls="", ms=9, mfc="none", mec=FRONT,
                                   label="veh_f as measured"))
     if column(traj, "opp_x_m") is not None:
-        handles.append(plt.Line2D([], [], color=OPP, label="veh_o (opposing)", **box_kw))
-    handles.append(plt.Line2D([], [], color="black", label="ego path"))
+        handles.append(Line2D([], [], color=OPP, label="veh_o (opposing)", **box_kw))
+    handles.append(Line2D([], [], color="black", label="ego path"))
     if column(plans, "t_s") is not None:
         kinds = set(np.asarray(plans["problem"]).tolist()) if "problem" in plans else {"Q1", "Q2"}
-        handles += [plt.Line2D([], [], color=colour, marker=".", ls="", label=label) for name, colour, label in
+        handles += [Line2D([], [], color=colour, marker=".", ls="", label=label) for name, colour, label in
                     (("Q1", Q1_COLOUR, "Q1 plan (overtake)"), ("Q2", Q2_COLOUR, "Q2 plan (go back)")) if name in kinds]
         if column(plans, "opp_x_m") is not None:
-            handles.append(plt.Line2D([], [], color=OPP, marker=".", ls="", label="veh_o predicted"))
+            handles.append(Line2D([], [], color=OPP, marker=".", ls="", label="veh_o predicted"))
     if event is not None:
-        handles.append(plt.Line2D([], [], color=UNSAFE, marker="X", ls="", ms=8, label="first unsafe moment"))
+        handles.append(Line2D([], [], color=UNSAFE, marker="X", ls="", ms=8, label="first unsafe moment"))
     return handles

@@ -76,7 +76,7 @@ class _CertifiedInfeasibleSolver:
     failing_direction = -1  # the certified infeasible problem: Q2 (-1) or Q1 (+1)
 
     def __init__(self, params, structure):
-        from mcverify.bench.solver_bench import StubSolver
+        from benchmarks.solver import StubSolver
 
         self.structure = structure
         self.ok = StubSolver(params, structure)._sol

@@ -6,7 +6,7 @@ from __future__ import annotations
 import jax
 import jax.monitoring as monitoring
 
-from mcverify.bench.solver_bench import stub_planner
+from benchmarks.solver import stub_planner
 from mcverify.campaign.spec import campaign_from_dict
 from mcverify.episode.rollout import run_episodes
 from mcverify.sim import plant

@@ -187,58 +187,6 @@ def test_a_search_that_finds_nothing_reports_its_minimum(tmp_path):
     assert "none found within 8 episodes" in page and "No episode violated <code>" in page
 
 
-def test_bench_trials_and_section(tmp_path):
-    from mcverify.falsify import bench  # noqa: PLC0415
-
-    f = tmp_path / "t.toml"
-    f.write_text('[campaign]\nname = "t"\nseed = 5\nepisodes = 1\n[falsify]\nrequirement = "ellipse"\npopulation = 4\n'
-                 '[falsify.bounds]\n"scenario.front_speed_mps" = [5.0, 9.0]\n"opposing.speed_mps" = [8.0, 19.0]\n')
-    trials = bench.run_trials([f], ["cma", "random"], 2, 8, 0, tmp_path / "b", **_kw())
-    assert [(t.method, t.seed) for t in trials] == [("cma", 0), ("cma", 1), ("random", 0), ("random", 1)]
-    assert all(t.first_counterexample is None or t.first_counterexample <= t.episodes <= 8 for t in trials)
-    again = bench.run_trials([f], ["cma", "random"], 2, 8, 0, tmp_path / "b", **_kw())  # re-read, not re-run
-    assert again == trials
-    text = bench.section(trials, budget=8, command="mcverify bench-falsify t.toml")
-    assert text.count("| t | ") == 2 and bench.BEGIN_MARK in text
-    md = tmp_path / "B.md"
-    md.write_text("# Benchmarks\n\nintro\n")
-    bench.write_section(md, text)
-    bench.write_section(md, text)
-    assert md.read_text().count(bench.BEGIN_MARK) == 1 and "intro" in md.read_text()
-    assert bench.draw_curves(trials, tmp_path / "b")[0].is_file()
-
-
-def _trials(method: str, firsts: list[int | None], budget: int = 100) -> list:
-    from mcverify.falsify import bench  # noqa: PLC0415
-
-    return [bench.Trial("t", method, seed, budget if f is None else f, f, -1.0 if f else 0.5)
-            for seed, f in enumerate(firsts)]
-
-
-def test_goal_verdict_reads_rarity_and_the_goal_from_the_trials():
-    """Issue 16's goal: rare when random search's median (failures beyond the budget) is >= 50; met when a
-    method succeeds in >= 90 % of its trials with a median <= a tenth of random's."""
-    from mcverify.falsify import bench  # noqa: PLC0415
-
-    common = _trials("random", [3, 5, 9, None]) + _trials("cma", [1, 2, 2, 4])
-    assert "not rare" in bench.goal_verdict(common, "t", 100)
-    rare = _trials("random", [60, 80, 90, None, 70, 75, 85, 65, 95, 55])  # median 77.5
-    met = rare + _trials("cma", [3, 4, 5, 6, 7, 7, 5, 4, 3, None])  # 9/10, median 5 <= 7.75
-    assert "cma met (9/10, median 5)" in bench.goal_verdict(met, "t", 100)
-    slow = rare + _trials("cma", [20] * 10)
-    assert "cma not met (10/10, median 20)" in bench.goal_verdict(slow, "t", 100)
-    unreliable = rare + _trials("cma", [1] * 8 + [None] * 2)
-    assert "cma not met (8/10" in bench.goal_verdict(unreliable, "t", 100)
-    # random fails in most trials: a tenth of its median is known only to exceed budget / 10
-    beyond = _trials("random", [None] * 9 + [20])
-    assert "median beyond the budget of 32" in bench.goal_verdict(beyond, "t", 32)
-    assert "cma met" in bench.goal_verdict(beyond + _trials("cma", [2, 3, 1, 2, 3, 2, 2, 1, 3, 2], 32), "t", 32)
-    assert "cma undecided" in bench.goal_verdict(beyond + _trials("cma", [9] * 10, 32), "t", 32)
-    assert "cma not met" in bench.goal_verdict(beyond + _trials("cma", [None] * 9 + [1], 32), "t", 32)
-    assert "no random-search trials" in bench.goal_verdict(_trials("cma", [1]), "t", 8)
-    assert "Issue 16's goal" in bench.section(met, budget=100, command="c")
-
-
 def test_piecewise_constant_offsets_are_searched_as_list_elements(tmp_path):
     """[falsify.bounds] "noise.opp_x_segments[0]" .. "[K-1]": each element is one coordinate; the
     candidate's cell gets the whole list (so the episode's inputs, and replay, have it)."""

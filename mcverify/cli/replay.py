@@ -1,0 +1,49 @@
+"""``mcverify replay``: re-simulate one stored episode and write its trajectory."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from mcverify.cli import options
+
+
+def add(sub, parents: list[argparse.ArgumentParser]) -> None:
+    p = sub.add_parser("replay", parents=parents, help="re-simulate one stored episode and write its trajectory")
+    p.add_argument("run_dir", type=Path,
+                   help="run folder (a search's generation folder, e.g. SEARCH/generations/g000, is one), or "
+                          "an importance-sampling or splitting estimate folder")
+    p.add_argument("episode_id", type=options.nonneg_int,
+                   help="the episode's id (column episode_id, from 0); in an importance-sampling estimate "
+                          "folder a final draw's cell_episode, in a splitting one a failing particle's place in "
+                          "the cell's failing_particles")
+    p.add_argument("--out", type=Path, help="folder for the trajectory and plot (default: RUN_DIR/replay)")
+    p.add_argument("--cell", metavar="NAME",
+                   help="estimate folders: the cell of the draw or particle (needed when the folder "
+                          "estimates several cells)")
+    p.set_defaults(handler="replay")
+
+
+def command(args) -> int:
+    from mcverify import api
+    from mcverify.campaign.replay import ReplayMismatch
+    from mcverify.estimate.replay import estimate_method
+
+    method = estimate_method(args.run_dir)
+    try:
+        res = api.replay(args.run_dir, args.episode_id, args.out, cell=args.cell)
+    except ReplayMismatch as err:
+        print(f"mcverify: replay FAILED: {err}", file=sys.stderr)
+        return options.EXIT_MISMATCH
+    if method == "splitting":
+        print(f"failing particle {res.episode_id} reproduced exactly (its running score at its last step) "
+              f"({res.row['outcome']}, safe={res.row['safe']})")
+    else:
+        kept = " (the values its estimate folder keeps)" if method else ""
+        print(f"episode {res.episode_id} reproduced exactly{kept} ({res.row['outcome']}, safe={res.row['safe']})")
+    if res.not_stored:
+        print(f"(not compared: {len(res.not_stored)} column(s) newer than the run: {', '.join(res.not_stored)})")
+    print(f"trajectory: {res.trajectory_path}")
+    print(f"plot: {res.plot_path}")
+    return 0
