@@ -345,8 +345,6 @@ def _parser() -> argparse.ArgumentParser:
     cmp.add_argument("run_a", type=Path)
     cmp.add_argument("run_b", type=Path)
     cmp.add_argument("--level", type=_level, default=0.95, help="confidence level of the intervals (default 0.95)")
-    cmp.add_argument("--test", choices=("fisher", "boschloo"), default="fisher",
-                     help="exact test for unpaired cells (paired cells always use the exact McNemar test)")
     cmp.add_argument("--pair", nargs=2, action="append", metavar=("CELL_A", "CELL_B"),
                      help="compare these two cells (repeatable; default: cells with the same name)")
     cmp.add_argument("--out", type=Path, help="also write compare.md, compare.json and compare.tex here")
@@ -810,7 +808,6 @@ def _cmd_compare(args) -> int:
         compare.load_run(args.run_a),
         compare.load_run(args.run_b),
         level=args.level,
-        test=args.test,
         pairs=[tuple(p) for p in args.pair] if args.pair else None,
     )
     if not result["comparisons"]:
