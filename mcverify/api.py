@@ -148,13 +148,13 @@ def report(run_dir: PathLike, *, level: float = 0.95, method: str = "clopper-pea
     return run_report.write(Path(run_dir), level=level, method=method)
 
 
-def compare(run_a: PathLike, run_b: PathLike, *, level: float = 0.95, test: str = "fisher",
+def compare(run_a: PathLike, run_b: PathLike, *, level: float = 0.95,
             pairs: Sequence[tuple[str, str]] | None = None) -> Mapping[str, Any]:
     """Per-cell differences between two runs with intervals (paired when they share episode keys)."""
     from mcverify.reporting import compare as _compare
 
     return _compare.compare_runs(_compare.load_run(Path(run_a)), _compare.load_run(Path(run_b)),
-                                 level=level, test=test, pairs=list(pairs) if pairs else None)
+                                 level=level, pairs=list(pairs) if pairs else None)
 
 
 def _as(table: pa.Table, as_pandas: bool) -> pa.Table | Any:

@@ -1,90 +1,119 @@
-"""Comparisons of the rates of two cells: differences of proportions with intervals and exact tests.
+"""Comparisons of the rates of two cells: a difference of proportions with an interval and the test it inverts.
 
-Independent cells: Newcombe's hybrid score interval for p1 - p2 (method 10 of [New98a]) with
-Fisher's or Boschloo's exact test (:func:`compare_unpaired`). Paired episodes (the same seeds run
-under two configurations): Newcombe's method 10 for paired data [New98b] with the exact McNemar
-test [McN47] (:func:`compare_paired`). References are listed in :mod:`mcverify.analysis.stats`.
+One answer per comparison: the interval excludes 0 exactly when its test rejects at the same level.
+
+- Independent cells (:func:`compare_unpaired`): the Miettinen-Nurminen score interval for p1 - p2
+  [MN85] and the score test of p1 = p2 that it inverts (the same statistic at d = 0).
+- Paired episodes (the same seeds under two configurations; :func:`compare_paired`): the exact
+  McNemar test [McN47] and the interval that agrees with it: the Clopper-Pearson interval of the
+  share of discordant pairs that favour A, at the test's level, mapped to the difference
+  d = psi (2 pi - 1) with the Clopper-Pearson bounds of the discordance rate psi
+  (:func:`_paired_conditional_arrays`). References are listed in :mod:`mcverify.analysis.stats`.
 """
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+from scipy import optimize as so
 from scipy import stats as sps
 
-from mcverify.analysis.intervals import _check_count, _check_kn, _check_level, wilson_arrays
+from mcverify.analysis.intervals import _check_count, _check_kn, _check_level, clopper_pearson_arrays
 
-#: Exact tests for two independent proportions that :func:`compare_unpaired` knows.
-UNPAIRED_TESTS: tuple[str, ...] = ("fisher", "boschloo")
+#: The interval and test of independent cells (one pair; names as stored in comparisons).
+UNPAIRED_METHOD = "miettinen-nurminen-score"
+UNPAIRED_TEST = "score"
+#: The interval and test of paired episodes.
+PAIRED_METHOD = "mcnemar-conditional-exact"
+PAIRED_TEST = "mcnemar-exact"
 
 
-def _newcombe_unpaired_arrays(
-    k1: npt.ArrayLike, n1: npt.ArrayLike, k2: npt.ArrayLike, n2: npt.ArrayLike, level: float
+def _restricted_mle(k1: int, n1: int, k2: int, n2: int, d: float) -> tuple[float, float]:
+    """The maximum-likelihood (p1, p2) under p1 - p2 = d (the cubic of Farrington and Manning [FM90])."""
+    p1_hat, p2_hat = k1 / n1, k2 / n2
+    theta = n2 / n1
+    a = 1.0 + theta
+    b = -(1.0 + theta + p1_hat + theta * p2_hat + d * (theta + 2.0))
+    c = d * d + d * (2.0 * p1_hat + theta + 1.0) + p1_hat + theta * p2_hat
+    e = -p1_hat * d * (1.0 + d)
+    v = b**3 / (27.0 * a**3) - b * c / (6.0 * a * a) + e / (2.0 * a)
+    u_sq = max(b * b / (9.0 * a * a) - c / (3.0 * a), 0.0)
+    u = math.copysign(math.sqrt(u_sq), v) if v != 0.0 else math.sqrt(u_sq)
+    ratio = 0.0 if u == 0.0 else max(-1.0, min(1.0, v / u**3))
+    w = (math.pi + math.acos(ratio)) / 3.0
+    p1 = min(max(2.0 * u * math.cos(w) - b / (3.0 * a), 0.0), 1.0)
+    return p1, min(max(p1 - d, 0.0), 1.0)
+
+
+def _score_z(k1: int, n1: int, k2: int, n2: int, d: float) -> float:
+    """The Miettinen-Nurminen statistic of p1 - p2 = d (variance at the restricted MLE, times N/(N-1))."""
+    p1, p2 = _restricted_mle(k1, n1, k2, n2, d)
+    n = n1 + n2
+    var = (p1 * (1.0 - p1) / n1 + p2 * (1.0 - p2) / n2) * (n / (n - 1.0) if n > 1 else 1.0)
+    diff = k1 / n1 - k2 / n2 - d
+    if var <= 0.0:
+        return 0.0 if abs(diff) < 1e-15 else math.copysign(math.inf, diff)
+    return diff / math.sqrt(var)
+
+
+def _score_bound(k1: int, n1: int, k2: int, n2: int, z_crit: float, side: int) -> float:
+    """The end of the score interval on ``side`` (-1 low, +1 high): where z(d) = -side * z_crit."""
+    estimate = k1 / n1 - k2 / n2
+    edge = float(side) * (1.0 - 1e-12)
+
+    def excess(d: float) -> float:
+        return _score_z(k1, n1, k2, n2, d) + side * z_crit
+
+    if side * excess(edge) >= 0.0:  # the statistic never reaches the critical value before the edge
+        return float(side)
+    return float(so.brentq(excess, estimate, edge, xtol=1e-12, rtol=4 * np.finfo(float).eps))
+
+
+def _paired_conditional_arrays(
+    only_a: npt.ArrayLike, only_b: npt.ArrayLike, n: npt.ArrayLike, level: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Newcombe's hybrid score interval (method 10 of [New98a]) for p1 - p2, vectorised.
+    """The interval for d = p_a - p_b on paired data that agrees with the exact McNemar test.
 
-    With Wilson intervals (l_i, u_i) for p_i and D = p1 - p2:
-    low = D - sqrt((p1 - l1)^2 + (u2 - p2)^2), high = D + sqrt((u1 - p1)^2 + (p2 - l2)^2).
+    With m = only_a + only_b discordant pairs, psi = P(discordant) and pi = P(A's | discordant),
+    d = psi (2 pi - 1). (pi_lo, pi_hi) is the Clopper-Pearson interval of only_a / m and
+    (psi_lo, psi_hi) that of m / n, both at ``level``; the ends take the bound of psi that moves
+    them outwards: low = (2 pi_lo - 1) psi_hi when pi_lo < 1/2, else (2 pi_lo - 1) psi_lo (and high
+    alike). The interval excludes 0 exactly when pi's interval excludes 1/2, which is when the
+    two-sided exact McNemar test rejects at 1 - level. Coverage: at least 2 level - 1 by the union
+    bound; its exact coverage is checked in tests/analysis/test_stats.py. With m = 0:
+    [-psi_hi, psi_hi].
     """
-    l1, u1 = wilson_arrays(k1, n1, level)
-    l2, u2 = wilson_arrays(k2, n2, level)
-    p1 = np.asarray(k1, dtype=np.float64) / np.asarray(n1, dtype=np.float64)
-    p2 = np.asarray(k2, dtype=np.float64) / np.asarray(n2, dtype=np.float64)
-    d = p1 - p2
-    return d - np.hypot(p1 - l1, u2 - p2), d + np.hypot(u1 - p1, p2 - l2)
+    f, g, total = (np.asarray(x, dtype=np.int64) for x in (only_a, only_b, n))
+    m = f + g
+    psi_lo, psi_hi = clopper_pearson_arrays(m, total, level)
+    pi_lo, pi_hi = clopper_pearson_arrays(f, np.maximum(m, 1), level)
+    low = (2.0 * pi_lo - 1.0) * np.where(pi_lo < 0.5, psi_hi, psi_lo)
+    high = (2.0 * pi_hi - 1.0) * np.where(pi_hi < 0.5, psi_lo, psi_hi)
+    none = m == 0
+    return np.where(none, -psi_hi, low), np.where(none, psi_hi, high)
 
 
-def _newcombe_paired_arrays(
-    both: npt.ArrayLike, only_a: npt.ArrayLike, only_b: npt.ArrayLike, neither: npt.ArrayLike, level: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Newcombe's score interval for a paired difference (method 10 of [New98b]), vectorised.
-
-    With cell counts e = both, f = only_a, g = only_b, h = neither, n = e+f+g+h,
-    p_a = (e+f)/n, p_b = (e+g)/n, D = p_a - p_b = (f-g)/n, Wilson intervals (l, u) for p_a and
-    p_b, and the correlation phi = C / sqrt((e+f)(g+h)(e+g)(f+h)) where A = eh - fg and
-    C = A - n/2 if A > n/2, 0 if 0 <= A <= n/2, A if A < 0 (phi = 0 when a margin is empty):
-    low = D - sqrt(da^2 - 2 phi da eb + eb^2) with da = p_a - l_a, eb = u_b - p_b;
-    high = D + sqrt(ea^2 - 2 phi ea db + db^2) with ea = u_a - p_a, db = p_b - l_b.
-    """
-    e, f, g, h = (np.asarray(x, dtype=np.int64) for x in (both, only_a, only_b, neither))
-    n = e + f + g + h
-    la, ua = wilson_arrays(e + f, n, level)
-    lb, ub = wilson_arrays(e + g, n, level)
-    pa, pb = (e + f) / n, (e + g) / n
-    a = (e * h - f * g).astype(np.float64)
-    c = np.where(a > n / 2.0, a - n / 2.0, np.where(a < 0.0, a, 0.0))
-    margins = ((e + f) * (g + h) * (e + g) * (f + h)).astype(np.float64)
-    phi = np.where(margins > 0, c / np.sqrt(np.where(margins > 0, margins, 1.0)), 0.0)
-    da, eb, ea, db = pa - la, ub - pb, ua - pa, pb - lb
-    d = pa - pb
-    low = d - np.sqrt(np.maximum(da**2 - 2.0 * phi * da * eb + eb**2, 0.0))
-    high = d + np.sqrt(np.maximum(ea**2 - 2.0 * phi * ea * db + db**2, 0.0))
-    return low, high
+def score_test_pvalue(k1: int, n1: int, k2: int, n2: int) -> float:
+    """Two-sided p-value of the score test of p1 = p2 (the Miettinen-Nurminen statistic at d = 0)."""
+    z = _score_z(k1, n1, k2, n2, 0.0)
+    return float(min(1.0, 2.0 * sps.norm.sf(abs(z))))
 
 
-def compare_unpaired(k1: int, n1: int, k2: int, n2: int, level: float = 0.95, test: str = "fisher") -> dict[str, Any]:
+def compare_unpaired(k1: int, n1: int, k2: int, n2: int, level: float = 0.95) -> dict[str, Any]:
     """Compare the rates of two independent cells: k1 of n1 against k2 of n2.
 
     Returns a JSON-friendly dict: ``k1, n1, k2, n2, p1, p2``, ``diff`` = p1 - p2, ``low``/``high``
-    (Newcombe's hybrid score interval, method 10 of [New98a]; see :func:`_newcombe_unpaired_arrays`),
-    ``level``, ``method`` = "newcombe-hybrid-score", ``test`` and ``p_value`` of the two-sided
-    exact test of p1 = p2 on the 2x2 table [[k1, n1-k1], [k2, n2-k2]]: ``"fisher"``
-    (scipy.stats.fisher_exact) or ``"boschloo"`` (scipy.stats.boschloo_exact, unconditional and
-    uniformly more powerful than Fisher's; slower for large n).
+    (the Miettinen-Nurminen score interval [MN85]), ``level``, ``method`` (:data:`UNPAIRED_METHOD`),
+    ``test`` (:data:`UNPAIRED_TEST`) and ``p_value`` of the two-sided score test of p1 = p2 that the
+    interval inverts: the interval excludes 0 exactly when ``p_value`` < 1 - ``level``.
     """
     k1, n1 = _check_kn(k1, n1, k_name="k1", n_name="n1")
     k2, n2 = _check_kn(k2, n2, k_name="k2", n_name="n2")
     level = _check_level(level)
-    if test not in UNPAIRED_TESTS:
-        raise ValueError(f"test must be one of {UNPAIRED_TESTS}, got {test!r}")
-    low, high = _newcombe_unpaired_arrays(k1, n1, k2, n2, level)
-    table = np.array([[k1, n1 - k1], [k2, n2 - k2]])
-    if test == "fisher":
-        p_value = sps.fisher_exact(table, alternative="two-sided").pvalue
-    else:
-        p_value = sps.boschloo_exact(table, alternative="two-sided").pvalue
+    z_crit = float(sps.norm.ppf(0.5 + level / 2.0))
     return {
         "k1": k1,
         "n1": n1,
@@ -93,12 +122,12 @@ def compare_unpaired(k1: int, n1: int, k2: int, n2: int, level: float = 0.95, te
         "p1": k1 / n1,
         "p2": k2 / n2,
         "diff": k1 / n1 - k2 / n2,
-        "low": float(low),
-        "high": float(high),
+        "low": _score_bound(k1, n1, k2, n2, z_crit, -1),
+        "high": _score_bound(k1, n1, k2, n2, z_crit, +1),
         "level": level,
-        "method": "newcombe-hybrid-score",
-        "test": test,
-        "p_value": float(min(1.0, p_value)),
+        "method": UNPAIRED_METHOD,
+        "test": UNPAIRED_TEST,
+        "p_value": score_test_pvalue(k1, n1, k2, n2),
     }
 
 
@@ -133,11 +162,12 @@ def compare_paired(outcomes_a: npt.ArrayLike, outcomes_b: npt.ArrayLike, level: 
 
     ``outcomes_a[i]`` and ``outcomes_b[i]`` are the outcomes of episode i under each
     configuration (equal-length 1-D boolean or 0/1 arrays). Returns a JSON-friendly dict:
-    ``n``, ``p_a``, ``p_b``, ``diff`` = p_a - p_b, ``low``/``high`` (Newcombe's score interval for
-    paired data, method 10 of [New98b]; see :func:`_newcombe_paired_arrays`), ``level``,
-    ``method`` = "newcombe-paired-score", the 2x2 cell counts ``both``, ``only_a``, ``only_b``,
-    ``neither`` (only_a and only_b are McNemar's discordant counts b and c), ``test`` =
-    "mcnemar-exact" and ``p_value`` (:func:`mcnemar_exact_pvalue`).
+    ``n``, ``p_a``, ``p_b``, ``diff`` = p_a - p_b, ``low``/``high`` (the interval that agrees with
+    the exact McNemar test, :func:`_paired_conditional_arrays`), ``level``, ``method``
+    (:data:`PAIRED_METHOD`), the 2x2 cell counts ``both``, ``only_a``, ``only_b``, ``neither``
+    (only_a and only_b are McNemar's discordant counts b and c), ``test`` (:data:`PAIRED_TEST`) and
+    ``p_value`` (:func:`mcnemar_exact_pvalue`): the interval excludes 0 exactly when ``p_value`` <
+    1 - ``level``.
     """
     a = _as_outcomes(outcomes_a, "outcomes_a")
     b = _as_outcomes(outcomes_b, "outcomes_b")
@@ -147,7 +177,7 @@ def compare_paired(outcomes_a: npt.ArrayLike, outcomes_b: npt.ArrayLike, level: 
     both, only_a = int(np.sum(a & b)), int(np.sum(a & ~b))
     only_b, neither = int(np.sum(~a & b)), int(np.sum(~a & ~b))
     n = a.size
-    low, high = _newcombe_paired_arrays(both, only_a, only_b, neither, level)
+    low, high = _paired_conditional_arrays(only_a, only_b, n, level)
     return {
         "n": n,
         "p_a": (both + only_a) / n,
@@ -156,11 +186,11 @@ def compare_paired(outcomes_a: npt.ArrayLike, outcomes_b: npt.ArrayLike, level: 
         "low": float(low),
         "high": float(high),
         "level": level,
-        "method": "newcombe-paired-score",
+        "method": PAIRED_METHOD,
         "both": both,
         "only_a": only_a,
         "only_b": only_b,
         "neither": neither,
-        "test": "mcnemar-exact",
+        "test": PAIRED_TEST,
         "p_value": mcnemar_exact_pvalue(only_a, only_b),
     }

@@ -4,10 +4,11 @@ Every function is pure and deterministic (the bootstrap takes an explicit seed).
 binomial proportion k/n: Clopper-Pearson (exact, conservative) or Wilson (score), and exact
 one-sided bounds for cells with no event or only events (:mod:`mcverify.analysis.intervals`).
 
-Comparisons of two cells: Newcombe's hybrid score interval for p1 - p2 (method 10 of [New98a])
-with Fisher's or Boschloo's exact test for independent cells, and for paired episodes (the same
-seeds run under two configurations) Newcombe's method 10 for paired data [New98b] with the exact
-McNemar test; differences of means (e.g. of minimum distances) by a paired or unpaired
+Comparisons of two cells, each an interval for p1 - p2 with the test it agrees with (the interval
+excludes 0 exactly when the test rejects): for independent cells the Miettinen-Nurminen score
+interval [MN85] and its score test, for paired episodes (the same seeds run under two
+configurations) the exact McNemar test [McN47] and the conditional Clopper-Pearson interval that
+agrees with it; differences of means (e.g. of minimum distances) by a paired or unpaired
 percentile bootstrap (:func:`bootstrap_mean_difference`).
 
 This module is the statistics API the rest of the package uses; the code lives in
@@ -23,10 +24,11 @@ References:
         proportion. Statistical Science 16(2), 101-133.
     [HL83] Hanley, J. A. & Lippman-Hand, A. (1983). If nothing goes wrong, is everything all
         right? JAMA 249(13), 1743-1745 (the "rule of three").
-    [New98a] Newcombe, R. G. (1998). Interval estimation for the difference between independent
-        proportions: comparison of eleven methods. Statistics in Medicine 17, 873-890.
-    [New98b] Newcombe, R. G. (1998). Improved confidence intervals for the difference between
-        binomial proportions based on paired data. Statistics in Medicine 17, 2635-2650.
+    [MN85] Miettinen, O. & Nurminen, M. (1985). Comparative analysis of two rates. Statistics in
+        Medicine 4(2), 213-226.
+    [FM90] Farrington, C. P. & Manning, G. (1990). Test statistics and sample size formulae for
+        comparative binomial trials with null hypothesis of non-zero risk difference or non-unity
+        relative risk. Statistics in Medicine 9(12), 1447-1454 (the restricted MLE).
     [McN47] McNemar, Q. (1947). Note on the sampling error of the difference between correlated
         proportions or percentages. Psychometrika 12(2), 153-157.
     [ET93] Efron, B. & Tibshirani, R. J. (1993). An Introduction to the Bootstrap, ch. 13
@@ -42,10 +44,14 @@ from mcverify.analysis.bootstrap import (
     quantiles,
 )
 from mcverify.analysis.comparisons import (
-    UNPAIRED_TESTS,
+    PAIRED_METHOD,
+    PAIRED_TEST,
+    UNPAIRED_METHOD,
+    UNPAIRED_TEST,
     compare_paired,
     compare_unpaired,
     mcnemar_exact_pvalue,
+    score_test_pvalue,
 )
 from mcverify.analysis.intervals import (
     PROPORTION_METHODS,
@@ -62,7 +68,10 @@ from mcverify.analysis.intervals import (
 
 __all__ = [
     "PROPORTION_METHODS",
-    "UNPAIRED_TESTS",
+    "PAIRED_METHOD",
+    "PAIRED_TEST",
+    "UNPAIRED_METHOD",
+    "UNPAIRED_TEST",
     "Interval",
     "bootstrap_mean_difference",
     "bootstrap_mean_interval",
@@ -71,6 +80,7 @@ __all__ = [
     "compare_unpaired",
     "interval_arrays",
     "mcnemar_exact_pvalue",
+    "score_test_pvalue",
     "one_sided_lower",
     "one_sided_upper",
     "proportion_interval",

@@ -4,7 +4,7 @@ Every user error (bad campaign, missing run folder, bad argument) ends with one 
 exit status 2; a replay that does not reproduce exits with status 1.
 
 One module per command (:mod:`~mcverify.cli.run`, ``estimate``, ``replay``, ``report``, ``compare``,
-``falsify``, ``fields``, ``kernels``), each with ``add`` (its arguments) and its command function; the
+``export``, ``falsify``, ``fields``, ``kernels``), each with ``add`` (its arguments) and its command function; the
 option blocks several commands share are parent parsers in :mod:`~mcverify.cli.options`.
 """
 
@@ -20,7 +20,7 @@ import sys
 from pathlib import Path
 
 from mcverify import errors
-from mcverify.cli import compare, estimate, falsify, fields, kernels, options, replay, report, run
+from mcverify.cli import compare, estimate, export, falsify, fields, kernels, options, replay, report, run
 
 _log = logging.getLogger("mcverify.cli")
 
@@ -178,13 +178,14 @@ _cmd_estimate = estimate.command
 _cmd_replay = replay.command
 _cmd_report = report.command
 _cmd_compare = compare.command
+_cmd_export = export.command
 _cmd_falsify = falsify.command
 _cmd_fields = fields.command
 _cmd_kernels_list = kernels.list_command
 _cmd_kernels_clear = kernels.clear_command
 
 #: The commands in the order ``mcverify --help`` lists them.
-_COMMANDS = (run, estimate, replay, report, compare, falsify, fields, kernels)
+_COMMANDS = (run, estimate, replay, report, compare, export, falsify, fields, kernels)
 
 
 def _parser() -> argparse.ArgumentParser:

@@ -15,8 +15,6 @@ def add(sub, parents: list[argparse.ArgumentParser]) -> None:
     p.add_argument("run_a", type=Path)
     p.add_argument("run_b", type=Path)
     p.add_argument("--level", type=options.level, default=0.95, help="confidence level of the intervals (default 0.95)")
-    p.add_argument("--test", choices=("fisher", "boschloo"), default="fisher",
-                   help="exact test for unpaired cells (paired cells always use the exact McNemar test)")
     p.add_argument("--pair", nargs=2, action="append", metavar=("CELL_A", "CELL_B"),
                    help="compare these two cells (repeatable; default: cells with the same name)")
     p.add_argument("--out", type=Path, help="also write compare.md, compare.json and compare.tex here")
@@ -30,7 +28,6 @@ def command(args) -> int:
         compare.load_run(args.run_a),
         compare.load_run(args.run_b),
         level=args.level,
-        test=args.test,
         pairs=[tuple(p) for p in args.pair] if args.pair else None,
     )
     if not result["comparisons"]:

@@ -9,9 +9,11 @@ Paired or unpaired is decided per matched pair from how the runs derive their ep
 ``common_random_numbers``. When both runs give episode ``e`` of the two cells the same key (same
 seed, and both with common random numbers or both without and the same cell index), episode ``e``
 saw identical disturbances under A and B: the comparison is **paired** over the episodes both ran
-(Newcombe's paired score interval for the difference of rates and the exact McNemar test;
-paired bootstrap for differences of means). Otherwise it is **unpaired** (Newcombe's hybrid score
-interval and Fisher's exact test, or Boschloo's). The output says which and why, for every cell.
+(the exact McNemar test and the interval for the difference of rates that agrees with it; paired
+bootstrap for differences of means). Otherwise it is **unpaired** (the Miettinen-Nurminen score
+interval and the score test it inverts). Either way the interval excludes 0 exactly when the test
+rejects at the same level (:mod:`mcverify.analysis.comparisons`). The output says which and why,
+for every cell.
 Episodes whose outcome is ``error`` are left out (and counted). The model fields in which two
 compared cells differ (read from each run's manifest) are listed, so that what was varied is on the
 page, not only which runs were compared.
@@ -141,16 +143,13 @@ def compare_runs(
     b: Run,
     *,
     level: float = 0.95,
-    test: str = "fisher",
     pairs: Sequence[tuple[str, str]] | None = None,
     bootstrap_resamples: int = 2000,
 ) -> dict[str, Any]:
     """Every matched cell pair compared; see the module docstring. Returns a JSON-friendly dict
     with ``run_a``/``run_b`` (label, campaign, seed, common random numbers), ``level``,
-    ``unpaired_test``, ``comparisons`` (one per pair), ``only_in_a``/``only_in_b``."""
+    ``comparisons`` (one per pair), ``only_in_a``/``only_in_b``."""
     stats.rate_summary(0, 1, level)  # checks level
-    if test not in stats.UNPAIRED_TESTS:
-        raise RunError(f"unknown test {test!r}; valid: {', '.join(stats.UNPAIRED_TESTS)}")
     names_a, names_b = a.cells(), b.cells()
     if pairs:
         for ca, cb in pairs:
@@ -165,7 +164,7 @@ def compare_runs(
         matched = [(n, n) for n in names_a if n in names_b]
         only_a = [n for n in names_a if n not in names_b]
         only_b = [n for n in names_b if n not in names_a]
-    comparisons = [_compare_cells(a, ca, b, cb, level, test, bootstrap_resamples) for ca, cb in matched]
+    comparisons = [_compare_cells(a, ca, b, cb, level, bootstrap_resamples) for ca, cb in matched]
     describe = lambda r: {"label": r.label, "campaign": r.manifest["campaign"]["name"], "seed": r.seed,  # noqa: E731
                           "common_random_numbers": r.crn,
                           "settings": list(r.manifest["campaign"].get("settings") or [])}
@@ -173,7 +172,6 @@ def compare_runs(
         "run_a": describe(a),
         "run_b": describe(b),
         "level": level,
-        "unpaired_test": test,
         "explicit_pairs": bool(pairs),
         "comparisons": comparisons,
         "only_in_a": only_a,
@@ -181,7 +179,7 @@ def compare_runs(
     }
 
 
-def _compare_cells(a: Run, cell_a: str, b: Run, cell_b: str, level: float, test: str, resamples: int) -> dict:
+def _compare_cells(a: Run, cell_a: str, b: Run, cell_b: str, level: float, resamples: int) -> dict:
     ta, tb = a.rows(cell_a), b.rows(cell_b)
     paired, reason = pairing(a, cell_a, b, cell_b)
     ok_a, ok_b = _not_error(ta), _not_error(tb)
@@ -215,7 +213,7 @@ def _compare_cells(a: Run, cell_a: str, b: Run, cell_b: str, level: float, test:
             ka, na, kb, nb = int(fa[ok_a].sum()), int(ok_a.sum()), int(fb[ok_b].sum()), int(ok_b.sum())
             if na == 0 or nb == 0:
                 continue
-            r = stats.compare_unpaired(ka, na, kb, nb, level=level, test=test)
+            r = stats.compare_unpaired(ka, na, kb, nb, level=level)
             rates[name] = {**r, "k_a": ka, "n_a": na, "k_b": kb, "n_b": nb}
     values = {}
     for name in (v for v in VALUES if v not in skip):
@@ -281,12 +279,12 @@ def tables(result: Mapping[str, Any]) -> list[Table]:
     if not comps:
         return []
     level = result["level"]
-    test_name = result["unpaired_test"].capitalize()
+    test_name = "score test"
     out = [Table(
         "compare-method", "How each cell pair is compared",
         ["cell (A vs B)", "test", "episodes", "why"],
         [[_pair_label(c),
-          "paired: exact McNemar" if c["paired"] else f"unpaired: {test_name} exact",
+          "paired: exact McNemar" if c["paired"] else f"unpaired: {test_name}",
           f"{c['pairs']} pairs" if c["paired"] else f"{c['episodes_a']} vs {c['episodes_b']}",
           c["reason"] + (f"; errors left out: {c['errors']['a']} in A, {c['errors']['b']} in B"
                          if c["errors"]["a"] or c["errors"]["b"] else "")]
@@ -318,9 +316,11 @@ def tables(result: Mapping[str, Any]) -> list[Table]:
         out.append(Table(
             "compare-rates", "Rates: A − B",
             ["rate", "A", "B", f"A − B [{level:.0%} CI]", "p-value", "discordant (A only / B only)"], rows,
-            ["Interval for the difference of rates: Newcombe's score interval for paired data (paired) or his hybrid "
-             "score interval (unpaired); p-value of the two-sided exact test named in the block's heading. "
-             "Discordant pairs: episodes where only A, or only B, had the event."],
+            ["Interval for the difference of rates and p-value: paired, the two-sided exact McNemar test and the "
+             "interval that agrees with it (Clopper-Pearson on the discordant pairs); unpaired, the "
+             "Miettinen-Nurminen score interval and the score test it inverts. Either way the interval "
+             "excludes 0 exactly when p < " + f"{1 - level:.2g}" + ". Discordant pairs: episodes where only A, or "
+             "only B, had the event."],
         ))
     rows = []
     for c in comps:

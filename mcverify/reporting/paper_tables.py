@@ -21,8 +21,8 @@ Each layout has the paper's rows (Table II: overtaking time min / max / mean; Ta
 successful overtakes, min dist. with veh_f and veh_o, safe episodes; Table IV: per scenario, min
 dist. with veh_f and veh_o and safe cases) and one column per reference cell. Every row is given
 three times: ours, the paper's, and the gap. Counts carry their exact interval and the gap of a
-count is the difference of the two rates with Newcombe's interval (the paper's 30 runs are a sample
-too); minima and maxima are minima and maxima; our means carry their bootstrap interval and the gap
+count is the difference of the two rates with the Miettinen-Nurminen score interval (the paper's 30
+runs are a sample too); minima and maxima are minima and maxima; our means carry their bootstrap interval and the gap
 of a value is ours − paper with the relative gap.
 """
 
@@ -222,8 +222,8 @@ def paper_table(summ: Mapping[str, Any], reference: Mapping[str, Any]) -> Table 
         f"ours: counts as k/n [{method_name(summ['interval_method'])} {level:.0%} interval], with the exact "
         "one-sided bound (≤ u or ≥ l) when k is 0 or n; means with their percentile-bootstrap interval; minima "
         "and maxima over all episodes of the cell.",
-        f"ours − paper: for counts, the difference of rates (ours − paper/{runs}) with Newcombe's {level:.0%} hybrid "
-        "score interval, the paper's runs being a sample too; for values, the difference and the relative gap.",
+        f"ours − paper: for counts, the difference of rates (ours − paper/{runs}) with the {level:.0%} "
+        "Miettinen-Nurminen score interval, the paper's runs being a sample too; for values, the difference and the relative gap.",
     ]
     if bounds_shown:
         notes.append("Start-to-goal lower bound: the earliest time at which any controller can meet x_e ≥ x_f(t) + "

@@ -56,12 +56,18 @@ def is_missing(x: Any) -> bool:
 
 
 def fmt_num(x: Any, digits: int = 2, *, signed: bool = False) -> str:
-    """``x`` with ``digits`` decimals (``signed``: always a sign), or :data:`DASH`."""
+    """``x`` with ``digits`` decimals (``signed``: always a sign), or :data:`DASH`.
+
+    A non-zero value that would round to zero keeps its sign and two significant digits
+    (-0.000228 is "-0.00023", not "+0.000": a robustness just below zero is a violation)."""
     if is_missing(x):
         return DASH
     v = float(x)
-    if round(v, digits) == 0.0:
+    if v == 0.0:
         v = 0.0  # no "-0.00"
+    elif round(v, digits) == 0.0:
+        text = f"{v:.2g}" if "e" not in f"{v:.2g}" else f"{v:.1e}"
+        return text if v < 0 or not signed else "+" + text
     return f"{v:+.{digits}f}" if signed else f"{v:.{digits}f}"
 
 

@@ -82,21 +82,42 @@ def test_wilson_exact_coverage_on_grid():
     assert all(c >= 0.93 for (p, n), c in cov.items() if n * p >= 5)
 
 
-def test_newcombe_unpaired_coverage():
+def test_score_interval_coverage():
     rng = np.random.default_rng(11)
     for p1, p2, n1, n2 in [(0.5, 0.4, 100, 100), (0.9, 0.8, 200, 150), (0.05, 0.02, 300, 300)]:
-        k1, k2 = rng.binomial(n1, p1, REPS), rng.binomial(n2, p2, REPS)
-        low, high = comparisons._newcombe_unpaired_arrays(k1, n1, k2, n2, 0.95)
-        assert np.mean((low <= p1 - p2) & (p1 - p2 <= high)) >= 0.92
+        k1, k2 = rng.binomial(n1, p1, 400), rng.binomial(n2, p2, 400)
+        hits = [(r["low"] <= p1 - p2 <= r["high"]) for r in (compare_unpaired(int(a), n1, int(b), n2)
+                                                              for a, b in zip(k1, k2, strict=True))]
+        assert np.mean(hits) >= 0.92
 
 
-def test_newcombe_paired_coverage():
+def test_paired_interval_coverage():
     rng = np.random.default_rng(12)
     for cells, n in [((0.5, 0.1, 0.05, 0.35), 100), ((0.85, 0.05, 0.02, 0.08), 200), ((0.9, 0.03, 0.01, 0.06), 500)]:
         c = rng.multinomial(n, cells, size=REPS)
-        low, high = comparisons._newcombe_paired_arrays(c[:, 0], c[:, 1], c[:, 2], c[:, 3], 0.95)
+        low, high = comparisons._paired_conditional_arrays(c[:, 1], c[:, 2], n, 0.95)
         d = cells[1] - cells[2]
-        assert np.mean((low <= d) & (d <= high)) >= 0.92
+        assert np.mean((low <= d) & (d <= high)) >= 0.94
+
+
+def _exact_paired_coverage(n: int, p_a_only: float, p_b_only: float) -> float:
+    """Coverage of the paired interval by enumerating every (only_a, only_b) of n pairs."""
+    f, g = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
+    ok = f + g <= n
+    f, g = f[ok], g[ok]
+    log_pmf = sps.multinomial.logpmf(np.stack([f, g, n - f - g], axis=1), n, [p_a_only, p_b_only,
+                                                                             1.0 - p_a_only - p_b_only])
+    low, high = comparisons._paired_conditional_arrays(f, g, n, 0.95)
+    d = p_a_only - p_b_only
+    return float(np.sum(np.exp(log_pmf)[(low <= d) & (d <= high)]))
+
+
+@pytest.mark.parametrize("n", [5, 10, 30])
+def test_paired_interval_exact_coverage_on_small_samples(n):
+    """Its guarantee is 2 level - 1 (union bound); on this grid it keeps the nominal 95 %."""
+    grid = np.linspace(0.0, 0.6, 7)
+    worst = min(_exact_paired_coverage(n, a, b) for a in grid for b in grid if a + b <= 1.0)
+    assert worst >= 0.95
 
 
 # ------------------------------------------------------------------------------------------
@@ -244,47 +265,67 @@ def test_quantiles():
 # comparisons
 
 
-# Newcombe (1998a), Table II, method 10: (k1, n1, k2, n2) -> (low, high)
-NEWCOMBE_UNPAIRED = [
-    ((56, 70, 48, 80), (0.0524, 0.3339)),
-    ((9, 10, 3, 10), (0.1705, 0.8090)),
-    ((6, 7, 2, 7), (0.0582, 0.8062)),
-    ((5, 56, 0, 29), (-0.0381, 0.1926)),
-    ((0, 10, 0, 20), (-0.1611, 0.2775)),
-    ((0, 10, 0, 10), (-0.2775, 0.2775)),
-    ((10, 10, 0, 20), (0.6791, 1.0000)),
-    ((10, 10, 0, 10), (0.6075, 1.0000)),
+# Newcombe (1998a), Table II, method 6 (Miettinen-Nurminen): (k1, n1, k2, n2) -> (low, high)
+SCORE_UNPAIRED = [
+    ((56, 70, 48, 80), (0.0528, 0.3382)),
+    ((9, 10, 3, 10), (0.1700, 0.8406)),
+    ((6, 7, 2, 7), (0.0342, 0.8534)),
+    ((5, 56, 0, 29), (-0.0326, 0.1933)),
 ]
 
 
-@pytest.mark.parametrize("counts, expected", NEWCOMBE_UNPAIRED)
-def test_newcombe_unpaired_worked_examples(counts, expected):
+@pytest.mark.parametrize("counts, expected", SCORE_UNPAIRED)
+def test_score_interval_worked_examples(counts, expected):
     r = compare_unpaired(*counts)
     assert r["diff"] == pytest.approx(counts[0] / counts[1] - counts[2] / counts[3])
     assert (r["low"], r["high"]) == (pytest.approx(expected[0], abs=5e-5), pytest.approx(expected[1], abs=5e-5))
 
 
-def test_compare_unpaired_tests_match_scipy():
-    table = [[12, 88], [3, 97]]
-    fisher = compare_unpaired(12, 100, 3, 100)
-    assert fisher["test"] == "fisher" and fisher["method"] == "newcombe-hybrid-score"
-    assert fisher["p_value"] == pytest.approx(sps.fisher_exact(table).pvalue, rel=1e-12)
-    boschloo = compare_unpaired(12, 100, 3, 100, test="boschloo")
-    assert boschloo["p_value"] == pytest.approx(sps.boschloo_exact(table).pvalue, rel=1e-9)
-    assert boschloo["p_value"] <= fisher["p_value"]  # Boschloo is uniformly more powerful
-    assert fisher["p_value"] < 0.05 and fisher["low"] > 0  # interval and test agree here
-    # Fisher's lady tasting tea: hypergeometric two-sided p = 34/70.
-    assert compare_unpaired(3, 4, 1, 4)["p_value"] == pytest.approx(34 / 70, rel=1e-12)
+def test_score_test_is_pearsons_chi_square_times_n_minus_1_over_n():
+    for k1, n1, k2, n2 in [(12, 100, 3, 100), (3, 4, 1, 4), (56, 70, 48, 80), (0, 9, 4, 11)]:
+        chi2 = sps.chi2_contingency([[k1, n1 - k1], [k2, n2 - k2]], correction=False)[0]
+        n = n1 + n2
+        r = compare_unpaired(k1, n1, k2, n2)
+        assert r["test"] == "score" and r["method"] == "miettinen-nurminen-score"
+        assert r["p_value"] == pytest.approx(sps.chi2.sf(chi2 * (n - 1) / n, 1), rel=1e-9)
     same = compare_unpaired(5, 50, 5, 50)
     assert same["p_value"] == 1.0 and same["low"] < 0 < same["high"]
 
 
-# Newcombe (1998b), Table II, method 10: (both, only_a, only_b, neither) -> (low, high)
-NEWCOMBE_PAIRED = [
-    ((36, 12, 2, 0), (0.0569, 0.3404)),
-    ((18, 12, 2, 18), (0.0562, 0.3290)),
-    ((0, 30, 0, 0), (0.8395, 1.0000)),
-]
+def test_score_interval_ends_are_where_the_statistic_meets_the_critical_value():
+    z = sps.norm.ppf(0.975)
+    r = compare_unpaired(9, 10, 3, 10)
+    assert comparisons._score_z(9, 10, 3, 10, r["low"]) == pytest.approx(z, abs=1e-7)
+    assert comparisons._score_z(9, 10, 3, 10, r["high"]) == pytest.approx(-z, abs=1e-7)
+
+
+def test_unpaired_interval_excludes_zero_exactly_when_its_test_rejects():
+    for n1, n2 in [(1, 1), (2, 2), (3, 5), (8, 8), (12, 7), (15, 15)]:
+        for k1 in range(n1 + 1):
+            for k2 in range(n2 + 1):
+                r = compare_unpaired(k1, n1, k2, n2)
+                assert (r["p_value"] < 0.05) == (r["low"] > 0 or r["high"] < 0), (k1, n1, k2, n2)
+
+
+def test_paired_interval_excludes_zero_exactly_when_mcnemar_rejects():
+    for n in range(1, 26):
+        f, g = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
+        ok = f + g <= n
+        for level in (0.9, 0.95, 0.99):
+            low, high = comparisons._paired_conditional_arrays(f[ok], g[ok], n, level)
+            p = np.array([mcnemar_exact_pvalue(int(a), int(b)) for a, b in zip(f[ok], g[ok], strict=True)])
+            assert np.array_equal(p < 1 - level, (low > 0) | (high < 0)), n
+
+
+def test_two_discordant_pairs_are_no_evidence():
+    """The case a user met: +1.000 [+0.070, +1.000] beside McNemar's p = 0.5; now one answer."""
+    r = compare_paired(np.array([True, True]), np.array([False, False]))
+    assert r["diff"] == 1.0 and r["p_value"] == 0.5 and r["low"] < 0 < r["high"]
+
+
+# (both, only_a, only_b, neither) -> (low, high), by hand: psi = m/n and pi = only_a/m with their
+# Clopper-Pearson bounds (scipy's beta quantiles), low = (2 pi_lo - 1) psi_lo, high = (2 pi_hi - 1) psi_hi.
+PAIRED = [(36, 12, 2, 0), (18, 12, 2, 18), (0, 30, 0, 0)]
 
 
 def _paired_arrays(both: int, only_a: int, only_b: int, neither: int, seed: int = 0):
@@ -294,15 +335,22 @@ def _paired_arrays(both: int, only_a: int, only_b: int, neither: int, seed: int 
     return a[perm], b[perm]
 
 
-@pytest.mark.parametrize("cells, expected", NEWCOMBE_PAIRED)
-def test_newcombe_paired_worked_examples(cells, expected):
+@pytest.mark.parametrize("cells", PAIRED)
+def test_paired_interval_worked_examples(cells):
     r = compare_paired(*_paired_arrays(*cells))
     assert (r["both"], r["only_a"], r["only_b"], r["neither"]) == cells
     assert r["diff"] == pytest.approx((cells[1] - cells[2]) / sum(cells))
-    assert (r["low"], r["high"]) == (pytest.approx(expected[0], abs=5e-5), pytest.approx(expected[1], abs=5e-5))
+    n, f, g = sum(cells), cells[1], cells[2]
+    m = f + g
+    psi_lo, psi_hi = sps.beta.ppf(0.025, m, n - m + 1), (1.0 if m == n else sps.beta.ppf(0.975, m + 1, n - m))
+    pi_lo, pi_hi = sps.beta.ppf(0.025, f, m - f + 1), (1.0 if f == m else sps.beta.ppf(0.975, f + 1, m - f))
+    assert pi_lo > 0.5 and pi_hi > 0.5  # A's side in all three
+    assert r["low"] == pytest.approx((2 * pi_lo - 1) * psi_lo, rel=1e-9)
+    assert r["high"] == pytest.approx((2 * pi_hi - 1) * psi_hi, rel=1e-9)
+    assert r["method"] == "mcnemar-conditional-exact"
 
 
-def test_newcombe_paired_is_narrower_than_unpaired_with_positive_correlation():
+def test_paired_interval_is_narrower_than_unpaired_with_positive_correlation():
     a, b = _paired_arrays(40, 6, 1, 53)
     paired = compare_paired(a, b)
     unpaired = compare_unpaired(int(a.sum()), a.size, int(b.sum()), b.size)
@@ -360,7 +408,6 @@ def test_compare_paired_accepts_01_integers():
         (lambda: quantiles(np.ones(3), qs=(0.5, 1.5)), "qs must be"),
         (lambda: compare_unpaired(3, 2, 1, 5), "k1 must be <= n1"),
         (lambda: compare_unpaired(1, 2, 1, 0), "n2 must be > 0"),
-        (lambda: compare_unpaired(1, 2, 1, 5, test="chi2"), "test must be one of"),
         (lambda: compare_unpaired(1, 2, 1, 5, level=2), "level must be"),
         (lambda: compare_paired(np.ones(3, bool), np.ones(4, bool)), "equal lengths"),
         (lambda: compare_paired(np.array([], bool), np.array([], bool)), "outcomes_a must not be empty"),

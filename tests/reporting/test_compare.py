@@ -65,13 +65,13 @@ def test_common_random_numbers_pair_across_cell_indices(tmp_path):
 def test_unpaired_cases_say_why(tmp_path, raw_b, why):
     a = compare.load_run(_run(tmp_path, "a", _raw()))
     b = compare.load_run(_run(tmp_path, "b", raw_b))
-    res = compare.compare_runs(a, b, test="boschloo")
+    res = compare.compare_runs(a, b)
     c = next(x for x in res["comparisons"] if x["cell_a"] == "epsilon=0.1")
     assert not c["paired"] and why in c["reason"]
     r = c["rates"]["safe"]
-    assert r["test"] == "boschloo"
-    assert r["p_value"] == stats.compare_unpaired(r["k_a"], r["n_a"], r["k_b"], r["n_b"], test="boschloo")["p_value"]
-    assert "unpaired: Boschloo exact" in compare.render_markdown(res)
+    assert r["test"] == "score"
+    assert r["p_value"] == stats.compare_unpaired(r["k_a"], r["n_a"], r["k_b"], r["n_b"])["p_value"]
+    assert "unpaired: score test" in compare.render_markdown(res)
 
 
 def test_unmatched_cells_are_listed_and_pairs_can_be_given(tmp_path):

@@ -25,7 +25,10 @@ from mcverify.reporting.tables import (
 
 
 def test_number_formats():
-    assert fmt_num(1.234) == "1.23" and fmt_num(-0.001) == "0.00" and fmt_num(math.nan) == "–"
+    assert fmt_num(1.234) == "1.23" and fmt_num(-0.0) == "0.00" and fmt_num(math.nan) == "–"
+    # near zero: the sign and two significant digits, never "+0.000" for a negative value
+    assert fmt_num(-0.000228, 3, signed=True) == "-0.00023" and fmt_num(0.000228, 3, signed=True) == "+0.00023"
+    assert fmt_num(-0.001) == "-0.001" and fmt_num(3e-9, 2) == "3.0e-09"
     assert fmt_num(0.5, signed=True) == "+0.50" and fmt_num(None) == "–"
     assert fmt_p(0.0) == "0" and fmt_p(1.0) == "1" and fmt_p(0.0950) == "0.095"
     assert fmt_p(0.000998) == "0.001" and fmt_p(0.00049) == "0.00049"  # small bounds keep two digits
