@@ -16,7 +16,6 @@ import sys
 from pathlib import Path
 
 from mcverify import errors
-from mcverify.model import INFEASIBILITY_POLICIES
 
 _log = logging.getLogger("mcverify.cli")
 
@@ -333,8 +332,6 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--naive-episodes", type=_nonneg_int, default=0,
                        help="paired episodes per cell, the paper-style Opti loop (0: skip, the default)")
     bench.add_argument("--backend", help="the engine's solver backend (default: the cell's)")
-    bench.add_argument("--infeasibility", choices=INFEASIBILITY_POLICIES,
-                       help="the engine's mpc.infeasibility policy (default: the cell's)")
     bench.add_argument("--seed", type=_nonneg_int, help="campaign seed (overrides the file: other episodes)")
     bench.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", dest="settings",
                        help="override a model parameter of every cell, on every side (repeatable)")
@@ -749,8 +746,9 @@ def _cmd_estimate_in_process(args, method: str) -> int:
                            "executor)")
         manifest = store.read_manifest(args.resume)
         camp = manifest["campaign"]
-        raw = runner.pin_changed_defaults(camp["raw"], manifest.get("cells", []))  # a changed default keeps the run's
-        campaign = campaign_from_dict(raw, source=camp["source"], seed=camp["seed"])
+        campaign = runner.with_recorded_params(  # the cells' parameters as the run recorded them
+            campaign_from_dict(camp["raw"], source=camp["source"], seed=camp["seed"]), manifest.get("cells", []),
+            str(args.resume))
         path = module.resume(args.resume, campaign, progress=log, **_executor_for(args, method))
     else:
         spec = _estimate_spec(args, method)
@@ -838,7 +836,7 @@ def _cmd_bench(args) -> int:
     result = engine.run(
         campaign=args.campaign, cell_name=args.cell, engine_episodes=args.engine_episodes,
         baseline_episodes=args.baseline_episodes, naive_episodes=args.naive_episodes, backend=args.backend,
-        write=not args.no_write, progress=lambda msg: print(msg, file=sys.stderr), infeasibility=args.infeasibility,
+        write=not args.no_write, progress=lambda msg: print(msg, file=sys.stderr),
         seed=args.seed, settings=args.settings,
     )
     print(engine_report.render(result))

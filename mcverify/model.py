@@ -121,27 +121,10 @@ BACKEND_NAMES = ("ipopt", "ipm")
 #: The MPC-DC baselines (Sec. VI-D): "mpcdc" keeps the ellipses at the nodes (h >= 0), "mpcdc_eps"
 #: at the level of the cell (h >= barrier.epsilon); everything else about them is the same.
 MPCDC_CONTROLLERS = ("mpcdc", "mpcdc_eps")
-#: Who certifies that a problem is infeasible on the ipm backend (:attr:`Mpc.infeasibility`).
-INFEASIBILITY_POLICIES = ("ipopt", "phase1", "phase1_mpcdc")
-#: How the ipm backend factorises the KKT system (:attr:`Mpc.kkt_factorization`; the names of
-#: ``mcverify.solver.ipm.KKT_FACTORISATIONS``, checked there).
-KKT_FACTORIZATIONS = ("lu", "ldlt", "ldlt_curvature")
 #: The evidence that makes the ego abandon the overtake (:attr:`Mpc.abandon_rule`).
 ABANDON_RULES = ("first_failure", "consecutive", "certified")
-#: Whose ipm backend tries the central warm attempt before IPOPT's rescue (:attr:`Mpc.ipm_central_attempt`).
-CENTRAL_ATTEMPT_POLICIES = ("off", "mpcdc", "all")
-#: Whose ipm backend starts a full solve with the central warm attempt after a hard one (:attr:`Mpc.ipm_central_first`).
-CENTRAL_FIRST_POLICIES = ("off", "mpcdc", "all")
-#: Whose ipm backend retries the warm start more centrally before IPOPT's rescue (:attr:`Mpc.ipm_central_retry`).
-CENTRAL_RETRY_POLICIES = ("off", "mpcdc", "all")
-#: The attempt a full solve starts with after a hard one (:attr:`Mpc.ipm_after_hard_attempt`).
-AFTER_HARD_ATTEMPTS = ("central", "lower_mu")
-#: Values of ``mpc.ipm_restoration``.
-RESTORATION_POLICIES = ("off", "mpcdc", "all")
 #: When the dual planner solves Q2 while overtaking (:attr:`Mpc.q2_solve`).
 Q2_SOLVE_POLICIES = ("every_step", "fast_when_unneeded", "when_needed")
-#: Where Q2 asks the ego to stay stoppable behind veh_f (:attr:`Mpc.q2_stoppable`; not in the paper).
-Q2_STOPPABLE_MODES = ("off", "end", "path")
 #: Most piecewise-constant segments of one structured disturbance (:attr:`Noise.front_x_segments`).
 MAX_SEGMENTS = 8
 #: Most noise branches of one episode (:attr:`Noise.branch_after_steps`).
@@ -164,7 +147,8 @@ GUIDE_NAMES: tuple[str, ...] = REQUIREMENT_NAMES + tuple(
 
 @dataclass(frozen=True)
 class Mpc:
-    """TO-CBF-MPC settings (box eq.tompc).
+    """TO-CBF-MPC settings (box eq.tompc): the controller, its optimal-control problem, and (last) the
+    solver's tuning.
 
     Paper: N = 50, goal reaction time phi = 1.8 s (x_g = x_f + phi v_f). Named defaults: the upper
     bound on every stage interval ``dt_max_s`` (eq.tompc_t; 0.3 s gives a 15 s horizon, enough for
@@ -173,76 +157,19 @@ class Mpc:
     weight (the paper's Remark after eq.tompc allows it; it does not touch the safety constraints and
     makes the time-optimal problem well conditioned).
 
-    ``controller``: "vlcbf" (the paper's dual TO-CBF-MPC, Q1 and Q2 with VL-CBF constraints) or
-    "mpcdc" (the Sec. VI-D baseline: the same time-optimal MPC and horizon with the ellipses as
-    distance constraints at the nodes, no Q2 backup) or "mpcdc_eps" (the same MPC-DC with the
-    distance constraints at the cell's level, h >= ε (``barrier.epsilon``) instead of h >= 0: the
-    ε-margin ellipse, a runtime bound of the same kernel). ``backend``: the NLP solver ("ipopt", the
-    reference; "ipm", the fast path of :mod:`mcverify.solver.backends`, the default). ``max_iter`` bounds
-    warm-started solves, ``max_iter_cold`` cold ones (a cold start with the opposing vehicle needs
-    many more iterations than a warm one).
-
-    ``infeasible_recheck_steps``: once IPOPT has certified a problem infeasible
-    ("Infeasible_Problem_Detected"), the following steps try only the fast path on it (presumed
-    infeasible when that fails) and give IPOPT the full attempt again after this many steps (1:
-    every step, the exhaustive behaviour). Every full attempt that fails again (certified or out of
-    iterations) doubles the wait, up to ``infeasible_recheck_max_steps`` (equal to
-    ``infeasible_recheck_steps``: a fixed period). A fast-path success within the wait does not
-    end it: under perception noise a problem at the edge of feasibility flickers between solved and
-    certified infeasible from one step to the next. Only the dual planner's Q1 and Q2 are presumed:
-    MPC-DC has no second problem, so a presumed failure there would decide the control by itself
-    (the held plan); MPC-DC always gets the full attempt (measured: with the memo, 5 of 6 paired MPC-DC
-    eps = 0.3 episodes in Table IV's Scenario A turned unsafe, the ego holding a stale plan into veh_o;
-    results/BENCHMARKS.md, "The infeasibility memo on MPC-DC"). The fast path still tries every step, so
-    a problem it can solve is back at once; the wait only delays what IPOPT alone could solve (up to
-    1 s at 50 Hz). Only the ``ipm`` backend has a fast path; ``ipopt`` always runs in full. Why
-    the memo exists, with its measurements: ``docs/decisions.md``.
-
-    ``abandon_rule``: what evidence makes the ego abandon the overtake (Algorithm 1's break out of
-    the Q1 loop, and Table I's row 0 "go back: Q1 not solved" for a human-driven veh_o). The paper
-    says only "whenever the feasibility of Q1 is being challenged, we merge back" (Sec. IV) and
-    Algorithm 1 breaks at the first step Q1 is not solved; it does not say what challenges it. A
-    failed solve is not a proof: half of the turn-backs measured on Table III-like runs came from
-    IPOPT iteration limits, often on a step where the noisy measured veh_f speed was 6-9 % above
-    the truth. The rules:
-
-    * "first_failure" (the default, the paper's Algorithm 1 read literally): the first failed Q1
-      solve abandons, whatever the reason;
-    * "consecutive": ``abandon_after_failures`` consecutive failed Q1 solves (k, default 3) abandon;
-    * "certified": only a Q1 failure the solver certified infeasible (IPOPT's certificate, or a
-      failure presumed infeasible by the infeasibility memo after such a certification) abandons;
-      iteration limits and numerical failures do not.
-
-    While the rule has not fired and Q1 failed (with Q2 solved), the ego keeps following its last
-    Q1 plan (the held plan, counted in ``q1_held_steps``); once that plan is used up (or there is
-    none) the rule no longer waits and Algorithm 1 goes on as in "first_failure". Everything else
-    of Algorithm 1 and Table I is unchanged.
-
-    ``q2_solve``: how the dual planner solves Q2 at the steps whose decision does not read it. With
-    no or an autonomous veh_o, Algorithm 1 applies Q1 whenever Q1 is solved, so Q2's plan is then
-    unused; it is read when Q1 was not solved, while going back, and whenever Table I compares the
-    two plans (a human-driven veh_o detected). The policies:
-
-    * "every_step" (the default, Algorithm 1 as written: both problems at every step);
-    * "fast_when_unneeded": an unread Q2 gets the fast path only (the ipm backend's IPM attempts, no
-      IPOPT; a failure leaves the infeasibility memo as it was). Where the fast path converges, Q2's
-      solution and warm start are those of "every_step"; the difference is confined to the steps where
-      only IPOPT would have solved or certified it;
-    * "when_needed": an unread Q2 is not solved at all; the next step that reads Q2 starts from its
-      last solution, however old (cold at the first one), and may converge to another local solution
-      of Q2 than "every_step" does (measured: same decisions, other turn-back paths; docs/engine.md).
-
-    ``q2_fail_steps`` and Theorem 5 count the steps where Q2 was solved and failed (a step with Q1
-    solved satisfies Theorem 5 whatever Q2 does).
+    ``abandon_rule`` reads "whenever the feasibility of Q1 is being challenged, we merge back" (Sec. IV;
+    Algorithm 1 breaks at the first step Q1 is not solved) three ways; while the rule waits, the ego
+    follows its last Q1 plan (``q1_held_steps``). ``q2_solve`` trades Algorithm 1 as written for solver
+    time at the steps whose decision does not read Q2 (docs/engine.md). The ``ipm`` backend's attempts
+    per controller family are fixed data (:mod:`mcverify.solver.attempts`), not options; why they are what
+    they are: docs/decisions.md.
     """
 
     controller: str = "vlcbf"
-    """vlcbf (the paper's dual TO-CBF-MPC), mpcdc (the Sec. VI-D baseline) or mpcdc_eps (the baseline at the level
-    epsilon)."""
-    backend: str = "ipm"
-    """NLP solver: ipm (the fast path, IPOPT as fallback) or ipopt (the reference)."""
+    """vlcbf (the paper's dual TO-CBF-MPC), mpcdc (the Sec. VI-D baseline: distance constraints at the nodes, no
+    Q2) or mpcdc_eps (the baseline at the level epsilon, h >= barrier.epsilon)."""
     horizon: int = 50
-    """Number of MPC stages N. Valid: 1-500. Paper: 50."""
+    """Number of MPC stages N. Valid: 2-500. Paper: 50."""
     dt_max_s: float = 0.3
     """Upper bound of every stage interval (eq.tompc_t). Valid: > dt_min_s. Paper: not given."""
     dt_min_s: float = 1e-4
@@ -253,72 +180,32 @@ class Mpc:
     """Lateral goal tolerance epsilon_y (eq.tompc_y). Valid: > 0. Paper: not given."""
     smooth_weight: float = 1e-3
     """Weight of the input-smoothing term. Valid: >= 0. Paper: allowed by its Remark, no value."""
+    abandon_rule: str = "first_failure"
+    """What abandons the overtake: first_failure (Algorithm 1 literally: the first failed Q1 solve), consecutive
+    (abandon_after_failures failed Q1 solves in a row) or certified (only a Q1 failure certified infeasible)."""
+    abandon_after_failures: int = 3
+    """Failed Q1 solves in a row that abandon with abandon_rule = consecutive. Valid: >= 1."""
+    q2_solve: str = "every_step"
+    """How Q2 is solved at the steps whose decision does not read it: every_step (Algorithm 1: in full),
+    fast_when_unneeded (the fast path only) or when_needed (not at all)."""
+
+    # ---- solver tuning: how the NLP is solved, not which NLP ----
+    backend: str = "ipm"
+    """NLP solver: ipm (the fast path, IPOPT as fallback) or ipopt (the reference)."""
     max_iter: int = 150
     """Solver iterations of a warm-started solve. Valid: >= 1."""
     max_iter_cold: int = 400
     """Solver iterations of a cold solve. Valid: >= 1."""
-    infeasible_recheck_steps: int = 10
-    """After IPOPT certifies a problem infeasible, steps before it tries it in full again (1: every step). Valid: >=
-    1."""
-    infeasible_recheck_max_steps: int = 50
-    """Largest wait of the doubling recheck period. Valid: >= infeasible_recheck_steps."""
-    abandon_rule: str = "first_failure"
-    """What abandons the overtake: first_failure (Algorithm 1 literally), consecutive or certified."""
-    abandon_after_failures: int = 3
-    """Failed Q1 solves in a row that abandon with abandon_rule = consecutive. Valid: >= 1."""
     tol: float = 1e-6
     """Solver tolerance on the scaled KKT error. Valid: > 0."""
-    infeasibility: str = "phase1_mpcdc"
-    """Who certifies infeasibility on the ipm backend: ipopt (its fallback), phase1 (the C phase 1 from every start,
-    IPOPT as scheduled auditor; docs/engine.md) or phase1_mpcdc (phase1 for the MPC-DC baselines, ipopt for the
-    VL-CBF controllers; the default since 2026-11-28, ``ipopt`` before, which runs made earlier keep:
-    CHANGED_DEFAULTS)."""
-    ipm_restoration: str = "mpcdc"
-    """Whose full solves run the ipm backend's cold IPM attempt with the C restoration phase (a failed line search
-    restores feasibility instead of ending the attempt; docs/engine.md): off, mpcdc (the MPC-DC baselines only; the
-    default since 2026-11-28, ``off`` before, which runs made earlier keep: CHANGED_DEFAULTS) or all; false and true,
-    its values before it took policies, read as off and all."""
-    ipm_central_attempt: str = "mpcdc"
-    """A last IPM attempt of a full solve, after the two warm and the cold one failed and before IPOPT: the warm
-    start again at barrier parameter 1e-2 (docs/engine.md, "A central attempt before the rescue"): off, mpcdc (the
-    MPC-DC baselines only; the default since 2026-11-26, ``off`` before, which runs made earlier keep:
-    :data:`mcverify.campaign.runner.CHANGED_DEFAULTS`) or all (every controller: VL-CBF B 13-14 % cheaper, but
-    it moves knife-edge turn-backs of the README's Tables III and IV away from the IPOPT backend's outcomes)."""
-    ipm_central_first: str = "mpcdc"
-    """After a full solve that the two warm IPM attempts did not solve (the cold or central attempt, or IPOPT, did),
-    the next full solve of the same problem in the episode starts with the central warm attempt, then the usual ones
-    (docs/engine.md, "The central attempt first after a hard solve"): off, mpcdc (the MPC-DC baselines only; the
-    default since 2026-11-28, ``off`` before, which runs made earlier keep: CHANGED_DEFAULTS) or all."""
-    ipm_after_hard_attempt: str = "lower_mu"
-    """Which warm attempt ``ipm_central_first`` runs first after a hard solve: central (the central attempt: barrier
-    parameter 1e-2, bound push 1e-3) or lower_mu (barrier parameter 3e-3, bound push 3e-3, bound multipliers at least
-    3e-2; the default since 2026-11-28, ``central`` before, which runs made earlier keep: CHANGED_DEFAULTS);
-    docs/engine.md, "The lower-mu attempt after a hard solve"."""
-    ipm_after_hard_solves: int = 1
-    """How many hard solves in a row (each answered by neither warm attempt: the cold, central or lower-mu attempt,
-    or IPOPT) make ``ipm_central_first`` start the next full solve with the ``ipm_after_hard_attempt`` one: 1 (the
-    default: after every hard solve) or more (2: an isolated hard solve leaves the usual order; measured dearer on
-    the Table IV mix, docs/engine.md, "Two hard solves in a row"). Valid: >= 1."""
-    ipm_central_retry: str = "mpcdc"
-    """After every other IPM attempt of a full solve failed (the central one included) and before IPOPT: the warm
-    start once more at barrier parameter 3e-2 for up to 100 iterations (docs/engine.md, "A central retry before the
-    rescue"): off, mpcdc (the MPC-DC baselines only; the default since 2026-11-28, ``off`` before, which runs made
-    earlier keep: CHANGED_DEFAULTS) or all."""
-    kkt_factorization: str = "lu"
-    """How the ipm backend factorises its KKT system: lu (banded LU, the default), ldlt (banded LDL^T with the inertia
-    test) or ldlt_curvature (banded LDL^T with the LU's curvature test); docs/engine.md, "The LDL^T path"."""
-    q2_stoppable: str = "off"
-    """Not in the paper (its Q2 has no speed condition, so a late turn-back can reach the goal too fast to avoid veh_f:
-    README, "Q2's goal has no speed condition"): Q2 asks that the footprint gap behind veh_f, x_f - x_e - length,
-    cover (v_e - v_f)_+^2 / (2 |accel_min_mps2|), veh_f's measurement errors allowed for. off (the paper), end (at the
-    plan's end only) or path (at every node where the ego is behind veh_f). An experiment: neither closes that window
-    (README), and path makes overtakes 6-20x dearer. VL-CBF controllers only."""
-    q2_solve: str = "every_step"
-    """How Q2 is solved at the steps whose decision does not read it: every_step (Algorithm 1: in full),
-    fast_when_unneeded (the fast path only) or when_needed (not at all)."""
+    infeasible_recheck_steps: int = 10
+    """After IPOPT certifies a VL-CBF problem infeasible, steps the fast path alone tries it (presumed infeasible
+    when it fails) before IPOPT tries it in full again (1: every step); docs/decisions.md. Valid: >= 1."""
+    infeasible_recheck_max_steps: int = 50
+    """Largest wait of the doubling recheck period. Valid: >= infeasible_recheck_steps."""
     infeasibility_audit_every: int = 10
-    """With infeasibility = phase1: about one C certificate in this many is re-checked by IPOPT (1: every one).
-    Valid: >= 1."""
+    """Where the C phase 1 certifies infeasibility (the MPC-DC baselines on the ipm backend): about one certificate
+    in this many is re-checked by IPOPT (1: every one). Valid: >= 1."""
 
     @property
     def is_mpcdc(self) -> bool:

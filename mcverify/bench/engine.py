@@ -186,16 +186,15 @@ def plant_transfer_ms(cell: Cell, batch: int, seed: int, reps: int = 200) -> dic
     return {"compute_ms": 1e3 * compute / reps, "transfer_ms": 1e3 * transfer / reps, "batch": float(batch)}
 
 
-def pick_cells(campaign_path: str, cell_name: str, backend: str | None, infeasibility: str | None = None,
+def pick_cells(campaign_path: str, cell_name: str, backend: str | None,
                overrides: dict | None = None, seed: int | None = None,
                settings: Sequence[str] = ()) -> tuple[list[Cell], int, bool]:
-    """The cells to run (``cell_name`` or every cell for ``"all"``), with ``backend``, the
-    ``mpc.infeasibility`` policy and other ``overrides`` (dotted keys) applied when given; ``seed``:
+    """The cells to run (``cell_name`` or every cell for ``"all"``), with ``backend`` and other ``overrides`` (dotted keys) applied when given; ``seed``:
     the campaign seed instead of the file's (other episodes, the same cells); ``settings``: as
     ``mcverify run --set``, written into the file before its cells are expanded."""
     camp = load_campaign(campaign_path, seed=seed, settings=settings)
     cells = list(camp.cells) if cell_name == ALL_CELLS else [camp.cell(cell_name)]
-    changes = [("mpc.backend", backend, "--backend"), ("mpc.infeasibility", infeasibility, "--infeasibility")]
+    changes = [("mpc.backend", backend, "--backend")]
     changes += [(k, v, "overrides") for k, v in (overrides or {}).items()]
     for key, value, flag in changes:
         if value is not None:
@@ -254,7 +253,6 @@ def run(
     backend: str | None = None,
     write: bool = True,
     progress=print,
-    infeasibility: str | None = None,
     overrides: dict | None = None,
     seed: int | None = None,
     settings: Sequence[str] = (),
@@ -269,7 +267,7 @@ def run(
             baseline_episodes, naive_episodes) <= engine_episodes:
         raise ValueError("need engine_episodes >= 1 and 0 <= baseline_episodes, naive_episodes <= engine_episodes "
                          "(their episodes are paired with the engine's)")
-    cells, seed, crn = pick_cells(campaign, cell_name, backend, infeasibility, overrides, seed, settings)
+    cells, seed, crn = pick_cells(campaign, cell_name, backend, overrides, seed, settings)
     counts = {"engine": engine_episodes, "baseline": baseline_episodes, "naive": naive_episodes}
     progress(f"bench: {campaign}, {len(cells)} cell(s); episodes per cell: engine {engine_episodes}, "
              f"compiled IPOPT loop {baseline_episodes}, naive {naive_episodes} (paired: the first ones)")
@@ -307,7 +305,6 @@ def run(
         "campaign": campaign,
         "cells": [c.name for c in cells],
         "backend": ",".join(sorted({c.params.mpc.backend for c in cells})),
-        "infeasibility": ",".join(sorted({c.params.mpc.infeasibility for c in cells})),
         "sides": {s: sides[s] for s in active},
         "ratios": {s: engine.episodes_per_cpu_min / sides[s].episodes_per_cpu_min
                    for s in ("baseline", "naive") if counts[s]},

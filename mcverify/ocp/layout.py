@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mcverify.levels import epsilon_from_lambda0, lambda0_from_epsilon
+from mcverify.levels import Level, lambda0_from_epsilon
 from mcverify.model import ModelParams
 
 N_X = 4  # [x, y, psi, v]
@@ -88,7 +88,6 @@ class OcpStructure:
             constraint="distance" if params.mpc.is_mpcdc else "cbf",
             opp_order_m=len(params.barrier.opp_lambdas_m),
             opp_law_order_m=len(params.opposing.lambdas_m),
-            stoppable="off" if params.mpc.is_mpcdc else params.mpc.q2_stoppable,
         )
 
 
@@ -222,7 +221,7 @@ def pack_params(
     ego_state: np.ndarray,
     front_xyv: np.ndarray,
     direction: int,
-    lambda0: float,
+    level: Level,
     y_goal: float | None = None,
     *,
     opp_xv: np.ndarray | None = None,
@@ -231,7 +230,7 @@ def pack_params(
     """Parameter vector p (layout :class:`ParamLayout`) for one solve.
 
     ego_state: (4,) [x m, y m, psi rad, v m/s]. front_xyv: (3,) [x_f m, y_f m, v_f m/s].
-    direction: +1 (Q1, overtake) or -1 (Q2, go back). lambda0: the level parameter (<= 0).
+    direction: +1 (Q1, overtake) or -1 (Q2, go back). level: the cell's VL-CBF level (its lambda0 enters p).
     y_goal: lateral goal (m), default the ego lane centre. opp_xv: (2,) measured veh_o
     [x_o m, v_o m/s signed], required when ``structure.with_opposing``. Other values come from
     ``params``; structure defaults to ``OcpStructure.from_params(params)``.
@@ -252,7 +251,7 @@ def pack_params(
     p[sl["eps_y"]] = params.mpc.eps_y_m
     p[sl["ellipse_a"]] = params.barrier.ellipse_a_m
     p[sl["ellipse_b"]] = params.barrier.ellipse_b_m
-    p[sl["lambdas"]] = (lambda0, *params.barrier.lambdas_m)
+    p[sl["lambdas"]] = (level.lambda0, *params.barrier.lambdas_m)
     p[sl["l_r"]] = params.ego.l_r_m
     p[sl["u_scale"]] = input_scale(params)
     p[sl["smooth_weight"]] = params.mpc.smooth_weight
@@ -372,8 +371,7 @@ def distance_margin(params: ModelParams) -> float:
     otherwise (the ellipse itself)."""
     if params.mpc.controller != "mpcdc_eps":
         return 0.0
-    b = params.barrier
-    return float(b.epsilon) if b.epsilon is not None else epsilon_from_lambda0(b.lambdas_m, float(b.lambda0))
+    return Level.of_barrier(params.barrier).epsilon
 
 
 def constraint_bounds(structure: OcpStructure, margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
