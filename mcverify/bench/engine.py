@@ -189,7 +189,8 @@ def plant_transfer_ms(cell: Cell, batch: int, seed: int, reps: int = 200) -> dic
 def pick_cells(campaign_path: str, cell_name: str, backend: str | None,
                overrides: dict | None = None, seed: int | None = None,
                settings: Sequence[str] = ()) -> tuple[list[Cell], int, bool]:
-    """The cells to run (``cell_name`` or every cell for ``"all"``), with ``backend`` and other ``overrides`` (dotted keys) applied when given; ``seed``:
+    """The cells to run (``cell_name`` or every cell for ``"all"``), with ``backend`` and other ``overrides``
+    (dotted keys) applied when given; ``seed``:
     the campaign seed instead of the file's (other episodes, the same cells); ``settings``: as
     ``mcverify run --set``, written into the file before its cells are expanded."""
     camp = load_campaign(campaign_path, seed=seed, settings=settings)

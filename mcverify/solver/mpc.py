@@ -109,8 +109,9 @@ class MpcSolver:
         """Solve Q1 (direction +1) or Q2 (-1) from the measured states.
 
         ego_state (4,) [x m, y m, psi rad, v m/s]; front_xyv (3,) [x_f m, y_f m, v_f m/s];
-        level: the cell's VL-CBF level (:class:`mcverify.levels.Level`); warm: the ``warm`` of the previous solution of the same
-        direction, or None for a cold start from :func:`~mcverify.ocp.problem.initial_guess`;
+        level: the cell's VL-CBF level (:class:`mcverify.levels.Level`); warm: the ``warm`` of the
+        previous solution of the same direction, or None for a cold start from
+        :func:`~mcverify.ocp.problem.initial_guess`;
         opp_xv (2,) [x_o m, v_o m/s signed]: the measured opposing vehicle, required (only) when the
         structure has one; guess (n_w,): a primal starting point for a cold solve instead of
         :func:`~mcverify.ocp.problem.initial_guess` (e.g. the plain problem's plan, :func:`guess_from_plan`).
