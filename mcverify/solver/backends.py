@@ -59,7 +59,7 @@ import numpy as np
 
 from mcverify.errors import raise_noted_interrupt
 from mcverify.model import BACKEND_NAMES, ModelParams
-from mcverify.solver.attempts import ATTEMPTS, EASY_ATTEMPTS, attempt_plan
+from mcverify.solver.attempts import ATTEMPTS, EASY_ATTEMPTS, AttemptPlan, attempt_plan
 from mcverify.solver.cfun import CFunction
 from mcverify.solver.ipm import COLD, WARM_ATTEMPTS, Ipm, IpmOptions, IpmResult
 from mcverify.solver.kernels import Kernel, get_runtime_library
@@ -270,12 +270,13 @@ class IpmBackend:
 
     name = "ipm"
 
-    def __init__(self, problem: Problem, params: ModelParams, kernel_dir=None) -> None:
+    def __init__(self, problem: Problem, params: ModelParams, kernel_dir=None, plan: AttemptPlan | None = None) -> None:
+        """``plan``: the attempts (default: those of ``params.mpc.controller``'s family; tests give others)."""
         self.problem = problem
         self.reference = IpoptBackend(problem, params)
         lib = get_runtime_library("ipm", kernel_dir).so_path
         self.ipm = Ipm(problem.kernel.so_path, problem.lbx, problem.ubx, problem.lbg, problem.ubg, lib)
-        self.plan = attempt_plan(params.mpc)
+        self.plan = plan or attempt_plan(params.mpc)
         tol = params.mpc.tol
         self.options = {name: dataclasses.replace(opts, tol=tol) for name, (_, opts, _) in ATTEMPTS.items()}
         # the cold attempt of a full solve (not of a fast-only one: a restoration there mostly fails, at a price)

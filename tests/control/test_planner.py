@@ -83,7 +83,7 @@ class _CertifiedInfeasibleSolver:
         self.full_calls: list[int] = []  # calls of the failing problem given the full attempt
         self.calls = 0
 
-    def solve(self, ego, front, direction, lambda0, warm=None, opp_xv=None, guess=None, fast_only=False):
+    def solve(self, ego, front, direction, level, warm=None, opp_xv=None, guess=None, fast_only=False):
         import dataclasses
 
         if direction != self.failing_direction:
