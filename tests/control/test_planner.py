@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from mcverify.levels import Level
 from mcverify.control.decision import Mode
 from mcverify.control.planner import EpisodeState, Planner, ego_in_own_lane, fallback_input, held_input
 from mcverify.model import ModelParams
@@ -63,7 +64,7 @@ def test_committed_once_back_in_lane_ahead_of_the_front_vehicle(planner):
 
 def test_step_overtakes_from_the_table_ii_start(planner):
     st = EpisodeState(0)
-    u, rec = planner.step(st, 0.0, np.array([10.0, 0.0, 0.0, 10.0]), FRONT, None, -0.3135)
+    u, rec = planner.step(st, 0.0, np.array([10.0, 0.0, 0.0, 10.0]), FRONT, None, Level(epsilon=0.3, lambda0=-0.3135))
     assert rec.q1.success and rec.q2.success and st.mode is Mode.OVERTAKE
     assert u[0] > 0  # accelerates to overtake
     assert st.steps == 1 and len(st.iterations) == 2

@@ -57,12 +57,13 @@ def test_the_vlcbf_attempts_then_ipopt(monkeypatch):
 
 def test_the_mpcdc_attempts_in_a_full_and_a_fast_only_solve(monkeypatch):
     solver = _solver(MPCDC_PLAN)
-    warm = solver.solve(EGO, FRONT, 1, LEVEL)
+    warm = dataclasses.replace(solver.solve(EGO, FRONT, 1, LEVEL).warm, hard_run=0)  # (the cold solve was hard)
     central, retry = (CENTRAL_WARM.mu_init, True), (CENTRAL_RETRY.mu_init, True)
-    assert attempt_starts(solver, warm.warm, monkeypatch) == [WARM1, WARM2, COLD_RUN, central, retry]
+    phase1 = (WARM_ATTEMPTS[0].mu_init, True)  # then phase 1 from the warm start: no certificate, IPOPT answers
+    assert attempt_starts(solver, warm, monkeypatch) == [WARM1, WARM2, COLD_RUN, central, retry, phase1]
     assert solver.backend.ipm_outcomes["warm4:Line_Search_Failed"] == 1  # the tags keep their numbers
     assert solver.backend.ipm_outcomes["warm5:Line_Search_Failed"] == 1
-    assert attempt_starts(solver, warm.warm, monkeypatch, fast_only=True) == [WARM1, WARM2, COLD_RUN]
+    assert attempt_starts(solver, warm, monkeypatch, fast_only=True) == [WARM1, WARM2, COLD_RUN]
     assert solver.backend.cold_full.restoration and not solver.backend.options["cold"].restoration
 
 
@@ -71,7 +72,8 @@ def test_after_a_hard_mpcdc_solve_the_lower_mu_attempt_leads(monkeypatch):
     warm = solver.solve(EGO, FRONT, 1, LEVEL)
     hard: WarmStart = dataclasses.replace(warm.warm, hard_run=1)
     lower_mu, retry = (AFTER_HARD_WARM.mu_init, True), (CENTRAL_RETRY.mu_init, True)
-    assert attempt_starts(solver, hard, monkeypatch) == [lower_mu, WARM1, WARM2, COLD_RUN, retry]
+    phase1 = (WARM_ATTEMPTS[0].mu_init, True)
+    assert attempt_starts(solver, hard, monkeypatch) == [lower_mu, WARM1, WARM2, COLD_RUN, retry, phase1]
     assert solver.backend.ipm_outcomes["warm6:Line_Search_Failed"] == 1
 
 
