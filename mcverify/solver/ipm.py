@@ -34,7 +34,7 @@ _L = ctypes.POINTER(ctypes.c_int64)
 _FUN = ctypes.c_void_p
 
 #: ``IPM_ABI_VERSION`` of ``csrc/ipm.h`` this binding is written for.
-ABI_VERSION = 3
+ABI_VERSION = 4
 #: The status codes of ``csrc/ipm.h`` (``enum ipm_status``) -> status strings, the one table of them
 #: on this side (checked against the library's ``ipm_status_name`` at load).
 STATUS = {
@@ -46,9 +46,6 @@ STATUS = {
 #: certificate of local infeasibility, undecided, a feasible point (phase 1 only).
 INFEASIBLE, RESTORATION_FAILED, FEASIBLE_POINT_FOUND = 6, 7, 8
 CONVERGED = 0
-#: ``ipm_opts.kkt_ldlt`` and ``kkt_delta`` of ``csrc/ipm.h``: the banded LU (IPM_KKT_LU), the only
-#: factorisation the backend uses (the delta is then unused).
-KKT_LU, KKT_DELTA = 0, 1e-9
 _KERNEL_FUNCTIONS = ("nlp_g", "nlp_grad_f", "nlp_jac_g", "nlp_hess_l")
 
 
@@ -143,7 +140,6 @@ class _Opts(ctypes.Structure):
         ("verbose", ctypes.c_int), ("theta_far", ctypes.c_double), ("mu_far", ctypes.c_double),
         ("push_far", ctypes.c_double), ("restoration", ctypes.c_int), ("phase1", ctypes.c_int),
         ("resto_max_iter", ctypes.c_int), ("resto_rho", ctypes.c_double), ("resto_mu_cert", ctypes.c_double),
-        ("kkt_ldlt", ctypes.c_int), ("kkt_delta", ctypes.c_double),
     ]
 
 
@@ -155,8 +151,6 @@ class _Stats(ctypes.Structure):
         ("theta_start", ctypes.c_double), ("first_alpha", ctypes.c_double),
         ("resto_calls", ctypes.c_int), ("resto_iterations", ctypes.c_int), ("cert_violation", ctypes.c_double),
         ("cert_stationarity", ctypes.c_double), ("cert_mu", ctypes.c_double),
-        ("kkt_fallbacks", ctypes.c_int), ("kkt_refinements", ctypes.c_int), ("kkt_wrong_inertia", ctypes.c_int),
-        ("kkt_ratio_max", ctypes.c_double),
     ]
 
 
@@ -319,8 +313,7 @@ class Ipm:
         warm = lam_x0 is not None and lam_g0 is not None
         copts = _Opts(o.tol, o.constr_viol_tol, o.mu_init, o.mu_min, o.bound_push, o.mult_push, o.bound_relax,
                       o.max_iter, int(warm), int(o.verbose), o.theta_far, o.mu_far, o.push_far,
-                      int(o.restoration), int(o.phase1), o.resto_max_iter, o.resto_rho, o.resto_mu_cert,
-                      KKT_LU, KKT_DELTA)
+                      int(o.restoration), int(o.phase1), o.resto_max_iter, o.resto_rho, o.resto_mu_cert)
         x = np.array(w0, dtype=np.float64).reshape(-1)
         lx = np.array(lam_x0 if warm else np.zeros(self.n_w), dtype=np.float64).reshape(-1)
         lg = np.array(lam_g0 if warm else np.zeros(self.n_g), dtype=np.float64).reshape(-1)
