@@ -43,13 +43,9 @@ class Road:
 
 @dataclass(frozen=True)
 class EgoLimits:
-    """Input and state bounds of the ego kinematic bicycle (eq.kinematic_bicycle).
-
-    The paper states only the speed limit (19.4 m/s = 70 km/h). The rest are named defaults:
-    ``accel_max_mps2`` 3.0 (a Camry's 0-100 km/h in about 8 s), ``accel_min_mps2`` -6.0 (firm
-    braking on dry asphalt), slip angle |beta| <= 0.15 rad, heading |psi| <= 0.35 rad, the c.g.
-    kept on the road (ego-lane outer edge to opposing-lane outer edge, minus half a width), and the
-    rear axle to c.g. distance ``l_r_m`` = 1.4 m (about half the Camry's 2.825 m wheelbase).
+    """Input and state bounds of the ego kinematic bicycle (eq.kinematic_bicycle). The paper states only the
+    speed limit (19.4 m/s = 70 km/h); the others are named defaults: a Camry's acceleration (0-100 km/h in about
+    8 s), firm braking on dry asphalt, the c.g. kept on the road, and l_r about half the Camry's 2.825 m wheelbase.
     """
 
     accel_min_mps2: float = -6.0
@@ -79,19 +75,14 @@ class Barrier:
     h_ef(x_e, t) = ((x_e - x_f)/a)^2 + ((y_e - y_f)/b)^2 - 1 is the ellipse of fig.relative_CBF in the
     standard form (the paper's beta_1 = 1/a^2, beta_2 = 1/b^2, beta_3 = 1 up to a common scale).
 
-    The default axes are the smallest-area ellipse through the corners (+-L, +-W) of the
-    Minkowski sum of two aligned footprints: a = sqrt(2) L, b = sqrt(2) W. With the ego c.g. outside
-    it, two aligned footprints cannot touch.
+    The default axes are the smallest-area ellipse through the corners (+-L, +-W) of the Minkowski sum of two
+    aligned footprints: a = sqrt(2) L, b = sqrt(2) W (with the ego c.g. outside it, they cannot touch). The level:
+    :class:`mcverify.levels.Level` (``epsilon`` or ``lambda0``, with ``lambdas_m``).
 
-    ``lambdas_m`` are (lambda_1, ..., lambda_m), all > 0, so kappa~(h) = sum lambda_i h^(2i-1) is class K_e.
-    The level is either ``epsilon`` (then lambda_0 = -kappa~(epsilon)) or ``lambda0`` directly.
-
-    Opposing vehicle (eq.two_way_value_function_e): h_eo = x_o - x_e - (v_e - v_o)^2 / (2 a_l) (m)
-    with a_l = ``decel_max_mps2``, the ego's own Lambda_eo = [-kappa~_eo(opp_epsilon_m),
-    opp_lambdas_m...] (kappa~_eo(h) = sum lambda_i h^(2i-1), h in metres, so lambda_1 is in 1/s).
-    The paper gives neither a_l nor Lambda_eo: a_l = 6 m/s^2 is the ego's braking limit, the
-    level 1 m keeps a metre of stopping margin, and the linear kappa~ (m = 1) keeps the constraint
-    well scaled when h_eo is tens of metres.
+    Opposing vehicle (eq.two_way_value_function_e): h_eo = x_o - x_e - (v_e - v_o)^2 / (2 a_l) (m), a_l =
+    ``decel_max_mps2``, Lambda_eo = [-kappa~_eo(opp_epsilon_m), opp_lambdas_m...] (h in metres, lambda_1 in 1/s).
+    The paper gives neither: a_l is the ego's braking limit, the level 1 m keeps a metre of stopping margin, and
+    the linear kappa~ (m = 1) keeps the constraint well scaled when h_eo is tens of metres.
     """
 
     ellipse_a_m: float = math.sqrt(2.0) * 4.885
@@ -150,19 +141,13 @@ class Mpc:
     """TO-CBF-MPC settings (box eq.tompc): the controller, its optimal-control problem, and (last) the
     solver's tuning.
 
-    Paper: N = 50, goal reaction time phi = 1.8 s (x_g = x_f + phi v_f). Named defaults: the upper
-    bound on every stage interval ``dt_max_s`` (eq.tompc_t; 0.3 s gives a 15 s horizon, enough for
-    the slowest Table II overtake), the lower bound ``dt_min_s`` = 1e-4 s (the paper's "maximum time
-    resolution"), the lateral goal tolerance ``eps_y_m`` (eq.tompc_y), and a small input-smoothing
-    weight (the paper's Remark after eq.tompc allows it; it does not touch the safety constraints and
-    makes the time-optimal problem well conditioned).
-
-    ``abandon_rule`` reads "whenever the feasibility of Q1 is being challenged, we merge back" (Sec. IV;
-    Algorithm 1 breaks at the first step Q1 is not solved) three ways; while the rule waits, the ego
-    follows its last Q1 plan (``q1_held_steps``). ``q2_solve`` trades Algorithm 1 as written for solver
-    time at the steps whose decision does not read Q2 (docs/engine.md). The ``ipm`` backend's attempts
-    per controller family are fixed data (:mod:`mcverify.solver.attempts`), not options; why they are what
-    they are: docs/decisions.md.
+    Paper: N = 50, phi = 1.8 s (x_g = x_f + phi v_f). Named defaults: ``dt_max_s`` (eq.tompc_t; 0.3 s gives a
+    15 s horizon, enough for the slowest Table II overtake), ``dt_min_s`` (the paper's "maximum time
+    resolution"), ``eps_y_m`` (eq.tompc_y) and a small input-smoothing weight (allowed by the Remark after
+    eq.tompc; it does not touch the safety constraints and makes the time-optimal problem well conditioned).
+    ``abandon_rule`` reads Sec. IV's "whenever the feasibility of Q1 is being challenged, we merge back" three
+    ways; while it waits, the ego follows its last Q1 plan (``q1_held_steps``). The ``ipm`` backend's attempts
+    per controller family are data (:mod:`mcverify.solver.attempts`), not options: docs/decisions.md.
     """
 
     controller: str = "vlcbf"
@@ -217,11 +202,9 @@ class Mpc:
 class Noise:
     """Perception noise (paper Sec. VI-A), applied to what the planner measures of other vehicles.
 
-    ``kind``: "paper" or "none". Position noise uniform in +-``pos_far_m`` when the footprint gap to
-    the measured vehicle exceeds ``near_threshold_m``, else +-``pos_near_m``; speed noise uniform in
-    +-``speed_rel`` of the true speed. ``scale`` multiplies all three half-widths (a stronger noise
-    for sweeps). The ego's own state is measured exactly (odometry); the paper's noise is on "the
-    measured objects".
+    Position noise uniform in +-``pos_far_m`` (+-``pos_near_m`` when the footprint gap is below
+    ``near_threshold_m``), speed noise uniform in +-``speed_rel`` of the true speed, all times ``scale``. The
+    ego's own state is measured exactly (odometry); the paper's noise is on "the measured objects".
 
     Structured, bounded disturbances (what ``mcverify falsify`` searches over; all 0 by default,
     which leaves the paper's noise bit for bit as it was): each measured error is
@@ -321,19 +304,10 @@ class Noise:
 
 @dataclass(frozen=True)
 class Simulation:
-    """Closed-loop timing.
-
-    ``control_period_s``: the planner's sampling period (paper: 50 Hz towards the opposing vehicle).
-    ``substeps``: RK4 sub-steps per control period under zero-order hold; every safety check is
-    evaluated at every sub-step. ``max_time_s``: an episode that has neither overtaken nor gone back
-    by then ends as a timeout. ``settle_s``: after the goal test fires ("overtook" / "went_back"),
-    the plant keeps running this long (at most until ``max_time_s``) under the lane-keeping law of
-    :mod:`mcverify.control.lane_keeping`, every safety check included; the outcome and its time stay
-    those of the goal test. 0: the episode ends at the goal test.
-    ``stop_at``: falsification only (set by ``mcverify falsify``, refused in a campaign file): end
-    the episode at the end of the control period in which it first violates this requirement
-    (:data:`REQUIREMENT_NAMES`); "" never stops early.
-    """
+    """Closed-loop timing: the planner's period, the plant's RK4 sub-steps under zero-order hold (every safety check
+    runs at every sub-step), the episode's time limit, and how long the plant keeps running under the lane-keeping
+    law of :mod:`mcverify.control.lane_keeping` after the goal test ("overtook" / "went_back"; the outcome and its
+    time stay the goal test's). ``stop_at`` is set by ``mcverify falsify`` only (:data:`REQUIREMENT_NAMES`)."""
 
     control_period_s: float = 0.02
     """Planner sampling period. Valid: > 0. Paper: 0.02 (50 Hz)."""
@@ -351,15 +325,9 @@ class Simulation:
 
 @dataclass(frozen=True)
 class Scenario:
-    """Initial conditions (paper Sec. VI-B: ego at x = 10 m, 10 m/s; front vehicle at x = 64 m).
-
-    ``front_accel_mps2`` > 0 makes the front vehicle accelerate from ``front_accel_onset_s`` on, up
-    to ``front_speed_max_mps`` (it never switches sign, the paper's assumption).
-    ``front_accel_range_mps2`` = (lo, hi), when given, replaces it: every episode draws its own
-    alpha_f uniformly in (lo, hi] from its key (the paper's Table III ranges (1,3], (3,5], (5,7]).
-    ``front_accel_duration_s``: how long the acceleration lasts from its onset (default: until the
-    speed cap); after it veh_f keeps its speed (it still never decelerates).
-    """
+    """Initial conditions (paper Sec. VI-B: ego at x = 10 m, 10 m/s; front vehicle at x = 64 m) and veh_f's
+    acceleration, which never switches sign (the paper's assumption); a range draws it per episode from the
+    episode's key (the paper's Table III ranges (1,3], (3,5], (5,7])."""
 
     ego_x_m: float = 10.0
     """Ego's initial c.g. position. Paper: 10."""
@@ -398,23 +366,11 @@ class Opposing:
       1.6 m/s^2; 0 = constant speed, Table IV). The planner does not know this law and predicts the
       worst case: ``accel_max_mps2`` towards the ego, capped at ``speed_limit_mps`` (Sec. V-C).
 
-    ``x_m``: initial c.g. position; ``speed_mps`` >= 0: initial (and cruise) speed magnitude;
-    ``detect_range_m``: the ego's sensors see veh_o (and Algorithm 1 adds eq.tompcAdd) once the
-    longitudinal distance x_o - x_e is below it; ``brake_max_mps2``: the largest deceleration of
-    veh_o (its CBF filter is clipped to it).
-
     When veh_o appears (``spawn``; the paper does not say, and with a fixed start the two vehicles
-    rarely meet while the ego borrows the lane):
-    * "start": it drives from ``x_m`` at t = 0 (Tables III-IV as first reproduced);
-    * "lane_entry": it appears when the ego's footprint first crosses the lane line into the
-      opposing lane (or ``spawn_delay_s`` later, when the ego is further into its overtake),
-      ``spawn_gap_m`` ahead of the ego (x_o - x_e, m), so that every episode that starts an
-      overtake meets it mid-overtake. ``spawn_gap_range_m`` = (lo, hi), when given,
-      draws the gap per episode uniformly in (lo, hi] from the episode's key;
-      ``speed_range_mps`` = (lo, hi) likewise draws veh_o's speed (either spawn mode), and
-      ``spawn_delay_range_s`` = (lo, hi) the delay after the lane entry (when veh_o arrives);
-      with ``spawn_delay_sd_s`` > 0 that delay is a normal around ``spawn_delay_s`` truncated to the
-      range instead.
+    rarely meet while the ego borrows the lane): "start", from ``x_m`` at t = 0 (Tables III-IV as first
+    reproduced), or "lane_entry", ``spawn_gap_m`` ahead of the ego when its footprint first crosses the lane
+    line (``spawn_delay_s`` later), so that every episode that starts an overtake meets it mid-overtake. The
+    ``*_range_*`` fields draw the gap, the delay and veh_o's speed per episode from the episode's key.
     """
 
     kind: str = "none"

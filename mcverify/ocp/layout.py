@@ -67,7 +67,6 @@ class OcpStructure:
     constraint: str = "cbf"
     opp_order_m: int = 1
     opp_law_order_m: int = 1
-    stoppable: str = "off"
 
     def __post_init__(self) -> None:
         if self.horizon < 2:
@@ -133,12 +132,6 @@ class ParamLayout:
     gate_relax              1      M: how much the faded-out constraint is relaxed by
     half_length, half_width 1, 1   of the ego footprint (m), for its top edge
     opp_lane_y              1      centre of the opposing lane (m), the MPC-DC ellipse's y
-    ---- with a stoppable Q2 (Mpc.q2_stoppable end or path) ----------------------------------
-    stop_gap                1      centre distance kept behind veh_f's measured c.g.: the length plus the
-                                   measured position's largest error (m)
-    stop_speed_factor       1      veh_f's speed is at least this times its measured speed (1 - the
-                                   speed noise's largest relative error)
-    stop_decel              1      the ego's strongest braking |accel_min| (m/s^2)
     ======================  =====  ==========================================================
     """
 
@@ -146,12 +139,10 @@ class ParamLayout:
     with_opposing: bool = False
     opp_order_m: int = 1
     opp_law_order_m: int = 1
-    stoppable: str = "off"
 
     @classmethod
     def of(cls, structure: OcpStructure) -> ParamLayout:
-        return cls(structure.order_m, structure.with_opposing, structure.opp_order_m, structure.opp_law_order_m,
-                   structure.stoppable)
+        return cls(structure.order_m, structure.with_opposing, structure.opp_order_m, structure.opp_law_order_m)
 
     @property
     def sizes(self) -> dict[str, int]:
@@ -168,8 +159,6 @@ class ParamLayout:
                 "opp_speed_limit": 1, "lane_line_y": 1, "gate_width": 1, "gate_relax": 1,
                 "half_length": 1, "half_width": 1, "opp_lane_y": 1,
             })
-        if self.stoppable != "off":
-            sizes.update({"stop_gap": 1, "stop_speed_factor": 1, "stop_decel": 1})
         return sizes
 
     @property
@@ -274,12 +263,6 @@ def pack_params(
         p[sl["half_length"]] = 0.5 * geo.length_m
         p[sl["half_width"]] = 0.5 * geo.width_m
         p[sl["opp_lane_y"]] = road.opp_lane_y_m
-    if structure.stoppable != "off":
-        nz = params.noise
-        noisy = nz.kind != "none"
-        p[sl["stop_gap"]] = params.geometry.length_m + (nz.pos_far_m * nz.scale if noisy else 0.0)
-        p[sl["stop_speed_factor"]] = 1.0 - (nz.speed_rel * nz.scale if noisy else 0.0)
-        p[sl["stop_decel"]] = -params.ego.accel_min_mps2
     return p
 
 
@@ -291,11 +274,10 @@ class NlpLayout:
     horizon: int
     uniform_dt: bool = True
     with_opposing: bool = False
-    stoppable: str = "off"
 
     @classmethod
     def of(cls, structure: OcpStructure) -> NlpLayout:
-        return cls(structure.horizon, structure.uniform_dt, structure.with_opposing, structure.stoppable)
+        return cls(structure.horizon, structure.uniform_dt, structure.with_opposing)
 
     def _w_sizes(self) -> dict[str, int]:
         n = self.horizon
@@ -310,7 +292,6 @@ class NlpLayout:
         return {
             "init": N_X, "clock0": 1, "dyn": N_X * n, "clock": n, "dt_equal": n - 1 if self.uniform_dt else 0,
             "opp_dyn": n_opp_eq, "front": n, "opp": n if self.with_opposing else 0, "goal": 1, "lat": 2,
-            "stop": {"off": 0, "end": 1, "path": n}[self.stoppable],
         }
 
     @property
@@ -320,8 +301,7 @@ class NlpLayout:
 
     @property
     def g_slices(self) -> dict[str, slice]:
-        """Slices of g: "init", "clock0", "dyn", "clock", "dt_equal", "opp_dyn", "front", "opp", "goal", "lat",
-        "stop"."""
+        """Slices of g: "init", "clock0", "dyn", "clock", "dt_equal", "opp_dyn", "front", "opp", "goal", "lat"."""
         return _slices(self._g_sizes())
 
     @property
