@@ -78,7 +78,7 @@ class EpisodeState:
     q1_rescue_steps: int = 0
     cold_retries: int = 0
     presumed_infeasible_solves: int = 0
-    infeasibility_audits: int = 0  # Mpc.infeasibility = "phase1": C certificates IPOPT re-checked
+    infeasibility_audits: int = 0  # phase-1 certificates (the MPC-DC attempt plan) IPOPT re-checked
     infeasibility_audit_disagreements: int = 0  # ... and solved
     switched_to_q2_at_s: float = math.nan
     went_back_reason: str = ""

@@ -7,9 +7,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from mcverify.levels import Level
 from mcverify import ocp
 from mcverify.bench.naive import NaiveOptiSolver, run_naive
+from mcverify.levels import Level
 from mcverify.model import ModelParams
 from mcverify.solver.mpc import MpcSolver
 

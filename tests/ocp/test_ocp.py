@@ -8,8 +8,8 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from mcverify.levels import Level
 from mcverify import ocp
+from mcverify.levels import Level
 from mcverify.model import ModelParams
 from mcverify.ocp import problem
 from mcverify.solver.mpc import MpcSolver

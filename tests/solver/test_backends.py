@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from test_solver import bicycle_step
 
-from mcverify.levels import Level
 from mcverify.campaign import spec as campaign
+from mcverify.levels import Level
 from mcverify.model import BACKEND_NAMES, ModelParams
 from mcverify.ocp import NlpLayout, OcpStructure, constraint_bounds, pack_params
 from mcverify.solver import backends
@@ -85,6 +85,23 @@ def test_backend_selection(ipm):
     assert isinstance(MpcSolver(P).backend, backends.IpoptBackend)
     with pytest.raises(ValueError, match="unknown solver backend"):
         backends.create_backend("fastest", ipm.problem, P)
+
+
+def test_create_backend_passes_the_kernel_dir_to_the_ipm_library(ipm, monkeypatch, tmp_path):
+    """The ipm backend's compiled C library comes from the kernel cache it is given, through create_backend and
+    MpcSolver alike (both used to drop it and build into the default cache)."""
+    from mcverify.solver import mpc as mpc_module
+
+    asked = []
+    real = backends.get_runtime_library
+    monkeypatch.setattr(backends, "get_runtime_library", lambda name, kernel_dir=None: asked.append(kernel_dir)
+                        or real(name, None))
+    backend = backends.create_backend("ipm", ipm.problem, P_IPM, kernel_dir=tmp_path)
+    assert isinstance(backend, backends.IpmBackend) and asked == [tmp_path]
+    assert backends.create_backend("ipopt", ipm.problem, P, kernel_dir=tmp_path).name == "ipopt"
+    monkeypatch.setattr(mpc_module, "get_kernel", lambda structure, kernel_dir=None: ipm.kernel)  # no new build
+    MpcSolver(P_IPM, kernel_dir=tmp_path / "cache")
+    assert asked == [tmp_path, tmp_path / "cache"]
 
 
 def test_campaign_accepts_ipm_backend():

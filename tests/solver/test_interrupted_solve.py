@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 from test_backends import EGO, LEVEL, P
 
-from mcverify.levels import Level
 from mcverify import cli, errors
 from mcverify.solver import backends
 from mcverify.solver.mpc import MpcSolver
