@@ -157,6 +157,13 @@ def campaign_from_manifest(manifest: dict[str, Any]) -> Campaign:
     ``--episodes`` override (which replaces every bundle's own count) is recognised by the counts:
     the campaign is rebuilt without it first and with it if the counts then differ.
     """
+    return with_recorded_params(expand_recorded_campaign(manifest), manifest.get("cells", []),
+                                manifest["campaign"]["source"])
+
+
+def expand_recorded_campaign(manifest: dict[str, Any]) -> Campaign:
+    """The campaign of a run's recorded file content and overrides, expanded by this code (its cells' parameters
+    are this code's, not the recorded ones: :func:`campaign_from_manifest` replaces them)."""
     camp = manifest["campaign"]
     recorded = [c.get("episodes") for c in manifest.get("cells", [])]
     last_error: CampaignError | None = None
@@ -167,7 +174,7 @@ def campaign_from_manifest(manifest: dict[str, Any]) -> Campaign:
             last_error = err
             continue
         if [c.episodes for c in campaign.cells] == recorded or episodes is not None:
-            return with_recorded_params(campaign, manifest.get("cells", []), camp["source"])
+            return campaign
     assert last_error is not None
     raise last_error
 
@@ -304,11 +311,15 @@ def resume(
         )
     try:
         rebuilt = campaign_from_manifest(manifest)
+        expanded = expand_recorded_campaign(manifest)
     except CampaignError as err:
         raise RunError(f"cannot resume {run_dir}: its campaign no longer loads: {err}") from None
     recorded = {k: manifest["campaign"][k] for k in ("name", "seed", "episodes_per_cell", "common_random_numbers")}
     recorded["cells"] = manifest["cells"]
-    diff = first_difference(recorded, campaign_record(rebuilt))
+    # with the run's own code (checked above) its file expands to the parameters it recorded, unless the manifest
+    # was edited: then the finished chunks and the recorded parameters need not agree
+    diff = first_difference(recorded, campaign_record(rebuilt)) or first_difference(recorded,
+                                                                                     campaign_record(expanded))
     if diff:
         raise RunError(f"cannot resume {run_dir}: its campaign expands differently with this code ({diff})")
     if campaign is not None:
