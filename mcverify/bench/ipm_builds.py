@@ -49,7 +49,6 @@ ATTEMPTS: dict[str, tuple[IpmOptions, bool]] = {
         "cold_restoration": (dataclasses.replace(COLD, restoration=True), False),
         "central": (CENTRAL_WARM, True),
         "phase1_cold": (dataclasses.replace(COLD, phase1=True), False),
-        "warm1_ldlt": (dataclasses.replace(WARM_ATTEMPTS[0], kkt_factorisation="ldlt"), True),
     }.items()
 }
 

@@ -10,6 +10,7 @@ import numpy as np
 
 from mcverify.bench import recorded_ipm as R
 from mcverify.campaign.spec import campaign_from_dict
+from mcverify.levels import Level
 from mcverify.solver import kernels
 from mcverify.solver.backends import Start
 from mcverify.solver.ipm import COLD, WARM_ATTEMPTS
@@ -46,7 +47,7 @@ def test_verdicts_of_a_recorded_infeasible_solve():
     rec = R.Recording()
     solver.backend = R.RecordingBackend(solver.backend, rec)
     ego = np.array([10.0, 0.0, 0.0, 10.0])
-    solver.solve(ego, np.array([64.0, 0.0, 18.0]), 1, -(0.3 + 0.5 * 0.3**3))
+    solver.solve(ego, np.array([64.0, 0.0, 18.0]), 1, Level(0.3, -(0.3 + 0.5 * 0.3**3)))
     (s,) = rec.solves
     assert s.certified_by_ipopt and R.engine_class(s) == "certified" and s.attempts == ("cold1:Line_Search_Failed",)
     s = dataclasses.replace(s, warm=Start(s.guess, np.zeros(s.guess.size), np.zeros(rec.problems[0].lbg.size)))
