@@ -7,7 +7,7 @@ integration:
 * engine: :func:`mcverify.episode.rollout.run_episodes` with the cell's solver backend (or ``--backend``);
 * compiled IPOPT loop (the baseline a careful user writes, :mod:`benchmarks.ipopt_loop`):
   ``nlpsol`` with ``expand=True``, primal-dual warm start with ``mu_init`` 1e-7, the engine's
-  infeasibility policy;
+  infeasibility memo;
 * naive (optional, ``naive_episodes`` > 0): :mod:`benchmarks.naive`, the paper's Opti loop.
 
 Reported: episodes per CPU-minute of each side over the mix (``time.process_time`` of this process,
@@ -47,7 +47,6 @@ from mcverify.cli.options import nonneg_int, positive_int
 from mcverify.control.planner import Planner
 from mcverify.episode.rollout import PhaseClock, episode_key, run_episodes
 from mcverify.errors import UserError
-from mcverify.model import INFEASIBILITY_POLICIES
 from mcverify.sim.plant import LaneGroups, initial_plant
 from mcverify.solver.mpc import MpcSolver
 
@@ -101,16 +100,16 @@ def plant_transfer_ms(cell: Cell, batch: int, seed: int, reps: int = 200) -> dic
     return {"compute_ms": 1e3 * compute / reps, "transfer_ms": 1e3 * transfer / reps, "batch": float(batch)}
 
 
-def pick_cells(campaign_path: str, cell_name: str, backend: str | None, infeasibility: str | None = None,
+def pick_cells(campaign_path: str, cell_name: str, backend: str | None,
                overrides: dict | None = None, seed: int | None = None,
                settings: Sequence[str] = ()) -> tuple[list[Cell], int, bool]:
-    """The cells to run (``cell_name`` or every cell for ``"all"``), with ``backend``, the
-    ``mpc.infeasibility`` policy and other ``overrides`` (dotted keys) applied when given; ``seed``:
+    """The cells to run (``cell_name`` or every cell for ``"all"``), with ``backend`` and other ``overrides``
+    (dotted keys) applied when given; ``seed``:
     the campaign seed instead of the file's (other episodes, the same cells); ``settings``: as
     ``mcverify run --set``, written into the file before its cells are expanded."""
     camp = load_campaign(campaign_path, seed=seed, settings=settings)
     cells = list(camp.cells) if cell_name == ALL_CELLS else [camp.cell(cell_name)]
-    changes = [("mpc.backend", backend, "--backend"), ("mpc.infeasibility", infeasibility, "--infeasibility")]
+    changes = [("mpc.backend", backend, "--backend")]
     changes += [(k, v, "overrides") for k, v in (overrides or {}).items()]
     for key, value, flag in changes:
         if value is not None:
@@ -163,7 +162,6 @@ def run(
     naive_episodes: int = 0,
     backend: str | None = None,
     progress=print,
-    infeasibility: str | None = None,
     overrides: dict | None = None,
     seed: int | None = None,
     settings: Sequence[str] = (),
@@ -178,7 +176,7 @@ def run(
             baseline_episodes, naive_episodes) <= engine_episodes:
         raise ValueError("need engine_episodes >= 1 and 0 <= baseline_episodes, naive_episodes <= engine_episodes "
                          "(their episodes are paired with the engine's)")
-    cells, seed, crn = pick_cells(campaign, cell_name, backend, infeasibility, overrides, seed, settings)
+    cells, seed, crn = pick_cells(campaign, cell_name, backend, overrides, seed, settings)
     counts = {"engine": engine_episodes, "baseline": baseline_episodes, "naive": naive_episodes}
     progress(f"benchmarks.engine: {campaign}, {len(cells)} cell(s); episodes per cell: engine {engine_episodes}, "
              f"compiled IPOPT loop {baseline_episodes}, naive {naive_episodes} (paired: the first ones)")
@@ -216,7 +214,6 @@ def run(
         "campaign": campaign,
         "cells": [c.name for c in cells],
         "backend": ",".join(sorted({c.params.mpc.backend for c in cells})),
-        "infeasibility": ",".join(sorted({c.params.mpc.infeasibility for c in cells})),
         "sides": {s: sides[s] for s in active},
         "ratios": {s: engine.episodes_per_cpu_min / sides[s].episodes_per_cpu_min
                    for s in ("baseline", "naive") if counts[s]},
@@ -252,8 +249,6 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--naive-episodes", type=nonneg_int, default=0,
                    help="paired episodes per cell, the paper-style Opti loop (0: skip, the default)")
     p.add_argument("--backend", help="the engine's solver backend (default: the cell's)")
-    p.add_argument("--infeasibility", choices=INFEASIBILITY_POLICIES,
-                   help="the engine's mpc.infeasibility policy (default: the cell's)")
     p.add_argument("--seed", type=nonneg_int, help="campaign seed (overrides the file: other episodes)")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", dest="settings",
                    help="override a model parameter of every cell, on every side (repeatable)")
@@ -271,7 +266,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         result = run(
             campaign=args.campaign, cell_name=args.cell, engine_episodes=args.engine_episodes,
             baseline_episodes=args.baseline_episodes, naive_episodes=args.naive_episodes, backend=args.backend,
-            progress=lambda msg: print(msg, file=sys.stderr), infeasibility=args.infeasibility,
+            progress=lambda msg: print(msg, file=sys.stderr),
             seed=args.seed, settings=args.settings,
         )
         result["command"] = section.command("engine", argv)

@@ -91,8 +91,7 @@ def agreement_line(name: str, ag: dict[str, Any]) -> str:
 def render(result: dict[str, Any]) -> str:
     sides = result["sides"]
     lines = [f"bench on {result['machine']} (load average {result['load_average']})",
-             f"  {result['campaign']}: {', '.join(result['cells'])}; engine backend {result['backend']}, "
-             f"infeasibility {result.get('infeasibility', 'ipopt')}"]
+             f"  {result['campaign']}: {', '.join(result['cells'])}; engine backend {result['backend']}"]
     for s, side in sides.items():
         lines.append(f"  {LABELS[s]:>20}: {len(side.rows)} episodes, {side.cpu_s:.1f} CPU-s, "
                      f"{side.cpu_s_per_episode:.2f} CPU-s per episode, {side.cpu_ms_per_solve:.1f} CPU-ms per solve, "

@@ -56,11 +56,11 @@ class NaiveOptiSolver:
         self.kernel_hash = "naive-opti"
 
     def solve(
-        self, ego_state, front_xyv, direction, lambda0, warm=None, opp_xv=None, guess=None, fast_only=False
+        self, ego_state, front_xyv, direction, level, warm=None, opp_xv=None, guess=None, fast_only=False
     ) -> MpcSolution:
         """One Opti solve (``fast_only`` is ignored: the paper's loop runs IPOPT in full every time)."""
         t0 = time.perf_counter()
-        p = ocp.pack_params(self.params, ego_state, front_xyv, direction, lambda0, opp_xv=opp_xv,
+        p = ocp.pack_params(self.params, ego_state, front_xyv, direction, level, opp_xv=opp_xv,
                             structure=self.structure)
         self.opti.set_value(self.p, p)
         if warm is not None and warm.direction == direction and warm.x.size == self.layout.n_w:

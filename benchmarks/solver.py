@@ -49,6 +49,7 @@ from mcverify.campaign.spec import Campaign, load_campaign
 from mcverify.cell import Cell
 from mcverify.cli.options import positive_int
 from mcverify.errors import UserError
+from mcverify.levels import Level
 from mcverify.model import BACKEND_NAMES, ModelParams
 
 # ------------------------------------------------------------------------------------ helpers
@@ -90,7 +91,7 @@ class RecordedSolve:
     ego: np.ndarray
     front: np.ndarray
     direction: int
-    lambda0: float
+    level: Level
     warm: object  # WarmStart | None
     opp_xv: np.ndarray | None
     guess: np.ndarray | None
@@ -103,12 +104,12 @@ class _Recorder:
         self.solver = solver
         self.calls = calls
 
-    def solve(self, ego, front, direction, lambda0, warm=None, opp_xv=None, guess=None, **kw):
+    def solve(self, ego, front, direction, level, warm=None, opp_xv=None, guess=None, **kw):
         self.calls.append(RecordedSolve(
-            self.solver.structure, np.array(ego), np.array(front), int(direction), float(lambda0), warm,
+            self.solver.structure, np.array(ego), np.array(front), int(direction), level, warm,
             None if opp_xv is None else np.array(opp_xv), None if guess is None else np.array(guess),
         ))
-        return self.solver.solve(ego, front, direction, lambda0, warm, opp_xv=opp_xv, guess=guess, **kw)
+        return self.solver.solve(ego, front, direction, level, warm, opp_xv=opp_xv, guess=guess, **kw)
 
     def __getattr__(self, name):
         return getattr(self.solver, name)
@@ -145,7 +146,7 @@ def replay(params: ModelParams, backend: str, calls: Sequence[RecordedSolve], wa
             solver = solvers[c.structure] = MpcSolver(with_backend(params, backend), c.structure)
         start = c.warm if warm else None
         t0 = time.thread_time()
-        sol = solver.solve(c.ego, c.front, c.direction, c.lambda0, start, opp_xv=c.opp_xv, guess=c.guess)
+        sol = solver.solve(c.ego, c.front, c.direction, c.level, start, opp_xv=c.opp_xv, guess=c.guess)
         cpu.append(time.thread_time() - t0)
         its.append(sol.iterations)
         ok.append(sol.success)
@@ -264,7 +265,7 @@ class StubSolver:
             x_plan=np.zeros((n + 1, 4)), u_plan=np.zeros((n, 2)), dt_plan=np.full(n, 1.0 / n), warm=None,
         )
 
-    def solve(self, ego, front, direction, lambda0, warm=None, opp_xv=None, guess=None, **kw):
+    def solve(self, ego, front, direction, level, warm=None, opp_xv=None, guess=None, **kw):
         return self._sol
 
     def guess_from_plan(self, plan, opp_xv):

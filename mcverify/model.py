@@ -43,13 +43,9 @@ class Road:
 
 @dataclass(frozen=True)
 class EgoLimits:
-    """Input and state bounds of the ego kinematic bicycle (eq.kinematic_bicycle).
-
-    The paper states only the speed limit (19.4 m/s = 70 km/h). The rest are named defaults:
-    ``accel_max_mps2`` 3.0 (a Camry's 0-100 km/h in about 8 s), ``accel_min_mps2`` -6.0 (firm
-    braking on dry asphalt), slip angle |beta| <= 0.15 rad, heading |psi| <= 0.35 rad, the c.g.
-    kept on the road (ego-lane outer edge to opposing-lane outer edge, minus half a width), and the
-    rear axle to c.g. distance ``l_r_m`` = 1.4 m (about half the Camry's 2.825 m wheelbase).
+    """Input and state bounds of the ego kinematic bicycle (eq.kinematic_bicycle). The paper states only the
+    speed limit (19.4 m/s = 70 km/h); the others are named defaults: a Camry's acceleration (0-100 km/h in about
+    8 s), firm braking on dry asphalt, the c.g. kept on the road, and l_r about half the Camry's 2.825 m wheelbase.
     """
 
     accel_min_mps2: float = -6.0
@@ -79,19 +75,14 @@ class Barrier:
     h_ef(x_e, t) = ((x_e - x_f)/a)^2 + ((y_e - y_f)/b)^2 - 1 is the ellipse of fig.relative_CBF in the
     standard form (the paper's beta_1 = 1/a^2, beta_2 = 1/b^2, beta_3 = 1 up to a common scale).
 
-    The default axes are the smallest-area ellipse through the corners (+-L, +-W) of the
-    Minkowski sum of two aligned footprints: a = sqrt(2) L, b = sqrt(2) W. With the ego c.g. outside
-    it, two aligned footprints cannot touch.
+    The default axes are the smallest-area ellipse through the corners (+-L, +-W) of the Minkowski sum of two
+    aligned footprints: a = sqrt(2) L, b = sqrt(2) W (with the ego c.g. outside it, they cannot touch). The level:
+    :class:`mcverify.levels.Level` (``epsilon`` or ``lambda0``, with ``lambdas_m``).
 
-    ``lambdas_m`` are (lambda_1, ..., lambda_m), all > 0, so kappa~(h) = sum lambda_i h^(2i-1) is class K_e.
-    The level is either ``epsilon`` (then lambda_0 = -kappa~(epsilon)) or ``lambda0`` directly.
-
-    Opposing vehicle (eq.two_way_value_function_e): h_eo = x_o - x_e - (v_e - v_o)^2 / (2 a_l) (m)
-    with a_l = ``decel_max_mps2``, the ego's own Lambda_eo = [-kappa~_eo(opp_epsilon_m),
-    opp_lambdas_m...] (kappa~_eo(h) = sum lambda_i h^(2i-1), h in metres, so lambda_1 is in 1/s).
-    The paper gives neither a_l nor Lambda_eo: a_l = 6 m/s^2 is the ego's braking limit, the
-    level 1 m keeps a metre of stopping margin, and the linear kappa~ (m = 1) keeps the constraint
-    well scaled when h_eo is tens of metres.
+    Opposing vehicle (eq.two_way_value_function_e): h_eo = x_o - x_e - (v_e - v_o)^2 / (2 a_l) (m), a_l =
+    ``decel_max_mps2``, Lambda_eo = [-kappa~_eo(opp_epsilon_m), opp_lambdas_m...] (h in metres, lambda_1 in 1/s).
+    The paper gives neither: a_l is the ego's braking limit, the level 1 m keeps a metre of stopping margin, and
+    the linear kappa~ (m = 1) keeps the constraint well scaled when h_eo is tens of metres.
     """
 
     ellipse_a_m: float = math.sqrt(2.0) * 4.885
@@ -121,27 +112,10 @@ BACKEND_NAMES = ("ipopt", "ipm")
 #: The MPC-DC baselines (Sec. VI-D): "mpcdc" keeps the ellipses at the nodes (h >= 0), "mpcdc_eps"
 #: at the level of the cell (h >= barrier.epsilon); everything else about them is the same.
 MPCDC_CONTROLLERS = ("mpcdc", "mpcdc_eps")
-#: Who certifies that a problem is infeasible on the ipm backend (:attr:`Mpc.infeasibility`).
-INFEASIBILITY_POLICIES = ("ipopt", "phase1", "phase1_mpcdc")
-#: How the ipm backend factorises the KKT system (:attr:`Mpc.kkt_factorization`; the names of
-#: ``mcverify.solver.ipm.KKT_FACTORISATIONS``, checked there).
-KKT_FACTORIZATIONS = ("lu", "ldlt", "ldlt_curvature")
 #: The evidence that makes the ego abandon the overtake (:attr:`Mpc.abandon_rule`).
 ABANDON_RULES = ("first_failure", "consecutive", "certified")
-#: Whose ipm backend tries the central warm attempt before IPOPT's rescue (:attr:`Mpc.ipm_central_attempt`).
-CENTRAL_ATTEMPT_POLICIES = ("off", "mpcdc", "all")
-#: Whose ipm backend starts a full solve with the central warm attempt after a hard one (:attr:`Mpc.ipm_central_first`).
-CENTRAL_FIRST_POLICIES = ("off", "mpcdc", "all")
-#: Whose ipm backend retries the warm start more centrally before IPOPT's rescue (:attr:`Mpc.ipm_central_retry`).
-CENTRAL_RETRY_POLICIES = ("off", "mpcdc", "all")
-#: The attempt a full solve starts with after a hard one (:attr:`Mpc.ipm_after_hard_attempt`).
-AFTER_HARD_ATTEMPTS = ("central", "lower_mu")
-#: Values of ``mpc.ipm_restoration``.
-RESTORATION_POLICIES = ("off", "mpcdc", "all")
 #: When the dual planner solves Q2 while overtaking (:attr:`Mpc.q2_solve`).
 Q2_SOLVE_POLICIES = ("every_step", "fast_when_unneeded", "when_needed")
-#: Where Q2 asks the ego to stay stoppable behind veh_f (:attr:`Mpc.q2_stoppable`; not in the paper).
-Q2_STOPPABLE_MODES = ("off", "end", "path")
 #: Most piecewise-constant segments of one structured disturbance (:attr:`Noise.front_x_segments`).
 MAX_SEGMENTS = 8
 #: Most noise branches of one episode (:attr:`Noise.branch_after_steps`).
@@ -164,85 +138,23 @@ GUIDE_NAMES: tuple[str, ...] = REQUIREMENT_NAMES + tuple(
 
 @dataclass(frozen=True)
 class Mpc:
-    """TO-CBF-MPC settings (box eq.tompc).
+    """TO-CBF-MPC settings (box eq.tompc): the controller, its optimal-control problem, and (last) the
+    solver's tuning.
 
-    Paper: N = 50, goal reaction time phi = 1.8 s (x_g = x_f + phi v_f). Named defaults: the upper
-    bound on every stage interval ``dt_max_s`` (eq.tompc_t; 0.3 s gives a 15 s horizon, enough for
-    the slowest Table II overtake), the lower bound ``dt_min_s`` = 1e-4 s (the paper's "maximum time
-    resolution"), the lateral goal tolerance ``eps_y_m`` (eq.tompc_y), and a small input-smoothing
-    weight (the paper's Remark after eq.tompc allows it; it does not touch the safety constraints and
-    makes the time-optimal problem well conditioned).
-
-    ``controller``: "vlcbf" (the paper's dual TO-CBF-MPC, Q1 and Q2 with VL-CBF constraints) or
-    "mpcdc" (the Sec. VI-D baseline: the same time-optimal MPC and horizon with the ellipses as
-    distance constraints at the nodes, no Q2 backup) or "mpcdc_eps" (the same MPC-DC with the
-    distance constraints at the cell's level, h >= ε (``barrier.epsilon``) instead of h >= 0: the
-    ε-margin ellipse, a runtime bound of the same kernel). ``backend``: the NLP solver ("ipopt", the
-    reference; "ipm", the fast path of :mod:`mcverify.solver.backends`, the default). ``max_iter`` bounds
-    warm-started solves, ``max_iter_cold`` cold ones (a cold start with the opposing vehicle needs
-    many more iterations than a warm one).
-
-    ``infeasible_recheck_steps``: once IPOPT has certified a problem infeasible
-    ("Infeasible_Problem_Detected"), the following steps try only the fast path on it (presumed
-    infeasible when that fails) and give IPOPT the full attempt again after this many steps (1:
-    every step, the exhaustive behaviour). Every full attempt that fails again (certified or out of
-    iterations) doubles the wait, up to ``infeasible_recheck_max_steps`` (equal to
-    ``infeasible_recheck_steps``: a fixed period). A fast-path success within the wait does not
-    end it: under perception noise a problem at the edge of feasibility flickers between solved and
-    certified infeasible from one step to the next. Only the dual planner's Q1 and Q2 are presumed:
-    MPC-DC has no second problem, so a presumed failure there would decide the control by itself
-    (the held plan); MPC-DC always gets the full attempt (measured: with the memo, 5 of 6 paired MPC-DC
-    eps = 0.3 episodes in Table IV's Scenario A turned unsafe, the ego holding a stale plan into veh_o;
-    results/BENCHMARKS.md, "The infeasibility memo on MPC-DC"). The fast path still tries every step, so
-    a problem it can solve is back at once; the wait only delays what IPOPT alone could solve (up to
-    1 s at 50 Hz). Only the ``ipm`` backend has a fast path; ``ipopt`` always runs in full. Why
-    the memo exists, with its measurements: ``docs/decisions.md``.
-
-    ``abandon_rule``: what evidence makes the ego abandon the overtake (Algorithm 1's break out of
-    the Q1 loop, and Table I's row 0 "go back: Q1 not solved" for a human-driven veh_o). The paper
-    says only "whenever the feasibility of Q1 is being challenged, we merge back" (Sec. IV) and
-    Algorithm 1 breaks at the first step Q1 is not solved; it does not say what challenges it. A
-    failed solve is not a proof: half of the turn-backs measured on Table III-like runs came from
-    IPOPT iteration limits, often on a step where the noisy measured veh_f speed was 6-9 % above
-    the truth. The rules:
-
-    * "first_failure" (the default, the paper's Algorithm 1 read literally): the first failed Q1
-      solve abandons, whatever the reason;
-    * "consecutive": ``abandon_after_failures`` consecutive failed Q1 solves (k, default 3) abandon;
-    * "certified": only a Q1 failure the solver certified infeasible (IPOPT's certificate, or a
-      failure presumed infeasible by the infeasibility memo after such a certification) abandons;
-      iteration limits and numerical failures do not.
-
-    While the rule has not fired and Q1 failed (with Q2 solved), the ego keeps following its last
-    Q1 plan (the held plan, counted in ``q1_held_steps``); once that plan is used up (or there is
-    none) the rule no longer waits and Algorithm 1 goes on as in "first_failure". Everything else
-    of Algorithm 1 and Table I is unchanged.
-
-    ``q2_solve``: how the dual planner solves Q2 at the steps whose decision does not read it. With
-    no or an autonomous veh_o, Algorithm 1 applies Q1 whenever Q1 is solved, so Q2's plan is then
-    unused; it is read when Q1 was not solved, while going back, and whenever Table I compares the
-    two plans (a human-driven veh_o detected). The policies:
-
-    * "every_step" (the default, Algorithm 1 as written: both problems at every step);
-    * "fast_when_unneeded": an unread Q2 gets the fast path only (the ipm backend's IPM attempts, no
-      IPOPT; a failure leaves the infeasibility memo as it was). Where the fast path converges, Q2's
-      solution and warm start are those of "every_step"; the difference is confined to the steps where
-      only IPOPT would have solved or certified it;
-    * "when_needed": an unread Q2 is not solved at all; the next step that reads Q2 starts from its
-      last solution, however old (cold at the first one), and may converge to another local solution
-      of Q2 than "every_step" does (measured: same decisions, other turn-back paths; docs/engine.md).
-
-    ``q2_fail_steps`` and Theorem 5 count the steps where Q2 was solved and failed (a step with Q1
-    solved satisfies Theorem 5 whatever Q2 does).
+    Paper: N = 50, phi = 1.8 s (x_g = x_f + phi v_f). Named defaults: ``dt_max_s`` (eq.tompc_t; 0.3 s gives a
+    15 s horizon, enough for the slowest Table II overtake), ``dt_min_s`` (the paper's "maximum time
+    resolution"), ``eps_y_m`` (eq.tompc_y) and a small input-smoothing weight (allowed by the Remark after
+    eq.tompc; it does not touch the safety constraints and makes the time-optimal problem well conditioned).
+    ``abandon_rule`` reads Sec. IV's "whenever the feasibility of Q1 is being challenged, we merge back" three
+    ways; while it waits, the ego follows its last Q1 plan (``q1_held_steps``). The ``ipm`` backend's attempts
+    per controller family are data (:mod:`mcverify.solver.attempts`), not options: docs/decisions.md.
     """
 
     controller: str = "vlcbf"
-    """vlcbf (the paper's dual TO-CBF-MPC), mpcdc (the Sec. VI-D baseline) or mpcdc_eps (the baseline at the level
-    epsilon)."""
-    backend: str = "ipm"
-    """NLP solver: ipm (the fast path, IPOPT as fallback) or ipopt (the reference)."""
+    """vlcbf (the paper's dual TO-CBF-MPC), mpcdc (the Sec. VI-D baseline: distance constraints at the nodes, no
+    Q2) or mpcdc_eps (the baseline at the level epsilon, h >= barrier.epsilon)."""
     horizon: int = 50
-    """Number of MPC stages N. Valid: 1-500. Paper: 50."""
+    """Number of MPC stages N. Valid: 2-500. Paper: 50."""
     dt_max_s: float = 0.3
     """Upper bound of every stage interval (eq.tompc_t). Valid: > dt_min_s. Paper: not given."""
     dt_min_s: float = 1e-4
@@ -253,72 +165,32 @@ class Mpc:
     """Lateral goal tolerance epsilon_y (eq.tompc_y). Valid: > 0. Paper: not given."""
     smooth_weight: float = 1e-3
     """Weight of the input-smoothing term. Valid: >= 0. Paper: allowed by its Remark, no value."""
+    abandon_rule: str = "first_failure"
+    """What abandons the overtake: first_failure (Algorithm 1 literally: the first failed Q1 solve), consecutive
+    (abandon_after_failures failed Q1 solves in a row) or certified (only a Q1 failure certified infeasible)."""
+    abandon_after_failures: int = 3
+    """Failed Q1 solves in a row that abandon with abandon_rule = consecutive. Valid: >= 1."""
+    q2_solve: str = "every_step"
+    """How Q2 is solved at the steps whose decision does not read it: every_step (Algorithm 1: in full),
+    fast_when_unneeded (the fast path only) or when_needed (not at all)."""
+
+    # ---- solver tuning: how the NLP is solved, not which NLP ----
+    backend: str = "ipm"
+    """NLP solver: ipm (the fast path, IPOPT as fallback) or ipopt (the reference)."""
     max_iter: int = 150
     """Solver iterations of a warm-started solve. Valid: >= 1."""
     max_iter_cold: int = 400
     """Solver iterations of a cold solve. Valid: >= 1."""
-    infeasible_recheck_steps: int = 10
-    """After IPOPT certifies a problem infeasible, steps before it tries it in full again (1: every step). Valid: >=
-    1."""
-    infeasible_recheck_max_steps: int = 50
-    """Largest wait of the doubling recheck period. Valid: >= infeasible_recheck_steps."""
-    abandon_rule: str = "first_failure"
-    """What abandons the overtake: first_failure (Algorithm 1 literally), consecutive or certified."""
-    abandon_after_failures: int = 3
-    """Failed Q1 solves in a row that abandon with abandon_rule = consecutive. Valid: >= 1."""
     tol: float = 1e-6
     """Solver tolerance on the scaled KKT error. Valid: > 0."""
-    infeasibility: str = "phase1_mpcdc"
-    """Who certifies infeasibility on the ipm backend: ipopt (its fallback), phase1 (the C phase 1 from every start,
-    IPOPT as scheduled auditor; docs/engine.md) or phase1_mpcdc (phase1 for the MPC-DC baselines, ipopt for the
-    VL-CBF controllers; the default since 2026-11-28, ``ipopt`` before, which runs made earlier keep:
-    CHANGED_DEFAULTS)."""
-    ipm_restoration: str = "mpcdc"
-    """Whose full solves run the ipm backend's cold IPM attempt with the C restoration phase (a failed line search
-    restores feasibility instead of ending the attempt; docs/engine.md): off, mpcdc (the MPC-DC baselines only; the
-    default since 2026-11-28, ``off`` before, which runs made earlier keep: CHANGED_DEFAULTS) or all; false and true,
-    its values before it took policies, read as off and all."""
-    ipm_central_attempt: str = "mpcdc"
-    """A last IPM attempt of a full solve, after the two warm and the cold one failed and before IPOPT: the warm
-    start again at barrier parameter 1e-2 (docs/engine.md, "A central attempt before the rescue"): off, mpcdc (the
-    MPC-DC baselines only; the default since 2026-11-26, ``off`` before, which runs made earlier keep:
-    :data:`mcverify.campaign.runner.CHANGED_DEFAULTS`) or all (every controller: VL-CBF B 13-14 % cheaper, but
-    it moves knife-edge turn-backs of the README's Tables III and IV away from the IPOPT backend's outcomes)."""
-    ipm_central_first: str = "mpcdc"
-    """After a full solve that the two warm IPM attempts did not solve (the cold or central attempt, or IPOPT, did),
-    the next full solve of the same problem in the episode starts with the central warm attempt, then the usual ones
-    (docs/engine.md, "The central attempt first after a hard solve"): off, mpcdc (the MPC-DC baselines only; the
-    default since 2026-11-28, ``off`` before, which runs made earlier keep: CHANGED_DEFAULTS) or all."""
-    ipm_after_hard_attempt: str = "lower_mu"
-    """Which warm attempt ``ipm_central_first`` runs first after a hard solve: central (the central attempt: barrier
-    parameter 1e-2, bound push 1e-3) or lower_mu (barrier parameter 3e-3, bound push 3e-3, bound multipliers at least
-    3e-2; the default since 2026-11-28, ``central`` before, which runs made earlier keep: CHANGED_DEFAULTS);
-    docs/engine.md, "The lower-mu attempt after a hard solve"."""
-    ipm_after_hard_solves: int = 1
-    """How many hard solves in a row (each answered by neither warm attempt: the cold, central or lower-mu attempt,
-    or IPOPT) make ``ipm_central_first`` start the next full solve with the ``ipm_after_hard_attempt`` one: 1 (the
-    default: after every hard solve) or more (2: an isolated hard solve leaves the usual order; measured dearer on
-    the Table IV mix, docs/engine.md, "Two hard solves in a row"). Valid: >= 1."""
-    ipm_central_retry: str = "mpcdc"
-    """After every other IPM attempt of a full solve failed (the central one included) and before IPOPT: the warm
-    start once more at barrier parameter 3e-2 for up to 100 iterations (docs/engine.md, "A central retry before the
-    rescue"): off, mpcdc (the MPC-DC baselines only; the default since 2026-11-28, ``off`` before, which runs made
-    earlier keep: CHANGED_DEFAULTS) or all."""
-    kkt_factorization: str = "lu"
-    """How the ipm backend factorises its KKT system: lu (banded LU, the default), ldlt (banded LDL^T with the inertia
-    test) or ldlt_curvature (banded LDL^T with the LU's curvature test); docs/engine.md, "The LDL^T path"."""
-    q2_stoppable: str = "off"
-    """Not in the paper (its Q2 has no speed condition, so a late turn-back can reach the goal too fast to avoid veh_f:
-    README, "Q2's goal has no speed condition"): Q2 asks that the footprint gap behind veh_f, x_f - x_e - length,
-    cover (v_e - v_f)_+^2 / (2 |accel_min_mps2|), veh_f's measurement errors allowed for. off (the paper), end (at the
-    plan's end only) or path (at every node where the ego is behind veh_f). An experiment: neither closes that window
-    (README), and path makes overtakes 6-20x dearer. VL-CBF controllers only."""
-    q2_solve: str = "every_step"
-    """How Q2 is solved at the steps whose decision does not read it: every_step (Algorithm 1: in full),
-    fast_when_unneeded (the fast path only) or when_needed (not at all)."""
+    infeasible_recheck_steps: int = 10
+    """After IPOPT certifies a VL-CBF problem infeasible, steps the fast path alone tries it (presumed infeasible
+    when it fails) before IPOPT tries it in full again (1: every step); docs/decisions.md. Valid: >= 1."""
+    infeasible_recheck_max_steps: int = 50
+    """Largest wait of the doubling recheck period. Valid: >= infeasible_recheck_steps."""
     infeasibility_audit_every: int = 10
-    """With infeasibility = phase1: about one C certificate in this many is re-checked by IPOPT (1: every one).
-    Valid: >= 1."""
+    """Where the C phase 1 certifies infeasibility (the MPC-DC baselines on the ipm backend): about one certificate
+    in this many is re-checked by IPOPT (1: every one). Valid: >= 1."""
 
     @property
     def is_mpcdc(self) -> bool:
@@ -330,11 +202,9 @@ class Mpc:
 class Noise:
     """Perception noise (paper Sec. VI-A), applied to what the planner measures of other vehicles.
 
-    ``kind``: "paper" or "none". Position noise uniform in +-``pos_far_m`` when the footprint gap to
-    the measured vehicle exceeds ``near_threshold_m``, else +-``pos_near_m``; speed noise uniform in
-    +-``speed_rel`` of the true speed. ``scale`` multiplies all three half-widths (a stronger noise
-    for sweeps). The ego's own state is measured exactly (odometry); the paper's noise is on "the
-    measured objects".
+    Position noise uniform in +-``pos_far_m`` (+-``pos_near_m`` when the footprint gap is below
+    ``near_threshold_m``), speed noise uniform in +-``speed_rel`` of the true speed, all times ``scale``. The
+    ego's own state is measured exactly (odometry); the paper's noise is on "the measured objects".
 
     Structured, bounded disturbances (what ``mcverify falsify`` searches over; all 0 by default,
     which leaves the paper's noise bit for bit as it was): each measured error is
@@ -434,19 +304,10 @@ class Noise:
 
 @dataclass(frozen=True)
 class Simulation:
-    """Closed-loop timing.
-
-    ``control_period_s``: the planner's sampling period (paper: 50 Hz towards the opposing vehicle).
-    ``substeps``: RK4 sub-steps per control period under zero-order hold; every safety check is
-    evaluated at every sub-step. ``max_time_s``: an episode that has neither overtaken nor gone back
-    by then ends as a timeout. ``settle_s``: after the goal test fires ("overtook" / "went_back"),
-    the plant keeps running this long (at most until ``max_time_s``) under the lane-keeping law of
-    :mod:`mcverify.control.lane_keeping`, every safety check included; the outcome and its time stay
-    those of the goal test. 0: the episode ends at the goal test.
-    ``stop_at``: falsification only (set by ``mcverify falsify``, refused in a campaign file): end
-    the episode at the end of the control period in which it first violates this requirement
-    (:data:`REQUIREMENT_NAMES`); "" never stops early.
-    """
+    """Closed-loop timing: the planner's period, the plant's RK4 sub-steps under zero-order hold (every safety check
+    runs at every sub-step), the episode's time limit, and how long the plant keeps running under the lane-keeping
+    law of :mod:`mcverify.control.lane_keeping` after the goal test ("overtook" / "went_back"; the outcome and its
+    time stay the goal test's). ``stop_at`` is set by ``mcverify falsify`` only (:data:`REQUIREMENT_NAMES`)."""
 
     control_period_s: float = 0.02
     """Planner sampling period. Valid: > 0. Paper: 0.02 (50 Hz)."""
@@ -464,15 +325,9 @@ class Simulation:
 
 @dataclass(frozen=True)
 class Scenario:
-    """Initial conditions (paper Sec. VI-B: ego at x = 10 m, 10 m/s; front vehicle at x = 64 m).
-
-    ``front_accel_mps2`` > 0 makes the front vehicle accelerate from ``front_accel_onset_s`` on, up
-    to ``front_speed_max_mps`` (it never switches sign, the paper's assumption).
-    ``front_accel_range_mps2`` = (lo, hi), when given, replaces it: every episode draws its own
-    alpha_f uniformly in (lo, hi] from its key (the paper's Table III ranges (1,3], (3,5], (5,7]).
-    ``front_accel_duration_s``: how long the acceleration lasts from its onset (default: until the
-    speed cap); after it veh_f keeps its speed (it still never decelerates).
-    """
+    """Initial conditions (paper Sec. VI-B: ego at x = 10 m, 10 m/s; front vehicle at x = 64 m) and veh_f's
+    acceleration, which never switches sign (the paper's assumption); a range draws it per episode from the
+    episode's key (the paper's Table III ranges (1,3], (3,5], (5,7])."""
 
     ego_x_m: float = 10.0
     """Ego's initial c.g. position. Paper: 10."""
@@ -511,23 +366,11 @@ class Opposing:
       1.6 m/s^2; 0 = constant speed, Table IV). The planner does not know this law and predicts the
       worst case: ``accel_max_mps2`` towards the ego, capped at ``speed_limit_mps`` (Sec. V-C).
 
-    ``x_m``: initial c.g. position; ``speed_mps`` >= 0: initial (and cruise) speed magnitude;
-    ``detect_range_m``: the ego's sensors see veh_o (and Algorithm 1 adds eq.tompcAdd) once the
-    longitudinal distance x_o - x_e is below it; ``brake_max_mps2``: the largest deceleration of
-    veh_o (its CBF filter is clipped to it).
-
     When veh_o appears (``spawn``; the paper does not say, and with a fixed start the two vehicles
-    rarely meet while the ego borrows the lane):
-    * "start": it drives from ``x_m`` at t = 0 (Tables III-IV as first reproduced);
-    * "lane_entry": it appears when the ego's footprint first crosses the lane line into the
-      opposing lane (or ``spawn_delay_s`` later, when the ego is further into its overtake),
-      ``spawn_gap_m`` ahead of the ego (x_o - x_e, m), so that every episode that starts an
-      overtake meets it mid-overtake. ``spawn_gap_range_m`` = (lo, hi), when given,
-      draws the gap per episode uniformly in (lo, hi] from the episode's key;
-      ``speed_range_mps`` = (lo, hi) likewise draws veh_o's speed (either spawn mode), and
-      ``spawn_delay_range_s`` = (lo, hi) the delay after the lane entry (when veh_o arrives);
-      with ``spawn_delay_sd_s`` > 0 that delay is a normal around ``spawn_delay_s`` truncated to the
-      range instead.
+    rarely meet while the ego borrows the lane): "start", from ``x_m`` at t = 0 (Tables III-IV as first
+    reproduced), or "lane_entry", ``spawn_gap_m`` ahead of the ego when its footprint first crosses the lane
+    line (``spawn_delay_s`` later), so that every episode that starts an overtake meets it mid-overtake. The
+    ``*_range_*`` fields draw the gap, the delay and veh_o's speed per episode from the episode's key.
     """
 
     kind: str = "none"

@@ -36,6 +36,7 @@ class ReplayResult:
 def replay(run_dir: Path, episode_id: int, out_dir: Path | None = None) -> ReplayResult:
     run_dir = Path(run_dir)
     manifest = store.read_json(run_dir / store.MANIFEST)
+    campaign = campaign_from_manifest(manifest)  # first: a folder this code cannot rebuild says so at once
     table = store.read_episodes(run_dir)
     ids = table.column("episode_id").to_pylist()
     if episode_id not in ids:
@@ -43,7 +44,6 @@ def replay(run_dir: Path, episode_id: int, out_dir: Path | None = None) -> Repla
             f"{run_dir}: no episode {episode_id}; episode ids run from {min(ids)} to {max(ids)}"
         )
     stored = table.slice(ids.index(episode_id), 1).to_pylist()[0]
-    campaign = campaign_from_manifest(manifest)
     cell = campaign.cells[stored["cell_index"]]
     local = stored["cell_episode"]
     try:

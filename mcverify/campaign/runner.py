@@ -29,6 +29,8 @@ from mcverify.campaign.progress import ProgressTally
 from mcverify.campaign.spec import Campaign, CampaignError, campaign_from_dict
 from mcverify.episode.recording import EpisodeRecording
 from mcverify.errors import RunError
+from mcverify.levels import Level
+from mcverify.model_validation import params_from_record
 from mcverify.reporting import run_report
 
 log = logging.getLogger(__name__)
@@ -146,61 +148,28 @@ def manifest_for(campaign: Campaign, chunk_size: int, kernels: dict[str, str]) -
     }
 
 
-#: Model fields whose default has changed, with the default that runs made before the change used
-#: (``(section, field) -> old default``). Rebuilding a run's campaign pins such a field to the run's own
-#: value where its campaign left it to the default, so a new default never changes how an old run
-#: replays or resumes.
-CHANGED_DEFAULTS: dict[tuple[str, str], Any] = {
-    ("mpc", "ipm_central_attempt"): "off",  # mpcdc since 2026-11-26
-    ("mpc", "ipm_restoration"): "off",  # mpcdc since 2026-11-28 (stored as false before it took policies)
-    ("mpc", "ipm_central_first"): "off",  # mpcdc since 2026-11-28 (the option is as old)
-    ("mpc", "ipm_central_retry"): "off",  # mpcdc since 2026-11-28 (the option is as old)
-    ("mpc", "ipm_after_hard_attempt"): "central",  # lower_mu since 2026-11-28 (the option is as old)
-    ("mpc", "infeasibility"): "ipopt",  # phase1_mpcdc since 2026-11-28
-}
-
-
-def _names_field(raw: Any, section: str, field: str, in_section: bool = False) -> bool:
-    """Whether a campaign's raw TOML sets ``section.field`` anywhere: in ``[model.<section>]`` or as a
-    dotted key (axes, grid, falsify bounds)."""
-    if isinstance(raw, dict):
-        return any(key == f"{section}.{field}" or (in_section and key == field)
-                   or _names_field(value, section, field, key == section) for key, value in raw.items())
-    if isinstance(raw, list):
-        return any(_names_field(value, section, field) for value in raw)
-    return False
-
-
-def pin_changed_defaults(raw: dict[str, Any], cells: list[dict[str, Any]]) -> dict[str, Any]:
-    """``raw`` with every field of :data:`CHANGED_DEFAULTS` the file leaves to the default set to the
-    value the run's cells recorded (the old default where they predate the field)."""
-    pinned = dict(raw)
-    for (section, field), old in CHANGED_DEFAULTS.items():
-        if _names_field(raw, section, field):
-            continue
-        values = {(c.get("params") or {}).get(section, {}).get(field, old) for c in cells}
-        if len(values) == 1:
-            model = dict(pinned.get("model", {}))
-            model[section] = {**model.get(section, {}), field: values.pop()}
-            pinned["model"] = model
-    return pinned
-
-
 def campaign_from_manifest(manifest: dict[str, Any]) -> Campaign:
-    """Rebuild the exact campaign a run used (the file's content plus the command line's overrides).
+    """Rebuild the exact campaign a run used: its structure (cells, labels, episode counts) from the file's
+    content and the command line's overrides, and every cell's parameters from what the manifest recorded
+    (:func:`with_recorded_params`), never from today's defaults.
 
     The manifest keeps the file's content and the resolved seed and per-cell episode counts; a
     ``--episodes`` override (which replaces every bundle's own count) is recognised by the counts:
-    the campaign is rebuilt without it first and with it if the counts then differ. Fields whose
-    default changed since the run keep the run's value (:func:`pin_changed_defaults`).
+    the campaign is rebuilt without it first and with it if the counts then differ.
     """
+    return with_recorded_params(expand_recorded_campaign(manifest), manifest.get("cells", []),
+                                manifest["campaign"]["source"])
+
+
+def expand_recorded_campaign(manifest: dict[str, Any]) -> Campaign:
+    """The campaign of a run's recorded file content and overrides, expanded by this code (its cells' parameters
+    are this code's, not the recorded ones: :func:`campaign_from_manifest` replaces them)."""
     camp = manifest["campaign"]
-    recorded = [c["episodes"] for c in manifest.get("cells", [])]
-    raw = pin_changed_defaults(camp["raw"], manifest.get("cells", []))
+    recorded = [c.get("episodes") for c in manifest.get("cells", [])]
     last_error: CampaignError | None = None
     for episodes in (None, camp["episodes_per_cell"]):
         try:
-            campaign = campaign_from_dict(raw, source=camp["source"], episodes=episodes, seed=camp["seed"])
+            campaign = campaign_from_dict(camp["raw"], source=camp["source"], episodes=episodes, seed=camp["seed"])
         except CampaignError as err:
             last_error = err
             continue
@@ -208,6 +177,19 @@ def campaign_from_manifest(manifest: dict[str, Any]) -> Campaign:
             return campaign
     assert last_error is not None
     raise last_error
+
+
+def with_recorded_params(campaign: Campaign, cells: list[dict[str, Any]], where: str) -> Campaign:
+    """``campaign`` with every cell's parameters (and so its level) replaced by those its run recorded
+    (:func:`mcverify.model_validation.params_from_record`); a CampaignError naming the field when a record
+    lacks one this code needs or holds an option since deleted."""
+    if [c.get("name") for c in cells] != [c.name for c in campaign.cells]:
+        raise CampaignError(f"{where}: the run's recorded cells are not the cells its campaign expands to")
+    rebuilt = []
+    for cell, record in zip(campaign.cells, cells, strict=True):
+        params = params_from_record(record.get("params"), f"{where} cell {cell.name!r}")
+        rebuilt.append(dataclasses.replace(cell, params=params, level=Level.of_barrier(params.barrier)))
+    return dataclasses.replace(campaign, cells=tuple(rebuilt))
 
 
 def first_difference(a: Any, b: Any, path: str = "") -> str | None:
@@ -329,11 +311,15 @@ def resume(
         )
     try:
         rebuilt = campaign_from_manifest(manifest)
+        expanded = expand_recorded_campaign(manifest)
     except CampaignError as err:
         raise RunError(f"cannot resume {run_dir}: its campaign no longer loads: {err}") from None
     recorded = {k: manifest["campaign"][k] for k in ("name", "seed", "episodes_per_cell", "common_random_numbers")}
     recorded["cells"] = manifest["cells"]
-    diff = first_difference(recorded, campaign_record(rebuilt))
+    # with the run's own code (checked above) its file expands to the parameters it recorded, unless the manifest
+    # was edited: then the finished chunks and the recorded parameters need not agree
+    diff = first_difference(recorded, campaign_record(rebuilt)) or first_difference(recorded,
+                                                                                     campaign_record(expanded))
     if diff:
         raise RunError(f"cannot resume {run_dir}: its campaign expands differently with this code ({diff})")
     if campaign is not None:

@@ -41,13 +41,11 @@ from typing import Any
 import tomllib
 
 from mcverify.campaign.search_space import SearchSpace, read_search_space
-from mcverify.campaign.validate import _short, level_epsilon, level_lambda0, validate_params
+from mcverify.campaign.validate import _short, validate_params
 from mcverify.cell import Cell
 from mcverify.errors import CampaignError
+from mcverify.levels import Level
 from mcverify.model import ModelParams
-
-#: Fields that were true/false before they took named policies: the old values still read, as these names.
-LEGACY_BOOLEANS: dict[str, dict[bool, str]] = {"mpc.ipm_restoration": {False: "off", True: "all"}}
 
 #: Grid/model keys in other units, converted on load: alias -> (field, factor).
 UNIT_ALIASES: dict[str, tuple[str, float]] = {
@@ -171,7 +169,7 @@ def _check_setting(key: str, value: Any, item: str) -> None:
     if key == "sim.stop_at":
         raise CampaignError(f"--set {item!r}: sim.stop_at is set by `mcverify falsify` only "
                             "(stop_episodes = true in [falsify])")
-    _coerce(_legacy_boolean(key, value), known[key], f"--set {item!r}")
+    _coerce(value, known[key], f"--set {item!r}")
 
 
 def _refuse_varied_field(raw: Mapping[str, Any], key: str, item: str) -> None:
@@ -272,7 +270,7 @@ def apply_overrides(params: ModelParams, overrides: Mapping[str, Any], where: st
     for key, value in overrides.items():
         if key not in known:
             raise CampaignError(f"{where}: unknown model field {_short(key)}{_suggest(key, known)}")
-        value = _coerce(_legacy_boolean(key, value), known[key], f"{where}: {key}")
+        value = _coerce(value, known[key], f"{where}: {key}")
         if key in UNIT_ALIASES:
             key, factor = UNIT_ALIASES[key]
             value = value * factor
@@ -416,8 +414,7 @@ def _expand_cells(
             overrides=overrides,
             params=params,
             episodes=n_ep,
-            lambda0=level_lambda0(params),
-            epsilon=level_epsilon(params),
+            level=Level.of_barrier(params.barrier),
             labels=labels,
         )
         offset += n_ep
@@ -429,13 +426,6 @@ def _fmt(v: Any) -> str:
     if isinstance(v, list):
         return "[" + ",".join(_fmt(x) for x in v) + "]"
     return str(v)
-
-
-def _legacy_boolean(key: str, value: Any) -> Any:
-    """``value``, or its policy name where ``key`` was once a true/false field (:data:`LEGACY_BOOLEANS`)."""
-    if isinstance(value, bool) and key in LEGACY_BOOLEANS:
-        return LEGACY_BOOLEANS[key][value]
-    return value
 
 
 def _coerce(value: Any, expected: type, where: str) -> Any:

@@ -265,8 +265,9 @@ def _in_process(args, method: str) -> int:
                            "executor)")
         manifest = store.read_manifest(args.resume)
         camp = manifest["campaign"]
-        raw = runner.pin_changed_defaults(camp["raw"], manifest.get("cells", []))  # a changed default keeps the run's
-        campaign = campaign_from_dict(raw, source=camp["source"], seed=camp["seed"])
+        campaign = runner.with_recorded_params(  # the cells' parameters as the run recorded them
+            campaign_from_dict(camp["raw"], source=camp["source"], seed=camp["seed"]), manifest.get("cells", []),
+            str(args.resume))
         path = module.resume(args.resume, campaign, progress=log, **_executor_for(args, method))
     else:
         spec = _estimate_spec(args, method)

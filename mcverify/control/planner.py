@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mcverify.control.decision import Mode, Source, TableOneInput, abandon_overtake, decide, table_one
+from mcverify.levels import Level
 from mcverify.model import ModelParams
 from mcverify.ocp.problem import OcpStructure
 from mcverify.solver.mpc import MpcSolution, MpcSolver, WarmStart
@@ -77,7 +78,7 @@ class EpisodeState:
     q1_rescue_steps: int = 0
     cold_retries: int = 0
     presumed_infeasible_solves: int = 0
-    infeasibility_audits: int = 0  # Mpc.infeasibility = "phase1": C certificates IPOPT re-checked
+    infeasibility_audits: int = 0  # phase-1 certificates (the MPC-DC attempt plan) IPOPT re-checked
     infeasibility_audit_disagreements: int = 0  # ... and solved
     switched_to_q2_at_s: float = math.nan
     went_back_reason: str = ""
@@ -166,7 +167,7 @@ class Planner:
     def __init__(self, params: ModelParams, kernel_dir=None, solver_factory=None) -> None:
         """solver_factory(params, structure) -> a solver with :class:`MpcSolver`'s ``solve``,
         ``guess_from_plan`` and ``kernel_hash``; default the compiled-kernel :class:`MpcSolver`
-        (the benchmark's naive reference passes its own, :mod:`mcverify.bench.naive`)."""
+        (the benchmark's naive reference passes its own, benchmarks/naive.py)."""
         self.params = params
         make = solver_factory or (lambda p, s: MpcSolver(p, s, kernel_dir))
         self.plain = make(params, OcpStructure.from_params(params, with_opposing=False))
@@ -227,7 +228,7 @@ class Planner:
         ego: np.ndarray,
         front_meas: np.ndarray,
         opp_meas: np.ndarray | None,
-        lambda0: float,
+        level: Level,
     ) -> tuple[np.ndarray, StepRecord]:
         """The input (2,) [alpha m/s^2, beta rad] to apply now, and what was decided.
 
@@ -238,18 +239,18 @@ class Planner:
         state.steps += 1
         state.opp_detected_steps += int(detected)
         if self.params.mpc.is_mpcdc:
-            return self._step_mpcdc(state, t_s, ego, front_meas, opp_meas if detected else None, lambda0, detected)
+            return self._step_mpcdc(state, t_s, ego, front_meas, opp_meas if detected else None, level, detected)
         solver = self.with_opp if detected else self.plain
         opp = opp_meas if detected else None
-        q1 = self._solve(state, solver, ego, front_meas, Q1, lambda0, opp) if state.mode is Mode.OVERTAKE else None
+        q1 = self._solve(state, solver, ego, front_meas, Q1, level, opp) if state.mode is Mode.OVERTAKE else None
         unread = self._q2_unread(q1, detected)
         q2 = (None if unread and self.params.mpc.q2_solve == "when_needed" else
-              self._solve(state, solver, ego, front_meas, Q2, lambda0, opp,
+              self._solve(state, solver, ego, front_meas, Q2, level, opp,
                           fast_path_only=unread and self.params.mpc.q2_solve == "fast_when_unneeded"))
         if q1 is None and not q2.success:
             # Going back and Q2 failed: solve Q1 too, so that "both unsolved" (Theorem 5) is counted
             # exactly and the ego can follow a feasible plan instead of braking blindly.
-            q1 = self._solve(state, solver, ego, front_meas, Q1, lambda0, opp)
+            q1 = self._solve(state, solver, ego, front_meas, Q1, level, opp)
         q1_ok, q2_ok = q1 is not None and q1.success, q2 is not None and q2.success
         q1_failed = q1 is not None and not q1_ok
         if q1_failed:
@@ -325,11 +326,11 @@ class Planner:
         return fallback_input(ego, front_meas, self.params), dataclasses.replace(record, source=Source.FALLBACK)
 
     # ---------------------------------------------------------------------------------------------
-    def _step_mpcdc(self, state, t_s, ego, front_meas, opp, lambda0, detected):
+    def _step_mpcdc(self, state, t_s, ego, front_meas, opp, level, detected):
         solver = self.with_opp if opp is not None else self.plain
         # No presumed infeasibility here: MPC-DC has no second problem, so a presumed failure would
         # itself decide the control (the held plan) - see Mpc.infeasible_recheck_steps.
-        q1 = self._solve(state, solver, ego, front_meas, Q1, lambda0, opp, presume=False)
+        q1 = self._solve(state, solver, ego, front_meas, Q1, level, opp, presume=False)
         if q1.success:
             state.held = (q1.u_plan, q1.dt_plan, t_s)
             return q1.u_plan[0], StepRecord(Source.Q1, state.mode, detected, q1, None, -1)
@@ -337,7 +338,7 @@ class Planner:
         record = StepRecord(Source.FALLBACK, state.mode, detected, q1, None, -1)
         return self._no_plan(state, t_s, ego, front_meas, record)
 
-    def _solve(self, state, solver, ego, front_meas, direction, lambda0, opp, presume: bool = True,
+    def _solve(self, state, solver, ego, front_meas, direction, level, opp, presume: bool = True,
                fast_path_only: bool = False) -> MpcSolution:
         """One problem, warm-started from its last solution; ``presume``: may a problem IPOPT certified
         infeasible get only the fast path for a while (the infeasibility memo)? ``fast_path_only``: an
@@ -348,7 +349,7 @@ class Planner:
         if opp is not None and key not in state.warm:
             # Two-stage cold start: the plain problem (no veh_o, cheap cold and warm) gives the primal
             # guess, far better than the heuristic guess for the problem with veh_o (docs/decisions.md).
-            plain = self.plain.solve(ego, front_meas, direction, lambda0, state.warm.get((direction, False)))
+            plain = self.plain.solve(ego, front_meas, direction, level, state.warm.get((direction, False)))
             state.record_solve(plain)
             if plain.success:
                 state.warm[(direction, False)] = plain.warm
@@ -356,7 +357,7 @@ class Planner:
         memo = state.infeasible.get(key) if presume else None
         presumed = memo is not None and memo[0] + 1 < memo[1]
         extra = {"fast_only": True} if presumed or fast_path_only else {}
-        sol = solver.solve(ego, front_meas, direction, lambda0, state.warm.get(key), opp_xv=opp, guess=guess, **extra)
+        sol = solver.solve(ego, front_meas, direction, level, state.warm.get(key), opp_xv=opp, guess=guess, **extra)
         unread_failure = fast_path_only and not presumed and not sol.success
         if unread_failure:
             sol = dataclasses.replace(sol, status=sol.status.via(SolveRoute.UNREAD))

@@ -294,7 +294,7 @@ def run_episodes(
                         u[b] = settle.input(ego[b], front_meas[b], p)
                     continue
                 u[b], records[b] = planner.step(st, t_s, ego[b], front_meas[b], opp_meas[b] if has_opp else None,
-                                                cell.lambda0)
+                                                cell.level)
         active = np.array([not st.done or b in settling for b, st in enumerate(states)])
         if on_episode is not None:
             _report_stopped(on_episode, ids, active, reported, world)

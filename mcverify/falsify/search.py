@@ -24,7 +24,7 @@ import hashlib
 import math
 import shutil
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -226,9 +226,8 @@ def resume(out_dir: Path, **kw: Any) -> SearchResult:
         raise RunError(f"{out_dir} is not a falsification folder (no {CONFIG})")
     config = SearchConfig.from_json(store.read_json(out_dir / CONFIG))
     first = out_dir / GENERATIONS / "g000" / store.MANIFEST
-    if first.is_file():  # a default changed since the search began keeps the search's value
-        cells = store.read_json(first).get("cells", [])
-        config = replace(config, raw=runner.pin_changed_defaults(config.raw, cells))
+    if first.is_file():  # the search's recorded parameters must still be this code's (a one-line error if not)
+        runner.campaign_from_manifest(store.read_json(first))
     return _search(config, out_dir, **kw)
 
 

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mcverify.levels import epsilon_from_lambda0, lambda0_from_epsilon
+from mcverify.levels import Level, lambda0_from_epsilon
 from mcverify.model import ModelParams
 
 N_X = 4  # [x, y, psi, v]
@@ -67,7 +67,6 @@ class OcpStructure:
     constraint: str = "cbf"
     opp_order_m: int = 1
     opp_law_order_m: int = 1
-    stoppable: str = "off"
 
     def __post_init__(self) -> None:
         if self.horizon < 2:
@@ -88,7 +87,6 @@ class OcpStructure:
             constraint="distance" if params.mpc.is_mpcdc else "cbf",
             opp_order_m=len(params.barrier.opp_lambdas_m),
             opp_law_order_m=len(params.opposing.lambdas_m),
-            stoppable="off" if params.mpc.is_mpcdc else params.mpc.q2_stoppable,
         )
 
 
@@ -134,12 +132,6 @@ class ParamLayout:
     gate_relax              1      M: how much the faded-out constraint is relaxed by
     half_length, half_width 1, 1   of the ego footprint (m), for its top edge
     opp_lane_y              1      centre of the opposing lane (m), the MPC-DC ellipse's y
-    ---- with a stoppable Q2 (Mpc.q2_stoppable end or path) ----------------------------------
-    stop_gap                1      centre distance kept behind veh_f's measured c.g.: the length plus the
-                                   measured position's largest error (m)
-    stop_speed_factor       1      veh_f's speed is at least this times its measured speed (1 - the
-                                   speed noise's largest relative error)
-    stop_decel              1      the ego's strongest braking |accel_min| (m/s^2)
     ======================  =====  ==========================================================
     """
 
@@ -147,12 +139,10 @@ class ParamLayout:
     with_opposing: bool = False
     opp_order_m: int = 1
     opp_law_order_m: int = 1
-    stoppable: str = "off"
 
     @classmethod
     def of(cls, structure: OcpStructure) -> ParamLayout:
-        return cls(structure.order_m, structure.with_opposing, structure.opp_order_m, structure.opp_law_order_m,
-                   structure.stoppable)
+        return cls(structure.order_m, structure.with_opposing, structure.opp_order_m, structure.opp_law_order_m)
 
     @property
     def sizes(self) -> dict[str, int]:
@@ -169,8 +159,6 @@ class ParamLayout:
                 "opp_speed_limit": 1, "lane_line_y": 1, "gate_width": 1, "gate_relax": 1,
                 "half_length": 1, "half_width": 1, "opp_lane_y": 1,
             })
-        if self.stoppable != "off":
-            sizes.update({"stop_gap": 1, "stop_speed_factor": 1, "stop_decel": 1})
         return sizes
 
     @property
@@ -222,7 +210,7 @@ def pack_params(
     ego_state: np.ndarray,
     front_xyv: np.ndarray,
     direction: int,
-    lambda0: float,
+    level: Level,
     y_goal: float | None = None,
     *,
     opp_xv: np.ndarray | None = None,
@@ -231,7 +219,7 @@ def pack_params(
     """Parameter vector p (layout :class:`ParamLayout`) for one solve.
 
     ego_state: (4,) [x m, y m, psi rad, v m/s]. front_xyv: (3,) [x_f m, y_f m, v_f m/s].
-    direction: +1 (Q1, overtake) or -1 (Q2, go back). lambda0: the level parameter (<= 0).
+    direction: +1 (Q1, overtake) or -1 (Q2, go back). level: the cell's VL-CBF level (its lambda0 enters p).
     y_goal: lateral goal (m), default the ego lane centre. opp_xv: (2,) measured veh_o
     [x_o m, v_o m/s signed], required when ``structure.with_opposing``. Other values come from
     ``params``; structure defaults to ``OcpStructure.from_params(params)``.
@@ -252,7 +240,7 @@ def pack_params(
     p[sl["eps_y"]] = params.mpc.eps_y_m
     p[sl["ellipse_a"]] = params.barrier.ellipse_a_m
     p[sl["ellipse_b"]] = params.barrier.ellipse_b_m
-    p[sl["lambdas"]] = (lambda0, *params.barrier.lambdas_m)
+    p[sl["lambdas"]] = (level.lambda0, *params.barrier.lambdas_m)
     p[sl["l_r"]] = params.ego.l_r_m
     p[sl["u_scale"]] = input_scale(params)
     p[sl["smooth_weight"]] = params.mpc.smooth_weight
@@ -275,12 +263,6 @@ def pack_params(
         p[sl["half_length"]] = 0.5 * geo.length_m
         p[sl["half_width"]] = 0.5 * geo.width_m
         p[sl["opp_lane_y"]] = road.opp_lane_y_m
-    if structure.stoppable != "off":
-        nz = params.noise
-        noisy = nz.kind != "none"
-        p[sl["stop_gap"]] = params.geometry.length_m + (nz.pos_far_m * nz.scale if noisy else 0.0)
-        p[sl["stop_speed_factor"]] = 1.0 - (nz.speed_rel * nz.scale if noisy else 0.0)
-        p[sl["stop_decel"]] = -params.ego.accel_min_mps2
     return p
 
 
@@ -292,11 +274,10 @@ class NlpLayout:
     horizon: int
     uniform_dt: bool = True
     with_opposing: bool = False
-    stoppable: str = "off"
 
     @classmethod
     def of(cls, structure: OcpStructure) -> NlpLayout:
-        return cls(structure.horizon, structure.uniform_dt, structure.with_opposing, structure.stoppable)
+        return cls(structure.horizon, structure.uniform_dt, structure.with_opposing)
 
     def _w_sizes(self) -> dict[str, int]:
         n = self.horizon
@@ -311,7 +292,6 @@ class NlpLayout:
         return {
             "init": N_X, "clock0": 1, "dyn": N_X * n, "clock": n, "dt_equal": n - 1 if self.uniform_dt else 0,
             "opp_dyn": n_opp_eq, "front": n, "opp": n if self.with_opposing else 0, "goal": 1, "lat": 2,
-            "stop": {"off": 0, "end": 1, "path": n}[self.stoppable],
         }
 
     @property
@@ -321,8 +301,7 @@ class NlpLayout:
 
     @property
     def g_slices(self) -> dict[str, slice]:
-        """Slices of g: "init", "clock0", "dyn", "clock", "dt_equal", "opp_dyn", "front", "opp", "goal", "lat",
-        "stop"."""
+        """Slices of g: "init", "clock0", "dyn", "clock", "dt_equal", "opp_dyn", "front", "opp", "goal", "lat"."""
         return _slices(self._g_sizes())
 
     @property
@@ -372,8 +351,7 @@ def distance_margin(params: ModelParams) -> float:
     otherwise (the ellipse itself)."""
     if params.mpc.controller != "mpcdc_eps":
         return 0.0
-    b = params.barrier
-    return float(b.epsilon) if b.epsilon is not None else epsilon_from_lambda0(b.lambdas_m, float(b.lambda0))
+    return Level.of_barrier(params.barrier).epsilon
 
 
 def constraint_bounds(structure: OcpStructure, margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:

@@ -21,12 +21,6 @@ Constraint vector ``g`` (all written as ``lbg <= g <= ubg`` with the numeric bou
   "distance": the ellipse around the predicted veh_o, i = 1..N  (N)    eq.tompcAdd_cbf_eo
 * ``s (X[0, N] - x_g) >= 0``                                    (1)    eq.tompc_goal
 * ``eps_y -+ (X[1, N] - y_goal) >= 0``                          (2)    eq.tompc_y
-* with ``stoppable`` "end" or "path" (not the paper's): ``d_i - max(v_i - k v_f, 0)^2 / (2 a)
-  + M (1 + s) / 2 >= 0``, d_i = x_f(t_i) - X[0, i] - L the gap behind veh_f (L: the length and the
-  measured position's largest error; k v_f: the slowest veh_f its measured speed allows): braking
-  at a = |accel_min| keeps the footprints apart; relaxed for Q1. "end": i = N   (1)
-  "path": i = 1..N, each row faded out (relaxed) while d_i <= 0 (alongside or ahead of
-  veh_f)                                                        (N)    see :func:`stoppable_row`
 
 The input and state bounds (eq.tompc_u, eq.tompc_v, eq.tompc_t) are bounds on ``w``
 (:func:`~mcverify.ocp.layout.decision_bounds`). The dynamics are the forward-Euler discretisation of
@@ -153,8 +147,6 @@ def opposing_lane_gate(x: ca.SX, par: dict) -> ca.SX:
 #: Width (m/s^2) of the smooth max/min in veh_o's predicted law: the prediction differs from the
 #: exact max/clip of the plant's law by at most half of it, and IPOPT sees no kinks.
 SMOOTH_ACCEL_MPS2 = 0.05
-#: Width of the smooth maximum in the stoppable-goal row (m/s).
-SMOOTH_SPEED_MPS = 0.05
 
 
 #: The worst-case acceleration of a human-driven veh_o fades out over this speed band above its limit.
@@ -244,15 +236,13 @@ def build_nlp(structure: OcpStructure) -> dict[str, ca.SX]:
     dy = X[1, n] - par["y_goal"]
     g_lat = ca.vertcat(par["eps_y"] - dy, par["eps_y"] + dy)
 
-    g_stop = _stoppable_rows(structure.stoppable, X, t, front, s, par)
-
     # uniform stages (OcpStructure.uniform_dt): DT_{i+1} - DT_i == 0
     g_equal = ca.diff(DT) if structure.uniform_dt else ca.SX(0, 1)
     opp_init = XO[:, 0] - par["opp"] if XO is not None else ca.SX(0, 1)
 
     g = ca.vertcat(
         X[:, 0] - par["x0"], t[0], *g_dyn, *g_clock, g_equal, opp_init, *g_opp_dyn,
-        *g_front, *g_opp, g_goal, g_lat, g_stop,
+        *g_front, *g_opp, g_goal, g_lat,
     )
     # Objective: sum DT + w_s (sum ||u^{i+1} - u^i||^2 + sum beta_i^2) (Remark after eq.tompc), with
     # u in units of its bound (see input_scale).
@@ -276,47 +266,6 @@ def formulation_digest(structure: OcpStructure) -> str:
     fn = ca.Function("nlp", [nlp["x"], nlp["p"]], [nlp["f"], nlp["g"]])
     return hashlib.sha256(fn.serialize().encode()).hexdigest()
 
-
-#: How much a stoppable row is relaxed for Q1 (m): more than any gap on the road.
-STOP_RELAX_M = 1e3
-#: "path": the gate of a stoppable row rises from 0 to 1 as the footprint gap goes from 0 to this (m).
-STOP_GATE_M = 0.5
-#: "path": how much a faded-out stoppable row is relaxed (m): more than the row's deficit at any
-#: speed on the road ((30 m/s)^2 / (2 * 6 m/s^2) = 75 m would be the worst).
-STOP_GATE_RELAX_M = 100.0
-
-
-def stoppable_row(x: ca.SX, front: ca.SX, t: ca.SX, s: ca.SX, par: dict, gated: bool) -> ca.SX:
-    """The ego at state x, time t can still avoid veh_f (>= 0): the gap behind veh_f's predicted
-    position, d = x_f + v_f t - x_e - L (L: the length plus the measured position's largest error),
-    covers the distance it needs to shed its excess speed over veh_f at its strongest braking a,
-    (v - k v_f)_+^2 / (2 a) (k v_f: the slowest veh_f the measured speed allows; veh_f at constant
-    speed, as the goal predicts it). Not in the paper: its Q2 (eq.tompc with the goal behind veh_f) has no speed
-    condition, so a late turn-back may reach the goal too fast to stop behind veh_f. ``gated``: with
-    gate = smoothstep(d / STOP_GATE_M), the row is gate row + STOP_GATE_RELAX_M (1 - gate), so that it
-    asks nothing while the ego is alongside or ahead of veh_f (d <= 0) and is the plain row once the
-    ego is STOP_GATE_M behind (a relaxed row, not a row times 0, so that an interior point never sits
-    on it: as the eo row's gate). Relaxed by :data:`STOP_RELAX_M` when s = +1 (Q1)."""
-    gap = front[0] + front[2] * t - x[0] - par["stop_gap"]
-    # the speed, not its x component: a merging ego heads up to 0.35 rad off the lane, and v cos(psi)
-    # would promise 6 % less speed to shed than it has once it straightens out behind veh_f; and veh_f's
-    # slowest speed the measurement allows (the excess's square moves 2 m per m/s of speed error)
-    excess = smooth_max(x[3] - par["stop_speed_factor"] * front[2], 0.0, width=SMOOTH_SPEED_MPS)
-    row = gap - excess**2 / (2.0 * par["stop_decel"])
-    if gated:
-        gate = smoothstep(gap / STOP_GATE_M)
-        row = gate * row + STOP_GATE_RELAX_M * (1.0 - gate)
-    return row + STOP_RELAX_M * (1.0 + s) / 2.0
-
-
-def _stoppable_rows(mode: str, X: ca.SX, t: ca.SX, front: ca.SX, s: ca.SX, par: dict) -> ca.SX:
-    """The rows of :func:`stoppable_row` for OcpStructure.stoppable: none, the end node, or nodes 1..N."""
-    n = X.shape[1] - 1
-    if mode == "end":
-        return stoppable_row(X[:, n], front, t[n], s, par, gated=False)
-    if mode == "path":
-        return ca.vertcat(*(stoppable_row(X[:, i], front, t[i], s, par, gated=True) for i in range(1, n + 1)))
-    return ca.SX(0, 1)
 
 
 def _opposing_row(structure: OcpStructure, X, U, XO, t, i: int, a_o, par: dict) -> ca.SX:

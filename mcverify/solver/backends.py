@@ -14,7 +14,8 @@ violation <= 1e-5). :class:`mcverify.solver.mpc.MpcSolver` builds the
 
 ``ipm``: the interior-point method of :mod:`mcverify.solver.ipm` - IPOPT's algorithm, run in C on a
 banded factorisation of the KKT system with the kernel's functions called directly - warm
-started like the reference, with a second, more central attempt; IPOPT is its fallback:
+started like the reference, with the attempts of :mod:`mcverify.solver.attempts` (per controller
+family); IPOPT is its fallback:
 
 * whatever the IPM does not solve (no convergence in its iteration limit, a failed line search,
   anything non-finite, a point that fails the common feasibility check) goes to the IPOPT
@@ -23,8 +24,8 @@ started like the reference, with a second, more central attempt; IPOPT is its fa
   reference could not solve it either", never "the fast path gave up";
 * an IPM success has IPOPT's contract: scaled KKT error <= ``params.mpc.tol``, unscaled
   constraint violation <= 1e-7, then the common 1e-5 check;
-* with ``params.mpc.infeasibility = "phase1"`` (or "phase1_mpcdc", the default, for the MPC-DC
-  baselines; the VL-CBF controllers then keep the rule above), before the fallback the C phase 1
+* for the MPC-DC baselines (:attr:`mcverify.solver.attempts.AttemptPlan.phase1_certificates`; the
+  VL-CBF controllers keep the rule above), before the fallback the C phase 1
   runs from the warm start and the cold guess; if both certify local infeasibility the certificate
   is the answer (status ``IPM_Infeasible_Problem_Detected``) and IPOPT runs only as the scheduled
   auditor (:meth:`IpmBackend.audit_due`): docs/engine.md, "The restoration phase and what
@@ -57,19 +58,10 @@ import casadi as ca
 import numpy as np
 
 from mcverify.errors import raise_noted_interrupt
-from mcverify.model import BACKEND_NAMES, KKT_FACTORIZATIONS, ModelParams, Mpc
+from mcverify.model import BACKEND_NAMES, ModelParams
+from mcverify.solver.attempts import ATTEMPTS, EASY_ATTEMPTS, AttemptPlan, attempt_plan
 from mcverify.solver.cfun import CFunction
-from mcverify.solver.ipm import (
-    AFTER_HARD_WARM,
-    CENTRAL_RETRY,
-    CENTRAL_WARM,
-    COLD,
-    KKT_FACTORISATIONS,
-    WARM_ATTEMPTS,
-    Ipm,
-    IpmOptions,
-    IpmResult,
-)
+from mcverify.solver.ipm import COLD, WARM_ATTEMPTS, Ipm, IpmOptions, IpmResult
 from mcverify.solver.kernels import Kernel, get_runtime_library
 from mcverify.solver.status import SolveRoute, SolveStatus
 
@@ -82,7 +74,8 @@ class Start:
     """A primal-dual start: x (n_w,), lam_x (n_w,), lam_g (n_g,), in the layout of the NLP.
 
     hard_run: how many solves in a row, the one that produced it the last, were hard (:attr:`BackendResult.hard`;
-    0: that one was not); read by ``mpc.ipm_central_first`` and ``mpc.ipm_after_hard_solves``.
+    0: that one was not); read by the attempt plan's
+    ``after_hard`` order (:mod:`mcverify.solver.attempts`).
     """
 
     x: np.ndarray
@@ -277,41 +270,22 @@ class IpmBackend:
 
     name = "ipm"
 
-    def __init__(self, problem: Problem, params: ModelParams, kernel_dir=None) -> None:
+    def __init__(self, problem: Problem, params: ModelParams, kernel_dir=None, plan: AttemptPlan | None = None) -> None:
+        """``plan``: the attempts (default: those of ``params.mpc.controller``'s family; tests give others)."""
         self.problem = problem
         self.reference = IpoptBackend(problem, params)
         lib = get_runtime_library("ipm", kernel_dir).so_path
         self.ipm = Ipm(problem.kernel.so_path, problem.lbx, problem.ubx, problem.lbg, problem.ubg, lib)
-        # mpc.kkt_factorization: every IPM run of this backend factorises its KKT system that way
-        kkt = {"kkt_factorisation": params.mpc.kkt_factorization}
-        self.warm_attempts = tuple(dataclasses.replace(o, tol=params.mpc.tol, **kkt) for o in WARM_ATTEMPTS)
-        self.cold = dataclasses.replace(COLD, tol=params.mpc.tol, **kkt)
-        # mpc.ipm_restoration (default mpcdc: the MPC-DC baselines; off gives the attempts of ABI 1, bit for
-        # bit): the cold attempt of a full solve restores feasibility after a failed line search (not the
-        # warm attempts, whose failures the cold start repairs cheaply, nor a presumed-infeasible fast-only
-        # solve, where a restoration would mostly fail at a price)
-        self.cold_full = dataclasses.replace(self.cold, restoration=uses_restoration(params.mpc))
-        # mpc.ipm_central_attempt (default mpcdc: the MPC-DC baselines): the warm start once more, more central,
-        # before IPOPT
-        central = dataclasses.replace(CENTRAL_WARM, tol=params.mpc.tol, **kkt)
-        self.central = central if uses_central_attempt(params.mpc) else None
-        # mpc.ipm_central_first (default mpcdc: the MPC-DC baselines): after a hard solve, the next one starts with
-        # the attempt mpc.ipm_after_hard_attempt names: the central one (number 4) or the lower-mu one (number 6)
-        first = ((6, dataclasses.replace(AFTER_HARD_WARM, tol=params.mpc.tol, **kkt))
-                 if params.mpc.ipm_after_hard_attempt == "lower_mu" else (4, central))
-        self.first_after_hard: tuple[int, IpmOptions] | None = first if uses_central_first(params.mpc) else None
-        # mpc.ipm_after_hard_solves: first_after_hard leads once this many solves in a row were hard (Start.hard_run)
-        self.after_hard_solves = params.mpc.ipm_after_hard_solves
-        # mpc.ipm_central_retry (default mpcdc): the warm start once more, more central still, last before IPOPT
-        self.central_retry = (dataclasses.replace(CENTRAL_RETRY, tol=params.mpc.tol, **kkt)
-                              if uses_policy(params.mpc.ipm_central_retry, params.mpc) else None)
+        self.plan = plan or attempt_plan(params.mpc)
+        tol = params.mpc.tol
+        self.options = {name: dataclasses.replace(opts, tol=tol) for name, (_, opts, _) in ATTEMPTS.items()}
+        # the cold attempt of a full solve (not of a fast-only one: a restoration there mostly fails, at a price)
+        self.cold_full = dataclasses.replace(self.options["cold"], restoration=self.plan.cold_restoration)
         self.ipm_outcomes: Counter[str] = Counter()
         self.ipm_cpu_s: Counter[str] = Counter()
-        # mpc.infeasibility: "phase1_mpcdc" is "phase1" for the MPC-DC baselines and "ipopt" for the others
-        self.infeasibility = "phase1" if uses_phase1(params.mpc) else "ipopt"
         self.audit_every = params.mpc.infeasibility_audit_every
-        self.phase1_warm = dataclasses.replace(WARM_ATTEMPTS[0], tol=params.mpc.tol, phase1=True, **kkt)
-        self.phase1_cold = dataclasses.replace(COLD, tol=params.mpc.tol, phase1=True, **kkt)
+        self.phase1_warm = dataclasses.replace(WARM_ATTEMPTS[0], tol=tol, phase1=True)
+        self.phase1_cold = dataclasses.replace(COLD, tol=tol, phase1=True)
 
     def solve(
         self, p: np.ndarray, warm: Start | None, guess: Callable[[], np.ndarray], fast_only: bool = False
@@ -328,7 +302,7 @@ class IpmBackend:
             tag = f"{'cold' if start is None else 'warm'}{number}:{r.status}"
             self.ipm_outcomes[tag] += 1
             self.ipm_cpu_s[tag] += time.process_time() - cpu0
-            hard = start is None or number > len(self.warm_attempts)  # not one of the two warm attempts
+            hard = start is None or number > len(EASY_ATTEMPTS)  # not one of the two warm attempts
             res = self.problem.accept(
                 BackendResult(r.w, r.lam_x, r.lam_g, SolveStatus.ipm(r.status), iterations, r.success, hard=hard), p
             )
@@ -336,7 +310,7 @@ class IpmBackend:
                 return res
         if fast_only:
             return dataclasses.replace(res, status=res.status.via(SolveRoute.PRESUMED))
-        if self.infeasibility == "phase1":
+        if self.plan.phase1_certificates:
             cert = self.certify(p, warm, guess, iterations)
             if cert is not None:
                 return dataclasses.replace(self.audit(p, warm, guess, cert) if self.audit_due(p) else cert, hard=True)
@@ -346,25 +320,18 @@ class IpmBackend:
         )
 
     def attempts(self, warm: Start | None, fast_only: bool) -> list[tuple[int, IpmOptions, Start | None]]:
-        """The IPM attempts of a solve in order, as (number, options, start or None for the cold guess). The
-        numbers name the attempts in :attr:`ipm_outcomes` whatever their order: 1 and 2 the warm ones, 3 the cold
-        one (1 without a warm start), 4 the central one, 5 the central retry, 6 the lower-mu one after a hard
-        solve (``mpc.ipm_after_hard_attempt``), run first once ``mpc.ipm_after_hard_solves`` solves in a row were
-        hard."""
-        if warm is None:
-            return [(1, self.cold if fast_only else self.cold_full, None)]
-        usual = [(k + 1, o, warm) for k, o in enumerate(self.warm_attempts)]
-        cold = (len(usual) + 1, self.cold if fast_only else self.cold_full, None)
-        central = len(usual) + 2
-        if fast_only:
-            return [*usual, cold]
-        retry = [(central + 1, self.central_retry, warm)] if self.central_retry is not None else []
-        if self.first_after_hard is not None and warm.hard_run >= self.after_hard_solves:
-            return [(*self.first_after_hard, warm), *usual, cold, *retry]
-        return [*usual, cold, *([(central, self.central, warm)] if self.central is not None else []), *retry]
+        """The IPM attempts of a solve in order (:attr:`plan`), as (number, options, start or None for the cold
+        guess); the numbers tag the attempts in :attr:`ipm_outcomes` (:data:`mcverify.solver.attempts.ATTEMPTS`;
+        the cold attempt is 1 without a warm start)."""
+        names = self.plan.order(warm is not None, fast_only, warm is not None and warm.hard_run >= 1)
+        out = []
+        for name in names:
+            number, _, from_warm = ATTEMPTS[name]
+            opts = self.cold_full if name == "cold" and not fast_only else self.options[name]
+            out.append((number if warm is not None else 1, opts, warm if from_warm else None))
+        return out
 
-
-    # ---------------------------------------------------------------- Mpc.infeasibility = "phase1"
+    # ---------------------------------------------------------- phase-1 certificates (AttemptPlan)
 
     def certify(self, p: np.ndarray, warm: Start | None, guess: Callable[[], np.ndarray],
                 iterations: int) -> BackendResult | None:
@@ -409,40 +376,13 @@ class IpmBackend:
 REGISTRY: dict[str, type] = {cls.name: cls for cls in (IpoptBackend, IpmBackend)}
 if set(REGISTRY) != set(BACKEND_NAMES):  # a name the model accepts must have a solver (checked even under -O)
     raise ImportError(f"solver backends {sorted(REGISTRY)} do not implement BACKEND_NAMES {BACKEND_NAMES}")
-if set(KKT_FACTORIZATIONS) != set(KKT_FACTORISATIONS):  # likewise for mpc.kkt_factorization
-    raise ImportError(f"mpc.kkt_factorization {KKT_FACTORIZATIONS} and the C solver's "
-                      f"{tuple(KKT_FACTORISATIONS)} differ")
 
 
-def uses_central_attempt(mpc: Mpc) -> bool:
-    """Whether ``mpc.ipm_central_attempt`` gives this controller's full solves the central warm attempt."""
-    return uses_policy(mpc.ipm_central_attempt, mpc)
-
-
-def uses_policy(policy: str, mpc: Mpc) -> bool:
-    """Whether a controller policy of the ipm backend (off / mpcdc / all) applies to this controller."""
-    return policy == "all" or (policy == "mpcdc" and mpc.is_mpcdc)
-
-
-def uses_phase1(mpc: Mpc) -> bool:
-    """Whether ``mpc.infeasibility`` lets the C phase 1 certify this controller's infeasible problems."""
-    return mpc.infeasibility == "phase1" or (mpc.infeasibility == "phase1_mpcdc" and mpc.is_mpcdc)
-
-
-def uses_central_first(mpc: Mpc) -> bool:
-    """Whether ``mpc.ipm_central_first`` starts this controller's full solves after a hard one with the central
-    attempt."""
-    return uses_policy(mpc.ipm_central_first, mpc)
-
-
-def uses_restoration(mpc: Mpc) -> bool:
-    """Whether ``mpc.ipm_restoration`` gives this controller's cold IPM attempt of a full solve the restoration
-    phase."""
-    return uses_policy(mpc.ipm_restoration, mpc)
-
-
-def create_backend(name: str, problem: Problem, params: ModelParams):
-    """The backend called ``name`` (one of :data:`~mcverify.model.BACKEND_NAMES`)."""
+def create_backend(name: str, problem: Problem, params: ModelParams, kernel_dir=None):
+    """The backend called ``name`` (one of :data:`~mcverify.model.BACKEND_NAMES`); ``kernel_dir``: the kernel
+    cache its compiled libraries come from (:func:`mcverify.solver.kernels.resolve_kernel_dir`)."""
     if name not in REGISTRY:
         raise ValueError(f"unknown solver backend {name!r}; valid: {', '.join(BACKEND_NAMES)}")
-    return REGISTRY[name](problem, params)
+    if name == IpoptBackend.name:  # the reference needs only the kernel itself
+        return IpoptBackend(problem, params)
+    return REGISTRY[name](problem, params, kernel_dir=kernel_dir)

@@ -2,8 +2,7 @@
 
 The algorithm is IPOPT's primal-dual barrier method with its filter line search and second-order
 corrections (see the C source for what is left out). It runs entirely in C: the banded KKT system
-of :class:`mcverify.solver.kkt.KktStructure` is factorised by a banded LU (or, with
-``IpmOptions.kkt_factorisation``, a banded LDL^T), and the NLP's functions
+of :class:`mcverify.solver.kkt.KktStructure` is factorised by a banded LU, and the NLP's functions
 are the kernel's generated C, called through function pointers, so an iteration costs several
 times less than an IPOPT iteration through CasADi on the same kernel (results/BENCHMARKS.md). The
 C library is compiled once per machine into the kernel cache
@@ -35,7 +34,7 @@ _L = ctypes.POINTER(ctypes.c_int64)
 _FUN = ctypes.c_void_p
 
 #: ``IPM_ABI_VERSION`` of ``csrc/ipm.h`` this binding is written for.
-ABI_VERSION = 3
+ABI_VERSION = 4
 #: The status codes of ``csrc/ipm.h`` (``enum ipm_status``) -> status strings, the one table of them
 #: on this side (checked against the library's ``ipm_status_name`` at load).
 STATUS = {
@@ -47,8 +46,6 @@ STATUS = {
 #: certificate of local infeasibility, undecided, a feasible point (phase 1 only).
 INFEASIBLE, RESTORATION_FAILED, FEASIBLE_POINT_FOUND = 6, 7, 8
 CONVERGED = 0
-#: ``enum ipm_kkt_factorisation`` of ``csrc/ipm.h``: :attr:`IpmOptions.kkt_factorisation` -> code.
-KKT_FACTORISATIONS = {"lu": 0, "ldlt": 1, "ldlt_curvature": 2}
 _KERNEL_FUNCTIONS = ("nlp_g", "nlp_grad_f", "nlp_jac_g", "nlp_hess_l")
 
 
@@ -70,12 +67,8 @@ class IpmOptions:
     (IPOPT's 1000); resto_mu_cert: a certificate of local infeasibility needs the restoration's
     barrier parameter at most this (and its scaled KKT error at most tol).
 
-    KKT factorisation (``csrc/ipm.h``, ``enum ipm_kkt_factorisation``): kkt_factorisation "lu"
-    (banded LU with partial pivoting and the inertia-free curvature test: ABI 2 bit for bit), "ldlt"
-    (banded LDL^T without pivoting of the KKT matrix with -kkt_delta on every constraint row,
-    iterative refinement against the unregularised matrix, the step accepted on the inertia n_w
-    positive / n_g negative pivots; a breakdown or an inaccurate solve falls back to the LU for that
-    factorisation) or "ldlt_curvature" (the LDL^T solve with the LU's curvature test)."""
+    The KKT system is factorised by the banded LU with partial pivoting and the inertia-free curvature
+    test."""
 
     tol: float = 1e-6
     constr_viol_tol: float = 1e-7
@@ -94,8 +87,6 @@ class IpmOptions:
     resto_max_iter: int = 100
     resto_rho: float = 1000.0
     resto_mu_cert: float = 1e-6
-    kkt_factorisation: str = "lu"
-    kkt_delta: float = 1e-9
 
 
 #: Warm starts: first the IPOPT reference's own warm-start settings (mu_init 1e-7, pushes 1e-6),
@@ -108,17 +99,17 @@ WARM_ATTEMPTS: tuple[IpmOptions, ...] = (
     IpmOptions(mu_init=1e-7, bound_push=1e-6, mult_push=1e-6, max_iter=30),
     IpmOptions(mu_init=1e-5, bound_push=1e-4, mult_push=1e-6, max_iter=30),
 )
-#: The central warm attempt (``mpc.ipm_central_attempt``): the warm start once more, after the cold
+#: The central warm attempt (MPC-DC, :mod:`mcverify.solver.attempts`): the warm start once more, after the cold
 #: attempt failed, at mu_init 1e-2 with the bound push of the cold start's tenth. Where the warm
 #: attempts crawl (a new measurement moved the goal row by metres, the point stays glued to its
 #: bounds at mu 1e-7 to 1e-5) and the cold one fails its line search, a barrier this large frees the
 #: point and keeps the warm start's shape (docs/engine.md, "A central attempt before the rescue").
 CENTRAL_WARM = IpmOptions(mu_init=1e-2, bound_push=1e-3, mult_push=1e-6, max_iter=60)
-#: The central retry (``mpc.ipm_central_retry``): the warm start once more after the central attempt
+#: The central retry (MPC-DC): the warm start once more after the central attempt
 #: failed, at mu_init 3e-2 and up to 100 iterations, before IPOPT's rescue (docs/engine.md, "A central
 #: retry before the rescue").
 CENTRAL_RETRY = IpmOptions(mu_init=3e-2, bound_push=1e-3, mult_push=1e-6, max_iter=100)
-#: The first attempt after a hard solve with ``mpc.ipm_after_hard_attempt = "lower_mu"``: the warm start at
+#: The first attempt after a hard solve (MPC-DC): the warm start at
 #: mu_init 3e-3 with bound push 3e-3 and bound multipliers of at least 3e-2. On recorded MPC-DC solves after a
 #: hard one, the central attempt spends its first iterations on steps of 1e-5 to 1e-3 (the pushed point sits
 #: at bounds the Newton step must cross, with multipliers of 1e-6); these settings converge more often and in
@@ -149,7 +140,6 @@ class _Opts(ctypes.Structure):
         ("verbose", ctypes.c_int), ("theta_far", ctypes.c_double), ("mu_far", ctypes.c_double),
         ("push_far", ctypes.c_double), ("restoration", ctypes.c_int), ("phase1", ctypes.c_int),
         ("resto_max_iter", ctypes.c_int), ("resto_rho", ctypes.c_double), ("resto_mu_cert", ctypes.c_double),
-        ("kkt_ldlt", ctypes.c_int), ("kkt_delta", ctypes.c_double),
     ]
 
 
@@ -161,8 +151,6 @@ class _Stats(ctypes.Structure):
         ("theta_start", ctypes.c_double), ("first_alpha", ctypes.c_double),
         ("resto_calls", ctypes.c_int), ("resto_iterations", ctypes.c_int), ("cert_violation", ctypes.c_double),
         ("cert_stationarity", ctypes.c_double), ("cert_mu", ctypes.c_double),
-        ("kkt_fallbacks", ctypes.c_int), ("kkt_refinements", ctypes.c_int), ("kkt_wrong_inertia", ctypes.c_int),
-        ("kkt_ratio_max", ctypes.c_double),
     ]
 
 
@@ -264,12 +252,6 @@ class IpmResult:
     cert_violation: float = float("nan")
     cert_stationarity: float = float("nan")
     cert_mu: float = float("nan")
-    # LDL^T path: factorisations that fell back to the LU, refinement steps, factorisations rejected
-    # for a wrong inertia, the largest backward error of an accepted LDL^T solve
-    kkt_fallbacks: int = 0
-    kkt_refinements: int = 0
-    kkt_wrong_inertia: int = 0
-    kkt_ratio_max: float = 0.0
 
     @property
     def infeasible(self) -> bool:
@@ -331,8 +313,7 @@ class Ipm:
         warm = lam_x0 is not None and lam_g0 is not None
         copts = _Opts(o.tol, o.constr_viol_tol, o.mu_init, o.mu_min, o.bound_push, o.mult_push, o.bound_relax,
                       o.max_iter, int(warm), int(o.verbose), o.theta_far, o.mu_far, o.push_far,
-                      int(o.restoration), int(o.phase1), o.resto_max_iter, o.resto_rho, o.resto_mu_cert,
-                      kkt_code(o.kkt_factorisation), o.kkt_delta)
+                      int(o.restoration), int(o.phase1), o.resto_max_iter, o.resto_rho, o.resto_mu_cert)
         x = np.array(w0, dtype=np.float64).reshape(-1)
         lx = np.array(lam_x0 if warm else np.zeros(self.n_w), dtype=np.float64).reshape(-1)
         lg = np.array(lam_g0 if warm else np.zeros(self.n_g), dtype=np.float64).reshape(-1)
@@ -355,16 +336,7 @@ class Ipm:
             first_alpha=float(st.first_alpha), resto_calls=int(st.resto_calls),
             resto_iterations=int(st.resto_iterations), cert_violation=float(st.cert_violation),
             cert_stationarity=float(st.cert_stationarity), cert_mu=float(st.cert_mu),
-            kkt_fallbacks=int(st.kkt_fallbacks), kkt_refinements=int(st.kkt_refinements),
-            kkt_wrong_inertia=int(st.kkt_wrong_inertia), kkt_ratio_max=float(st.kkt_ratio_max),
         )
-
-
-def kkt_code(name: str) -> int:
-    """The C code of a :attr:`IpmOptions.kkt_factorisation` name (ValueError for an unknown one)."""
-    if name not in KKT_FACTORISATIONS:
-        raise ValueError(f"unknown KKT factorisation {name!r}; valid: {', '.join(KKT_FACTORISATIONS)}")
-    return KKT_FACTORISATIONS[name]
 
 
 def with_options(base: IpmOptions, **changes) -> IpmOptions:

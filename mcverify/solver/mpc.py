@@ -1,6 +1,6 @@
 """Host-side TO-CBF-MPC solve on the compiled kernel of :mod:`mcverify.solver.kernels`.
 
-``MpcSolver(params).solve(ego_state, front_xyv, direction, lambda0, warm)`` returns an
+``MpcSolver(params).solve(ego_state, front_xyv, direction, level, warm)`` returns an
 :class:`MpcSolution`; it never raises for numerical trouble (solver failures, exceptions, NaNs become
 ``success=False`` with a :class:`~mcverify.solver.status.SolveStatus`). Solves are deterministic:
 the same inputs (including the same ``warm``) give bit-identical outputs; nothing depends on wall
@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mcverify.levels import Level
 from mcverify.model import ModelParams
 from mcverify.ocp import (
     NlpLayout,
@@ -39,7 +40,7 @@ class WarmStart:
     x (n_w,), lam_x (n_w,), lam_g (n_g,) in the layout of :class:`~mcverify.ocp.problem.NlpLayout`;
     direction: the problem (+1 Q1, -1 Q2) it solved; a warm start of the other direction is ignored.
     hard_run: how many solves in a row, this one the last, were hard
-    (:attr:`mcverify.solver.backends.BackendResult.hard`; 0: this one was not; ``mpc.ipm_central_first``).
+    (:attr:`mcverify.solver.backends.BackendResult.hard`; 0: this one was not; read by the attempt plan).
     """
 
     x: np.ndarray
@@ -91,7 +92,7 @@ class MpcSolver:
         lbx, ubx = decision_bounds(params, structure)
         lbg, ubg = constraint_bounds(structure, distance_margin(params))
         self.problem = Problem(self.kernel, lbx, ubx, lbg, ubg)
-        self.backend = create_backend(params.mpc.backend, self.problem, params)
+        self.backend = create_backend(params.mpc.backend, self.problem, params, kernel_dir=kernel_dir)
 
     # ------------------------------------------------------------------------------------------
     def solve(
@@ -99,7 +100,7 @@ class MpcSolver:
         ego_state: np.ndarray,
         front_xyv: np.ndarray,
         direction: int,
-        lambda0: float,
+        level: Level,
         warm: WarmStart | None = None,
         opp_xv: np.ndarray | None = None,
         guess: np.ndarray | None = None,
@@ -108,8 +109,9 @@ class MpcSolver:
         """Solve Q1 (direction +1) or Q2 (-1) from the measured states.
 
         ego_state (4,) [x m, y m, psi rad, v m/s]; front_xyv (3,) [x_f m, y_f m, v_f m/s];
-        lambda0: level parameter (<= 0); warm: the ``warm`` of the previous solution of the same
-        direction, or None for a cold start from :func:`~mcverify.ocp.problem.initial_guess`;
+        level: the cell's VL-CBF level (:class:`mcverify.levels.Level`); warm: the ``warm`` of the
+        previous solution of the same direction, or None for a cold start from
+        :func:`~mcverify.ocp.problem.initial_guess`;
         opp_xv (2,) [x_o m, v_o m/s signed]: the measured opposing vehicle, required (only) when the
         structure has one; guess (n_w,): a primal starting point for a cold solve instead of
         :func:`~mcverify.ocp.problem.initial_guess` (e.g. the plain problem's plan, :func:`guess_from_plan`).
@@ -119,12 +121,12 @@ class MpcSolver:
         t0 = time.perf_counter()
         try:
             p = pack_params(
-                self.params, ego_state, front_xyv, direction, lambda0, opp_xv=opp_xv, structure=self.structure
+                self.params, ego_state, front_xyv, direction, level, opp_xv=opp_xv, structure=self.structure
             )
         except ValueError as exc:  # wrong shapes or direction: a caller error, not numerics
             raise ValueError(f"MpcSolver.solve: {exc}") from exc
         if not np.all(np.isfinite(p)):
-            return self._failure(SolveStatus.invalid_input("non-finite ego_state, front_xyv or lambda0"), t0)
+            return self._failure(SolveStatus.invalid_input("non-finite ego_state, front_xyv or level"), t0)
         use_warm = warm is not None and warm.direction == direction and warm.x.size == self.layout.n_w
         start = Start(warm.x, warm.lam_x, warm.lam_g, hard_run=warm.hard_run) if use_warm else None
 

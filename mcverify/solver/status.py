@@ -10,7 +10,7 @@ in benchmarks: ``raw`` for the backend's own path, ``"fallback:<raw>"`` for a so
 handed to the IPOPT reference, ``"presumed_infeasible:<raw>"`` for a fast-path-only failure,
 ``"unread:<raw>"`` for a fast-path-only failure of a Q2 the step's decision ignored (``Mpc.q2_solve``),
 ``"audited:<raw>"`` / ``"audit_disagreed:<raw>"`` for a C certificate of infeasibility that IPOPT
-re-checked as the scheduled auditor (``Mpc.infeasibility = "phase1"``) and failed on too / solved.
+re-checked as the scheduled auditor (the MPC-DC attempt plan's phase-1 certificates) and failed on too / solved.
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ class SolveRoute(enum.Enum):
     FALLBACK = "fallback"  # the IPM failed and the IPOPT reference path answered
     PRESUMED = "presumed"  # fast path only (a problem IPOPT certified infeasible): no reference tried
     UNREAD = "unread"  # fast path only (a Q2 the step's decision ignores, Mpc.q2_solve): no reference tried
-    # Mpc.infeasibility = "phase1": a C certificate that IPOPT re-checked as the scheduled auditor and
+    # phase-1 certificates (mcverify.solver.attempts): a C certificate IPOPT re-checked as the scheduled auditor and
     # also failed on (AUDITED), or solved (AUDIT_DISAGREED: the result is IPOPT's solution)
     AUDITED = "audited"
     AUDIT_DISAGREED = "audit_disagreed"
@@ -137,7 +137,7 @@ class SolveStatus:
     @property
     def certified_infeasible(self) -> bool:
         """Local infeasibility certified: by IPOPT (directly or as the fast path's fallback) or, with
-        ``Mpc.infeasibility = "phase1"``, by the C restoration phase from every start it was given."""
+        phase-1 certificates (the MPC-DC attempt plan), by the C restoration phase from every start it was given."""
         return self.outcome is SolveOutcome.INFEASIBLE and self.route not in (SolveRoute.PRESUMED, SolveRoute.UNREAD)
 
     def __str__(self) -> str:

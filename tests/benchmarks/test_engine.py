@@ -209,8 +209,8 @@ def test_bench_settings_reach_every_cell_and_bad_ones_are_one_line(monkeypatch, 
     """``python -m benchmarks.engine --set``/``--seed``: written into the campaign before its cells are
     expanded, as for ``mcverify run``; a bad setting stops with one line (exit 2) before anything runs."""
     cells, seed, _ = bench.pick_cells(bench.DEFAULT_CAMPAIGN, "all", None,
-                                      settings=["mpc.ipm_central_attempt=mpcdc"], seed=7)
-    assert seed == 7 and cells and all(c.params.mpc.ipm_central_attempt == "mpcdc" for c in cells)
+                                      settings=["mpc.q2_solve=when_needed"], seed=7)
+    assert seed == 7 and cells and all(c.params.mpc.q2_solve == "when_needed" for c in cells)
     seen = {}
 
     class Stop(Exception):
@@ -222,8 +222,8 @@ def test_bench_settings_reach_every_cell_and_bad_ones_are_one_line(monkeypatch, 
 
     monkeypatch.setattr(bench, "run", fake_run)
     with pytest.raises(Stop):
-        bench.main(["--no-write", "--seed", "7", "--set", "mpc.ipm_central_attempt=mpcdc"])
-    assert seen["seed"] == 7 and seen["settings"] == ["mpc.ipm_central_attempt=mpcdc"]
+        bench.main(["--no-write", "--seed", "7", "--set", "mpc.q2_solve=when_needed"])
+    assert seen["seed"] == 7 and seen["settings"] == ["mpc.q2_solve=when_needed"]
     monkeypatch.undo()
     assert bench.main(["--no-write", "--set", "mpc.no_such_field=1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()

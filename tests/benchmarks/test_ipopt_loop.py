@@ -10,6 +10,7 @@ import pytest
 
 from benchmarks.ipopt_loop import ExpandedIpoptBackend, expanded_ipopt_solver
 from benchmarks.solve_classes import ClassTally, SolveClass, TimedSolver, classify
+from mcverify.levels import Level
 from mcverify.ocp import OcpStructure
 from mcverify.solver.mpc import MpcSolution, MpcSolver
 from mcverify.solver.status import SolveOutcome, SolveRoute, SolveStatus
@@ -80,12 +81,12 @@ def test_expanded_ipopt_solves_like_the_reference(params):
     user = expanded_ipopt_solver(params, structure)
     assert isinstance(user.backend, ExpandedIpoptBackend)
     ego, front = _start(params)
-    a = ref.solve(ego, front, 1, 0.0)
-    b = user.solve(ego, front, 1, 0.0)
+    a = ref.solve(ego, front, 1, Level(0.0, 0.0))
+    b = user.solve(ego, front, 1, Level(0.0, 0.0))
     assert a.success and b.success and b.status.raw == "Solve_Succeeded"
     assert abs(a.total_time_s - b.total_time_s) < 1e-6
     # warm-started from its own solution (primal-dual, mu_init 1e-7): few iterations, same plan
-    c = user.solve(ego, front, 1, 0.0, warm=b.warm)
+    c = user.solve(ego, front, 1, Level(0.0, 0.0), warm=b.warm)
     assert c.success and c.iterations <= 5 and abs(c.total_time_s - b.total_time_s) < 1e-6
 
 
@@ -94,8 +95,8 @@ def test_fast_only_is_one_short_attempt_reported_as_presumed(params):
     short = dataclasses.replace(params, mpc=dataclasses.replace(params.mpc, max_iter=2))
     user = expanded_ipopt_solver(short, OcpStructure.from_params(short))
     ego, front = _start(short)
-    presumed = user.solve(ego, front, 1, 0.0, fast_only=True)
+    presumed = user.solve(ego, front, 1, Level(0.0, 0.0), fast_only=True)
     assert not presumed.success and presumed.status.presumed_infeasible
     assert presumed.iterations == 2 and presumed.status.raw == "Maximum_Iterations_Exceeded"
-    full = user.solve(ego, front, 1, 0.0)  # no presumption: the cold solve has max_iter_cold
+    full = user.solve(ego, front, 1, Level(0.0, 0.0))  # no presumption: the cold solve has max_iter_cold
     assert full.success and full.status.route is SolveRoute.PRIMARY and full.iterations > 2

@@ -9,11 +9,12 @@ import pytest
 
 from benchmarks.naive import NaiveOptiSolver, run_naive
 from mcverify import ocp
+from mcverify.levels import Level
 from mcverify.model import ModelParams
 from mcverify.solver.mpc import MpcSolver
 
 P = ModelParams()
-LAMBDA0 = -(0.3 + 0.5 * 0.3**3)
+LEVEL = Level(epsilon=0.3, lambda0=-(0.3 + 0.5 * 0.3**3))
 EGO = np.array([10.0, 0.0, 0.0, 10.0])
 FRONT = np.array([64.0, 0.0, 25 / 3.6])
 
@@ -21,8 +22,8 @@ FRONT = np.array([64.0, 0.0, 25 / 3.6])
 @pytest.mark.parametrize("direction", [1, -1])
 def test_opti_and_the_compiled_kernel_solve_the_same_problem(direction):
     structure = ocp.OcpStructure.from_params(P)
-    naive = NaiveOptiSolver(P, structure).solve(EGO, FRONT, direction, LAMBDA0)
-    engine = MpcSolver(P, structure).solve(EGO, FRONT, direction, LAMBDA0)
+    naive = NaiveOptiSolver(P, structure).solve(EGO, FRONT, direction, LEVEL)
+    engine = MpcSolver(P, structure).solve(EGO, FRONT, direction, LEVEL)
     assert naive.success and engine.success, (naive.status, engine.status)
     assert naive.total_time_s == pytest.approx(engine.total_time_s, rel=1e-4, abs=1e-4)
 

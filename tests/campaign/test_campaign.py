@@ -193,3 +193,15 @@ def test_settings_override_the_files_model_and_are_recorded_in_the_raw_content(t
     for bad in ("backend=ipopt", "mpc.=1", ".x=1", "mpc.a.b=1"):
         with pytest.raises(CampaignError, match="expected SECTION.FIELD=VALUE"):
             apply_settings(raw, [bad])
+
+
+def test_the_level_is_resolved_once_per_cell_either_way():
+    from mcverify.levels import Level, epsilon_from_lambda0, lambda0_from_epsilon
+
+    by_eps = campaign_from_dict(spec(model={"barrier": {"epsilon": 0.2}})).cells[0]
+    by_l0 = campaign_from_dict(spec(model={"barrier": {"lambda0": -0.5, "lambdas_m": [1.0, 0.5]}})).cells[0]
+    assert by_eps.level == Level(0.2, lambda0_from_epsilon((1.0, 0.5), 0.2))
+    assert by_l0.level == Level(epsilon_from_lambda0((1.0, 0.5), -0.5), -0.5)
+    assert (by_eps.epsilon, by_eps.lambda0) == (by_eps.level.epsilon, by_eps.level.lambda0)  # what rows store
+    with pytest.raises(ValueError, match="exactly one of epsilon and lambda0"):
+        Level.of((1.0,), epsilon=0.3, lambda0=-0.3)

@@ -170,7 +170,7 @@ class FailingSolver:
     def __init__(self, n=50):
         self.n = n
 
-    def solve(self, ego, front, direction, lambda0, warm=None, **kw):
+    def solve(self, ego, front, direction, level, warm=None, **kw):
         n = self.n
         return MpcSolution(
             success=False, status=SolveStatus.ipopt("Infeasible_Problem_Detected"), iterations=3, solve_time_s=0.0,

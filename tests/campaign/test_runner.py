@@ -32,7 +32,8 @@ import synthetic_episodes as synth
 from mcverify import provenance, schema, store
 from mcverify.campaign import executors, runner
 from mcverify.campaign.spec import campaign_from_dict, load_campaign
-from mcverify.errors import RunError
+from mcverify.errors import CampaignError, RunError
+from mcverify.levels import Level
 from mcverify.schema import TIMING_COLUMNS
 
 TESTS = Path(__file__).resolve().parents[1]
@@ -384,58 +385,59 @@ def test_default_run_folders_never_collide(tmp_path: Path) -> None:
     assert second != first and not second.exists() and second.name.startswith(first.name)
 
 
-def test_a_changed_default_keeps_the_runs_value_when_its_campaign_is_rebuilt(monkeypatch):
-    """runner.CHANGED_DEFAULTS: a run made before a default changed rebuilds (replay, resume) with the
-    value it ran with: the old default where its cells predate the field, else the recorded value; a
-    campaign that sets the field itself is left alone."""
-    monkeypatch.setattr(runner, "CHANGED_DEFAULTS", {("mpc", "q2_solve"): "when_needed"})
-    raw = {"campaign": {"name": "t", "seed": 3, "episodes": 2}, "model": {"sim": {"control_period_s": 0.1}}}
-    manifest = runner.manifest_for(campaign_from_dict(raw, source="t.toml"), 8, {})
+def _manifest(model: dict | None = None) -> dict:
+    raw = {"campaign": {"name": "t", "seed": 3, "episodes": 2}, "model": {"sim": {"control_period_s": 0.1},
+                                                                         **(model or {})}}
+    return runner.manifest_for(campaign_from_dict(raw, source="t.toml"), 8, {})
+
+
+def test_a_run_is_rebuilt_from_its_recorded_parameters_not_todays_defaults():
+    """Replay and resume rebuild every cell's parameters from the manifest: a value the run recorded stands
+    even where the campaign file left it to a default that is now another."""
+    manifest = _manifest()
     assert {c["params"]["mpc"]["q2_solve"] for c in manifest["cells"]} == {"every_step"}  # today's default
-
-    def rebuilt(cells_value):
-        for cell in manifest["cells"]:
-            if cells_value is None:
-                cell["params"]["mpc"].pop("q2_solve", None)  # a run older than the field
-            else:
-                cell["params"]["mpc"]["q2_solve"] = cells_value
-        return {c.params.mpc.q2_solve for c in runner.campaign_from_manifest(manifest).cells}
-
-    assert rebuilt(None) == {"when_needed"}
-    assert rebuilt("fast_when_unneeded") == {"fast_when_unneeded"}
-    manifest["campaign"]["raw"] = {**raw, "model": {**raw["model"], "mpc": {"q2_solve": "every_step"}}}
-    assert rebuilt(None) == {"every_step"}  # the file's own value wins
-    axes = {**raw, "axes": {"q2": {"a": {"mpc.q2_solve": "when_needed"}, "b": {"mpc.q2_solve": "every_step"}}}}
-    assert runner.pin_changed_defaults(axes, manifest["cells"]) == axes
-
-
-def test_runs_before_the_restoration_policies_rebuild_with_restoration_off():
-    """mpc.ipm_restoration became a policy (off / mpcdc / all) and its default mpcdc: a run whose cells
-    stored false (or nothing) replays and resumes with "off", one that stored true with "all"."""
-    raw = {"campaign": {"name": "t", "seed": 3, "episodes": 1}, "model": {"mpc": {"controller": "mpcdc"}}}
-    manifest = runner.manifest_for(campaign_from_dict(raw, source="t.toml"), 8, {})
-    assert {c["params"]["mpc"]["ipm_restoration"] for c in manifest["cells"]} == {"mpcdc"}  # today's default
-    for stored, policy in ((False, "off"), (True, "all"), (None, "off")):
-        for cell in manifest["cells"]:
-            if stored is None:
-                cell["params"]["mpc"].pop("ipm_restoration")
-            else:
-                cell["params"]["mpc"]["ipm_restoration"] = stored
-        assert {c.params.mpc.ipm_restoration for c in runner.campaign_from_manifest(manifest).cells} == {policy}
-
-
-@pytest.mark.parametrize(("field", "today", "before"), [("ipm_central_first", "mpcdc", "off"),
-                                                        ("ipm_central_retry", "mpcdc", "off"),
-                                                        ("ipm_after_hard_attempt", "lower_mu", "central"),
-                                                        ("infeasibility", "phase1_mpcdc", "ipopt")])
-def test_runs_before_the_central_defaults_rebuild_with_the_old_ones(field, today, before):
-    """mpc.ipm_central_first and ipm_central_retry default to mpcdc, ipm_after_hard_attempt to lower_mu,
-    infeasibility to phase1_mpcdc, since 2026-11-28: a run whose cells predate the value replays and resumes with the
-    old one; a run that stored a value keeps it."""
-    raw = {"campaign": {"name": "t", "seed": 3, "episodes": 1}, "model": {"mpc": {"controller": "mpcdc"}}}
-    manifest = runner.manifest_for(campaign_from_dict(raw, source="t.toml"), 8, {})
-    assert {c["params"]["mpc"][field] for c in manifest["cells"]} == {today}
-    assert {getattr(c.params.mpc, field) for c in runner.campaign_from_manifest(manifest).cells} == {today}
     for cell in manifest["cells"]:
-        cell["params"]["mpc"].pop(field)
-    assert {getattr(c.params.mpc, field) for c in runner.campaign_from_manifest(manifest).cells} == {before}
+        cell["params"]["mpc"]["q2_solve"] = "when_needed"
+        cell["params"]["barrier"]["epsilon"] = 0.2
+    cells = runner.campaign_from_manifest(manifest).cells
+    assert {c.params.mpc.q2_solve for c in cells} == {"when_needed"}
+    assert {c.level for c in cells} == {Level.of((1.0, 0.5), epsilon=0.2)}  # the level follows the parameters
+
+
+def test_a_recorded_retired_field_at_its_built_in_value_is_accepted():
+    manifest = _manifest({"mpc": {"controller": "mpcdc"}})
+    for cell in manifest["cells"]:
+        cell["params"]["mpc"].update({"ipm_central_attempt": "mpcdc", "infeasibility": "phase1_mpcdc",
+                                      "ipm_after_hard_attempt": "lower_mu", "kkt_factorization": "lu"})
+    assert [c.params for c in runner.campaign_from_manifest(manifest).cells] == [
+        c.params for c in campaign_from_dict(manifest["campaign"]["raw"]).cells]
+
+
+@pytest.mark.parametrize(("change", "match"), [
+    (lambda mpc: mpc.update(ipm_central_attempt="all"),
+     r"cell 'all': the run set mpc.ipm_central_attempt = 'all', an option since deleted \(only 'mpcdc' remains\)"),
+    (lambda mpc: mpc.update(ipm_restoration=False), "the run set mpc.ipm_restoration = False, an option since deleted"),
+    (lambda mpc: mpc.pop("q2_solve"), "the recorded parameters lack mpc.q2_solve, which this code needs"),
+    (lambda mpc: mpc.update(colour="red"), "the recorded parameters have mpc.colour, which this code does not know"),
+])
+def test_a_run_this_code_cannot_rebuild_is_refused_in_one_line(change, match):
+    manifest = _manifest()
+    for cell in manifest["cells"]:
+        change(cell["params"]["mpc"])
+    with pytest.raises(CampaignError, match=match) as err:
+        runner.campaign_from_manifest(manifest)
+    assert "\n" not in str(err.value)
+
+
+def test_replaying_a_folder_that_names_a_deleted_option_is_one_line_and_exit_2(tmp_path, capsys):
+    from mcverify import cli
+
+    run_dir = tmp_path / "old"
+    run_dir.mkdir()
+    manifest = _manifest()
+    for cell in manifest["cells"]:
+        cell["params"]["mpc"]["kkt_factorization"] = "ldlt"
+    store.write_json_atomic(run_dir / store.MANIFEST, manifest)
+    assert cli.main(["replay", str(run_dir), "0"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "mpc.kkt_factorization = 'ldlt', an option since deleted" in err[0], err

@@ -52,7 +52,7 @@ class _Scripted:
     def __init__(self, params, structure):
         self.calls = {+1: 0, -1: 0}
 
-    def solve(self, ego, front, direction, lambda0, warm=None, opp_xv=None, guess=None, fast_only=False):
+    def solve(self, ego, front, direction, level, warm=None, opp_xv=None, guess=None, fast_only=False):
         if self.with_opp and opp_xv is None:
             return _solution()
         k = self.calls[direction]

@@ -7,6 +7,7 @@ import pytest
 
 from mcverify.control.decision import Mode
 from mcverify.control.planner import EpisodeState, Planner, ego_in_own_lane, fallback_input, held_input
+from mcverify.levels import Level
 from mcverify.model import ModelParams
 from mcverify.solver.status import SolveRoute, SolveStatus
 
@@ -63,7 +64,7 @@ def test_committed_once_back_in_lane_ahead_of_the_front_vehicle(planner):
 
 def test_step_overtakes_from_the_table_ii_start(planner):
     st = EpisodeState(0)
-    u, rec = planner.step(st, 0.0, np.array([10.0, 0.0, 0.0, 10.0]), FRONT, None, -0.3135)
+    u, rec = planner.step(st, 0.0, np.array([10.0, 0.0, 0.0, 10.0]), FRONT, None, Level(epsilon=0.3, lambda0=-0.3135))
     assert rec.q1.success and rec.q2.success and st.mode is Mode.OVERTAKE
     assert u[0] > 0  # accelerates to overtake
     assert st.steps == 1 and len(st.iterations) == 2
@@ -83,7 +84,7 @@ class _CertifiedInfeasibleSolver:
         self.full_calls: list[int] = []  # calls of the failing problem given the full attempt
         self.calls = 0
 
-    def solve(self, ego, front, direction, lambda0, warm=None, opp_xv=None, guess=None, fast_only=False):
+    def solve(self, ego, front, direction, level, warm=None, opp_xv=None, guess=None, fast_only=False):
         import dataclasses
 
         if direction != self.failing_direction:

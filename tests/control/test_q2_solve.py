@@ -33,7 +33,7 @@ class _PerStep:
     def __init__(self, params, structure):
         pass
 
-    def solve(self, ego, front, direction, lambda0, warm=None, opp_xv=None, guess=None, fast_only=False):
+    def solve(self, ego, front, direction, level, warm=None, opp_xv=None, guess=None, fast_only=False):
         _PerStep.log.append((_PerStep.step, direction, opp_xv is not None))
         _PerStep.fast.append(fast_only)
         script = _PerStep.q1 if direction > 0 else _PerStep.q2

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from mcverify import ocp
+from mcverify.levels import Level
 from mcverify.model import ModelParams
 from mcverify.ocp import problem
 from mcverify.solver.mpc import MpcSolver
@@ -24,7 +25,7 @@ def lambda0_of(params: ModelParams) -> float:
     return -sum(lam * eps ** (2 * k + 1) for k, lam in enumerate(params.barrier.lambdas_m))
 
 
-LAMBDA0 = lambda0_of(P)
+LEVEL = Level(epsilon=P.barrier.epsilon, lambda0=lambda0_of(P))
 
 
 # --- independent numpy model ------------------------------------------------------------------------
@@ -89,15 +90,15 @@ def test_lambda_h_is_constant_plus_odd_powers():
 
 def test_param_layout_and_pack_params():
     layout = ocp.ParamLayout(P.barrier.order_m)
-    p = ocp.pack_params(P, TABLE_II_EGO, [64.0, 0.0, 7.0], -1, LAMBDA0)
+    p = ocp.pack_params(P, TABLE_II_EGO, [64.0, 0.0, 7.0], -1, LEVEL)
     assert p.shape == (layout.size,)
     sl = layout.slices
     assert np.array_equal(p[sl["x0"]], TABLE_II_EGO)
     assert p[sl["direction"]][0] == -1.0
-    assert np.allclose(p[sl["lambdas"]], [LAMBDA0, *P.barrier.lambdas_m])
+    assert np.allclose(p[sl["lambdas"]], [LEVEL.lambda0, *P.barrier.lambdas_m])
     assert p[sl["y_goal"]][0] == P.road.ego_lane_y_m
     with pytest.raises(ValueError):
-        ocp.pack_params(P, TABLE_II_EGO, [64.0, 0.0, 7.0], 0, LAMBDA0)
+        ocp.pack_params(P, TABLE_II_EGO, [64.0, 0.0, 7.0], 0, LEVEL)
 
 
 @pytest.mark.parametrize("with_opposing", [False, True])
@@ -116,7 +117,7 @@ def test_nlp_dimensions(with_opposing, constraint):
     assert w0.shape == (lay.n_w,) and np.all(np.isfinite(w0))
     if with_opposing:
         with pytest.raises(ValueError, match="opp_xv"):
-            ocp.pack_params(P, TABLE_II_EGO, [64.0, 0.0, 7.0], 1, LAMBDA0, structure=st)
+            ocp.pack_params(P, TABLE_II_EGO, [64.0, 0.0, 7.0], 1, LEVEL, structure=st)
 
 
 def test_formulation_digest_follows_the_maths():
@@ -126,99 +127,6 @@ def test_formulation_digest_follows_the_maths():
               dataclasses.replace(plain, order_m=3)]
     digests = {ocp.formulation_digest(s) for s in [plain, *others]}
     assert len(digests) == 4
-
-
-def stoppable(mode: str) -> ModelParams:
-    return dataclasses.replace(P, mpc=dataclasses.replace(P.mpc, q2_stoppable=mode))
-
-
-STOPPABLE = stoppable("end")
-
-
-@pytest.mark.parametrize("with_opposing", [False, True])
-def test_the_stoppable_goal_row_is_the_braking_distance_behind_veh_f_for_q2_only(with_opposing):
-    st = ocp.OcpStructure.from_params(STOPPABLE, with_opposing=with_opposing)
-    plain = ocp.OcpStructure.from_params(P, with_opposing=with_opposing)
-    assert st.stoppable == "end" and plain.stoppable == "off"
-    lay = ocp.NlpLayout.of(st)
-    assert lay.n_g == ocp.NlpLayout.of(plain).n_g + 1 and lay.g_slices["stop"].stop == lay.n_g
-    assert ocp.formulation_digest(st) != ocp.formulation_digest(plain)  # a kernel of its own
-    nlp = ocp.build_nlp(st)
-    g = ca.Function("g", [nlp["x"], nlp["p"]], [nlp["g"]])
-    ws, n = lay.w_slices, st.horizon
-    w = np.zeros(lay.n_w)
-    X = np.zeros((4, n + 1))
-    X[0, -1], X[2, -1], X[3, -1] = 50.0, 0.1, 18.0  # the plan's end: 18 m/s, heading 0.1 rad
-    w[ws["x"]] = X.reshape(-1, order="F")
-    w[ws["t"]] = np.linspace(0.0, 2.0, n + 1)
-    front = np.array([43.0, 0.0, 7.0])
-    opp = np.array([300.0, -10.0]) if with_opposing else None
-    nz = P.noise  # the paper's noise: the row keeps its largest errors
-    gap = 43.0 + 7.0 * 2.0 - 50.0 - P.geometry.length_m - nz.pos_far_m
-    excess = 18.0 - 7.0 * (1.0 - nz.speed_rel)  # the speed, whatever the heading
-    expected = gap - excess**2 / (2.0 * -P.ego.accel_min_mps2)
-    for direction, relax in ((-1, 0.0), (1, ocp.problem.STOP_RELAX_M)):
-        p = ocp.pack_params(STOPPABLE, X[:, 0], front, direction, LAMBDA0, opp_xv=opp, structure=st)
-        row = float(np.asarray(g(w, p)).ravel()[lay.g_slices["stop"]][0])
-        assert row == pytest.approx(expected + relax, abs=0.03)  # the smooth max is 0.025 m/s above max
-    lbg, ubg = ocp.constraint_bounds(st)
-    assert lbg[lay.g_slices["stop"]][0] == 0.0 and np.isinf(ubg[lay.g_slices["stop"]][0])
-
-
-def test_the_baselines_have_no_stoppable_goal():
-    for controller in ("mpcdc", "mpcdc_eps"):
-        params = dataclasses.replace(STOPPABLE, mpc=dataclasses.replace(STOPPABLE.mpc, controller=controller))
-        assert ocp.OcpStructure.from_params(params).stoppable == "off"
-
-
-def test_the_stoppable_path_rows_ask_nothing_alongside_veh_f_and_the_braking_distance_behind_it():
-    st = ocp.OcpStructure.from_params(stoppable("path"))
-    lay = ocp.NlpLayout.of(st)
-    n = st.horizon
-    assert lay.g_slices["stop"] == slice(lay.n_g - n, lay.n_g)
-    nlp = ocp.build_nlp(st)
-    g = ca.Function("g", [nlp["x"], nlp["p"]], [nlp["g"]])
-    ws = lay.w_slices
-    X = np.zeros((4, n + 1))
-    X[3, :] = 18.0
-    X[0, :] = np.linspace(30.0, 90.0, n + 1)  # from 34 m behind veh_f to 12 m ahead of it (it moves 14 m)
-    t = np.linspace(0.0, 2.0, n + 1)
-    w = np.zeros(lay.n_w)
-    w[ws["x"]], w[ws["t"]] = X.reshape(-1, order="F"), t
-    front = np.array([64.0, 0.0, 7.0])
-    p = ocp.pack_params(st_params := stoppable("path"), X[:, 0], front, -1, LAMBDA0, structure=st)
-    rows = np.asarray(g(w, p)).ravel()[lay.g_slices["stop"]]
-    gap = 64.0 + 7.0 * t[1:] - X[0, 1:] - st_params.geometry.length_m - P.noise.pos_far_m
-    plain = gap - (18.0 - 7.0 * (1.0 - P.noise.speed_rel)) ** 2 / (2.0 * -P.ego.accel_min_mps2)
-    behind, alongside = gap >= ocp.problem.STOP_GATE_M, gap <= 0.0
-    assert behind.any() and alongside.any()
-    assert np.allclose(rows[behind], plain[behind], atol=0.03)
-    assert np.allclose(rows[alongside], ocp.problem.STOP_GATE_RELAX_M)
-    p_q1 = ocp.pack_params(st_params, X[:, 0], front, 1, LAMBDA0, structure=st)
-    assert np.all(np.asarray(g(w, p_q1)).ravel()[lay.g_slices["stop"]] > 900.0)  # relaxed for Q1
-
-
-def test_bad_stoppable_mode_is_one_line():
-    from mcverify.campaign.spec import CampaignError, campaign_from_dict
-
-    with pytest.raises(CampaignError, match=r"mpc\.q2_stoppable") as err:
-        campaign_from_dict({"campaign": {"name": "x", "seed": 1, "episodes": 1},
-                            "model": {"mpc": {"q2_stoppable": "always"}}})
-    assert "\n" not in str(err.value)
-
-
-@pytest.mark.slow  # compiles a kernel variant of its own (about 40 s) for an experimental option
-def test_a_stoppable_q2_plan_ends_slow_enough_to_stay_behind():
-    # alongside veh_f at 18 m/s, as a late turn-back: the plain Q2 plan ends at the goal too fast to
-    # stop behind veh_f; the stoppable one sheds the excess speed first
-    ego = np.array([60.0, 3.5, 0.0, 18.0])
-    front = np.array([64.0, 0.0, 25.0 / 3.6])
-    sol = MpcSolver(STOPPABLE).solve(ego, front, -1, LAMBDA0)
-    assert sol.success, sol.status
-    check_plan(sol, STOPPABLE, ego, front, -1)
-    end, total, nz = sol.x_plan[-1], sol.total_time_s, P.noise
-    gap = front[0] + front[2] * total - end[0] - P.geometry.length_m - nz.pos_far_m
-    assert gap >= max(end[3] - front[2] * (1.0 - nz.speed_rel), 0.0) ** 2 / (2.0 * -P.ego.accel_min_mps2) - 1e-3
 
 
 # --- solved plans ------------------------------------------------------------------------------------
@@ -237,7 +145,7 @@ def check_plan(sol, params: ModelParams, ego, front, direction: int) -> None:
     assert X.shape == (n + 1, 4) and U.shape == (n, 2) and DT.shape == (n,)
     assert np.allclose(X[0], ego, atol=TOL)
     t = np.concatenate([[0.0], np.cumsum(DT)])
-    lambdas = [LAMBDA0, *b.lambdas_m]
+    lambdas = [LEVEL.lambda0, *b.lambdas_m]
     for i in range(n):
         assert np.max(np.abs(X[i + 1] - X[i] - np_rhs(X[i], U[i], e.l_r_m) * DT[i])) <= TOL  # eq.tompc_dy
         h = np_h(X[i], t[i], front, b.ellipse_a_m, b.ellipse_b_m)
@@ -262,7 +170,7 @@ def check_plan(sol, params: ModelParams, ego, front, direction: int) -> None:
 @pytest.mark.parametrize("v_front_kmh", [25.0, 36.0])
 def test_q1_plan_from_table_ii_start_satisfies_every_constraint(solver, v_front_kmh):
     front = np.array([64.0, 0.0, v_front_kmh / 3.6])
-    sol = solver.solve(TABLE_II_EGO, front, 1, LAMBDA0)
+    sol = solver.solve(TABLE_II_EGO, front, 1, LEVEL)
     assert sol.success, sol.status
     check_plan(sol, P, TABLE_II_EGO, front, 1)
     # overtakes: ends at least phi v_f ahead of where veh_f is at T
@@ -274,7 +182,7 @@ def test_q2_plan_mid_manoeuvre_ends_behind(solver):
     # alongside veh_f in the opposing lane, faster than it: Q2 must brake and fall back
     ego = np.array([60.0, 3.5, 0.0, 17.0])
     front = np.array([64.0, 0.0, 25.0 / 3.6])
-    sol = solver.solve(ego, front, -1, LAMBDA0)
+    sol = solver.solve(ego, front, -1, LEVEL)
     assert sol.success, sol.status
     check_plan(sol, P, ego, front, -1)
     assert sol.x_plan[-1, 0] <= front[0] + front[2] * sol.total_time_s - P.mpc.phi_s * front[2] + TOL
@@ -282,7 +190,7 @@ def test_q2_plan_mid_manoeuvre_ends_behind(solver):
 
 def test_q2_from_table_ii_start_is_immediate(solver):
     front = np.array([64.0, 0.0, 25.0 / 3.6])
-    sol = solver.solve(TABLE_II_EGO, front, -1, LAMBDA0)
+    sol = solver.solve(TABLE_II_EGO, front, -1, LEVEL)
     assert sol.success, sol.status
     check_plan(sol, P, TABLE_II_EGO, front, -1)
     assert sol.total_time_s <= 10 * P.mpc.horizon * P.mpc.dt_min_s  # already behind and in lane
@@ -290,7 +198,7 @@ def test_q2_from_table_ii_start_is_immediate(solver):
 
 def test_uncatchable_front_vehicle_is_reported_infeasible(solver):
     front = np.array([64.0, 0.0, 19.0])  # 0.4 m/s below the ego speed limit: no overtake in 15 s
-    sol = solver.solve(TABLE_II_EGO, front, 1, LAMBDA0)
+    sol = solver.solve(TABLE_II_EGO, front, 1, LEVEL)
     assert not sol.success
     assert sol.warm is None
     assert isinstance(sol.status, SolveStatus) and sol.status.raw
@@ -307,7 +215,7 @@ def test_smoothing_weight_keeps_plan_time_optimal():
     totals = {}
     for weight in (1e-5, 1e-3, 1e-2):
         params = dataclasses.replace(P, mpc=dataclasses.replace(P.mpc, smooth_weight=weight))
-        sol = MpcSolver(params).solve(TABLE_II_EGO, front, 1, LAMBDA0)
+        sol = MpcSolver(params).solve(TABLE_II_EGO, front, 1, LEVEL)
         assert sol.success, (weight, sol.status)
         totals[weight] = sol.total_time_s
     assert totals[1e-2] == pytest.approx(totals[1e-3], rel=5e-3)
@@ -319,7 +227,7 @@ def test_free_stage_intervals_variant_solves_table_ii_start(tmp_path):
     """The paper-literal structure (every DT_i free) compiles (about 20 s) and solves the Table II start."""
     structure = ocp.OcpStructure.from_params(P, uniform_dt=False)
     front = np.array([64.0, 0.0, 25.0 / 3.6])
-    sol = MpcSolver(P, structure=structure, kernel_dir=tmp_path).solve(TABLE_II_EGO, front, 1, LAMBDA0)
+    sol = MpcSolver(P, structure=structure, kernel_dir=tmp_path).solve(TABLE_II_EGO, front, 1, LEVEL)
     assert sol.success, sol.status
     check_plan(sol, P, TABLE_II_EGO, front, 1)
     assert np.ptp(sol.dt_plan) > 1e-3  # the intervals really are free
@@ -347,8 +255,8 @@ def np_opp_accel_numbers(plan_xo, dt):
 
 
 def test_far_opposing_vehicle_changes_nothing(opp_solvers):
-    plain = MpcSolver(HUMAN).solve(TABLE_II_EGO, FRONT_25, 1, LAMBDA0)
-    far = opp_solvers["human"].solve(TABLE_II_EGO, FRONT_25, 1, LAMBDA0, opp_xv=np.array([5000.0, -10.0]))
+    plain = MpcSolver(HUMAN).solve(TABLE_II_EGO, FRONT_25, 1, LEVEL)
+    far = opp_solvers["human"].solve(TABLE_II_EGO, FRONT_25, 1, LEVEL, opp_xv=np.array([5000.0, -10.0]))
     assert plain.success and far.success, (plain.status, far.status)
     assert far.total_time_s == pytest.approx(plain.total_time_s, rel=1e-4)
 
@@ -359,7 +267,7 @@ def test_worst_case_prediction_is_conservative_closed_form(opp_solvers):
     faster."""
     o = HUMAN.opposing
     x0, s0 = 420.0, 12.0
-    sol = opp_solvers["human"].solve(TABLE_II_EGO, FRONT_25, 1, LAMBDA0, opp_xv=np.array([x0, -s0]))
+    sol = opp_solvers["human"].solve(TABLE_II_EGO, FRONT_25, 1, LEVEL, opp_xv=np.array([x0, -s0]))
     assert sol.success, sol.status
     t = np.concatenate([[0.0], np.cumsum(sol.dt_plan)])
     t_star = (o.speed_limit_mps - s0) / o.accel_max_mps2
@@ -377,9 +285,9 @@ def test_close_fast_human_driver_blocks_the_overtake(opp_solvers):
     """Table IV Scenario A start: veh_o 210 m ahead at 18 m/s. Without it Q1 solves; with its worst
     case no overtake can keep the ego's VL-CBF on h_eo, and Q2 (stay behind) still solves."""
     opp = np.array([220.0, -18.0])
-    assert MpcSolver(HUMAN).solve(TABLE_II_EGO, FRONT_25, 1, LAMBDA0).success
-    assert not opp_solvers["human"].solve(TABLE_II_EGO, FRONT_25, 1, LAMBDA0, opp_xv=opp).success
-    assert opp_solvers["human"].solve(TABLE_II_EGO, FRONT_25, -1, LAMBDA0, opp_xv=opp).success
+    assert MpcSolver(HUMAN).solve(TABLE_II_EGO, FRONT_25, 1, LEVEL).success
+    assert not opp_solvers["human"].solve(TABLE_II_EGO, FRONT_25, 1, LEVEL, opp_xv=opp).success
+    assert opp_solvers["human"].solve(TABLE_II_EGO, FRONT_25, -1, LEVEL, opp_xv=opp).success
 
 
 @pytest.mark.parametrize("kind", ["human", "auto"])
@@ -388,7 +296,7 @@ def test_plan_keeps_the_ego_vlcbf_on_h_eo_in_the_opposing_lane(opp_solvers, kind
     reaches the lane line, hdot_eo + Lambda_eo H(h_eo) >= 0 with veh_o's predicted acceleration."""
     params = HUMAN if kind == "human" else AUTO
     b = params.barrier
-    sol = opp_solvers[kind].solve(TABLE_II_EGO, FRONT_25, 1, LAMBDA0, opp_xv=np.array([420.0, -12.0]))
+    sol = opp_solvers[kind].solve(TABLE_II_EGO, FRONT_25, 1, LEVEL, opp_xv=np.array([420.0, -12.0]))
     assert sol.success, sol.status
     lam0 = -b.opp_epsilon_m * b.opp_lambdas_m[0]
     accel_o, _ = np_opp_accel_numbers(sol.opp_plan, sol.dt_plan)
@@ -417,7 +325,7 @@ def test_autonomous_prediction_is_its_law(opp_solvers):
     from mcverify.sim import agents
 
     o = AUTO.opposing
-    sol = opp_solvers["auto"].solve(TABLE_II_EGO, FRONT_25, 1, LAMBDA0, opp_xv=np.array([420.0, -12.0]))
+    sol = opp_solvers["auto"].solve(TABLE_II_EGO, FRONT_25, 1, LEVEL, opp_xv=np.array([420.0, -12.0]))
     assert sol.success, sol.status
     accel_o, _ = np_opp_accel_numbers(sol.opp_plan, sol.dt_plan)
     law = dict(cruise_speed_mps=o.speed_mps, gain_per_s=o.cruise_gain_per_s,
@@ -442,7 +350,7 @@ def test_mpcdc_keeps_the_ellipses_at_the_nodes_only(opp_solvers):
     predicted veh_o (extrapolated at its measured speed); no CBF condition is imposed."""
     b = MPCDC.barrier
     opp = np.array([420.0, -12.0])
-    sol = opp_solvers["mpcdc"].solve(TABLE_II_EGO, FRONT_25, 1, LAMBDA0, opp_xv=opp)
+    sol = opp_solvers["mpcdc"].solve(TABLE_II_EGO, FRONT_25, 1, LEVEL, opp_xv=opp)
     assert sol.success, sol.status
     t = np.concatenate([[0.0], np.cumsum(sol.dt_plan)])
     assert np.allclose(sol.opp_plan[:, 0], opp[0] + opp[1] * t, atol=1e-6)  # constant speed
@@ -469,7 +377,7 @@ def test_mpcdc_eps_keeps_the_margin_at_the_nodes_on_the_same_kernel(opp_solvers)
     gs = ocp.NlpLayout.of(st).g_slices
     assert np.all(lbg[gs["front"]] == eps) and np.all(lbg[gs["opp"]] == eps) and np.all(lbg[gs["goal"]] == 0)
     opp = np.array([420.0, -12.0])
-    sol = opp_solvers["mpcdc_eps"].solve(TABLE_II_EGO, FRONT_25, 1, LAMBDA0, opp_xv=opp)
+    sol = opp_solvers["mpcdc_eps"].solve(TABLE_II_EGO, FRONT_25, 1, LEVEL, opp_xv=opp)
     assert sol.success, sol.status
     t = np.concatenate([[0.0], np.cumsum(sol.dt_plan)])
     h_nodes = [np_h(sol.x_plan[i], t[i], FRONT_25, b.ellipse_a_m, b.ellipse_b_m) for i in range(1, 51)]

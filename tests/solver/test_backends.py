@@ -14,6 +14,7 @@ import pytest
 from test_solver import bicycle_step
 
 from mcverify.campaign import spec as campaign
+from mcverify.levels import Level
 from mcverify.model import BACKEND_NAMES, ModelParams
 from mcverify.ocp import NlpLayout, OcpStructure, constraint_bounds, pack_params
 from mcverify.solver import backends
@@ -25,7 +26,7 @@ from mcverify.solver.status import SolveOutcome
 
 P = dataclasses.replace(ModelParams(), mpc=dataclasses.replace(ModelParams().mpc, backend="ipopt"))
 P_IPM = dataclasses.replace(P, mpc=dataclasses.replace(P.mpc, backend="ipm"))
-LAMBDA0 = -(0.3 + 0.5 * 0.3**3)  # -kappa~(0.3) with lambdas (1, 0.5)
+LEVEL = Level(epsilon=0.3, lambda0=-(0.3 + 0.5 * 0.3**3))  # lambda0 = -kappa~(0.3), lambdas (1, 0.5)
 EGO = np.array([10.0, 0.0, 0.0, 10.0])
 PERIOD = P.sim.control_period_s
 
@@ -45,12 +46,12 @@ def ipm() -> MpcSolver:
 def closed_loop_states(solver: MpcSolver, front: np.ndarray, direction: int, steps: int, ego=EGO):
     """(ego, front, warm) of ``steps`` control periods driven by the solver's own plans."""
     out = []
-    sol = solver.solve(ego, front, direction, LAMBDA0)
+    sol = solver.solve(ego, front, direction, LEVEL)
     for _ in range(steps):
         ego = bicycle_step(ego, sol.u_plan[0], PERIOD, P.ego.l_r_m)
         front = front + np.array([front[2] * PERIOD, 0.0, 0.0])
         out.append((ego, front, sol.warm))
-        sol = solver.solve(ego, front, direction, LAMBDA0, sol.warm)
+        sol = solver.solve(ego, front, direction, LEVEL, sol.warm)
     return out
 
 
@@ -68,7 +69,7 @@ def attempt_starts(solver: MpcSolver, warm, monkeypatch, fast_only: bool = False
     monkeypatch.setattr(backend.ipm, "solve", lambda p, w0, lx, lg, o: seen.append((o.mu_init, lx is not None))
                         or failed)
     front = np.array([64.0, 0.0, 25.0 / 3.6]) if front is None else front
-    solver.solve(EGO, front, 1, LAMBDA0, warm=warm, fast_only=fast_only)
+    solver.solve(EGO, front, 1, LEVEL, warm=warm, fast_only=fast_only)
     monkeypatch.undo()
     return seen
 
@@ -86,6 +87,23 @@ def test_backend_selection(ipm):
         backends.create_backend("fastest", ipm.problem, P)
 
 
+def test_create_backend_passes_the_kernel_dir_to_the_ipm_library(ipm, monkeypatch, tmp_path):
+    """The ipm backend's compiled C library comes from the kernel cache it is given, through create_backend and
+    MpcSolver alike (both used to drop it and build into the default cache)."""
+    from mcverify.solver import mpc as mpc_module
+
+    asked = []
+    real = backends.get_runtime_library
+    monkeypatch.setattr(backends, "get_runtime_library", lambda name, kernel_dir=None: asked.append(kernel_dir)
+                        or real(name, None))
+    backend = backends.create_backend("ipm", ipm.problem, P_IPM, kernel_dir=tmp_path)
+    assert isinstance(backend, backends.IpmBackend) and asked == [tmp_path]
+    assert backends.create_backend("ipopt", ipm.problem, P, kernel_dir=tmp_path).name == "ipopt"
+    monkeypatch.setattr(mpc_module, "get_kernel", lambda structure, kernel_dir=None: ipm.kernel)  # no new build
+    MpcSolver(P_IPM, kernel_dir=tmp_path / "cache")
+    assert asked == [tmp_path, tmp_path / "cache"]
+
+
 def test_campaign_accepts_ipm_backend():
     raw = {"campaign": {"name": "t", "seed": 1, "episodes": 1}, "model": {"mpc": {"backend": "ipm"}}}
     camp = campaign.campaign_from_dict(raw)
@@ -101,8 +119,8 @@ def test_campaign_accepts_ipm_backend():
 @pytest.mark.parametrize("v_front_kmh", [25.0, 36.0])
 def test_cold_plan_matches_ipopt(ipopt, ipm, v_front_kmh):
     front = np.array([64.0, 0.0, v_front_kmh / 3.6])
-    ref = ipopt.solve(EGO, front, 1, LAMBDA0)
-    sol = ipm.solve(EGO, front, 1, LAMBDA0)
+    ref = ipopt.solve(EGO, front, 1, LEVEL)
+    sol = ipm.solve(EGO, front, 1, LEVEL)
     assert ref.success and sol.success, (ref.status, sol.status)
     assert str(sol.status) == "IPM_Converged"
     assert sol.max_violation <= 1e-6
@@ -121,8 +139,8 @@ def test_warm_solves_along_a_closed_loop_match_ipopt(ipopt, ipm, direction):
     front = np.array([64.0, 0.0, 28.0 / 3.6])
     ego = EGO if direction == 1 else np.array([58.0, 3.5, 0.0, 16.0])  # Q2: alongside veh_f
     for ego_k, front_k, warm in closed_loop_states(ipopt, front, direction, 10, ego):
-        ref = ipopt.solve(ego_k, front_k, direction, LAMBDA0, warm)
-        sol = ipm.solve(ego_k, front_k, direction, LAMBDA0, warm)
+        ref = ipopt.solve(ego_k, front_k, direction, LEVEL, warm)
+        sol = ipm.solve(ego_k, front_k, direction, LEVEL, warm)
         assert ref.success and sol.success, (ref.status, sol.status)
         assert str(sol.status) == "IPM_Converged"
         assert sol.total_time_s == pytest.approx(ref.total_time_s, rel=1e-4)
@@ -132,8 +150,8 @@ def test_warm_solves_along_a_closed_loop_match_ipopt(ipopt, ipm, direction):
 def test_warm_start_needs_fewer_iterations_than_cold(ipm):
     front = np.array([64.0, 0.0, 25.0 / 3.6])
     for ego, front_k, warm in closed_loop_states(ipm, front, 1, 3):
-        warm_sol = ipm.solve(ego, front_k, 1, LAMBDA0, warm)
-        cold_sol = ipm.solve(ego, front_k, 1, LAMBDA0)
+        warm_sol = ipm.solve(ego, front_k, 1, LEVEL, warm)
+        cold_sol = ipm.solve(ego, front_k, 1, LEVEL)
         assert warm_sol.success and cold_sol.success
         assert warm_sol.iterations < cold_sol.iterations
         assert warm_sol.total_time_s == pytest.approx(cold_sol.total_time_s, rel=1e-4)
@@ -142,10 +160,10 @@ def test_warm_start_needs_fewer_iterations_than_cold(ipm):
 def test_multipliers_satisfy_stationarity(ipm):
     """grad f + J' lam_g + lam_x = 0 (CasADi's sign convention), so IPOPT can be warm-started from them."""
     front = np.array([64.0, 0.0, 25.0 / 3.6])
-    sol = ipm.solve(EGO, front, 1, LAMBDA0)
+    sol = ipm.solve(EGO, front, 1, LEVEL)
     assert sol.success
     so = ipm.kernel.so_path
-    p = pack_params(P, EGO, front, 1, LAMBDA0)
+    p = pack_params(P, EGO, front, 1, LEVEL)
     fg, jac = CFunction(so, "nlp_grad_f"), CFunction(so, "nlp_jac_g")
     fg.inputs[0][:], fg.inputs[1][:] = sol.warm.x, p
     jac.inputs[0][:], jac.inputs[1][:] = sol.warm.x, p
@@ -175,8 +193,8 @@ def test_node0_cbf_row_is_affine_in_u0_and_touches_only_node0(ipm):
     assert set(cols[rows == row]) <= node0
     g_fun = CFunction(ipm.kernel.so_path, "nlp_g")
     front = np.array([30.0, 0.0, 25.0 / 3.6])
-    p = pack_params(P, EGO, front, 1, LAMBDA0)
-    w = ipm.solve(EGO, front, 1, LAMBDA0).warm.x.copy()
+    p = pack_params(P, EGO, front, 1, LEVEL)
+    w = ipm.solve(EGO, front, 1, LEVEL).warm.x.copy()
     u0 = slice(ws["u"].start, ws["u"].start + 2)
     vals = []
     for u in (np.array([-5.0, -0.1]), np.array([2.0, 0.12]), np.array([-1.5, 0.01])):
@@ -203,7 +221,7 @@ def test_node0_cbf_row_holds_after_one_newton_step(ipopt, ipm):
     )
     for ego0, front in scenarios:
         for ego, front_k, warm in closed_loop_states(ipopt, front, 1, 8, ego0):
-            p = pack_params(P, ego, front_k, 1, LAMBDA0)
+            p = pack_params(P, ego, front_k, 1, LEVEL)
             r = ipm.backend.ipm.solve(p, warm.x, warm.lam_x, warm.lam_g, with_options(WARM_ATTEMPTS[0], max_iter=1))
             assert np.array_equal(r.w[lay.w_slices["x"]][:4], ego)  # X[:, 0] is the measured state, exactly
             assert r.w[lay.w_slices["t"].start] == 0.0
@@ -219,10 +237,10 @@ def test_node0_cbf_row_holds_after_one_newton_step(ipopt, ipm):
 
 def test_infeasible_problem_fails_only_after_ipopt_fails(ipopt, ipm):
     front = np.array([64.0, 0.0, 19.0])  # 0.4 m/s below the ego speed limit: no overtake in 15 s
-    sol = ipm.solve(EGO, front, 1, LAMBDA0)
+    sol = ipm.solve(EGO, front, 1, LEVEL)
     assert not sol.success and sol.warm is None
     assert sol.status.fallback
-    assert not ipopt.solve(EGO, front, 1, LAMBDA0).success
+    assert not ipopt.solve(EGO, front, 1, LEVEL).success
 
 
 def test_ipm_failure_hands_the_solve_to_ipopt(ipopt, monkeypatch):
@@ -231,8 +249,8 @@ def test_ipm_failure_hands_the_solve_to_ipopt(ipopt, monkeypatch):
                        False, "Max_Iterations", 30, 30, 0, 0, 0, 1.0, 1.0)
     monkeypatch.setattr(solver.backend.ipm, "solve", lambda *a, **k: failed)
     front = np.array([64.0, 0.0, 25.0 / 3.6])
-    sol = solver.solve(EGO, front, 1, LAMBDA0)
-    ref = ipopt.solve(EGO, front, 1, LAMBDA0)
+    sol = solver.solve(EGO, front, 1, LEVEL)
+    ref = ipopt.solve(EGO, front, 1, LEVEL)
     assert sol.success and str(sol.status) == "fallback:Solve_Succeeded"
     assert np.array_equal(sol.u_plan, ref.u_plan) and sol.total_time_s == ref.total_time_s
     assert sol.iterations == 30 + ref.iterations  # the cold attempt's iterations counted too
@@ -245,12 +263,12 @@ def test_fast_only_failure_is_presumed_infeasible_without_ipopt(monkeypatch):
                        False, "Max_Iterations", 30, 30, 0, 0, 0, 1.0, 1.0)
     monkeypatch.setattr(solver.backend.ipm, "solve", lambda *a, **k: failed)
     monkeypatch.setattr(solver.backend.reference, "solve", lambda *a, **k: pytest.fail("IPOPT was called"))
-    sol = solver.solve(EGO, np.array([64.0, 0.0, 25.0 / 3.6]), 1, LAMBDA0, fast_only=True)
+    sol = solver.solve(EGO, np.array([64.0, 0.0, 25.0 / 3.6]), 1, LEVEL, fast_only=True)
     assert not sol.success and str(sol.status) == "presumed_infeasible:IPM_Max_Iterations" and sol.iterations == 30
 
 
 def test_non_finite_input_is_a_failed_solution(ipm):
-    sol = ipm.solve(np.array([10.0, 0.0, np.nan, 10.0]), np.array([64.0, 0.0, 7.0]), 1, LAMBDA0)
+    sol = ipm.solve(np.array([10.0, 0.0, np.nan, 10.0]), np.array([64.0, 0.0, 7.0]), 1, LEVEL)
     assert not sol.success and sol.status.outcome is SolveOutcome.INVALID_INPUT
 
 
@@ -259,13 +277,13 @@ def test_non_finite_input_is_a_failed_solution(ipm):
 
 def test_same_inputs_give_bit_identical_outputs(ipm):
     front = np.array([64.0, 0.0, 28.0 / 3.6])
-    first = ipm.solve(EGO, front, 1, LAMBDA0)
-    ipm.solve(EGO + np.array([3.0, 0.5, 0.02, 1.0]), front, -1, LAMBDA0)  # an unrelated solve between
-    second = ipm.solve(EGO, front, 1, LAMBDA0)
+    first = ipm.solve(EGO, front, 1, LEVEL)
+    ipm.solve(EGO + np.array([3.0, 0.5, 0.02, 1.0]), front, -1, LEVEL)  # an unrelated solve between
+    second = ipm.solve(EGO, front, 1, LEVEL)
     ego1 = bicycle_step(EGO, first.u_plan[0], PERIOD, P.ego.l_r_m)
-    a = ipm.solve(ego1, front, 1, LAMBDA0, warm=first.warm)
-    ipm.solve(EGO, front, -1, LAMBDA0)
-    b = ipm.solve(ego1, front, 1, LAMBDA0, warm=second.warm)
+    a = ipm.solve(ego1, front, 1, LEVEL, warm=first.warm)
+    ipm.solve(EGO, front, -1, LEVEL)
+    b = ipm.solve(ego1, front, 1, LEVEL, warm=second.warm)
     for x, y in ((first, second), (a, b)):
         for name in ("x_plan", "u_plan", "dt_plan"):
             assert np.array_equal(getattr(x, name), getattr(y, name))
@@ -316,7 +334,7 @@ def test_ipm_solves_the_opposing_structure_like_ipopt(params):
     fast = MpcSolver(params, st)
     ref = MpcSolver(dataclasses.replace(params, mpc=dataclasses.replace(params.mpc, backend="ipopt")), st)
     front, opp = np.array([64.0, 0.0, 25.0 / 3.6]), np.array([420.0, -12.0])
-    a, b = fast.solve(EGO, front, 1, LAMBDA0, opp_xv=opp), ref.solve(EGO, front, 1, LAMBDA0, opp_xv=opp)
+    a, b = fast.solve(EGO, front, 1, LEVEL, opp_xv=opp), ref.solve(EGO, front, 1, LEVEL, opp_xv=opp)
     assert a.success and b.success, (a.status, b.status)
     assert a.total_time_s == pytest.approx(b.total_time_s, rel=1e-4)
     assert np.allclose(a.opp_plan, b.opp_plan, atol=1e-3)
@@ -324,8 +342,8 @@ def test_ipm_solves_the_opposing_structure_like_ipopt(params):
     for _ in range(3):
         ego = bicycle_step(ego, sol.u_plan[0], PERIOD, P.ego.l_r_m)
         front, opp = front + np.array([front[2] * PERIOD, 0, 0]), opp + np.array([opp[1] * PERIOD, 0])
-        sol_ref = ref.solve(ego, front, 1, LAMBDA0, sol.warm, opp_xv=opp)
-        sol = fast.solve(ego, front, 1, LAMBDA0, sol.warm, opp_xv=opp)
+        sol_ref = ref.solve(ego, front, 1, LEVEL, sol.warm, opp_xv=opp)
+        sol = fast.solve(ego, front, 1, LEVEL, sol.warm, opp_xv=opp)
         assert sol.success and str(sol.status) == "IPM_Converged", sol.status
         assert sol.total_time_s == pytest.approx(sol_ref.total_time_s, rel=1e-4)
 
@@ -335,6 +353,6 @@ def test_blocked_overtake_fails_through_ipopt_and_q2_solves():
     h_eo against the worst case, so Q1 fails - after IPOPT failed too - and Q2 (stay behind) solves."""
     fast = MpcSolver(HUMAN, OcpStructure.from_params(HUMAN, with_opposing=True))
     front, opp = np.array([64.0, 0.0, 25.0 / 3.6]), np.array([220.0, -18.0])
-    q1 = fast.solve(EGO, front, 1, LAMBDA0, opp_xv=opp)
+    q1 = fast.solve(EGO, front, 1, LEVEL, opp_xv=opp)
     assert not q1.success and q1.status.fallback
-    assert fast.solve(EGO, front, -1, LAMBDA0, opp_xv=opp).success
+    assert fast.solve(EGO, front, -1, LEVEL, opp_xv=opp).success

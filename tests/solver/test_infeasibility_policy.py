@@ -1,8 +1,9 @@
-"""``mpc.infeasibility = "phase1"``: the C phase-1 certificate from every start, IPOPT as scheduled auditor.
+"""Phase-1 certificates (the MPC-DC attempt plan): the C phase-1 certificate from every start, IPOPT as scheduled
+auditor.
 
 On the VL-CBF problem with a front vehicle too fast to overtake (19 / 18 m/s against the ego's
-limit), the default policy hands the failed solve to IPOPT; "phase1" certifies it in C from the
-cold guess, calls IPOPT only when the audit schedule picks the problem, and counts audits and
+limit), the VL-CBF plan hands the failed solve to IPOPT; a plan with phase-1 certificates certifies it in C
+from the cold guess, calls IPOPT only when the audit schedule picks the problem, and counts audits and
 disagreements (a disagreement returns IPOPT's solution).
 """
 
@@ -12,11 +13,12 @@ import dataclasses
 
 import numpy as np
 import pytest
-from test_backends import EGO, LAMBDA0, P_IPM
+from test_backends import EGO, LEVEL, P_IPM
 
 from mcverify.campaign import spec as campaign
 from mcverify.control.planner import EpisodeState
 from mcverify.solver import backends
+from mcverify.solver.attempts import MPCDC_PLAN
 from mcverify.solver.mpc import MpcSolver
 from mcverify.solver.status import SolveOutcome, SolveRoute, SolveStatus
 
@@ -24,15 +26,17 @@ INFEASIBLE_FRONT = np.array([64.0, 0.0, 18.0])  # no overtake within the horizon
 
 
 def _phase1(every: int) -> MpcSolver:
-    mpc = dataclasses.replace(P_IPM.mpc, infeasibility="phase1", infeasibility_audit_every=every)
-    return MpcSolver(dataclasses.replace(P_IPM, mpc=mpc))
+    params = dataclasses.replace(P_IPM, mpc=dataclasses.replace(P_IPM.mpc, infeasibility_audit_every=every))
+    solver = MpcSolver(params)
+    solver.backend = backends.IpmBackend(solver.problem, params, plan=MPCDC_PLAN)
+    return solver
 
 
 def test_phase1_certificate_without_ipopt(monkeypatch):
     solver = _phase1(2**31 - 1)
     monkeypatch.setattr(solver.backend, "audit_due", lambda p: False)
     monkeypatch.setattr(solver.backend.reference, "solve", lambda *a, **k: pytest.fail("IPOPT was called"))
-    sol = solver.solve(EGO, INFEASIBLE_FRONT, 1, LAMBDA0)
+    sol = solver.solve(EGO, INFEASIBLE_FRONT, 1, LEVEL)
     assert not sol.success and str(sol.status) == "IPM_Infeasible_Problem_Detected"
     assert sol.status.outcome is SolveOutcome.INFEASIBLE and sol.status.certified_infeasible
     assert not sol.status.audited and not sol.status.fallback
@@ -41,7 +45,7 @@ def test_phase1_certificate_without_ipopt(monkeypatch):
 
 def test_audited_certificate_where_ipopt_fails_too():
     solver = _phase1(1)  # every certificate audited
-    sol = solver.solve(EGO, INFEASIBLE_FRONT, 1, LAMBDA0)
+    sol = solver.solve(EGO, INFEASIBLE_FRONT, 1, LEVEL)
     assert not sol.success and str(sol.status) == "audited:IPM_Infeasible_Problem_Detected"
     assert sol.status.audited and not sol.status.audit_disagreed and sol.status.certified_infeasible
 
@@ -53,7 +57,7 @@ def test_disagreement_returns_ipopts_solution(monkeypatch):
     solved = backends.BackendResult(np.full(n_w, 0.5), np.zeros(n_w), np.zeros(n_g),
                                     SolveStatus.ipopt("Solve_Succeeded"), 7, True, 0.0)
     monkeypatch.setattr(solver.backend.reference, "solve", lambda *a, **k: solved)
-    sol = solver.solve(EGO, INFEASIBLE_FRONT, 1, LAMBDA0)
+    sol = solver.solve(EGO, INFEASIBLE_FRONT, 1, LEVEL)
     assert sol.success and str(sol.status) == "audit_disagreed:Solve_Succeeded"
     assert sol.status.audited and sol.status.audit_disagreed and not sol.status.certified_infeasible
 
@@ -67,10 +71,10 @@ def test_audit_schedule_depends_on_the_problem_only():
     assert 0.08 <= due.mean() <= 0.12  # about one in ten (binomial sd 0.005)
 
 
-def test_default_policy_is_ipopt_for_the_vlcbf_controllers_and_runs_no_phase1():
+def test_the_vlcbf_controllers_leave_infeasibility_to_ipopt_and_run_no_phase1():
     solver = MpcSolver(P_IPM)
-    assert P_IPM.mpc.infeasibility == "phase1_mpcdc" and P_IPM.mpc.controller == "vlcbf"  # the default since 2026-11-28
-    sol = solver.solve(EGO, INFEASIBLE_FRONT, 1, LAMBDA0)
+    assert P_IPM.mpc.controller == "vlcbf" and not solver.backend.plan.phase1_certificates
+    sol = solver.solve(EGO, INFEASIBLE_FRONT, 1, LEVEL)
     assert sol.status.fallback and not any(t.startswith("phase1") for t in solver.backend.ipm_outcomes)
 
 
@@ -83,58 +87,29 @@ def test_planner_counts_audits_and_disagreements():
     assert (stats.infeasibility_audits, stats.infeasibility_audit_disagreements) == (2, 1)
 
 
-@pytest.mark.parametrize(("key", "value", "match"), [
-    ("infeasibility", "ask", "unknown policy 'ask'"), ("infeasibility_audit_every", 0, "must be an integer >= 1")])
-def test_campaign_rejects_a_bad_policy(key, value, match):
-    raw = {"campaign": {"name": "t", "seed": 1, "episodes": 1}, "model": {"mpc": {key: value}}}
-    with pytest.raises(campaign.CampaignError, match=match):
+def test_campaign_rejects_a_bad_audit_period_and_a_deleted_policy():
+    raw = {"campaign": {"name": "t", "seed": 1, "episodes": 1}, "model": {"mpc": {"infeasibility_audit_every": 0}}}
+    with pytest.raises(campaign.CampaignError, match="mpc.infeasibility_audit_every: must be an integer >= 1"):
         campaign.campaign_from_dict(raw)
-    raw["model"]["mpc"] = {"infeasibility": "phase1", "infeasibility_audit_every": 3}
-    assert campaign.campaign_from_dict(raw).cells[0].params.mpc.infeasibility == "phase1"
-    assert backends.REGISTRY["ipm"] is backends.IpmBackend
+    raw["model"]["mpc"] = {"infeasibility_audit_every": 3}
+    assert campaign.campaign_from_dict(raw).cells[0].params.mpc.infeasibility_audit_every == 3
+    for deleted in ("infeasibility", "ipm_restoration", "kkt_factorization", "q2_stoppable"):
+        raw["model"]["mpc"] = {deleted: "off"}
+        with pytest.raises(campaign.CampaignError, match=f"unknown model field 'mpc.{deleted}'"):
+            campaign.campaign_from_dict(raw)
 
 
-def test_ipm_restoration_turns_on_the_restoration_phase_in_the_full_cold_attempt(monkeypatch):
-    on = dataclasses.replace(P_IPM, mpc=dataclasses.replace(P_IPM.mpc, ipm_restoration="all"))
-    backend = MpcSolver(on).backend
-    assert backend.cold_full.restoration and not any(o.restoration for o in (*backend.warm_attempts, backend.cold))
+def test_the_restoration_phase_runs_in_the_full_cold_attempt_only(monkeypatch):
+    solver = MpcSolver(P_IPM)
+    backend = backends.IpmBackend(solver.problem, P_IPM, plan=MPCDC_PLAN)
+    solver.backend = backend
+    assert backend.cold_full.restoration and not any(o.restoration for o in backend.options.values())
     default = MpcSolver(P_IPM).backend
-    assert not any(o.restoration for o in (*default.warm_attempts, default.cold, default.cold_full))
+    assert not any(o.restoration for o in (*default.options.values(), default.cold_full))
     seen = []
     real = backend.ipm.solve
     monkeypatch.setattr(backend.ipm, "solve", lambda *a: seen.append(a[-1].restoration) or real(*a))
-    solver = MpcSolver(on)
-    solver.backend = backend
-    solver.solve(EGO, INFEASIBLE_FRONT, 1, LAMBDA0, fast_only=True)
-    solver.solve(EGO, INFEASIBLE_FRONT, 1, LAMBDA0)
+    monkeypatch.setattr(backend, "certify", lambda *a: None)
+    solver.solve(EGO, INFEASIBLE_FRONT, 1, LEVEL, fast_only=True)
+    solver.solve(EGO, INFEASIBLE_FRONT, 1, LEVEL)
     assert seen == [False, True]  # presumed: the plain cold attempt; full: with the restoration phase
-    raw = {"campaign": {"name": "t", "seed": 1, "episodes": 1}, "model": {"mpc": {"ipm_restoration": "yes"}}}
-    with pytest.raises(campaign.CampaignError, match="mpc.ipm_restoration: unknown policy 'yes'; valid: off, mpcdc"):
-        campaign.campaign_from_dict(raw)
-
-
-@pytest.mark.parametrize(("value", "policy"), [(True, "all"), (False, "off"), ("mpcdc", "mpcdc")])
-def test_ipm_restoration_reads_its_old_true_false_as_policies(value, policy):
-    """Runs stored before the field took policies wrote true/false; they read as all/off."""
-    raw = {"campaign": {"name": "t", "seed": 1, "episodes": 1}, "model": {"mpc": {"ipm_restoration": value}}}
-    assert campaign.campaign_from_dict(raw).cells[0].params.mpc.ipm_restoration == policy
-
-
-def test_ipm_restoration_mpcdc_reaches_the_baselines_only():
-    for controller, restored in (("mpcdc", True), ("mpcdc_eps", True), ("vlcbf", False)):
-        mpc = dataclasses.replace(P_IPM.mpc, ipm_restoration="mpcdc", controller=controller)
-        assert backends.uses_restoration(mpc) is restored, controller
-
-
-def test_kkt_factorization_reaches_every_ipm_run_and_is_validated():
-    on = dataclasses.replace(P_IPM, mpc=dataclasses.replace(P_IPM.mpc, kkt_factorization="ldlt"))
-    backend = MpcSolver(on).backend
-    runs = (*backend.warm_attempts, backend.cold, backend.cold_full, backend.phase1_warm, backend.phase1_cold)
-    assert all(o.kkt_factorisation == "ldlt" for o in runs)
-    default = MpcSolver(P_IPM).backend
-    assert all(o.kkt_factorisation == "lu" for o in (*default.warm_attempts, default.cold, default.cold_full))
-    plan = MpcSolver(on).solve(EGO, INFEASIBLE_FRONT, 1, LAMBDA0)
-    assert plan is not None
-    raw = {"campaign": {"name": "t", "seed": 1, "episodes": 1}, "model": {"mpc": {"kkt_factorization": "qr"}}}
-    with pytest.raises(campaign.CampaignError, match="mpc.kkt_factorization: unknown factorization"):
-        campaign.campaign_from_dict(raw)

@@ -11,7 +11,7 @@ import threading
 
 import numpy as np
 import pytest
-from test_backends import EGO, LAMBDA0, P
+from test_backends import EGO, LEVEL, P
 
 from mcverify import cli, errors
 from mcverify.solver import backends
@@ -35,10 +35,10 @@ def test_a_noted_interrupt_is_raised_again_by_the_ipopt_backend():
     solver.backend._cold = _Interrupted()
     errors.clear_noted_interrupts()
     # without a noted interrupt the status is an ordinary failed solve, as before
-    assert not solver.solve(EGO, FRONT, 1, LAMBDA0).success
+    assert not solver.solve(EGO, FRONT, 1, LEVEL).success
     errors.note_interrupt(cli.Terminated())
     with pytest.raises(cli.Terminated):
-        solver.solve(EGO, FRONT, 1, LAMBDA0)
+        solver.solve(EGO, FRONT, 1, LEVEL)
     assert not errors._noted_interrupts  # raised once, then forgotten
 
 
@@ -53,12 +53,12 @@ def test_an_interrupt_wrapped_in_a_casadi_error_is_raised_again():
     solver = MpcSolver(P)
     solver.backend._cold = _Wrapped()
     errors.clear_noted_interrupts()
-    assert str(solver.solve(EGO, FRONT, 1, LAMBDA0).status).startswith("exception")  # no interrupt: a failure
+    assert str(solver.solve(EGO, FRONT, 1, LEVEL).status).startswith("exception")  # no interrupt: a failure
     errors.note_interrupt(KeyboardInterrupt())  # another interrupt than the one named: still a failure
-    assert not solver.solve(EGO, FRONT, 1, LAMBDA0).success
+    assert not solver.solve(EGO, FRONT, 1, LEVEL).success
     errors.note_interrupt(cli.Terminated())
     with pytest.raises(cli.Terminated):
-        solver.solve(EGO, FRONT, 1, LAMBDA0)
+        solver.solve(EGO, FRONT, 1, LEVEL)
 
 
 @pytest.mark.skipif(threading.current_thread() is not threading.main_thread(), reason="signals need the main thread")

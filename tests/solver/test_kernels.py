@@ -117,9 +117,11 @@ def test_second_process_reuses_cached_kernel_without_compiler(tmp_path):
     proc = run_python(
         """
         import numpy as np
+        from mcverify.levels import Level
         from mcverify.model import ModelParams
         from mcverify.solver.mpc import MpcSolver
-        sol = MpcSolver(ModelParams()).solve(np.array([10., 0, 0, 10]), np.array([64., 0, 25 / 3.6]), 1, -0.3135)
+        level = Level(0.3, -0.3135)
+        sol = MpcSolver(ModelParams()).solve(np.array([10., 0, 0, 10]), np.array([64., 0, 25 / 3.6]), 1, level)
         print("OK" if sol.success else "FAIL " + str(sol.status))
         """,
         env,

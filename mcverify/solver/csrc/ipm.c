@@ -19,9 +19,7 @@
  * C of the kernel, called through function pointers. Inertia is not available from an LU; the step
  * is instead accepted only if it has positive curvature, dx'(W + Sigma_x + dw)dx + ds' Sigma_s ds >=
  * IPM_CURVATURE_MIN |(dx, ds)|^2 (the inertia-free test of Chiang & Zavala 2016), otherwise dw
- * grows as in IPOPT. ipm_opts.kkt_ldlt replaces the LU by a banded LDL^T without pivoting of the
- * quasi-definitely regularised matrix (same band order), refined against the LU's matrix, whose
- * pivots' signs give the inertia (ipm.h, enum ipm_kkt_factorisation; "band LDL^T" below).
+ * grows as in IPOPT.
  *
  * Rows of g are scaled by min(1, IPM_SCALING_MAX_GRADIENT / max_j |J_ij|) at the starting point
  * (IPOPT's gradient-based scaling); the objective is not scaled. Multipliers come back unscaled in
@@ -108,12 +106,10 @@ static void band_solve(const double *ab, int n, int bw, int ldab, const int *ipi
   }
 }
 
-/* ---------------------------------------------------------------------------- band LDL^T -- */
-/* Lower band storage: column j holds A[j + i, j], i = 0..bw, at L[i + (bw + 1) j] (the diagonal in
-   row 0). After band_ldlt: D in row 0, the unit lower factor's entries below it.
-   mcol (n): column j of the factor is zero below row j + mcol[j] (fill_extents); every loop stops
+/* ---------------------------------------------------------------------- band extents -- */
+/* mcol (n): column j of the LU's factor is zero below row j + mcol[j] (fill_extents); its loops stop
    there. With the reverse Cuthill-McKee ordering of the KKT matrix the mean extent is 12.6-15 for a
-   half-bandwidth of 17-21 (Table IV kernels), so this saves about 40 % of the factorisation. */
+   half-bandwidth of 17-21 (Table IV kernels). */
 
 /* mcol[j] in: the largest i with A[j + i, j] a (structural) nonzero (0: none); out: the same for
    the factor. Eliminating column j fills columns j + 1 .. j + mcol[j] down to row j + mcol[j],
@@ -128,133 +124,11 @@ static void fill_extents(int *mcol, int n) {
   }
 }
 
-/* LDL^T without pivoting (right-looking). Counts the positive and negative pivots (*npos, *nneg);
-   returns 0, or the 1-based column of a zero or non-finite pivot (breakdown). */
-static int band_ldlt(double *L, int n, int bw, const int *mcol, int *npos, int *nneg) {
-  const int ldl = bw + 1;
-  *npos = *nneg = 0;
-  for (int j = 0; j < n; ++j) {
-    double *cj = L + (int64_t)ldl * j;
-    const double d = cj[0];
-    if (!(d != 0.0) || !isfinite(d)) return j + 1;
-    if (d > 0.0) ++*npos; else ++*nneg;
-    const int m = mcol[j];
-    const double inv = 1.0 / d;
-    /* A[j + i, j + k] -= A[j + i, j] A[j + k, j] / d for 1 <= k <= i <= m */
-    for (int k = 1; k <= m; ++k) {
-      const double vk = cj[k];
-      if (vk == 0.0) continue;
-      const double lk = vk * inv;
-      double *ck = L + (int64_t)ldl * (j + k) - k; /* ck[i] = A[j + i, j + k] */
-      for (int i = k; i <= m; ++i) ck[i] -= cj[i] * lk;
-    }
-    for (int i = 1; i <= m; ++i) cj[i] *= inv;
-  }
-  return 0;
-}
-
-/* sum a[i] b[i], i < m, in four interleaved partial sums (no serial dependency chain). */
-static double band_dot(const double *a, const double *b, int m) {
-  double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0;
-  int i = 0;
-  for (; i + 4 <= m; i += 4) { s0 += a[i] * b[i]; s1 += a[i + 1] * b[i + 1]; s2 += a[i + 2] * b[i + 2]; s3 += a[i + 3] * b[i + 3]; }
-  for (; i < m; ++i) s0 += a[i] * b[i];
-  return (s0 + s1) + (s2 + s3);
-}
-
-/* sum |a[i]|, i < m, likewise. */
-static double band_abs_sum(const double *a, int m) {
-  double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0;
-  int i = 0;
-  for (; i + 4 <= m; i += 4) { s0 += fabs(a[i]); s1 += fabs(a[i + 1]); s2 += fabs(a[i + 2]); s3 += fabs(a[i + 3]); }
-  for (; i < m; ++i) s0 += fabs(a[i]);
-  return (s0 + s1) + (s2 + s3);
-}
-
-/* b <- (L D L^T)^{-1} b. */
-static void band_ldlt_solve(const double *L, int n, int bw, const int *mcol, double *b) {
-  const int ldl = bw + 1;
-  for (int j = 0; j < n; ++j) {
-    const double bj = b[j];
-    if (bj == 0.0) continue;
-    const double *cj = L + (int64_t)ldl * j;
-    const int m = mcol[j];
-    for (int i = 1; i <= m; ++i) b[j + i] -= cj[i] * bj;
-  }
-  for (int j = 0; j < n; ++j) b[j] /= L[(int64_t)ldl * j];
-  for (int j = n - 1; j >= 0; --j) b[j] -= band_dot(L + (int64_t)ldl * j + 1, b + j + 1, mcol[j]);
-}
-
 /* The position in lower band storage (ldl = bw + 1) of the LAPACK band position pos (ldab = 3 bw
    + 1, A[i, j] at row 2 bw + i - j), or -1 for an entry above the diagonal. */
 static int64_t lower_position(int64_t pos, int bw, int ldab) {
   int64_t c = pos / ldab, d = pos % ldab - 2 * bw;
   return d < 0 ? -1 : d + (int64_t)(bw + 1) * c;
-}
-
-/* r <- b - K x for the symmetric K of lower band K. */
-static void band_residual(const double *K, int n, int bw, const int *mcol, const double *x, const double *b,
-                          double *r) {
-  const int ldl = bw + 1;
-  for (int j = 0; j < n; ++j) r[j] = b[j];
-  for (int j = 0; j < n; ++j) {
-    const double *cj = K + (int64_t)ldl * j;
-    const int m = mcol[j];
-    const double xj = x[j];
-    r[j] -= cj[0] * xj + band_dot(cj + 1, x + j + 1, m);
-    for (int i = 1; i <= m; ++i) r[j + i] -= cj[i] * xj;
-  }
-}
-
-/* |K|_inf of the symmetric K of lower band K (rows sums of |K|, using scratch w (n)). */
-static double max_abs(const double *v, int n);
-
-static double band_norm(const double *K, int n, int bw, const int *mcol, double *w) {
-  const int ldl = bw + 1;
-  for (int j = 0; j < n; ++j) w[j] = 0.0;
-  for (int j = 0; j < n; ++j) {
-    const double *cj = K + (int64_t)ldl * j;
-    const int m = mcol[j];
-    w[j] += band_abs_sum(cj, m + 1);
-    for (int i = 1; i <= m; ++i) w[j + i] += fabs(cj[i]);
-  }
-  return max_abs(w, n);
-}
-
-/* max |v[j]|; NaN if any v[j] is NaN (written without fmax so that it vectorises). */
-static double max_abs(const double *v, int n) {
-  double a = 0.0;
-  int nan = 0;
-  for (int j = 0; j < n; ++j) {
-    const double x = fabs(v[j]);
-    a = x > a ? x : a;
-    nan |= x != x;
-  }
-  return nan ? NAN : a;
-}
-
-/* x = K^{-1} b by the LDL^T factor L of a regularised K, refined against K (|K|_inf = knorm):
-   x <- x + L^{-1}(b - K x) until the backward error |b - K x| / (knorm |x| + |b|) is at most
-   IPM_LDLT_RATIO_STOP, stops decreasing, or after IPM_LDLT_REFINE_MAX steps. r (n): scratch.
-   Returns 0, or -1 when the final backward error (in *ratio) exceeds IPM_LDLT_RATIO_FAIL. */
-static int ldlt_refined_solve(const double *L, const double *K, double knorm, int n, int bw, const int *mcol,
-                              const double *b, double *x, double *r, int *refinements, double *ratio) {
-  memcpy(x, b, sizeof(double) * (size_t)n);
-  band_ldlt_solve(L, n, bw, mcol, x);
-  const double bnorm = max_abs(b, n);
-  double prev = INFINITY;
-  for (int k = 0;; ++k) {
-    band_residual(K, n, bw, mcol, x, b, r);
-    const double den = knorm * max_abs(x, n) + bnorm;
-    *ratio = den > 0.0 ? max_abs(r, n) / den : 0.0;
-    if (!isfinite(*ratio)) return -1;
-    if (*ratio <= IPM_LDLT_RATIO_STOP || *ratio > 0.5 * prev || k == IPM_LDLT_REFINE_MAX) break;
-    prev = *ratio;
-    band_ldlt_solve(L, n, bw, mcol, r);
-    for (int j = 0; j < n; ++j) x[j] += r[j];
-    ++*refinements;
-  }
-  return *ratio <= IPM_LDLT_RATIO_FAIL ? 0 : -1;
 }
 
 /* ----------------------------------------------------------------------------- evaluation -- */
@@ -286,15 +160,8 @@ typedef struct {
   /* KKT system (n): band storage, right-hand side, solution, scratch */
   double *ab, *rhs, *sol, *tmp, *soc_buf;
   int *ipiv;
-  /* LDL^T path (o->kkt_ldlt): which factorisation ab holds (1: the LDL^T factor in its first
-     (bw + 1) n doubles and the unregularised lower band K after it; 0: the LU), |K|_inf, the
-     refinement's solution and residual (n each), its counters */
-  int ldlt_live;
-  double knorm;
-  double *ref_x, *ref_r;
   int64_t *lpos; /* (n_ent) lower band position of each KKT entry, -1 above the diagonal */
   int *mcol;     /* (n) the factor's column extents (fill_extents) */
-  ipm_stats *stats;
   /* per variable (n_w): iterate, relaxed bounds, bound multipliers, gradient, steps, trial point,
      barrier diagonal, J^T y, H dx (also scratch of the trial gradient), corrected step */
   double *x, *lx, *ux, *zl, *zu, *grad, *dx, *dzl, *dzu, *xt, *sigx, *jty, *hdx, *dx_soc;
@@ -334,7 +201,7 @@ void ipm_work_sizes(const ipm_struct *st, int64_t *n_dbl, int64_t *n_int) {
   int64_t n = st->n, nw = st->n_w, ng = st->n_g;
   int64_t amax = max_work_size(st, 0), rmax = max_work_size(st, 1);
   int64_t iwmax = max_work_size(st, 2), wmax = max_work_size(st, 3);
-  *n_dbl = (int64_t)st->ldab * n + 8 * n + 24 * nw + 32 * ng + 2 * st->n_j + st->n_h + wmax + 64;
+  *n_dbl = (int64_t)st->ldab * n + 6 * n + 24 * nw + 32 * ng + 2 * st->n_j + st->n_h + wmax + 64;
   *n_int = (n + 2) + 2 * (iwmax + 8) + 2 * (amax + 8) + 2 * (rmax + 8) + (ng + 2) + 2 * (int64_t)st->n_ent + n + 66;
 }
 
@@ -347,8 +214,6 @@ static void carve_workspace(ipm_ws *S, double *wd, int *wi) {
   S->sol = wd; wd += n;
   S->tmp = wd; wd += n;
   S->soc_buf = wd; wd += n;
-  S->ref_x = wd; wd += n;
-  S->ref_r = wd; wd += n;
   wd += 2 * n;
   double **per_var[] = {&S->lx, &S->ux, &S->zl, &S->zu, &S->grad, &S->dx, &S->dzl, &S->dzu, &S->xt, &S->sigx,
                         &S->jty, &S->hdx, &S->dx_soc, &S->xr, &S->dr2};
@@ -395,7 +260,6 @@ static void init_stats(ipm_stats *stats, const ipm_opts *o) {
   stats->inf_pr = INFINITY; stats->inf_du = INFINITY; stats->mu = o->mu_init;
   stats->resto_calls = 0; stats->resto_iterations = 0;
   stats->cert_violation = NAN; stats->cert_stationarity = NAN; stats->cert_mu = NAN;
-  stats->kkt_fallbacks = 0; stats->kkt_refinements = 0; stats->kkt_wrong_inertia = 0; stats->kkt_ratio_max = 0.0;
 }
 
 /* ---------------------------------------------------------------------------- the start -- */
@@ -666,23 +530,6 @@ static void assemble_kkt(ipm_ws *S, double dw, double dcr) {
 }
 
 
-/* The LDL^T path's matrices in ab: the lower band K (regularised like assemble_kkt) after the first
-   (bw + 1) n doubles, and at the start a copy of it with +delta on every variable's and -delta on
-   every constraint row's diagonal (quasi-definite: what band_ldlt factorises; without the primal
-   delta a variable with no bound and no curvature is a zero pivot); also |K|_inf into S->knorm. */
-static void assemble_kkt_lower(ipm_ws *S, double dw, double dcr, double delta) {
-  const ipm_struct *st = S->st;
-  const int bw = st->bw;
-  const size_t band = (size_t)(bw + 1) * (size_t)S->n;
-  double *Lb = S->ab, *K = S->ab + band;
-  memset(K, 0, sizeof(double) * band);
-  for (int e = 0; e < st->n_ent; ++e)
-    if (S->lpos[e] >= 0) K[S->lpos[e]] += kkt_entry(S, e, dw, dcr);
-  memcpy(Lb, K, sizeof(double) * band);
-  for (int k = 0; k < S->n; ++k) Lb[(int64_t)(bw + 1) * k] += st->perm[k] < S->nw ? delta : -delta;
-  S->knorm = band_norm(K, S->n, bw, S->mcol, S->ref_r);
-}
-
 /* y + mu / (s - lg) - mu / (ug - s) of an inequality row: its slack's barrier gradient term. */
 static double slack_q(const ipm_ws *S, int i, double mu) {
   double q = S->y[i];
@@ -728,24 +575,12 @@ static void newton_rhs(ipm_ws *S, double mu, double dw) {
   }
 }
 
-/* Solve the factorised system for b (n, original order) into out (n), through the band order.
-   Returns nonzero when the LDL^T's refined solution is not accurate (out is then still written). */
-static int solve_permuted(ipm_ws *S, const double *b, double *band_buf, double *out) {
+/* Solve the factorised system for b (n, original order) into out (n), through the band order. */
+static void solve_permuted(ipm_ws *S, const double *b, double *band_buf, double *out) {
   const ipm_struct *st = S->st;
   for (int k = 0; k < S->n; ++k) band_buf[k] = b[st->perm[k]];
-  int bad = 0;
-  if (S->ldlt_live) {
-    const double *K = S->ab + (size_t)(st->bw + 1) * (size_t)S->n;
-    double ratio = 0.0;
-    bad = ldlt_refined_solve(S->ab, K, S->knorm, S->n, st->bw, S->mcol, band_buf, S->ref_x, S->ref_r,
-                             &S->stats->kkt_refinements, &ratio);
-    if (!bad) S->stats->kkt_ratio_max = fmax(S->stats->kkt_ratio_max, ratio);
-    memcpy(band_buf, S->ref_x, sizeof(double) * (size_t)S->n);
-  } else {
-    band_solve(S->ab, S->n, st->bw, st->ldab, S->ipiv, band_buf);
-  }
+  band_solve(S->ab, S->n, st->bw, st->ldab, S->ipiv, band_buf);
   for (int k = 0; k < S->n; ++k) out[st->perm[k]] = band_buf[k];
-  return bad;
 }
 
 /* Primal step dx from a solution of the augmented system, and the slack step ds it implies. */
@@ -792,53 +627,25 @@ static double next_dw(double dw, double dw_last) {
 
 /* Newton step (dx, dy, ds) with the smallest regularisation dw (in *dw) that passes. Leaves the
    factorisation in ab for the second-order corrections. */
-/* The LDL^T path of one factorisation: 1 when the step is in S->sol, 0 when the inertia is wrong
-   (nothing solved), -1 on a breakdown or an inaccurate solve (the caller falls back to the LU). */
-static int ldlt_attempt(ipm_ws *S, double mu, double dw, double dcr, ipm_stats *stats) {
-  const ipm_struct *st = S->st;
-  int npos = 0, nneg = 0;
-  assemble_kkt_lower(S, dw, dcr, S->o->kkt_delta);
-  stats->factorisations++;
-  if (band_ldlt(S->ab, S->n, st->bw, S->mcol, &npos, &nneg) != 0) return -1;
-  S->ldlt_live = 1;
-  if (S->o->kkt_ldlt == IPM_KKT_LDLT && (npos != S->nw || nneg != S->ng)) {
-    stats->kkt_wrong_inertia++;
-    return 0;
-  }
-  newton_rhs(S, mu, dw);
-  if (solve_permuted(S, S->rhs, S->tmp, S->sol)) return -1;
-  return 1;
-}
-
 static int newton_step(ipm_ws *S, double mu, double dw_last, double *dw_out, ipm_stats *stats) {
   const ipm_struct *st = S->st;
   double dw = 0.0, dcr = 0.0;
   for (int attempt = 0; attempt < IPM_MAX_REGULARISATIONS; ++attempt) {
-    int have = -1; /* LDL^T: 1 solved, 0 wrong inertia; -1: the LU decides */
-    if (S->o->kkt_ldlt != IPM_KKT_LU && st->bw >= 1) {
-      have = ldlt_attempt(S, mu, dw, dcr, stats);
-      if (have == 0) { dw = next_dw(dw, dw_last); continue; }
-      if (have < 0) stats->kkt_fallbacks++;
+    assemble_kkt(S, dw, dcr);
+    int info = band_lu(S->ab, S->n, st->bw, st->ldab, S->mcol, S->ipiv);
+    stats->factorisations++;
+    if (info != 0) {
+      /* singular: regularise the constraints as well as the primal block */
+      dcr = IPM_DELTA_C * pow(mu, IPM_KAPPA_C);
+      dw = next_dw(dw, dw_last);
+      continue;
     }
-    if (have < 0) {
-      S->ldlt_live = 0;
-      assemble_kkt(S, dw, dcr);
-      int info = band_lu(S->ab, S->n, st->bw, st->ldab, S->mcol, S->ipiv);
-      stats->factorisations++;
-      if (info != 0) {
-        /* singular: regularise the constraints as well as the primal block */
-        dcr = IPM_DELTA_C * pow(mu, IPM_KAPPA_C);
-        dw = next_dw(dw, dw_last);
-        continue;
-      }
-      newton_rhs(S, mu, dw);
-      solve_permuted(S, S->rhs, S->tmp, S->sol);
-    }
+    newton_rhs(S, mu, dw);
+    solve_permuted(S, S->rhs, S->tmp, S->sol);
     for (int i = 0; i < S->ng; ++i) S->dy[i] = S->sol[S->nw + i];
     unpack_step(S, S->sol, mu, dw, S->dx, S->ds);
     if (S->resto) elastic_steps(S, S->dy, mu, dw);
-    /* the inertia was right (LDL^T with the inertia test), else the inertia-free test */
-    if ((have == 1 && S->o->kkt_ldlt == IPM_KKT_LDLT) || curvature_ok(S, dw)) { *dw_out = dw; return IPM_CONVERGED; }
+    if (curvature_ok(S, dw)) { *dw_out = dw; return IPM_CONVERGED; }
     dw = next_dw(dw, dw_last);
   }
   return IPM_REGULARISATION_FAILED;
@@ -1377,8 +1184,6 @@ int ipm_solve(const ipm_struct *st, const ipm_opts *o, const double *p, const do
   S->nw = st->n_w; S->ng = st->n_g; S->n = st->n;
   carve_workspace(S, wd, wi);
   init_stats(stats, o);
-  S->stats = stats;
-  S->ldlt_live = 0;
   double mu = 0.0, fval = 0.0, one = 1.0;
   int status = start(S, lam_x, lam_g, stats, &mu);
   if (status) return finish(stats, status);
@@ -1462,20 +1267,18 @@ int ipm_abi_layout(int64_t *out, int cap) {
     OFF(ipm_struct, f_g), OFF(ipm_struct, f_grad_f), OFF(ipm_struct, f_jac_g), OFF(ipm_struct, f_hess_l),
     OFF(ipm_struct, work_sizes), OFF(ipm_struct, n_fix), OFF(ipm_struct, fix_row), OFF(ipm_struct, fix_var),
     OFF(ipm_struct, fix_coef),
-    (int64_t)sizeof(ipm_opts), 20,
+    (int64_t)sizeof(ipm_opts), 18,
     OFF(ipm_opts, tol), OFF(ipm_opts, constr_viol_tol), OFF(ipm_opts, mu_init), OFF(ipm_opts, mu_min),
     OFF(ipm_opts, bound_push), OFF(ipm_opts, mult_push), OFF(ipm_opts, bound_relax), OFF(ipm_opts, max_iter),
     OFF(ipm_opts, warm), OFF(ipm_opts, verbose), OFF(ipm_opts, theta_far), OFF(ipm_opts, mu_far),
     OFF(ipm_opts, push_far), OFF(ipm_opts, restoration), OFF(ipm_opts, phase1), OFF(ipm_opts, resto_max_iter),
-    OFF(ipm_opts, resto_rho), OFF(ipm_opts, resto_mu_cert), OFF(ipm_opts, kkt_ldlt), OFF(ipm_opts, kkt_delta),
-    (int64_t)sizeof(ipm_stats), 21,
+    OFF(ipm_opts, resto_rho), OFF(ipm_opts, resto_mu_cert),
+    (int64_t)sizeof(ipm_stats), 17,
     OFF(ipm_stats, iterations), OFF(ipm_stats, status), OFF(ipm_stats, factorisations),
     OFF(ipm_stats, regularised), OFF(ipm_stats, backtracks), OFF(ipm_stats, soc), OFF(ipm_stats, far),
     OFF(ipm_stats, inf_pr), OFF(ipm_stats, inf_du), OFF(ipm_stats, mu), OFF(ipm_stats, theta_start),
     OFF(ipm_stats, first_alpha), OFF(ipm_stats, resto_calls), OFF(ipm_stats, resto_iterations),
     OFF(ipm_stats, cert_violation), OFF(ipm_stats, cert_stationarity), OFF(ipm_stats, cert_mu),
-    OFF(ipm_stats, kkt_fallbacks), OFF(ipm_stats, kkt_refinements), OFF(ipm_stats, kkt_wrong_inertia),
-    OFF(ipm_stats, kkt_ratio_max),
   };
   const int count = (int)(sizeof layout / sizeof layout[0]);
   if (count <= cap) memcpy(out, layout, sizeof layout);
@@ -1497,48 +1300,4 @@ const char *ipm_status_name(int status) {
     [IPM_FEASIBLE_POINT_FOUND] = "Feasible_Point_Found",
   };
   return status >= 0 && status < IPM_STATUS_COUNT ? names[status] : NULL;
-}
-
-/* ------------------------------------------------------------------------- test entry -- */
-
-int ipm_band_test_solve(int n, int bw, int ldlt, const double *ab, const int *dual, double delta, const double *b,
-                        double *x, int *inertia, int *refinements, double *ratio, double *work, int *iwork) {
-  const int ldab = 3 * bw + 1;
-  *refinements = 0; *ratio = 0.0; inertia[0] = inertia[1] = 0;
-  double *A = work, *r = work + (int64_t)ldab * n, *xb = r + n;
-  if (!ldlt) {
-    memcpy(A, ab, sizeof(double) * (size_t)ldab * (size_t)n);
-    for (int j = 0; j < n; ++j) memset(A + (int64_t)ldab * j, 0, sizeof(double) * (size_t)bw); /* fill rows */
-    int *lu_mcol = (int *)r; /* r and xb are free on the LU path: n ints fit in their 2 n doubles */
-    for (int j = 0; j < n; ++j) {
-      lu_mcol[j] = 0;
-      for (int i = 1; i <= bw && j + i < n; ++i)
-        if (ab[2 * bw + i + (int64_t)ldab * j] != 0.0) lu_mcol[j] = i;
-    }
-    fill_extents(lu_mcol, n);
-    int info = band_lu(A, n, bw, ldab, lu_mcol, iwork);
-    if (info) return info;
-    memcpy(x, b, sizeof(double) * (size_t)n);
-    band_solve(A, n, bw, ldab, iwork, x);
-    return 0;
-  }
-  const size_t band = (size_t)(bw + 1) * (size_t)n;
-  double *Lb = A, *K = A + band;
-  for (int j = 0; j < n; ++j)
-    for (int i = 0; i <= bw && j + i < n; ++i) K[i + (int64_t)(bw + 1) * j] = ab[2 * bw + i + (int64_t)ldab * j];
-  memcpy(Lb, K, sizeof(double) * band);
-  for (int j = 0; j < n; ++j) Lb[(int64_t)(bw + 1) * j] += dual[j] ? -delta : delta;
-  int *mcol = iwork;
-  for (int j = 0; j < n; ++j) {
-    mcol[j] = 0;
-    for (int i = 1; i <= bw && j + i < n; ++i)
-      if (K[i + (int64_t)(bw + 1) * j] != 0.0) mcol[j] = i;
-  }
-  fill_extents(mcol, n);
-  double knorm = band_norm(K, n, bw, mcol, r);
-  int info = band_ldlt(Lb, n, bw, mcol, &inertia[0], &inertia[1]);
-  if (info) return info;
-  int bad = ldlt_refined_solve(Lb, K, knorm, n, bw, mcol, b, xb, r, refinements, ratio);
-  memcpy(x, xb, sizeof(double) * (size_t)n);
-  return bad ? -1 : 0;
 }

@@ -28,7 +28,7 @@
 #include <stdint.h>
 
 /* Raised when a struct's meaning changes; ipm.py refuses a library of another version. */
-#define IPM_ABI_VERSION 3
+#define IPM_ABI_VERSION 4
 
 /* ------------------------------------------------------------------------- status codes ---- */
 
@@ -98,14 +98,6 @@ enum ipm_entry_kind {
 #define IPM_KAPPA_RESTO 0.9            /* back to the problem once theta <= this theta at the failure */
 #define IPM_RESTO_PROXIMITY 1.0        /* zeta = this sqrt(mu): weight of the proximity term */
 #define IPM_MAX_RESTO_CALLS 3          /* restoration phases per solve at most */
-/* Banded LDL^T of the KKT matrix (ipm_opts.kkt_ldlt != 0). The matrix factorised is the KKT matrix
-   with +kkt_delta on every variable's and -kkt_delta on every constraint row's diagonal
-   (quasi-definite when the Hessian block is positive definite: an LDL^T then exists for any
-   symmetric ordering, Vanderbei 1995); iterative refinement against the unregularised matrix then
-   gives the solution of the LU's system. */
-#define IPM_LDLT_REFINE_MAX 4          /* refinement steps per solve at most */
-#define IPM_LDLT_RATIO_STOP 1e-12      /* refinement stops at this backward error |r| / (|K| |x| + |b|) (max-norms) */
-#define IPM_LDLT_RATIO_FAIL 1e-10      /* above it after the refinement (or no decrease): the solve falls back to the LU */
 
 /* ----------------------------------------------------------------------------- structs ---- */
 
@@ -149,21 +141,7 @@ typedef struct {
      1000); resto_mu_cert: a certificate needs the restoration's barrier parameter at most this */
   int restoration, phase1, resto_max_iter;
   double resto_rho, resto_mu_cert;
-  /* ABI 3. kkt_ldlt (enum ipm_kkt_factorisation): how the KKT system is factorised; kkt_delta: the
-     regularisation of the LDL^T (> 0; the matrix factorised has +kkt_delta on the variables' and
-     -kkt_delta on the constraint rows' diagonal, the refinement removes it from the solution) */
-  int kkt_ldlt;
-  double kkt_delta;
 } ipm_opts;
-
-/* ipm_opts.kkt_ldlt. IPM_KKT_LU: banded LU with partial pivoting, the inertia-free curvature test
-   (ABI 2's behaviour, bit for bit). IPM_KKT_LDLT: banded LDL^T without pivoting in the same band
-   order; the step is accepted when the inertia (signs of D) is n_w positive and n_g negative,
-   otherwise dw grows; a breakdown (zero or non-finite pivot) or a solve whose refined residual
-   ratio stays above IPM_LDLT_RATIO_FAIL falls back to the LU for that factorisation (counted in
-   ipm_stats.kkt_fallbacks, then the curvature test decides). IPM_KKT_LDLT_CURVATURE: the LDL^T
-   solve with the LU path's curvature test instead of the inertia (to separate the two effects). */
-enum ipm_kkt_factorisation { IPM_KKT_LU = 0, IPM_KKT_LDLT = 1, IPM_KKT_LDLT_CURVATURE = 2 };
 
 /* Counters and errors of one solve (written by ipm_solve). */
 typedef struct {
@@ -179,11 +157,6 @@ typedef struct {
      feasibility problem (its stationarity) and cert_mu its barrier parameter (nan: no restoration) */
   int resto_calls, resto_iterations;
   double cert_violation, cert_stationarity, cert_mu;
-  /* ABI 3, LDL^T path: factorisations that fell back to the LU, iterative refinement steps,
-     factorisations rejected for a wrong inertia, and the largest residual ratio of an accepted
-     LDL^T solve (0 when none) */
-  int kkt_fallbacks, kkt_refinements, kkt_wrong_inertia;
-  double kkt_ratio_max;
 } ipm_stats;
 
 /* ------------------------------------------------------------------------- functions ---- */
@@ -207,17 +180,5 @@ int ipm_abi_version(void);
 int ipm_abi_layout(int64_t *out, int cap);
 /* Python name of a status code ("Converged", ...); NULL outside [0, IPM_STATUS_COUNT). */
 const char *ipm_status_name(int status);
-
-/* Test entry point of the band solvers (tests/solver/test_ldlt.py), on a symmetric matrix given in
-   LAPACK band storage as ipm_struct.ent_pos addresses it (n columns of ldab = 3 bw + 1 rows, A[i, j]
-   at row 2 bw + i - j; the upper part is ignored by the LDL^T). ldlt: 0 the LU, else the LDL^T of
-   A + delta diag(1 - 2 dual) (dual (n,): 1 on the constraint rows, 0 on the variables) with
-   refinement against A.
-   b (n,) in, x (n,) out; inertia (2,): positive and negative pivots of the LDL^T; *refinements:
-   refinement steps; *ratio: the final backward error |b - A x| / (|A| |x| + |b|) (max-norms).
-   work: (3 bw + 1) n + 3 n doubles, iwork: n ints. Returns 0, the 1-based column of a zero pivot, or -1 when the
-   refined residual stays above IPM_LDLT_RATIO_FAIL. */
-int ipm_band_test_solve(int n, int bw, int ldlt, const double *ab, const int *dual, double delta, const double *b,
-                        double *x, int *inertia, int *refinements, double *ratio, double *work, int *iwork);
 
 #endif /* MCVERIFY_IPM_H */
