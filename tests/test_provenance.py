@@ -100,7 +100,8 @@ def test_pinning_replaces_the_callers_cpu_flags_first_and_keeps_the_others() -> 
                         "--xla_dump_to=/tmp/d --xla_cpu_enable_fast_math=true --xla_cpu_max_isa=AVX512"}
     provenance.pin_xla_flags(env)
     # first: XLA stops reading at "intra_op_parallelism_threads=1", which once dropped a cap put after it
-    assert env["XLA_FLAGS"].split() == ["--xla_cpu_max_isa=AVX", "intra_op_parallelism_threads=1", "--xla_dump_to=/tmp/d"]
+    assert env["XLA_FLAGS"].split() == [
+        "--xla_cpu_max_isa=AVX", "intra_op_parallelism_threads=1", "--xla_dump_to=/tmp/d"]
     empty: dict[str, str] = {}
     assert provenance.pin_xla_flags(empty) == "--xla_cpu_max_isa=AVX" == empty["XLA_FLAGS"]
 
