@@ -38,6 +38,16 @@ REFERENCE_RATE_HZ = 50.0
 #: rule made `--dry-run` of the 10 Hz smoke campaign read 2x low (a new-user audit, stop 39).
 RATE_EXPONENT = 0.57
 REFERENCE_EPISODE_S = 10.0
+#: Typical CPU seconds per episode at 50 Hz, by the same kinds: what the scheduler starts first (the
+#: dearest) and splits finer, not a promise. With veh_o the dual VL-CBF controller solves Q2 beside
+#: Q1 and often fails it near veh_o: Table IV's VL-CBF cells cost about 2.5 solver-s per episode in
+#: Scenario A and 16 in B (so about 9 for the kind), its MPC-DC cells about 2; without veh_o, Table II.
+TYPICAL_SECONDS_PER_EPISODE: dict[tuple[str, bool], float] = {
+    ("vlcbf", False): 4.8,
+    ("vlcbf", True): 9.0,
+    ("mpcdc", False): 4.8,
+    ("mpcdc", True): 2.0,
+}
 
 
 @dataclass(frozen=True)
@@ -55,14 +65,28 @@ class Estimate:
 
 def cell_seconds(cell: Cell) -> tuple[float, float]:
     """CPU seconds per episode of ``cell``, (low, high)."""
+    low, high = SECONDS_PER_EPISODE[_kind(cell)]
+    scale = _scale(cell)
+    return low * scale, high * scale
+
+
+def typical_seconds(cell: Cell) -> float:
+    """Typical CPU seconds per episode of ``cell`` (:data:`TYPICAL_SECONDS_PER_EPISODE`, scaled
+    like :func:`cell_seconds`): the scheduler's measure of which chunks are dearest."""
+    return TYPICAL_SECONDS_PER_EPISODE[_kind(cell)] * _scale(cell)
+
+
+def _kind(cell: Cell) -> tuple[str, bool]:
     p = cell.params
-    family = "mpcdc" if p.mpc.is_mpcdc else "vlcbf"
-    low, high = SECONDS_PER_EPISODE[(family, p.opposing.kind != "none")]
+    return ("mpcdc" if p.mpc.is_mpcdc else "vlcbf"), p.opposing.kind != "none"
+
+
+def _scale(cell: Cell) -> float:
+    """The planner rate, the episode length and the backend against the measured figures."""
+    p = cell.params
     rate = (1.0 / p.sim.control_period_s) / REFERENCE_RATE_HZ
     scale = rate**RATE_EXPONENT * min(1.0, p.sim.max_time_s / REFERENCE_EPISODE_S)
-    if p.mpc.backend == "ipopt":
-        scale *= IPOPT_FACTOR
-    return low * scale, high * scale
+    return scale * IPOPT_FACTOR if p.mpc.backend == "ipopt" else scale
 
 
 def estimate(campaign: Campaign, chunk_size: int) -> Estimate:
