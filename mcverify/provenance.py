@@ -12,8 +12,8 @@ Pinned numeric settings: XLA's CPU code generation decides the last bits of ever
 instructions, fused multiply-adds or not), and the closed loop amplifies last bits into other solver
 iterates and, rarely, another verdict. Cluster schedulers and users set ``XLA_FLAGS``, so every
 simulating process replaces whatever ``--xla_cpu_*`` flags its caller set with
-:data:`PINNED_XLA_FLAGS` (:func:`pin_xla_flags`, called by :mod:`mcverify.sim` before JAX is
-imported) and records them in :func:`code_version`, hence in the run's manifest. Thread counts
+:data:`PINNED_XLA_FLAGS` (:func:`pin_xla_flags`, called by :mod:`mcverify.sim` before JAX starts
+its backend) and records them in :func:`code_version`, hence in the run's manifest. Thread counts
 (``OMP_NUM_THREADS``, ``OPENBLAS_NUM_THREADS``, the cores a job may use) change no result: the C
 solver runs no threads and the plant no dots.
 """
@@ -54,7 +54,7 @@ NOT_RESULTS = {
 }
 #: Parts that only read, present or measure stored rows; editing them never refuses a resume.
 PRESENTATION_PARTS = (
-    "__init__.py", "api.py", "cli.py", "cli", "errors.py", "fields.py", "provenance.py", "store.py",
+    "__init__.py", "api.py", "cli.py", "errors.py", "fields.py", "provenance.py", "store.py",
     "analysis", "reporting", "bench",
     # falsify chooses candidates but simulates nothing itself; a resumed search re-checks that the
     # candidates it asks equal those its generation folders recorded (falsify.search._check_same).
