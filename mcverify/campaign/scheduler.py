@@ -64,15 +64,18 @@ class _Task:
 def plan_tasks(
     chunks: Sequence[Chunk], seconds_per_episode: Sequence[float], workers: int
 ) -> list[tuple[Chunk, tuple[int, ...]]]:
-    """The tasks that run ``chunks`` on ``workers``, dearest first: (chunk, its episode ids).
+    """The tasks that run ``chunks`` on ``workers``: (chunk, its episode ids). One worker runs the
+    chunks whole in the plan's order (its wall time is the sum whatever the order); more start the
+    dearest tasks first.
 
     seconds_per_episode: an estimate per cell index. With more than one worker, a chunk estimated
     dearer than a share of the run (its total over ``workers`` x :data:`TASKS_PER_WORKER`) is split
     into near-equal runs of consecutive episodes, each within the share (or of one episode). Tasks
     of equal cost keep the plan's order, so a cell's episodes still start in order (sequential
     stopping reads them so)."""
-    total = sum(seconds_per_episode[c.cell_index] * len(c.episode_ids) for c in chunks)
-    share = total / (workers * TASKS_PER_WORKER) if workers > 1 else math.inf
+    if workers <= 1:
+        return [(c, c.episode_ids) for c in chunks]
+    share = sum(seconds_per_episode[c.cell_index] * len(c.episode_ids) for c in chunks) / (workers * TASKS_PER_WORKER)
     tasks: list[tuple[float, Chunk, tuple[int, ...]]] = []
     for chunk in chunks:
         ids, each = chunk.episode_ids, seconds_per_episode[chunk.cell_index]
