@@ -83,8 +83,9 @@ def section(points: Sequence[Point], campaign: Campaign, chunk_size: int, cmd: s
         f"{provenance.cpu_model()}, {os.cpu_count()} logical cores, Python {platform.python_version()}; "
         f"load average at the end {[round(x, 2) for x in os.getloadavg()]}.",
         f"Campaign `{campaign.source}`, {len(campaign.cells)} cells of {campaign.cells[0].episodes} episode(s), "
-        f"chunks of up to {chunk_size}, dearest first, split to at most 1/{scheduler.TASKS_PER_WORKER} of a "
-        "worker's share; wall time from starting the workers to the last row.", "",
+        f"chunks of up to {chunk_size} (dearest tasks first; a chunk dearer than 1/{scheduler.TASKS_PER_WORKER} of "
+        "a worker's share of the run split, `mcverify.campaign.scheduler.plan_tasks`); wall time from starting "
+        "the workers to the last row.", "",
         "| workers | episodes | wall s | episodes per wall-minute | speed-up | efficiency | rows as with "
         f"{base.workers} worker(s) |",
         "| ---: | ---: | ---: | ---: | ---: | ---: | --- |",
