@@ -9,7 +9,7 @@ becomes a row with ``outcome = "error"`` and its ``error_message``.
 
 Order: cells differ about 8x in cost per episode (Table IV: MPC-DC about 2 solver-s, VL-CBF in
 Scenario B about 16), so on many workers the last few dear chunks decide the wall time. The
-scheduler therefore starts the dearest work first (by :func:`mcverify.campaign.cost.typical_seconds`)
+scheduler therefore starts the dearest work first (by :func:`mcverify.campaign.episode_cost.typical_seconds`)
 and, with more than one worker, runs a chunk dearer than a fair share of the run as several tasks
 (:func:`plan_tasks`). Neither changes a result: every episode is a function of (campaign, seed,
 episode id) alone, and a chunk's rows are handed on whole, in episode order, once all its tasks are in.
@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from mcverify import provenance
-from mcverify.campaign.cost import typical_seconds
+from mcverify.campaign.episode_cost import typical_seconds
 from mcverify.campaign.spec import Campaign
 from mcverify.campaign.work import EpisodeDone, EpisodeFn, ExecutorError, Outcome, Work, run_work, simulate
 from mcverify.episode.recording import EpisodeRecording

@@ -8,7 +8,7 @@ import synthetic_episodes as synth
 
 from mcverify import store
 from mcverify.campaign import executors
-from mcverify.campaign.cost import typical_seconds
+from mcverify.campaign.episode_cost import typical_seconds
 from mcverify.campaign.executors import ChunkOutput, SerialExecutor
 from mcverify.campaign.replay import compare_rows
 from mcverify.campaign.scheduler import TASKS_PER_WORKER, plan_tasks
