@@ -160,9 +160,21 @@ def environment_info() -> dict[str, Any]:
         "machine": platform.machine(),
         "cpu_model": cpu_model(),
         "cpu_count": os.cpu_count(),
+        "threads": thread_settings(),
         "packages": versions,
         "git_commit": git_commit(),
     }
+
+
+#: Thread settings of the caller's environment, recorded to show where a run was made; none of them
+#: changes a result (the C solver runs no threads, the plant has no dots, XLA's CPU flags are pinned).
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "XLA_FLAGS")
+
+
+def thread_settings() -> dict[str, Any]:
+    """:data:`THREAD_VARIABLES` as this process sees them (None: unset) and the cores it may use."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return {**{name: os.environ.get(name) for name in THREAD_VARIABLES}, "usable_cores": cores}
 
 
 def git_commit(short: bool = False) -> str | None:

@@ -105,3 +105,20 @@ def test_one_episode_is_the_same_under_a_schedulers_settings() -> None:
     assert default.keys() == scheduled.keys()
     differ = {k: (default[k], scheduled[k]) for k in default if k not in TIMING_COLUMNS and default[k] != scheduled[k]}
     assert differ == {}
+
+
+def test_the_manifest_records_the_pinned_flags_and_the_callers_threads(tmp_path, monkeypatch) -> None:
+    import synthetic_episodes as synth
+
+    from mcverify import provenance, store
+    from mcverify.campaign import executors, runner
+    from mcverify.campaign.spec import campaign_from_dict
+
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    camp = campaign_from_dict({"campaign": {"name": "synthetic", "seed": 5, "episodes": 2}})
+    runner.run(camp, tmp_path / "run", executor=executors.SerialExecutor(), progress=False,
+               episode_fn=synth.episodes, record_first=False)
+    manifest = store.read_json(tmp_path / "run" / store.MANIFEST)
+    assert manifest["code"]["xla_flags"] == provenance.pinned_xla_flags() == "--xla_cpu_max_isa=AVX"
+    threads = manifest["environment"]["threads"]
+    assert threads["OMP_NUM_THREADS"] == "1" and threads["usable_cores"] >= 1
