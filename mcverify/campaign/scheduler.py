@@ -7,12 +7,12 @@ its episodes are run one by one (with the same retries), so a failing episode ca
 chunk-mates with it and the result does not depend on the chunk size; an episode that still fails
 becomes a row with ``outcome = "error"`` and its ``error_message``.
 
-Order: cells differ about 8x in cost per episode (Table IV: MPC-DC about 2 solver-s, VL-CBF in
-Scenario B about 16), so on many workers the last few dear chunks decide the wall time. The
-scheduler therefore starts the dearest work first (by :func:`mcverify.campaign.episode_cost.typical_seconds`)
-and, with more than one worker, runs a chunk dearer than a fair share of the run as several tasks
-(:func:`plan_tasks`). Neither changes a result: every episode is a function of (campaign, seed,
-episode id) alone, and a chunk's rows are handed on whole, in episode order, once all its tasks are in.
+Order: cells differ up to about 8x in cost per episode, so on many workers the last few dear chunks
+decide the wall time. The scheduler therefore starts the dearest work first (by
+:func:`mcverify.campaign.episode_cost.typical_seconds`) and, with more than one worker, runs a chunk
+dearer than a share of the run as several tasks (:func:`plan_tasks`). Neither changes a result:
+every episode is a function of (campaign, seed, episode id) alone, and a chunk's rows are handed on
+whole, in episode order, once all its tasks are in.
 """
 
 from __future__ import annotations
