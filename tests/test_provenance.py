@@ -82,9 +82,50 @@ def test_import_mcverify_has_no_side_effects_on_jax() -> None:
     assert out.stdout.split() == ["False", "False"]
 
 
-def test_the_simulation_layer_sets_x64_and_the_isa_cap() -> None:
-    code = "import os, mcverify.sim, jax\nprint(jax.config.jax_enable_x64, os.environ['XLA_FLAGS'])\n"
-    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
-    assert out.returncode == 0, out.stderr
-    assert out.stdout.split() == ["True", "--xla_cpu_max_isa=AVX"]
+def test_the_simulation_layer_sets_x64_and_pins_the_isa_whatever_the_caller_set() -> None:
+    code = "import os, mcverify.sim, jax\nprint(jax.config.jax_enable_x64, '|', os.environ['XLA_FLAGS'])\n"
+    for callers in (None, "--xla_cpu_max_isa=AVX2 intra_op_parallelism_threads=1"):
+        env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+        if callers is not None:
+            env["XLA_FLAGS"] = callers
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+        assert out.returncode == 0, out.stderr
+        x64, flags = out.stdout.split("|")
+        assert x64.strip() == "True"
+        assert flags.split()[0] == "--xla_cpu_max_isa=AVX" and "AVX2" not in flags
+
+
+def test_pinning_replaces_the_callers_cpu_flags_first_and_keeps_the_others() -> None:
+    env = {"XLA_FLAGS": "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1 "
+                        "--xla_dump_to=/tmp/d --xla_cpu_enable_fast_math=true --xla_cpu_max_isa=AVX512"}
+    provenance.pin_xla_flags(env)
+    # first: XLA stops reading at "intra_op_parallelism_threads=1", which once dropped a cap put after it
+    assert env["XLA_FLAGS"].split() == [
+        "--xla_cpu_max_isa=AVX", "intra_op_parallelism_threads=1", "--xla_dump_to=/tmp/d"]
+    empty: dict[str, str] = {}
+    assert provenance.pin_xla_flags(empty) == "--xla_cpu_max_isa=AVX" == empty["XLA_FLAGS"]
+
+
+def test_the_pinned_flags_are_part_of_the_code_version() -> None:
+    assert provenance.code_version()["xla_flags"] == provenance.pinned_xla_flags() == "--xla_cpu_max_isa=AVX"
+    other = {**provenance.code_version(), "xla_flags": "--xla_cpu_max_isa=AVX2"}
+    assert provenance.code_differences(provenance.code_version(), other) == [
+        "xla_flags --xla_cpu_max_isa=AVX -> --xla_cpu_max_isa=AVX2"]
+
+
+@pytest.mark.parametrize("edited", sorted(provenance.NOT_RESULTS))
+def test_modules_that_cannot_change_a_row_do_not_change_the_version(package_copy: Path, edited: str) -> None:
+    """The progress bar, the dry run's estimate, the executors: editing them never refuses a resume."""
+    assert (package_copy / edited).is_file(), f"NOT_RESULTS names {edited}, which does not exist"
+    before = provenance.source_digest(package_copy)
+    _append(package_copy / edited, "\n# edited\n")
+    assert provenance.source_digest(package_copy) == before
+
+
+@pytest.mark.parametrize("edited", ["campaign/spec.py", "campaign/work.py", "campaign/scheduler.py",
+                                    "campaign/runner.py", "episode/row.py"])
+def test_the_run_layer_that_makes_rows_still_changes_the_version(package_copy: Path, edited: str) -> None:
+    """Cell expansion, error rows and the rebuild of a run from its manifest do change rows."""
+    before = provenance.source_digest(package_copy)
+    _append(package_copy / edited, "\n# edited\n")
+    assert provenance.source_digest(package_copy) != before

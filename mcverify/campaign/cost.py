@@ -1,11 +1,8 @@
 """What a campaign will cost before it runs (``mcverify run --dry-run``): cells, episodes, chunks
 and an estimate of the CPU time from per-episode costs measured on this project's reference machine.
 
-The figures (CPU seconds per episode at the paper's 50 Hz planner, ``results/BENCHMARKS.md``) are
-per kind of cell; a cell's episodes cost about the figure times (its planner rate / 50 Hz) ** 0.57
-times min(1, its time limit / 10 s), since episodes last up to their time limit and most overtakes
-take 5-10 s. A slower planner has fewer steps but harder ones: a 10 Hz control step costs about twice
-a 50 Hz one (:data:`RATE_EXPONENT`). Episode costs vary by an order of magnitude within a kind (a
+The figures per kind of cell and their scaling live in :mod:`mcverify.campaign.episode_cost`.
+Episode costs vary by an order of magnitude within a kind (a
 run that meets veh_o, or that IPOPT must certify infeasible, costs more), so the estimate is a
 range, not a promise.
 """
@@ -14,30 +11,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from mcverify.campaign.episode_cost import (  # noqa: F401 - the figures, read through this module too
+    IPOPT_FACTOR,
+    RATE_EXPONENT,
+    SECONDS_PER_EPISODE,
+    cell_seconds,
+)
 from mcverify.campaign.spec import Campaign
-from mcverify.cell import Cell
-
-#: CPU seconds per episode at 50 Hz, (low, high), by (controller family, veh_o on the road), with the
-#: fast path (``mpc.backend = "ipm"``). Source: results/BENCHMARKS.md - Table II with ipm 4.5 s (the
-#: paired run 5.2 s); Table IV (34 episodes per cell, ipm): VL-CBF 1.2-12.7 s, MPC-DC 1.1-60.8 s.
-SECONDS_PER_EPISODE: dict[tuple[str, bool], tuple[float, float]] = {
-    ("vlcbf", False): (4.5, 5.2),
-    ("vlcbf", True): (1.2, 12.7),
-    ("mpcdc", False): (4.5, 5.2),
-    ("mpcdc", True): (1.1, 60.8),
-}
-#: IPOPT (``mpc.backend = "ipopt"``) against the fast path, CPU per episode (paired, results/BENCHMARKS.md:
-#: 15.06 vs 5.16 s on Table II, 56.6 vs 15.0 s on Table IV).
-IPOPT_FACTOR = 3.4
-#: The planner rate of the measured figures (Hz) and the episode length they stand for (s).
-REFERENCE_RATE_HZ = 50.0
-#: Cost per episode grows as (rate / 50 Hz) ** RATE_EXPONENT, not linearly: at 10 Hz a control step
-#: costs 0.020-0.026 CPU-s (results/BENCHMARKS.md, the 10 Hz validation cell's splitting and importance
-#: runs, 850 CPU-s per 42,935 steps and 642 per 24,830), at 50 Hz about 0.010 (Table II, 4.5-5.2 CPU-s
-#: per 10 s episode of 500 steps): twice as much per step, so 1 - log(2) / log(5) = 0.57. The linear
-#: rule made `--dry-run` of the 10 Hz smoke campaign read 2x low (a new-user audit, stop 39).
-RATE_EXPONENT = 0.57
-REFERENCE_EPISODE_S = 10.0
 
 
 @dataclass(frozen=True)
@@ -51,18 +31,6 @@ class Estimate:
     def wall_s(self, workers: int) -> tuple[float, float]:
         """Wall time on ``workers`` cores, if every core runs episodes all the time."""
         return self.cpu_s_low / workers, self.cpu_s_high / workers
-
-
-def cell_seconds(cell: Cell) -> tuple[float, float]:
-    """CPU seconds per episode of ``cell``, (low, high)."""
-    p = cell.params
-    family = "mpcdc" if p.mpc.is_mpcdc else "vlcbf"
-    low, high = SECONDS_PER_EPISODE[(family, p.opposing.kind != "none")]
-    rate = (1.0 / p.sim.control_period_s) / REFERENCE_RATE_HZ
-    scale = rate**RATE_EXPONENT * min(1.0, p.sim.max_time_s / REFERENCE_EPISODE_S)
-    if p.mpc.backend == "ipopt":
-        scale *= IPOPT_FACTOR
-    return low * scale, high * scale
 
 
 def estimate(campaign: Campaign, chunk_size: int) -> Estimate:

@@ -6,10 +6,18 @@ chunk, or a worker that dies, is retried (``max_attempts`` runs in all); if the 
 its episodes are run one by one (with the same retries), so a failing episode cannot take its
 chunk-mates with it and the result does not depend on the chunk size; an episode that still fails
 becomes a row with ``outcome = "error"`` and its ``error_message``.
+
+Order: cells differ up to about 8x in cost per episode, so on many workers the last few dear chunks
+decide the wall time. The scheduler therefore starts the dearest work first (by
+:func:`mcverify.campaign.episode_cost.typical_seconds`) and, with more than one worker, runs a chunk
+dearer than a share of the run as several tasks (:func:`plan_tasks`). Neither changes a result:
+every episode is a function of (campaign, seed, episode id) alone, and a chunk's rows are handed on
+whole, in episode order, once all its tasks are in.
 """
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
 from collections import deque
 from collections.abc import Callable, Iterable, Sequence
@@ -17,6 +25,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from mcverify import provenance
+from mcverify.campaign.episode_cost import typical_seconds
 from mcverify.campaign.spec import Campaign
 from mcverify.campaign.work import EpisodeDone, EpisodeFn, ExecutorError, Outcome, Work, run_work, simulate
 from mcverify.episode.recording import EpisodeRecording
@@ -26,6 +35,9 @@ from mcverify.store import Chunk
 
 #: Runs of one task (a chunk, or one episode of a split chunk) before it counts as failed.
 MAX_ATTEMPTS = 2
+#: With more than one worker, no task is planned dearer than the run's estimated cost over
+#: (workers x TASKS_PER_WORKER): a few tasks per worker, so the dearest ones cannot make a long tail.
+TASKS_PER_WORKER = 3
 
 
 @dataclass(frozen=True)
@@ -49,19 +61,63 @@ class _Task:
     attempt: int = 1
 
 
+def plan_tasks(
+    chunks: Sequence[Chunk], seconds_per_episode: Sequence[float], workers: int
+) -> list[tuple[Chunk, tuple[int, ...]]]:
+    """The tasks that run ``chunks`` on ``workers``: (chunk, its episode ids). One worker runs the
+    chunks whole in the plan's order (its wall time is the sum whatever the order); more start the
+    dearest tasks first.
+
+    seconds_per_episode: an estimate per cell index. With more than one worker, a chunk estimated
+    dearer than a share of the run (its total over ``workers`` x :data:`TASKS_PER_WORKER`) is split
+    into near-equal runs of consecutive episodes, each within the share (or of one episode). Tasks
+    of equal cost keep the plan's order, so a cell's episodes still start in order (sequential
+    stopping reads them so)."""
+    if workers <= 1:
+        return [(c, c.episode_ids) for c in chunks]
+    share = sum(seconds_per_episode[c.cell_index] * len(c.episode_ids) for c in chunks) / (workers * TASKS_PER_WORKER)
+    tasks: list[tuple[float, Chunk, tuple[int, ...]]] = []
+    for chunk in chunks:
+        ids, each = chunk.episode_ids, seconds_per_episode[chunk.cell_index]
+        size = len(ids) if each * len(ids) <= share else max(1, math.floor(share / each))
+        parts = math.ceil(len(ids) / size)
+        bounds = [round(i * len(ids) / parts) for i in range(parts + 1)]
+        for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
+            tasks.append((each * (hi - lo), chunk, ids[lo:hi]))
+    tasks.sort(key=lambda t: -t[0])  # stable: equal costs keep the plan's order
+    return [(chunk, ids) for _, chunk, ids in tasks]
+
+
 class _Scheduler:
     """Which task runs next, retries, splitting of failed chunks, and assembly of chunk results."""
 
-    def __init__(self, campaign: Campaign, chunks: Sequence[Chunk], max_attempts: int) -> None:
+    def __init__(self, campaign: Campaign, chunks: Sequence[Chunk], max_attempts: int, workers: int = 1) -> None:
         self.campaign = campaign
         self.max_attempts = max_attempts
-        self.queue: deque[_Task] = deque(_Task(c, c.episode_ids) for c in chunks)
+        costs = [typical_seconds(cell) for cell in campaign.cells]
+        planned = plan_tasks(chunks, costs, workers)
+        self.queue: deque[_Task] = deque(_Task(c, ids) for c, ids in planned)
+        self.pieces: dict[str, int] = {}  # tasks a chunk was planned as (absent: one)
+        for c, _ in planned:
+            self.pieces[c.name] = self.pieces.get(c.name, 0) + 1
+        self.started: set[str] = set()  # chunks with a task submitted
         self.runs: dict[str, int] = {}
         self.partial: dict[str, dict[int, Row]] = {}  # split chunks: cell-local id -> row
         self.partial_recordings: dict[str, dict[int, EpisodeRecording]] = {}
 
-    def next(self) -> _Task | None:
-        return self.queue.popleft() if self.queue else None
+    def next(self, skip: Callable[[Chunk], bool] | None = None) -> _Task | None:
+        """The next task to submit; ``skip`` is asked once per chunk, before its first task, and a
+        chunk it accepts is dropped with all its tasks."""
+        while self.queue:
+            task = self.queue.popleft()
+            name = task.chunk.name
+            if name not in self.started:
+                if skip is not None and skip(task.chunk):
+                    self.queue = deque(t for t in self.queue if t.chunk.name != name)
+                    continue
+                self.started.add(name)
+            return task
+        return None
 
     def finish(self, task: _Task, outcome: Outcome) -> list[tuple[Chunk, ChunkOutput]]:
         chunk = task.chunk
@@ -100,7 +156,9 @@ class _Scheduler:
 
     def _output(self, chunk: Chunk, rows: list[Row], recordings: dict[int, EpisodeRecording]):
         rows = sorted(rows, key=lambda r: int(r["cell_episode"]))
-        return chunk, ChunkOutput(rows, dict(recordings), self.runs.pop(chunk.name, 1))
+        # a chunk planned as several tasks that each ran once took one attempt
+        attempts = self.runs.pop(chunk.name, 1) - self.pieces.get(chunk.name, 1) + 1
+        return chunk, ChunkOutput(rows, dict(recordings), attempts)
 
 
 def execute(
@@ -132,7 +190,7 @@ def execute(
     wanted: dict[int, set[int]] = {}
     for cell_index, episode in record:
         wanted.setdefault(cell_index, set()).add(episode)
-    scheduler = _Scheduler(campaign, chunks, max_attempts)
+    scheduler = _Scheduler(campaign, chunks, max_attempts, executor.capacity)
     driver_code = provenance.code_version()
     inflight: dict[Any, _Task] = {}
     if on_episode is not None:
@@ -157,12 +215,9 @@ def _loop(
     """The body of :func:`execute`: keep the executor full, hand finished chunks on."""
     while True:
         while len(inflight) < executor.capacity:
-            task = scheduler.next()
+            task = scheduler.next(skip)
             if task is None:
                 break
-            if skip is not None and task.attempt == 1 and task.episode_ids == task.chunk.episode_ids \
-                    and skip(task.chunk):
-                continue
             rec = tuple(sorted(wanted.get(task.chunk.cell_index, set()) & set(task.episode_ids)))
             work = Work(
                 campaign.cells[task.chunk.cell_index], task.episode_ids, campaign.seed,
