@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import statistics
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
@@ -39,17 +38,18 @@ from mcverify.control import lane_keeping
 from mcverify.control.decision import Source
 from mcverify.control.planner import EpisodeState, Planner, StepRecord, both_certified_infeasible
 from mcverify.episode import stop
+from mcverify.episode.draws import SCENARIO_STREAM, episode_key, noise_branches, sample_scenario, truncated_normal
 from mcverify.episode.recording import EpisodeRecording
 from mcverify.episode.row import EndState, Row, episode_row
 from mcverify.episode.snapshot import Branching, branch_key
-from mcverify.model import normal_masses
 from mcverify.sim.noise import NoiseTilt
 from mcverify.sim.plant import LaneGroups, SafetyTrace, Substep, footprint_top_y_m, initial_plant
 
+__all__ = ["PLAN_SNAPSHOT_PERIOD_S", "SCENARIO_STREAM", "SETTLING_CAUSE", "UNSAFE_CAUSES", "ChunkResult", "PhaseClock",
+           "episode_key", "noise_branches", "run_episodes", "sample_scenario", "truncated_normal"]
+
 Array = jax.Array
 
-#: fold_in stream of the per-episode scenario draws, apart from the per-step noise streams.
-SCENARIO_STREAM = 1_000_000
 #: Planned trajectories of recorded episodes are kept every this many seconds (figures).
 PLAN_SNAPSHOT_PERIOD_S = 0.5
 
@@ -82,78 +82,6 @@ class PhaseClock:
 @contextmanager
 def _untimed(name: str) -> Iterator[None]:
     yield
-
-
-# --------------------------------------------------------------------------------------- keys
-
-
-def episode_key(seed: int, cell_index: int | None, episode_id: int, key_seed: int = -1) -> Array:
-    """The root key of one episode: (seed, cell, episode id), or (seed, episode id) for common
-    random numbers across cells (paired comparisons); with ``key_seed`` >= 0 (``noise.key_seed``)
-    (key_seed, episode id) whatever the campaign seed and cell."""
-    if key_seed >= 0:
-        return jax.random.fold_in(jax.random.PRNGKey(key_seed), episode_id)
-    key = jax.random.PRNGKey(seed)
-    if cell_index is not None:
-        key = jax.random.fold_in(key, cell_index)
-    return jax.random.fold_in(key, episode_id)
-
-
-def noise_branches(params) -> dict[int, int]:
-    """``noise.branch_after_steps`` / ``noise.branch_ids`` as {control step: branch id}: after that
-    step the episode's noise comes from that branch of its root key (:func:`branch_key`)."""
-    n = params.noise
-    return {int(s): int(b) for s, b in zip(n.branch_after_steps, n.branch_ids, strict=True)}
-
-
-def sample_scenario(key: Array, params) -> dict[str, float]:
-    """Per-episode scenario values drawn from the episode key, each from its own stream.
-
-    alpha_f: ``scenario.front_accel_range_mps2`` = (lo, hi) draws it uniformly in (lo, hi] (the
-    paper's Table III ranges are left-open); otherwise the fixed ``front_accel_mps2``. veh_o's speed,
-    spawn gap and spawn delay likewise from ``opposing.speed_range_mps``, ``opposing.spawn_gap_range_m``
-    and ``opposing.spawn_delay_range_s`` (NaN where they do not apply: no veh_o, or no spawn gap or
-    delay with ``spawn = "start"``).
-    """
-    sc, o = params.scenario, params.opposing
-    has_opp = o.kind != "none"
-    at_entry = o.appears_at_lane_entry
-    return {
-        "front_accel_mps2": _draw(key, 0, sc.front_accel_range_mps2, sc.front_accel_mps2),
-        "opp_speed_mps": _draw(key, 1, o.speed_range_mps, o.speed_mps) if has_opp else math.nan,
-        "opp_spawn_gap_m": _draw(key, 2, o.spawn_gap_range_m, o.spawn_gap_m) if at_entry else math.nan,
-        "opp_spawn_delay_s": (_draw(key, 3, o.spawn_delay_range_s, o.spawn_delay_s, sd=o.spawn_delay_sd_s)
-                              if at_entry else math.nan),
-    }
-
-
-def _draw(key: Array, stream: int, rng: Sequence[float], fixed: float, *, sd: float = 0.0) -> float:
-    """Uniform in (lo, hi] of ``rng`` from scenario stream ``stream`` of ``key``; ``fixed`` without a range.
-    With ``sd`` > 0: a normal of mean ``fixed`` and standard deviation ``sd`` truncated to the range
-    (:func:`truncated_normal`), from the same unit draw."""
-    if not rng:
-        return float(fixed)
-    lo, hi = rng
-    unit = float(jax.random.uniform(jax.random.fold_in(key, SCENARIO_STREAM + stream), (), dtype=float))  # [0, 1)
-    if sd > 0:
-        return truncated_normal(1.0 - unit, float(fixed), float(sd), float(lo), float(hi))
-    return float(hi - (hi - lo) * unit)
-
-
-def truncated_normal(u: float, mean: float, sd: float, lo: float, hi: float) -> float:
-    """The ``u``-quantile (0 < u <= 1) of a normal (``mean``, ``sd``) truncated to [lo, hi], by inverting its
-    distribution function. The upper tail is inverted through the survival function, so a value 4-8 sd
-    above the mean keeps its precision (where a rare event of the scenario lives)."""
-    norm = statistics.NormalDist(mean, sd)
-    below, mass, above = normal_masses(mean, sd, lo, hi)
-    tail = (1.0 - u) * mass  # the probability above the value, within the range
-    if tail + above <= 0.0:  # u = 1 (or a range beyond the normal's double precision): the top
-        return hi
-    if tail + above < 0.5:  # upper half: invert the survival function (by symmetry)
-        x = 2.0 * mean - norm.inv_cdf(tail + above)
-    else:
-        x = norm.inv_cdf(min(max(below + u * mass, 1e-300), 1.0 - 1e-16))
-    return min(max(x, lo), hi)
 
 
 def _spawn_opposing(world: LaneGroups, states: list[EpisodeState], samples: list[dict[str, float]],

@@ -44,24 +44,17 @@ from mcverify.campaign.executors import Executor
 from mcverify.campaign.spec import Campaign
 from mcverify.cell import Cell
 from mcverify.control.planner import Planner
+from mcverify.draws import DRAW_REGISTRY, DRAWS
 from mcverify.episode.rollout import ChunkResult, run_episodes
 from mcverify.errors import RunError
 from mcverify.estimate import evaluations, folder, importance, splitting
-from mcverify.estimate.closed_loop import H_EF_SCORES, SCORES, gap_score, h_ef_score
+from mcverify.estimate.closed_loop import gap_score, h_ef_score
 from mcverify.estimate.evaluations import EvaluationCache
 from mcverify.estimate.folder import num
 from mcverify.reporting.run_figures import FigureResult
+from mcverify.requirements import H_EF_SCORES, SCORE_REGISTRY, SCORED_TARGETS, SCORES, default_score
 from mcverify.sim import noise
 from mcverify.sim.noise import NoiseTilt
-
-#: Scenario key of :func:`mcverify.episode.rollout.sample_scenario` -> how to read its range from a cell.
-RANGES: dict[str, Callable] = {
-    "front_accel_mps2": lambda p: p.scenario.front_accel_range_mps2,
-    "opp_speed_mps": lambda p: p.opposing.speed_range_mps if p.opposing.kind != "none" else (),
-    "opp_spawn_gap_m": lambda p: p.opposing.spawn_gap_range_m if p.opposing.appears_at_lane_entry else (),
-    "opp_spawn_delay_s": lambda p: p.opposing.spawn_delay_range_s if p.opposing.appears_at_lane_entry else (),
-}
-
 
 #: Episodes simulated together (one lane group of the plant).
 BATCH = 8
@@ -127,10 +120,10 @@ def tilt_text(tilt: NoiseTilt) -> str:
 def scenario_bounds(cell: Cell) -> dict[str, tuple[float, float]]:
     """The cell's scenario parameters that are drawn from a range, with the range."""
     out = {}
-    for key, read in RANGES.items():
-        rng = read(cell.params)
+    for draw in DRAWS:
+        rng = draw.range_of(cell.params)
         if rng:
-            out[key] = (float(rng[0]), float(rng[1]))
+            out[draw.name] = (float(rng[0]), float(rng[1]))
     return out
 
 
@@ -152,12 +145,12 @@ def crude_comparison(est: importance.ISEstimate, rows: Sequence[dict[str, Any]],
 
 def scenario_nominal(cell: Cell) -> importance.Nominal:
     """The nominal distribution of the cell's drawn scenario parameters (:func:`scenario_bounds`), as
-    :func:`mcverify.episode.rollout.sample_scenario` draws them: uniform on each range, but veh_o's spawn
-    delay a truncated normal where ``opposing.spawn_delay_sd_s`` > 0."""
+    :func:`mcverify.episode.draws.sample_scenario` draws them: uniform on each range, but a truncated normal
+    where the draw's standard deviation is > 0 (veh_o's spawn delay with ``opposing.spawn_delay_sd_s`` > 0)."""
     bounds = scenario_bounds(cell)
-    o = cell.params.opposing
-    normals = [(float(o.spawn_delay_s), float(o.spawn_delay_sd_s))
-               if key == "opp_spawn_delay_s" and o.spawn_delay_sd_s > 0 else None for key in bounds]
+    p = cell.params
+    normals = [(DRAW_REGISTRY[key].fixed(p), DRAW_REGISTRY[key].sd(p)) if DRAW_REGISTRY[key].sd(p) > 0 else None
+               for key in bounds]
     return importance.Nominal.of(list(bounds.values()), normals)
 
 
@@ -286,9 +279,10 @@ class ClosedLoopScore:
     def _score(self, row: dict) -> float:
         if row.get("outcome") == "error":
             return -math.inf  # an episode that could not be simulated never counts as the event
-        score = self.score or ("gap" if self.target == "collision" else "h_ef")
+        score = self.score or default_score(self.target)
         if score in H_EF_SCORES:  # h_ef_run from the longest run: the row has no per-step runs
-            unsolved = row.get("both_infeasible_longest_run" if score == "h_ef_run" else "both_infeasible_steps")
+            run = SCORE_REGISTRY[score].unsolved == "run"
+            unsolved = row.get("both_infeasible_longest_run" if run else "both_infeasible_steps")
             return h_ef_score(score, row["min_h_front"], unsolved or 0)
         gaps = [float(row.get(k, math.nan)) for k in ("min_gap_front_m", "min_gap_opp_any_m")]
         collided = bool(row.get("collision_front")) or bool(row.get("collision_opp"))
@@ -318,8 +312,8 @@ class ImportanceSpec:
     noise_tilt: dict[str, Any] | None = None
 
     def __post_init__(self) -> None:
-        if self.target not in ("collision", "ellipse"):
-            raise ValueError("importance sampling estimates --target collision or ellipse")
+        if self.target not in SCORED_TARGETS:
+            raise ValueError(f"importance sampling estimates --target {' or '.join(SCORED_TARGETS)}")
         if self.score is not None and SCORES.get(self.score) != self.target:
             fitting = ", ".join(k for k, v in SCORES.items() if v == self.target)
             raise ValueError(f"--score {self.score} does not steer towards --target {self.target} "

@@ -38,6 +38,96 @@ def step_key(episode_key: Array, step_index: ArrayLike, stream: ArrayLike) -> Ar
     return jax.random.fold_in(jax.random.fold_in(episode_key, stream), step_index)
 
 
+class NoiseBounds(NamedTuple):
+    """The paper's noise bounds (Sec. VI-A) as runtime numbers of :func:`measure`: position half-widths
+    beyond and within ``near_threshold_m`` of footprint gap (m), the speed half-width relative to the true
+    speed, and ``scale`` on all three (0 for the kind "none": the true values)."""
+
+    pos_far_m: ArrayLike
+    pos_near_m: ArrayLike
+    near_threshold_m: ArrayLike
+    speed_rel: ArrayLike
+    scale: ArrayLike
+
+    @classmethod
+    def of(cls, noise: Noise) -> NoiseBounds:
+        return cls(noise.pos_far_m, noise.pos_near_m, noise.near_threshold_m, noise.speed_rel,
+                   noise.scale if noise.kind == "paper" else 0.0)
+
+
+class Disturbance(NamedTuple):
+    """One vehicle's structured disturbance of its measured x and speed (:class:`~mcverify.model.Noise`):
+    ``bias_drift`` (4,) [x bias, x drift (1/s), v bias, v drift (1/s)]; ``segments`` (2, MAX_SEGMENTS) the
+    piecewise-constant offsets of [x, speed], zero padded (one array shape, one compiled plant, whatever
+    the number K of segments); ``segment_counts`` (2,) the K of each (0: none)."""
+
+    bias_drift: ArrayLike
+    segments: ArrayLike
+    segment_counts: ArrayLike
+
+    def offsets(self, t_s: ArrayLike, episode_s: ArrayLike) -> tuple[Array, Array]:
+        """s(t) for x and speed at episode time ``t_s`` (:func:`structured_offsets`)."""
+        return structured_offsets(self.bias_drift, t_s, self.segments, self.segment_counts, episode_s)
+
+
+class LateralDisturbance(NamedTuple):
+    """veh_f's structured lateral disturbance: ``bias_drift`` (2,) [y bias, y drift (1/s)], ``segments``
+    (MAX_SEGMENTS,) time offsets and ``gap_segments`` (MAX_SEGMENTS,) offsets by footprint gap band, zero
+    padded, with their counts, and ``gap_window_m`` (m) the gap the bands divide."""
+
+    bias_drift: ArrayLike
+    segments: ArrayLike
+    segment_count: ArrayLike
+    gap_segments: ArrayLike
+    gap_segment_count: ArrayLike
+    gap_window_m: ArrayLike
+
+    def offset(self, t_s: ArrayLike, gap_m: ArrayLike, episode_s: ArrayLike) -> Array:
+        """s_y at episode time ``t_s`` and veh_f's true footprint gap ``gap_m`` (:func:`lateral_offset`)."""
+        return lateral_offset(self.bias_drift, t_s, gap_m, self.segments, self.segment_count, self.gap_segments,
+                              self.gap_segment_count, self.gap_window_m, episode_s)
+
+
+class NoiseParams(NamedTuple):
+    """The noise model of :class:`~mcverify.model.Noise` as one pytree of runtime numbers (traced, not
+    compiled in: one compiled plant serves every noise of a campaign): the bounds, the share of the x
+    and speed errors taken by each vehicle's structured disturbance, veh_f's lateral share and
+    disturbance, and the episode duration ``episode_s`` (s) that the time segments divide."""
+
+    bounds: NoiseBounds
+    share: ArrayLike
+    front: Disturbance
+    opp: Disturbance
+    lateral_share: ArrayLike
+    lateral: LateralDisturbance
+    episode_s: ArrayLike
+
+    @classmethod
+    def of(cls, noise: Noise, episode_s: float) -> NoiseParams:
+        """The runtime numbers of ``noise`` (float arrays) for episodes of ``episode_s`` seconds."""
+        f = lambda v: jnp.asarray(v, dtype=float)  # noqa: E731
+
+        def vehicle(x_bias, x_drift, v_bias, v_drift, x_segments, v_segments) -> Disturbance:
+            return Disturbance(f([x_bias, x_drift, v_bias, v_drift]),
+                               f([_pad_segments(x_segments), _pad_segments(v_segments)]),
+                               f([float(len(x_segments)), float(len(v_segments))]))
+
+        n = noise
+        return cls(
+            bounds=NoiseBounds(*(f(v) for v in NoiseBounds.of(n))),
+            share=f(n.structured_share),
+            front=vehicle(n.front_x_bias, n.front_x_drift_per_s, n.front_v_bias, n.front_v_drift_per_s,
+                          n.front_x_segments, n.front_v_segments),
+            opp=vehicle(n.opp_x_bias, n.opp_x_drift_per_s, n.opp_v_bias, n.opp_v_drift_per_s,
+                        n.opp_x_segments, n.opp_v_segments),
+            lateral_share=f(n.lateral_share),
+            lateral=LateralDisturbance(f([n.front_y_bias, n.front_y_drift_per_s]), f(_pad_segments(n.front_y_segments)),
+                                       f(float(len(n.front_y_segments))), f(_pad_segments(n.front_y_gap_segments)),
+                                       f(float(len(n.front_y_gap_segments))), f(n.front_y_gap_window_m)),
+            episode_s=f(episode_s),
+        )
+
+
 def measure_vehicle(
     key: Array,
     true_x_m: ArrayLike,
@@ -69,59 +159,12 @@ def measure_vehicle(
     if noise.kind == "none":
         x, y, v = (jnp.asarray(a, dtype=float) for a in (true_x_m, true_y_m, true_speed_mps))
         return x, y, v
-    return measure(key, true_x_m, true_y_m, true_speed_mps, gap_m, **noise_arrays(noise))
-
-
-def noise_arrays(noise: Noise) -> dict[str, float]:
-    """The noise model as runtime numbers for :func:`measure` ("none" is scale 0)."""
-    return {
-        "pos_far_m": noise.pos_far_m,
-        "pos_near_m": noise.pos_near_m,
-        "near_threshold_m": noise.near_threshold_m,
-        "speed_rel": noise.speed_rel,
-        "scale": noise.scale if noise.kind == "paper" else 0.0,
-    }
-
-
-def disturbance_arrays(noise: Noise) -> dict[str, list[float]]:
-    """The structured disturbance per vehicle as [x bias, x drift (1/s), v bias, v drift (1/s)]."""
-    return {
-        "front": [noise.front_x_bias, noise.front_x_drift_per_s, noise.front_v_bias, noise.front_v_drift_per_s],
-        "opp": [noise.opp_x_bias, noise.opp_x_drift_per_s, noise.opp_v_bias, noise.opp_v_drift_per_s],
-    }
+    return measure(key, true_x_m, true_y_m, true_speed_mps, gap_m, NoiseBounds.of(noise))
 
 
 def _pad_segments(values: tuple[float, ...]) -> list[float]:
     """Segment values zero padded to MAX_SEGMENTS (one array shape, one compiled plant)."""
     return [*values, *([0.0] * (MAX_SEGMENTS - len(values)))]
-
-
-def segment_arrays(noise: Noise) -> dict[str, tuple[list[list[float]], list[float]]]:
-    """The piecewise-constant offsets per vehicle: (values (2, MAX_SEGMENTS) for [x, speed], zero
-    padded; counts (2,) the number K of segments of each, 0 for none). Padding keeps one array shape
-    (one compiled plant) whatever K."""
-
-    return {
-        "front": ([_pad_segments(noise.front_x_segments), _pad_segments(noise.front_v_segments)],
-                  [float(len(noise.front_x_segments)), float(len(noise.front_v_segments))]),
-        "opp": ([_pad_segments(noise.opp_x_segments), _pad_segments(noise.opp_v_segments)],
-                [float(len(noise.opp_x_segments)), float(len(noise.opp_v_segments))]),
-    }
-
-
-def lateral_arrays(noise: Noise) -> dict[str, list[float]]:
-    """veh_f's structured lateral disturbance as runtime numbers: ``disturbance`` [y bias, y drift (1/s)],
-    ``segments`` (MAX_SEGMENTS,) time offsets and ``gap_segments`` (MAX_SEGMENTS,) gap offsets, zero
-    padded, with their counts, and ``gap_window_m`` (m); :attr:`~mcverify.model.Noise.lateral_share`."""
-
-    return {
-        "disturbance": [noise.front_y_bias, noise.front_y_drift_per_s],
-        "segments": _pad_segments(noise.front_y_segments),
-        "segment_count": float(len(noise.front_y_segments)),
-        "gap_segments": _pad_segments(noise.front_y_gap_segments),
-        "gap_segment_count": float(len(noise.front_y_gap_segments)),
-        "gap_window_m": noise.front_y_gap_window_m,
-    }
 
 
 def gap_segment_offset(values: ArrayLike, count: ArrayLike, gap_m: ArrayLike, window_m: ArrayLike) -> Array:
@@ -144,7 +187,7 @@ def lateral_offset(
     episode_s: ArrayLike,
 ) -> Array:
     """s_y for veh_f's measured y: ``clip(bias + drift * t + offset(t) + gap_offset(gap), -1, 1)``.
-    disturbance (2,) [bias, drift (1/s)] as in :func:`lateral_arrays`; t_s, episode_s (s); gap_m: veh_f's
+    disturbance (2,) [bias, drift (1/s)] as in :class:`LateralDisturbance`; t_s, episode_s (s); gap_m: veh_f's
     true footprint gap (m); the time offsets as :func:`segment_offset`, the gap offsets as
     :func:`gap_segment_offset`."""
     d = jnp.asarray(disturbance, dtype=float)
@@ -169,8 +212,8 @@ def structured_offsets(
     episode_s: ArrayLike = 1.0,
 ) -> tuple[Array, Array]:
     """s(t) for x and speed: ``clip(bias + drift * t + offset(t), -1, 1)``; disturbance (4,) as in
-    :func:`disturbance_arrays`, t_s the episode time (s); segments (2, MAX_SEGMENTS) and counts (2,)
-    as in :func:`segment_arrays` over the episode duration ``episode_s`` (s), or None for none.
+    :class:`Disturbance`, t_s the episode time (s); segments (2, MAX_SEGMENTS) and counts (2,)
+    as there over the episode duration ``episode_s`` (s), or None for none.
     Without segments (count 0) the sum is not formed at all, so s(t) is bit for bit the old one."""
     d = jnp.asarray(disturbance, dtype=float)
     raw = [d[0] + d[1] * t_s, d[2] + d[3] * t_s]
@@ -191,12 +234,8 @@ def measure(
     true_y_m: ArrayLike,
     true_speed_mps: ArrayLike,
     gap_m: ArrayLike,
+    bounds: NoiseBounds,
     *,
-    pos_far_m: ArrayLike,
-    pos_near_m: ArrayLike,
-    near_threshold_m: ArrayLike,
-    speed_rel: ArrayLike,
-    scale: ArrayLike,
     share: ArrayLike = 0.0,
     x_offset: ArrayLike = 0.0,
     v_offset: ArrayLike = 0.0,
@@ -204,7 +243,8 @@ def measure(
     y_share: ArrayLike = 0.0,
     y_offset: ArrayLike = 0.0,
 ) -> tuple[Array, Array, Array]:
-    """The paper's noise model with every number a runtime argument (traced, not compiled in).
+    """The paper's noise model with every number a runtime argument (traced, not compiled in): the
+    half-widths of ``bounds``.
 
     Same draws as :func:`measure_vehicle` with kind "paper"; ``scale`` 0 returns the true values
     exactly (x + 0.0). One compiled plant then serves every noise level of a campaign.
@@ -220,8 +260,8 @@ def measure(
     v = jnp.asarray(true_speed_mps, dtype=float)
     if unit is None:
         unit = unit_draws(key)
-    pos_half_m = scale * jnp.where(gap_m > near_threshold_m, pos_far_m, pos_near_m)
-    speed_half_mps = scale * speed_rel * jnp.abs(v)
+    pos_half_m = bounds.scale * jnp.where(gap_m > bounds.near_threshold_m, bounds.pos_far_m, bounds.pos_near_m)
+    speed_half_mps = bounds.scale * bounds.speed_rel * jnp.abs(v)
     wx = (1.0 - share) * unit[0] + share * x_offset
     wv = (1.0 - share) * unit[2] + share * v_offset
     wy = (1.0 - y_share) * unit[1] + y_share * y_offset

@@ -69,34 +69,12 @@ class PlantParams(NamedTuple):
     decel_max_mps2: Array
     opp_accel_max_mps2: Array
     opp_brake_max_mps2: Array
-    pos_far_m: Array
-    pos_near_m: Array
-    near_threshold_m: Array
-    speed_rel: Array
-    noise_scale: Array
-    noise_share: Array
-    front_disturbance: Array
-    opp_disturbance: Array
-    front_segments: Array  # (2, MAX_SEGMENTS) piecewise-constant offsets of x and speed, zero padded
-    front_segment_counts: Array  # (2,) segments in use (0: none)
-    opp_segments: Array
-    opp_segment_counts: Array
-    episode_s: Array  # sim.max_time_s: the segments divide it
-    lateral_share: Array  # share of veh_f's y error taken by the lateral disturbance (0: none)
-    front_y_disturbance: Array  # (2,) [y bias, y drift (1/s)]
-    front_y_segments: Array  # (MAX_SEGMENTS,) time offsets of y, zero padded
-    front_y_segment_count: Array
-    front_y_gap_segments: Array  # (MAX_SEGMENTS,) offsets of y by veh_f's footprint gap band, zero padded
-    front_y_gap_segment_count: Array
-    front_y_gap_window_m: Array
+    noise: noise.NoiseParams  # the perception noise (bounds, structured disturbances)
 
 
 def plant_params(p: ModelParams) -> PlantParams:
     """The runtime numbers of a cell's plant."""
     o, road = p.opposing, p.road
-    nz = noise.noise_arrays(p.noise)
-    segments = noise.segment_arrays(p.noise)
-    lateral = noise.lateral_arrays(p.noise)
     f = lambda v: jnp.asarray(v, dtype=float)  # noqa: E731
     return PlantParams(
         control_period_s=f(p.sim.control_period_s),
@@ -120,26 +98,7 @@ def plant_params(p: ModelParams) -> PlantParams:
         decel_max_mps2=f(p.barrier.decel_max_mps2),
         opp_accel_max_mps2=f(o.accel_max_mps2),
         opp_brake_max_mps2=f(o.brake_max_mps2),
-        pos_far_m=f(nz["pos_far_m"]),
-        pos_near_m=f(nz["pos_near_m"]),
-        near_threshold_m=f(nz["near_threshold_m"]),
-        speed_rel=f(nz["speed_rel"]),
-        noise_scale=f(nz["scale"]),
-        noise_share=f(p.noise.structured_share),
-        front_disturbance=f(noise.disturbance_arrays(p.noise)["front"]),
-        opp_disturbance=f(noise.disturbance_arrays(p.noise)["opp"]),
-        front_segments=f(segments["front"][0]),
-        front_segment_counts=f(segments["front"][1]),
-        opp_segments=f(segments["opp"][0]),
-        opp_segment_counts=f(segments["opp"][1]),
-        episode_s=f(p.sim.max_time_s),
-        lateral_share=f(p.noise.lateral_share),
-        front_y_disturbance=f(lateral["disturbance"]),
-        front_y_segments=f(lateral["segments"]),
-        front_y_segment_count=f(lateral["segment_count"]),
-        front_y_gap_segments=f(lateral["gap_segments"]),
-        front_y_gap_segment_count=f(lateral["gap_segment_count"]),
-        front_y_gap_window_m=f(lateral["gap_window_m"]),
+        noise=noise.NoiseParams.of(p.noise, p.sim.max_time_s),
     )
 
 
@@ -262,30 +221,23 @@ def observe(plant: Plant, key: Array, step: Array, pp: PlantParams) -> tuple[Arr
     return _measure_front(plant, key, step, pp, c.gap_front_m), _measure_opp(plant, key, step, pp, c.gap_opp_m)
 
 
-def _noise_numbers(pp: PlantParams) -> dict[str, Array]:
-    return {"pos_far_m": pp.pos_far_m, "pos_near_m": pp.pos_near_m, "near_threshold_m": pp.near_threshold_m,
-            "speed_rel": pp.speed_rel, "scale": pp.noise_scale}
-
-
 def _measure_front(plant: Plant, key: Array, step: Array, pp: PlantParams, gap_m: Array,
                    unit: Array | None = None) -> Array:
     """veh_f measured (3,) [x, y, v], from the step's own draws or from ``unit`` (3,) (a noise tilt's)."""
-    fsx, fsv = noise.structured_offsets(pp.front_disturbance, plant.t_s, pp.front_segments, pp.front_segment_counts,
-                                        pp.episode_s)
-    fsy = noise.lateral_offset(pp.front_y_disturbance, plant.t_s, gap_m, pp.front_y_segments,
-                               pp.front_y_segment_count, pp.front_y_gap_segments, pp.front_y_gap_segment_count,
-                               pp.front_y_gap_window_m, pp.episode_s)
+    nz = pp.noise
+    fsx, fsv = nz.front.offsets(plant.t_s, nz.episode_s)
+    fsy = nz.lateral.offset(plant.t_s, gap_m, nz.episode_s)
     return jnp.stack(noise.measure(noise.step_key(key, step, STREAM_FRONT), plant.front[0], 0.0, plant.front[1],
-                                   gap_m, **_noise_numbers(pp), share=pp.noise_share, x_offset=fsx, v_offset=fsv,
-                                   unit=unit, y_share=pp.lateral_share, y_offset=fsy))
+                                   gap_m, nz.bounds, share=nz.share, x_offset=fsx, v_offset=fsv, unit=unit,
+                                   y_share=nz.lateral_share, y_offset=fsy))
 
 
 def _measure_opp(plant: Plant, key: Array, step: Array, pp: PlantParams, gap_m: Array) -> Array:
     """veh_o measured (2,) [x, v]."""
-    osx, osv = noise.structured_offsets(pp.opp_disturbance, plant.t_s, pp.opp_segments, pp.opp_segment_counts,
-                                        pp.episode_s)
+    nz = pp.noise
+    osx, osv = nz.opp.offsets(plant.t_s, nz.episode_s)
     ox, _, ov = noise.measure(noise.step_key(key, step, STREAM_OPP), plant.opp[0], pp.opp_lane_y_m, plant.opp[1],
-                              gap_m, **_noise_numbers(pp), share=pp.noise_share, x_offset=osx, v_offset=osv)
+                              gap_m, nz.bounds, share=nz.share, x_offset=osx, v_offset=osv)
     return jnp.stack([ox, ov])
 
 
@@ -304,8 +256,8 @@ def observe_tilted(plant: Plant, key: Array, step: Array, pp: PlantParams, tilt:
     theta, split_m, gap_max_m, band_steps, defensive, theta_max = (
         tilt[:9].reshape(3, 3), tilt[9], tilt[10], tilt[11], tilt[12], tilt[13])
     gap = c.gap_front_m
-    band = jnp.where(gap > split_m, 0, jnp.where(gap > pp.near_threshold_m, 1, 2))
-    tilted = (live & (pp.noise_scale > 0) & (gap <= gap_max_m) & (plant.tilt_counts[band] < band_steps))
+    band = jnp.where(gap > split_m, 0, jnp.where(gap > pp.noise.bounds.near_threshold_m, 1, 2))
+    tilted = (live & (pp.noise.bounds.scale > 0) & (gap <= gap_max_m) & (plant.tilt_counts[band] < band_steps))
     raw = noise.unit_draws(noise.step_key(key, step, STREAM_FRONT))
     # one draw per episode (not per step) picks the mixture's component
     nominal = jax.random.uniform(jax.random.fold_in(key, noise.STREAM_TILT), (), dtype=float) < defensive
