@@ -42,8 +42,8 @@ from mcverify.episode.draws import SCENARIO_STREAM, episode_key, noise_branches,
 from mcverify.episode.recording import EpisodeRecording
 from mcverify.episode.row import EndState, Row, episode_row
 from mcverify.episode.snapshot import Branching, branch_key
-from mcverify.sim.noise import NoiseTilt
 from mcverify.sim.plant import LaneGroups, SafetyTrace, Substep, footprint_top_y_m, initial_plant
+from mcverify.sim.tilt import NoiseTilt
 
 __all__ = ["PLAN_SNAPSHOT_PERIOD_S", "SCENARIO_STREAM", "SETTLING_CAUSE", "UNSAFE_CAUSES", "ChunkResult", "PhaseClock",
            "episode_key", "noise_branches", "run_episodes", "sample_scenario", "truncated_normal"]
@@ -142,7 +142,7 @@ def run_episodes(
     included), before the chunk ends; ``unsafe`` is what its row's ``safe`` will say, negated
     (progress bars; it changes nothing in the loop).
     noise_tilt: draw veh_f's y noise near veh_f from this proposal (importance sampling,
-    :class:`~mcverify.sim.noise.NoiseTilt`); each row then carries ``noise_log_lr``, the log likelihood
+    :class:`~mcverify.sim.tilt.NoiseTilt`); each row then carries ``noise_log_lr``, the log likelihood
     ratio (nominal over proposal) of its noise, and ``noise_tilt_sums`` (9) / ``noise_tilt_counts`` (3),
     the statistics a cross-entropy refit of the tilt needs. None: the nominal noise, and no such keys.
     """

@@ -6,7 +6,7 @@ The parameters are the cell's scenario draws that have a range: alpha_f
 (``opposing.spawn_gap_range_m``) and spawn delay (``opposing.spawn_delay_range_s``); each is uniform
 on its range under the campaign, which is the nominal distribution. The perception noise stays
 nominal (drawn from the episode key), unless a noise tilt is given (``--noise-tilt``,
-:class:`~mcverify.sim.noise.NoiseTilt`): then veh_f's lateral measurement noise at a few steps near
+:class:`~mcverify.sim.tilt.NoiseTilt`): then veh_f's lateral measurement noise at a few steps near
 veh_f is drawn from that fixed proposal, and each episode's weight carries its likelihood ratio
 (``noise_log_lr``) besides the scenario's. Every evaluation is one episode with the given values
 (``run_episodes(scenarios=...)``), run in batches of 8 lanes, in this process or, with an executor
@@ -53,8 +53,8 @@ from mcverify.estimate.evaluations import EvaluationCache
 from mcverify.estimate.folder import num
 from mcverify.reporting.run_figures import FigureResult
 from mcverify.requirements import H_EF_SCORES, SCORE_REGISTRY, SCORED_TARGETS, SCORES, default_score
-from mcverify.sim import noise
-from mcverify.sim.noise import NoiseTilt
+from mcverify.sim import tilt as tilt_mod
+from mcverify.sim.tilt import NoiseTilt
 
 #: Episodes simulated together (one lane group of the plant).
 BATCH = 8
@@ -111,8 +111,8 @@ def write_samples(out: Path, cell_index: int, names: Sequence[str], rows: Sequen
 
 def tilt_text(tilt: NoiseTilt) -> str:
     """The tilts per band and unit, e.g. "approach y -5, jump y +5" (zeros left out), and the window."""
-    parts = [f"{band} {unit} {t:+.2g}" for (band, unit), t in
-             zip(((b, u) for b in noise.TILT_BANDS for u in noise.TILT_UNITS), tilt.theta, strict=True) if t != 0.0]
+    pairs = ((b, u) for b in tilt_mod.TILT_BANDS for u in tilt_mod.TILT_UNITS)
+    parts = [f"{band} {unit} {t:+.2g}" for (band, unit), t in zip(pairs, tilt.theta, strict=True) if t != 0.0]
     return (f"{', '.join(parts) or 'all tilts 0'}; gap window {tilt.gap_max_m:g} / {tilt.split_m:g} m, "
             f"{tilt.band_steps:g} steps per band, defensive {tilt.defensive:g}")
 
@@ -218,7 +218,7 @@ class ClosedLoopScore:
         rows = [r for r, e in zip(self._last_rows, elite, strict=True) if e]
         sums = np.array([r.get("noise_tilt_sums") or [0.0] * 9 for r in rows], dtype=float).reshape(-1, 9)
         counts = np.array([r.get("noise_tilt_counts") or [0.0] * 3 for r in rows], dtype=float).reshape(-1, 3)
-        self.noise_tilt = noise.refit_tilt(self.noise_tilt, sums, counts, weights)
+        self.noise_tilt = tilt_mod.refit_tilt(self.noise_tilt, sums, counts, weights)
         if self.progress:
             self.progress(f"    noise tilt {tilt_text(self.noise_tilt)}")
 
@@ -298,7 +298,7 @@ class ImportanceSpec:
     """target: collision or ellipse; samples: final draws from the defensive mixture; ce_samples:
     draws per cross-entropy iteration; rho: elite share; alpha: defensive (nominal) share; level;
     score: what steers the cross-entropy stages (None: ``gap`` for collision, ``h_ef`` for ellipse);
-    noise_tilt: the fields of the starting :class:`~mcverify.sim.noise.NoiseTilt` (None: the nominal
+    noise_tilt: the fields of the starting :class:`~mcverify.sim.tilt.NoiseTilt` (None: the nominal
     noise); the cross-entropy iterations refit its tilts."""
 
     target: str = "collision"

@@ -48,7 +48,7 @@ from mcverify.estimate import folder
 from mcverify.estimate.closed_loop import score_of
 from mcverify.estimate.importance import Proposal, log_defensive_weights
 from mcverify.estimate.importance_run import samples_file, scenario_nominal
-from mcverify.sim.noise import NoiseTilt
+from mcverify.sim.tilt import NoiseTilt
 
 
 def estimate_method(path: Path) -> str | None:

@@ -29,6 +29,7 @@ import numpy as np
 from mcverify import levels
 from mcverify.model import ModelParams
 from mcverify.sim import agents, barriers, geometry, noise, vehicles
+from mcverify.sim import tilt as tilt_mod
 
 Array = jax.Array
 
@@ -109,9 +110,9 @@ class Plant(NamedTuple):
     opp: (2,) [x_m, v_mps] on the opposing lane centre, v <= 0 (road frame);
     front_accel_mps2: () this episode's alpha_f; t_s: () time since the episode started;
     tilt_log_ratio: () the sum of log(tilted / nominal density) over the tilted steps so far (the
-    episode's likelihood ratio follows from it, :func:`~mcverify.sim.noise.episode_log_lr`); tilt_sums:
+    episode's likelihood ratio follows from it, :func:`~mcverify.sim.tilt.episode_log_lr`); tilt_sums:
     (9,) the sums of the tilted units per (band, unit), row-major; tilt_counts: (3,) the tilted steps per
-    band (all 0 unless a :class:`~mcverify.sim.noise.NoiseTilt` is in use).
+    band (all 0 unless a :class:`~mcverify.sim.tilt.NoiseTilt` is in use).
     """
 
     ego: Array
@@ -243,7 +244,7 @@ def _measure_opp(plant: Plant, key: Array, step: Array, pp: PlantParams, gap_m: 
 
 def observe_tilted(plant: Plant, key: Array, step: Array, pp: PlantParams, tilt: Array,
                    live: Array) -> tuple[Array, Array, Plant]:
-    """:func:`observe` with veh_f's noise drawn from a :class:`~mcverify.sim.noise.NoiseTilt` at the
+    """:func:`observe` with veh_f's noise drawn from a :class:`~mcverify.sim.tilt.NoiseTilt` at the
     tilted steps (importance sampling); returns the measurements and the plant with its likelihood
     ratio and tilt statistics updated.
 
@@ -260,8 +261,8 @@ def observe_tilted(plant: Plant, key: Array, step: Array, pp: PlantParams, tilt:
     tilted = (live & (pp.noise.bounds.scale > 0) & (gap <= gap_max_m) & (plant.tilt_counts[band] < band_steps))
     raw = noise.unit_draws(noise.step_key(key, step, STREAM_FRONT))
     # one draw per episode (not per step) picks the mixture's component
-    nominal = jax.random.uniform(jax.random.fold_in(key, noise.STREAM_TILT), (), dtype=float) < defensive
-    z, log_ratio = noise.tilted_units(raw, nominal, jnp.clip(theta[band], -theta_max, theta_max))
+    nominal = jax.random.uniform(jax.random.fold_in(key, tilt_mod.STREAM_TILT), (), dtype=float) < defensive
+    z, log_ratio = tilt_mod.tilted_units(raw, nominal, jnp.clip(theta[band], -theta_max, theta_max))
     front = _measure_front(plant, key, step, pp, gap, unit=jnp.where(tilted, z, raw))
     one_hot = (jnp.arange(3) == band) & tilted
     return front, _measure_opp(plant, key, step, pp, c.gap_opp_m), plant._replace(
@@ -385,7 +386,7 @@ class LaneGroups:
     Padding lanes repeat the last episode, are never active and are dropped from every output.
     """
 
-    def __init__(self, plant: Plant, keys: Array, params: ModelParams, tilt: noise.NoiseTilt | None = None) -> None:
+    def __init__(self, plant: Plant, keys: Array, params: ModelParams, tilt: tilt_mod.NoiseTilt | None = None) -> None:
         self.n = int(plant.t_s.shape[0])
         self.pp = plant_params(params)
         # a noise tilt (importance sampling) with an empty window is no tilt: the plain executable runs
@@ -433,7 +434,7 @@ class LaneGroups:
         if self.tilt is None:
             return np.zeros(self.n)
         ratio = self._gather([pl.tilt_log_ratio for pl in self.plants])
-        return np.asarray(noise.episode_log_lr(ratio, self.tilt[12]))
+        return np.asarray(tilt_mod.episode_log_lr(ratio, self.tilt[12]))
 
     def tilt_statistics(self) -> tuple[np.ndarray, np.ndarray]:
         """((n, 9) sums of the tilted units per (band, unit), (n, 3) tilted steps per band)."""

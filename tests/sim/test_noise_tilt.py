@@ -1,4 +1,4 @@
-"""The noise tilt for importance sampling (:class:`mcverify.sim.noise.NoiseTilt`): its draws follow
+"""The noise tilt for importance sampling (:class:`mcverify.sim.tilt.NoiseTilt`): its draws follow
 its density, its likelihood ratio is exact and bounded, and the plant draws every untilted step as
 the plain :func:`~mcverify.sim.plant.observe` does."""
 
@@ -11,15 +11,15 @@ import pytest
 from scipy import integrate, stats
 
 from mcverify.campaign.spec import campaign_from_dict
-from mcverify.sim import noise
 from mcverify.sim import plant as pl
+from mcverify.sim import tilt as tl
 
 
 @pytest.mark.parametrize("theta", [2.5, -1.5, 0.3, 6.0])
 def test_tilted_draws_follow_the_tilted_density(theta):
     """Kolmogorov-Smirnov of the inverse-CDF draws against the CDF of q_theta on [-1, 1]."""
     u = jax.random.uniform(jax.random.PRNGKey(7), (4000,), dtype=float, minval=-1.0, maxval=1.0)
-    z = np.asarray(noise.tilted_unit(u, theta))
+    z = np.asarray(tl.tilted_unit(u, theta))
     cdf = lambda x: (np.exp(theta * x) - np.exp(-theta)) / (np.exp(theta) - np.exp(-theta))  # noqa: E731
     assert stats.kstest(z, cdf).pvalue > 1e-3
     assert z.min() >= -1.0 and z.max() <= 1.0
@@ -27,10 +27,10 @@ def test_tilted_draws_follow_the_tilted_density(theta):
 
 def test_a_vanishing_tilt_is_the_uniform_itself():
     u = jnp.linspace(-1.0, 1.0, 11)
-    assert np.array_equal(np.asarray(noise.tilted_unit(u, 0.0)), np.asarray(u))
-    assert np.allclose(np.asarray(noise.tilt_density_ratio(u, 1e-9)), 1.0)
+    assert np.array_equal(np.asarray(tl.tilted_unit(u, 0.0)), np.asarray(u))
+    assert np.allclose(np.asarray(tl.tilt_density_ratio(u, 1e-9)), 1.0)
     # continuous through theta = 0 (the closed forms divide by theta)
-    assert np.allclose(np.asarray(noise.tilted_unit(u, 1e-4)), np.asarray(u), atol=1e-4)
+    assert np.allclose(np.asarray(tl.tilted_unit(u, 1e-4)), np.asarray(u), atol=1e-4)
 
 
 @pytest.mark.parametrize("theta", [4.0, -3.0])
@@ -38,24 +38,24 @@ def test_the_mixture_likelihood_ratio_reweights_to_the_nominal_probability(theta
     """One tilted step under the episode-level mixture: E_q[w 1{z > 0.9}] = P_nominal(z > 0.9) = 0.05
     exactly (quadrature over the mixture density), and no weight exceeds 1 / defensive."""
     defensive = 0.3
-    ratio = lambda z: float(noise.tilt_density_ratio(z, theta))  # noqa: E731
+    ratio = lambda z: float(tl.tilt_density_ratio(z, theta))  # noqa: E731
     mixture = lambda z: 0.5 * (defensive + (1 - defensive) * ratio(z))  # noqa: E731
-    weight = lambda z: float(np.exp(noise.episode_log_lr(np.log(ratio(z)), defensive)))  # noqa: E731
+    weight = lambda z: float(np.exp(tl.episode_log_lr(np.log(ratio(z)), defensive)))  # noqa: E731
     value, _ = integrate.quad(lambda z: mixture(z) * weight(z), 0.9, 1.0)
     assert value == pytest.approx(0.05, rel=1e-9)
     total, _ = integrate.quad(mixture, -1.0, 1.0)
     assert total == pytest.approx(1.0, rel=1e-9)
     log_ratios = jnp.linspace(-50.0, 50.0, 201)
-    assert float(jnp.max(noise.episode_log_lr(log_ratios, defensive))) <= -np.log(defensive) + 1e-12
+    assert float(jnp.max(tl.episode_log_lr(log_ratios, defensive))) <= -np.log(defensive) + 1e-12
 
 
 def _tilt(band_thetas: dict[int, tuple[float, float, float]], band_steps: float = 1e9,
-          defensive: float = 0.3) -> noise.NoiseTilt:
+          defensive: float = 0.3) -> tl.NoiseTilt:
     """Tilts per band (0 approach (3, 5] m, 1 jump (2, 3] m, 2 alongside)."""
     theta = np.zeros((3, 3))
     for band, values in band_thetas.items():
         theta[band] = values
-    return noise.NoiseTilt(theta=tuple(theta.ravel()), split_m=3.0, gap_max_m=5.0, band_steps=band_steps,
+    return tl.NoiseTilt(theta=tuple(theta.ravel()), split_m=3.0, gap_max_m=5.0, band_steps=band_steps,
                            defensive=defensive)
 
 
@@ -86,7 +86,7 @@ def test_the_plant_tilts_only_inside_the_window_and_counts_the_ratio():
         z = (np.asarray(front) - np.array([float(near.front[0]), 0.0, float(near.front[1])])) / half
         assert np.allclose(np.asarray(after.tilt_sums)[:3], z, atol=1e-9)
         assert np.asarray(after.tilt_counts).tolist() == [1.0, 0.0, 0.0]
-        expected = float(noise.tilt_log_density_ratio(jnp.asarray(z), jnp.asarray([1.0, -3.0, 2.0])))
+        expected = float(tl.tilt_log_density_ratio(jnp.asarray(z), jnp.asarray([1.0, -3.0, 2.0])))
         assert float(after.tilt_log_ratio) == pytest.approx(expected, abs=1e-9)
         # a stopped episode's draws are not counted
         _, _, frozen = pl.observe_tilted(near, key, s, pp, tilt.pack(), jnp.bool_(False))
@@ -122,4 +122,4 @@ def test_each_band_is_tilted_for_band_steps_steps_only():
     for step in range(3, 6):
         _, _, lane = pl.observe_tilted(lane, key, jnp.int32(step), pp, packed, jnp.bool_(True))
     assert np.asarray(lane.tilt_counts).tolist() == [2.0, 2.0, 0.0]
-    assert float(noise.episode_log_lr(lane.tilt_log_ratio, 0.3)) <= -np.log(0.3) + 1e-12
+    assert float(tl.episode_log_lr(lane.tilt_log_ratio, 0.3)) <= -np.log(0.3) + 1e-12
