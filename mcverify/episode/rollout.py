@@ -42,7 +42,8 @@ from mcverify.episode.draws import SCENARIO_STREAM, episode_key, noise_branches,
 from mcverify.episode.recording import EpisodeRecording
 from mcverify.episode.row import EndState, Row, episode_row
 from mcverify.episode.snapshot import Branching, branch_key
-from mcverify.sim.plant import LaneGroups, SafetyTrace, Substep, footprint_top_y_m, initial_plant
+from mcverify.sim.lanes import LaneGroups
+from mcverify.sim.plant import SafetyTrace, Substep, footprint_top_y_m, initial_plant
 from mcverify.sim.tilt import NoiseTilt
 
 __all__ = ["PLAN_SNAPSHOT_PERIOD_S", "SCENARIO_STREAM", "SETTLING_CAUSE", "UNSAFE_CAUSES", "ChunkResult", "PhaseClock",

@@ -20,6 +20,17 @@ TILT_BANDS: tuple[str, ...] = ("approach", "jump", "alongside")
 TILT_UNITS: tuple[str, ...] = ("x", "y", "v")
 
 
+class TiltParams(NamedTuple):
+    """A :class:`NoiseTilt` as the plant's runtime numbers: theta (bands, units) = (3, 3), the rest scalars."""
+
+    theta: Array
+    split_m: Array
+    gap_max_m: Array
+    band_steps: Array
+    defensive: Array
+    theta_max: Array
+
+
 class NoiseTilt(NamedTuple):
     """A proposal for veh_f's measurement noise near veh_f, for importance sampling
     (``mcverify estimate --method importance --noise-tilt``); never part of a campaign's model.
@@ -56,10 +67,11 @@ class NoiseTilt(NamedTuple):
     defensive: float = 0.3
     theta_max: float = 6.0
 
-    def pack(self) -> Array:
-        """(14,) the runtime numbers of :func:`mcverify.sim.plant.observe_tilted`."""
-        return jnp.asarray([*self.theta, self.split_m, self.gap_max_m, self.band_steps, self.defensive,
-                            self.theta_max], dtype=float)
+    def params(self) -> TiltParams:
+        """The runtime numbers of :func:`mcverify.sim.plant.observe_tilted` (float arrays)."""
+        f = lambda v: jnp.asarray(v, dtype=float)  # noqa: E731
+        return TiltParams(f(self.theta).reshape(len(TILT_BANDS), len(TILT_UNITS)), f(self.split_m), f(self.gap_max_m),
+                          f(self.band_steps), f(self.defensive), f(self.theta_max))
 
     def max_ratio(self) -> float:
         """The largest likelihood ratio an episode can carry: 1 / defensive."""

@@ -76,11 +76,11 @@ def test_the_plant_tilts_only_inside_the_window_and_counts_the_ratio():
     for step in range(20):
         s = jnp.int32(step)
         plain_front, plain_opp = pl.observe(far, key, s, pp)
-        front, opp, after = pl.observe_tilted(far, key, s, pp, tilt.pack(), jnp.bool_(True))
+        front, opp, after = pl.observe_tilted(far, key, s, pp, tilt.params(), jnp.bool_(True))
         # outside the window (gap 10 m > 5 m): the plain draws bit for bit, no ratio
         assert np.array_equal(np.asarray(front), np.asarray(plain_front)) and np.array_equal(opp, plain_opp)
         assert float(after.tilt_log_ratio) == 0.0 and not np.any(np.asarray(after.tilt_counts))
-        front, _, after = pl.observe_tilted(near, key, s, pp, tilt.pack(), jnp.bool_(True))
+        front, _, after = pl.observe_tilted(near, key, s, pp, tilt.params(), jnp.bool_(True))
         speed = float(near.front[1])
         half = p.noise.scale * np.array([p.noise.pos_far_m, p.noise.pos_far_m, p.noise.speed_rel * speed])
         z = (np.asarray(front) - np.array([float(near.front[0]), 0.0, float(near.front[1])])) / half
@@ -89,7 +89,7 @@ def test_the_plant_tilts_only_inside_the_window_and_counts_the_ratio():
         expected = float(tl.tilt_log_density_ratio(jnp.asarray(z), jnp.asarray([1.0, -3.0, 2.0])))
         assert float(after.tilt_log_ratio) == pytest.approx(expected, abs=1e-9)
         # a stopped episode's draws are not counted
-        _, _, frozen = pl.observe_tilted(near, key, s, pp, tilt.pack(), jnp.bool_(False))
+        _, _, frozen = pl.observe_tilted(near, key, s, pp, tilt.params(), jnp.bool_(False))
         assert float(frozen.tilt_log_ratio) == 0.0 and not np.any(np.asarray(frozen.tilt_counts))
 
 
@@ -98,9 +98,9 @@ def test_a_tilt_moves_the_draws_the_way_it_says():
     = -0.47 over episodes (70 % tilted, 30 % uniform)."""
     p, near = _lane(4.0)
     pp = pl.plant_params(p)
-    packed = _tilt({0: (0.0, -3.0, 0.0)}).pack()
+    numbers = _tilt({0: (0.0, -3.0, 0.0)}).params()
     keys = jax.vmap(lambda e: jax.random.fold_in(jax.random.PRNGKey(5), e))(jnp.arange(4000))
-    run = jax.jit(jax.vmap(lambda k: pl.observe_tilted(near, k, jnp.int32(7), pp, packed, jnp.bool_(True))[2]))
+    run = jax.jit(jax.vmap(lambda k: pl.observe_tilted(near, k, jnp.int32(7), pp, numbers, jnp.bool_(True))[2]))
     sums = np.asarray(run(keys).tilt_sums)
     assert sums[:, 1].mean() == pytest.approx(0.7 * (1 / np.tanh(-3.0) + 1 / 3.0), abs=0.03)
     assert abs(sums[:, 0].mean()) < 0.05 and abs(sums[:, 2].mean()) < 0.05  # untilted units stay uniform
@@ -110,16 +110,16 @@ def test_each_band_is_tilted_for_band_steps_steps_only():
     p, approach = _lane(4.0)
     _, jump = _lane(2.5)
     pp = pl.plant_params(p)
-    packed = _tilt({0: (0.0, -3.0, 0.0), 1: (0.0, 3.0, 0.0)}, band_steps=2).pack()
+    numbers = _tilt({0: (0.0, -3.0, 0.0), 1: (0.0, 3.0, 0.0)}, band_steps=2).params()
     key = jax.random.PRNGKey(21)
     lane = approach
     for step in range(3):
-        front, _, lane = pl.observe_tilted(lane, key, jnp.int32(step), pp, packed, jnp.bool_(True))
+        front, _, lane = pl.observe_tilted(lane, key, jnp.int32(step), pp, numbers, jnp.bool_(True))
     assert np.asarray(lane.tilt_counts).tolist() == [2.0, 0.0, 0.0]  # the third approach step drew plainly
     plain, _ = pl.observe(lane, key, jnp.int32(2), pp)
     assert np.array_equal(np.asarray(front), np.asarray(plain))
     lane = jump._replace(tilt_log_ratio=lane.tilt_log_ratio, tilt_sums=lane.tilt_sums, tilt_counts=lane.tilt_counts)
     for step in range(3, 6):
-        _, _, lane = pl.observe_tilted(lane, key, jnp.int32(step), pp, packed, jnp.bool_(True))
+        _, _, lane = pl.observe_tilted(lane, key, jnp.int32(step), pp, numbers, jnp.bool_(True))
     assert np.asarray(lane.tilt_counts).tolist() == [2.0, 2.0, 0.0]
     assert float(tl.episode_log_lr(lane.tilt_log_ratio, 0.3)) <= -np.log(0.3) + 1e-12
