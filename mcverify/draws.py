@@ -16,6 +16,7 @@ nor JAX.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -40,7 +41,8 @@ class Draw:
     (lo, hi) it is drawn from, uniformly in (lo, hi] (empty: the fixed value); fixed_field: the value
     without a range (and the mean of a normal draw); sd_field: a model field that, when > 0, makes the
     draw a normal of that standard deviation truncated to the range ("" never); applies: whether the
-    cell draws it at all (NaN otherwise)."""
+    cell draws it at all (NaN otherwise); lowest, highest: the bounds a valid range lies within
+    (lowest <= lo < hi <= highest), for validation."""
 
     name: str
     stream: int
@@ -49,6 +51,8 @@ class Draw:
     range_field: str
     fixed_field: str
     applies: Callable[[Any], bool]
+    lowest: Callable[[Any], float]
+    highest: Callable[[Any], float] = lambda p: math.inf
     sd_field: str = ""
 
     @property
@@ -78,15 +82,16 @@ def _at_lane_entry(p: Any) -> bool:
 #: Every draw, in the order of their streams and of the schema's columns.
 DRAWS: tuple[Draw, ...] = (
     Draw("front_accel_mps2", 0, "m/s^2", "the front vehicle's acceleration drawn for the episode",
-         "scenario.front_accel_range_mps2", "scenario.front_accel_mps2", lambda p: True),
+         "scenario.front_accel_range_mps2", "scenario.front_accel_mps2", lambda p: True, lambda p: 0.0),
     Draw("opp_speed_mps", 1, "m/s", "veh_o's speed drawn for the episode (NaN without veh_o)",
-         "opposing.speed_range_mps", "opposing.speed_mps", _has_opp),
+         "opposing.speed_range_mps", "opposing.speed_mps", _has_opp, lambda p: 0.0,
+         lambda p: p.opposing.speed_limit_mps),
     Draw("opp_spawn_gap_m", 2, "m", "x_o - x_e at which veh_o appears when the ego enters the opposing lane "
          "(opposing.spawn = lane_entry; NaN otherwise)", "opposing.spawn_gap_range_m", "opposing.spawn_gap_m",
-         _at_lane_entry),
+         _at_lane_entry, lambda p: p.geometry.length_m),
     Draw("opp_spawn_delay_s", 3, "s", "how long after the ego's lane entry veh_o appears "
          "(opposing.spawn = lane_entry; NaN otherwise)", "opposing.spawn_delay_range_s", "opposing.spawn_delay_s",
-         _at_lane_entry, sd_field="opposing.spawn_delay_sd_s"),
+         _at_lane_entry, lambda p: 0.0, sd_field="opposing.spawn_delay_sd_s"),
 )
 
 #: Every draw by name.

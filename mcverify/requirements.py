@@ -231,5 +231,10 @@ def target_help() -> str:
     return ", ".join(TARGETS)
 
 
+def score_help() -> str:
+    """Each score with its target and what it is, for ``mcverify estimate --score``."""
+    return "; ".join(f"{s.name} (target {s.target}): {s.help}" for s in _SCORES)
+
+
 def _spoken(names: tuple[str, ...]) -> str:
     return f"{', '.join(names[:-1])} or {names[-1]}" if len(names) > 1 else "".join(names)

@@ -5,10 +5,12 @@ from __future__ import annotations
 import math
 
 import jax
+import pytest
 
 from mcverify.campaign.spec import campaign_from_dict
 from mcverify.draws import DRAW_NAMES, DRAWS, SCENARIO_STREAM, field_value
 from mcverify.episode.draws import sample_scenario
+from mcverify.errors import CampaignError
 from mcverify.estimate import importance_run
 from mcverify.model import ModelParams
 from mcverify.schema import COLUMN_NAMES, column
@@ -64,3 +66,17 @@ def test_importance_sampling_reads_the_ranges_and_normals_of_the_registry():
 def test_the_schema_lists_the_draws_in_registry_order():
     sample_columns = [c for c in COLUMN_NAMES if c.startswith("sample_")]
     assert sample_columns == [d.column for d in DRAWS]
+
+
+@pytest.mark.parametrize("draw", DRAWS, ids=lambda d: d.name)
+def test_validation_refuses_a_range_beyond_the_registry_bounds_in_one_line(draw):
+    p = _params(LANE_ENTRY)
+    lo, hi = draw.lowest(p), draw.highest(p)
+    section, name = draw.range_field.split(".")
+    ok = [lo + 0.5, lo + 1.0] if math.isinf(hi) else [lo + 0.5 * (hi - lo), hi]
+    model = {**LANE_ENTRY, section: {**LANE_ENTRY[section], name: ok}}
+    assert _params(model) is not None  # within the bounds: accepted
+    for bad in ([lo - 1.0, lo + 1.0], [ok[0], hi + 1.0]) if not math.isinf(hi) else ([lo - 1.0, lo + 1.0],):
+        with pytest.raises(CampaignError, match=draw.range_field) as err:
+            _params({**LANE_ENTRY, section: {**LANE_ENTRY[section], name: bad}})
+        assert "\n" not in str(err.value)

@@ -75,3 +75,4 @@ def test_an_unknown_name_is_refused_with_the_known_ones():
     with pytest.raises(ValueError, match="unknown requirement 'nope'; known: collision_front, "):
         requirements.requirement("nope")
     assert requirements.requirement_help().endswith("theorem5_certified or safe")
+    assert all(f"{name} (target {target})" in requirements.score_help() for name, target in SCORES.items())

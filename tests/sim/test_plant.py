@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mcverify.episode.rollout import episode_key
+from mcverify.episode.draws import episode_key
 from mcverify.model import ModelParams
 from mcverify.sim import lanes, plant
 
