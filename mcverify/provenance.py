@@ -26,7 +26,7 @@ PACKAGE_DIR = Path(__file__).resolve().parent
 #: the model, the plant, the optimal-control problem, the solvers, the controller, the rollout and
 #: the run layer (cell expansion, error rows).
 SIMULATION_PARTS = (
-    "model.py", "levels.py", "cell.py", "schema.py",
+    "model.py", "levels.py", "cell.py", "schema.py", "requirements.py", "draws.py",
     "sim", "ocp", "solver", "control", "episode", "campaign", "estimate",
 )
 #: Parts that only read, present or measure stored rows; editing them never refuses a resume.

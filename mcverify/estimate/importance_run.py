@@ -334,7 +334,7 @@ class ImportanceSpec:
         """The starting noise tilt as the plant takes it, or None."""
         if self.noise_tilt is None:
             return None
-        return NoiseTilt(**{**self.noise_tilt, "theta": tuple(self.noise_tilt.get("theta", (0.0,) * 9))})
+        return NoiseTilt.from_dict(self.noise_tilt)
 
     def max_noise_ratio(self) -> float:
         """The largest likelihood ratio the tilt can give an episode (1 without a tilt)."""

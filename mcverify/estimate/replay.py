@@ -86,7 +86,7 @@ def replay_draw(est_dir: Path, episode_id: int, out_dir: Path | None = None,
         cell = campaign.cells[result["cell_index"]]
         scenario = {name: float(stored[f"sample_{name}"]) for name in result["parameters"]}
         tilt = result.get("noise_tilt")
-        noise_tilt = None if tilt is None else NoiseTilt(**{**tilt, "theta": tuple(tilt["theta"])})
+        noise_tilt = None if tilt is None else NoiseTilt.from_dict(tilt)
         log_weigh = _log_weights_of(cell, result, float(manifest["estimate"]["alpha"]))
     replayed = run_episodes(cell, [episode_id], campaign.seed, executors.solver_for(cell.params),
                             scenarios={episode_id: scenario}, record=True, noise_tilt=noise_tilt)

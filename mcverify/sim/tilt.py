@@ -4,7 +4,8 @@ campaign's model; the nominal noise is :mod:`mcverify.sim.noise`."""
 
 from __future__ import annotations
 
-from typing import NamedTuple, TypeAlias
+from collections.abc import Mapping
+from typing import Any, NamedTuple, TypeAlias
 
 import jax
 import jax.numpy as jnp
@@ -72,6 +73,11 @@ class NoiseTilt(NamedTuple):
         f = lambda v: jnp.asarray(v, dtype=float)  # noqa: E731
         return TiltParams(f(self.theta).reshape(len(TILT_BANDS), len(TILT_UNITS)), f(self.split_m), f(self.gap_max_m),
                           f(self.band_steps), f(self.defensive), f(self.theta_max))
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> NoiseTilt:
+        """The tilt of its stored form (``_asdict()`` as JSON: theta a list; a missing theta is all 0)."""
+        return cls(**{**data, "theta": tuple(data.get("theta", (0.0,) * 9))})
 
     def max_ratio(self) -> float:
         """The largest likelihood ratio an episode can carry: 1 / defensive."""
