@@ -6,7 +6,7 @@ and check it against what its folder kept.
 campaign seed, the cell, its id, its scenario values (the ``sample_*`` columns) and the noise tilt the
 final draws came from (``noise_tilt`` of the cell in ``estimate.json``, none when the noise stayed
 nominal), exactly as :func:`mcverify.estimate.importance_run.scenario_unit` ran it; every value the
-file kept (:data:`~mcverify.estimate.importance_run.SAMPLE_COLUMNS` and the scenario values) is
+file kept (:data:`~mcverify.estimate.importance_files.SAMPLE_COLUMNS` and the scenario values) is
 compared bit for bit, and so is its weight, recomputed from the fitted proposal (``proposal_a``,
 ``proposal_b``), the defensive share and the replayed noise ratio. The cross-entropy iterations'
 episodes are not kept.
@@ -47,7 +47,8 @@ from mcverify.errors import RunError, UserError
 from mcverify.estimate import folder
 from mcverify.estimate.closed_loop import score_of
 from mcverify.estimate.importance import Proposal, log_defensive_weights
-from mcverify.estimate.importance_run import samples_file, scenario_nominal
+from mcverify.estimate.importance_files import samples_file
+from mcverify.estimate.importance_run import scenario_nominal
 from mcverify.sim.tilt import NoiseTilt
 
 
