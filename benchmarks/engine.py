@@ -45,9 +45,11 @@ from mcverify.campaign.spec import apply_overrides, load_campaign
 from mcverify.cell import Cell
 from mcverify.cli.options import nonneg_int, positive_int
 from mcverify.control.planner import Planner
-from mcverify.episode.rollout import PhaseClock, episode_key, run_episodes
+from mcverify.episode.draws import episode_key
+from mcverify.episode.rollout import PhaseClock, run_episodes
 from mcverify.errors import UserError
-from mcverify.sim.plant import LaneGroups, initial_plant
+from mcverify.sim.lanes import LaneGroups
+from mcverify.sim.plant import initial_plant
 from mcverify.solver.mpc import MpcSolver
 
 DEFAULT_CAMPAIGN = "campaigns/table4_fixed_start.toml"

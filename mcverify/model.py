@@ -14,6 +14,8 @@ import math
 import statistics
 from dataclasses import asdict, dataclass, field
 
+from mcverify import requirements as _requirements
+
 
 @dataclass(frozen=True)
 class VehicleGeometry:
@@ -120,20 +122,10 @@ Q2_SOLVE_POLICIES = ("every_step", "fast_when_unneeded", "when_needed")
 MAX_SEGMENTS = 8
 #: Most noise branches of one episode (:attr:`Noise.branch_after_steps`).
 MAX_BRANCHES = 64
-#: The requirements of :mod:`mcverify.analysis.robustness` (kept here so the campaign and episode
-#: layers need not import the analysis layer; tests/falsify checks the lists agree). Each is also a
-#: valid :attr:`Simulation.stop_at`.
-REQUIREMENT_NAMES: tuple[str, ...] = (
-    "collision_front", "collision_opp", "ellipse", "invariance", "h_eo", "theorem5", "theorem5_certified", "safe",
-)
-#: What a falsification search may minimise instead of its requirement (``[falsify] guide``): any
-#: requirement, or a per-step requirement restricted to the sub-steps where the ego goes back
-#: ("<requirement>@go_back", :func:`mcverify.analysis.robustness.guide_value`), or one brought forward
-#: by the current run of steps with neither problem solved ("<requirement>@run",
-#: :func:`mcverify.analysis.robustness.running_robustness`).
-GUIDE_NAMES: tuple[str, ...] = REQUIREMENT_NAMES + tuple(
-    f"{name}{suffix}" for suffix in ("@go_back", "@run")
-    for name in ("collision_front", "collision_opp", "ellipse", "invariance", "safe"))
+#: The requirements (each also a valid :attr:`Simulation.stop_at`) and what a falsification search may
+#: minimise instead (``[falsify] guide``): the registry's, :mod:`mcverify.requirements`.
+REQUIREMENT_NAMES: tuple[str, ...] = _requirements.REQUIREMENT_NAMES
+GUIDE_NAMES: tuple[str, ...] = _requirements.GUIDE_NAMES
 
 
 @dataclass(frozen=True)

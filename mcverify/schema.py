@@ -27,6 +27,8 @@ from typing import Any
 
 import pyarrow as pa
 
+from mcverify.draws import DRAWS
+
 #: ``outcome`` of an episode that could not be simulated (its metrics are null).
 ERROR_OUTCOME = "error"
 #: ``outcome`` of an episode a falsification search ended at its first violation (``sim.stop_at``).
@@ -71,12 +73,7 @@ EPISODE_COLUMNS: tuple[Column, ...] = (
     _c("controller", _STR, "", "the controller: vlcbf (the paper's dual TO-CBF-MPC), mpcdc (the baseline) or "
        "mpcdc_eps (the baseline at the level epsilon)"),
     _c("opposing_kind", _STR, "", "the opposing vehicle: none, autonomous or human"),
-    _c("sample_front_accel_mps2", _FLOAT, "m/s^2", "the front vehicle's acceleration drawn for the episode"),
-    _c("sample_opp_speed_mps", _FLOAT, "m/s", "veh_o's speed drawn for the episode (NaN without veh_o)"),
-    _c("sample_opp_spawn_gap_m", _FLOAT, "m", "x_o - x_e at which veh_o appears when the ego enters the opposing "
-       "lane (opposing.spawn = lane_entry; NaN otherwise)"),
-    _c("sample_opp_spawn_delay_s", _FLOAT, "s", "how long after the ego's lane entry veh_o appears "
-       "(opposing.spawn = lane_entry; NaN otherwise)"),
+    *(_c(d.column, _FLOAT, d.unit, d.definition) for d in DRAWS),
     # outcome
     _c("outcome", _STR, "", "overtook, went_back, timeout, stopped (falsify mode: ended at its first violation "
        "before a goal, see stopped_at_violation) or error (an episode that could not be simulated)"),

@@ -27,16 +27,12 @@ import pyarrow as pa
 
 from mcverify.analysis.columns import Columns, bools, floats, strings
 from mcverify.analysis.sequential import DEFAULT_PRIOR, StopRule, sequential_estimate
+from mcverify.requirements import TARGETS as REGISTERED_TARGETS
 from mcverify.schema import ERROR_OUTCOME
 
-#: Target events an estimate can be asked for: name -> one-line definition.
-TARGETS: dict[str, str] = {
-    "collision": "the ego footprint overlapped the front or the opposing vehicle's (collision_front or collision_opp)",
-    "ellipse": "h_ef < 0 at some sub-step (ellipse_violation)",
-    "unsafe": "not safe: a collision or h_ef < 0 (not safe)",
-    "invariance": "h_ef started at or above ε and fell below it (invariance_breach)",
-    "opp_invariance": "h_eo fell below its level while borrowing the opposing lane (opp_invariance_breach)",
-}
+#: Target events an estimate can be asked for: name -> one-line definition (the registry's
+#: :data:`mcverify.requirements.TARGETS`).
+TARGETS: dict[str, str] = {name: t.definition for name, t in REGISTERED_TARGETS.items()}
 
 #: Estimation methods and how their interval is to be read.
 METHODS: dict[str, str] = {
@@ -90,16 +86,14 @@ def target_events(cols: Columns, target: str) -> tuple[np.ndarray, np.ndarray]:
     def flag(name: str) -> np.ndarray:
         return bools(cols, name) if name in cols.column_names else np.zeros(cols.num_rows, dtype=bool)
 
-    if target == "collision":
-        event = flag("collision_front") | flag("collision_opp")
-    elif target == "ellipse":
-        event = flag("ellipse_violation")
-    elif target == "unsafe":
-        event = ~flag("safe") if "safe" in cols.column_names else np.zeros(cols.num_rows, dtype=bool)
-    elif target == "invariance":
-        event = flag("invariance_breach")
+    spec = REGISTERED_TARGETS[target]
+    if spec.negated:  # a row without the flag shows no event
+        (name,) = spec.flags
+        event = ~flag(name) if name in cols.column_names else np.zeros(cols.num_rows, dtype=bool)
     else:
-        event = flag("opp_invariance_breach")
+        event = np.zeros(cols.num_rows, dtype=bool)
+        for name in spec.flags:
+            event = event | flag(name)
     return event & valid, valid
 
 

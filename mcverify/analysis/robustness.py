@@ -5,7 +5,8 @@ non-negative otherwise); larger means farther from a violation. The values come 
 columns (each of which is itself recomputed from the stored trajectory by the tests of
 :mod:`mcverify.episode`), so a robustness can be re-derived from ``episodes.parquet`` alone.
 
-Requirements (:data:`REQUIREMENTS`; units differ, so a minimum over a set compares raw values):
+Requirements (the registry :data:`mcverify.requirements.REQUIREMENTS`; units differ, so a minimum over
+a set compares raw values):
 
 - ``collision_front`` / ``collision_opp`` (m): the smallest footprint gap to veh_f / veh_o; the
   stored gap is 0 when the footprints touched or overlapped (it does not measure penetration), so a
@@ -38,10 +39,25 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+
+from mcverify.requirements import (
+    GO_BACK_SUFFIX,
+    REQUIREMENTS,
+    RUN_SUFFIX,
+    SAFE_SET,
+    STEPWISE,
+    Requirement,
+    requirement,
+)
+from mcverify.requirements import GUIDE_NAMES as GUIDES
+
+__all__ = ["COLLISION_ROBUSTNESS_M", "GO_BACK_MODE", "GO_BACK_SUFFIX", "GUIDES", "REQUIREMENTS", "ROBUSTNESS",
+           "RUN_FACTOR", "RUN_SUFFIX", "SAFE_SET", "SIGNALS", "STEPWISE", "THEOREM5_SATISFIED", "Requirement",
+           "first_violation_s", "guide_value", "is_error_row", "min_robustness", "requirement", "robustness",
+           "robustness_table", "running_robustness", "violated"]
 
 #: Robustness of a collision (m): the stored footprint gap is 0 on contact, whatever the overlap.
 COLLISION_ROBUSTNESS_M = -1.0
@@ -49,16 +65,6 @@ COLLISION_ROBUSTNESS_M = -1.0
 THEOREM5_SATISFIED = 1.0
 
 Row = Mapping[str, Any]
-
-
-@dataclass(frozen=True)
-class Requirement:
-    """One requirement: its name, unit, one-line statement and robustness function of a row."""
-
-    name: str
-    unit: str
-    statement: str
-    robustness: Callable[[Row], float]
 
 
 def _num(row: Row, key: str) -> float:
@@ -104,37 +110,23 @@ def _theorem5(key: str) -> Callable[[Row], float]:
     return rob
 
 
-_BASE: tuple[Requirement, ...] = (
-    Requirement("collision_front", "m", "the ego and veh_f footprints never touch",
-                _collision("min_gap_front_m", "collision_front", needs_opp=False)),
-    Requirement("collision_opp", "m", "the ego and veh_o footprints never touch",
-                _collision("min_gap_opp_any_m", "collision_opp", needs_opp=True)),
-    Requirement("ellipse", "", "the ego c.g. stays outside veh_f's safety ellipse (h_ef >= 0)", _ellipse),
-    Requirement("invariance", "", "h_ef stays at or above the level epsilon once there (Theorem 2)", _invariance),
-    Requirement("h_eo", "m", "h_eo >= 0 while the ego borrows the opposing lane with veh_o ahead", _h_eo),
-    Requirement("theorem5", "steps", "Q1 or Q2 is solved at every control step (Theorem 5)",
-                _theorem5("both_infeasible_steps")),
-    Requirement("theorem5_certified", "steps", "no control step where IPOPT certified both Q1 and Q2 infeasible",
-                _theorem5("both_certified_infeasible_steps")),
-)
-
-#: The requirement behind the row's ``safe`` flag.
-SAFE_SET: tuple[str, ...] = ("collision_front", "collision_opp", "ellipse")
-
-#: Every requirement by name (``safe`` is the minimum over :data:`SAFE_SET`).
-REQUIREMENTS: dict[str, Requirement] = {r.name: r for r in _BASE}
-REQUIREMENTS["safe"] = Requirement(
-    "safe", "", "no collision with veh_f or veh_o and no ellipse violation (the row's safe flag)",
-    lambda row: min_robustness(row, SAFE_SET),
-)
+#: The robustness of each requirement of :data:`mcverify.requirements.REQUIREMENTS` (the same keys,
+#: checked by tests/test_requirements.py), a function of one episode row.
+ROBUSTNESS: dict[str, Callable[[Row], float]] = {
+    "collision_front": _collision("min_gap_front_m", "collision_front", needs_opp=False),
+    "collision_opp": _collision("min_gap_opp_any_m", "collision_opp", needs_opp=True),
+    "ellipse": _ellipse,
+    "invariance": _invariance,
+    "h_eo": _h_eo,
+    "theorem5": _theorem5("both_infeasible_steps"),
+    "theorem5_certified": _theorem5("both_certified_infeasible_steps"),
+    "safe": lambda row: min_robustness(row, SAFE_SET),
+}
 
 
-def requirement(name: str) -> Requirement:
-    """The requirement ``name``; ValueError listing the known names otherwise."""
-    try:
-        return REQUIREMENTS[name]
-    except KeyError:
-        raise ValueError(f"unknown requirement {name!r}; known: {', '.join(REQUIREMENTS)}") from None
+def _robustness_of(name: str) -> Callable[[Row], float]:
+    requirement(name)  # ValueError listing the known names
+    return ROBUSTNESS[name]
 
 
 def is_error_row(row: Row) -> bool:
@@ -143,15 +135,15 @@ def is_error_row(row: Row) -> bool:
 
 def robustness(row: Row, name: str) -> float:
     """Signed robustness of requirement ``name`` for one episode row (NaN for an error row)."""
-    req = requirement(name)
-    return math.nan if is_error_row(row) else float(req.robustness(row))
+    rob = _robustness_of(name)
+    return math.nan if is_error_row(row) else float(rob(row))
 
 
 def min_robustness(row: Row, names: Sequence[str]) -> float:
     """Minimum robustness over the requirements ``names`` (NaN for an error row)."""
     if is_error_row(row):
         return math.nan
-    return min(float(requirement(n).robustness(row)) for n in names)
+    return min(float(_robustness_of(n)(row)) for n in names)
 
 
 def robustness_table(rows: Sequence[Row], names: Sequence[str] | None = None) -> dict[str, np.ndarray]:
@@ -167,44 +159,45 @@ def violated(rows: Sequence[Row], name: str) -> np.ndarray:
     return np.asarray(rob < 0.0, dtype=bool)
 
 
-#: Requirements whose robustness is the minimum of a signal of the stored trajectory, per sub-step:
-#: what a splitting search branches on (:func:`running_robustness`).
-STEPWISE: tuple[str, ...] = ("collision_front", "collision_opp", "ellipse", "invariance", "safe")
-#: The suffix of a guide brought forward by the planner's trouble (:func:`running_robustness`).
-RUN_SUFFIX = "@run"
 #: ``"<r>@run"``: the factor on r's remaining (positive) running robustness per control step of the
 #: current run of steps at which the planner solved neither Q1 nor Q2.
 RUN_FACTOR = 0.3
-#: Everything ``[falsify] guide`` accepts.
-GUIDES: tuple[str, ...] = (tuple(REQUIREMENTS) + tuple(f"{n}@go_back" for n in STEPWISE)
-                           + tuple(f"{n}{RUN_SUFFIX}" for n in STEPWISE))
+
+
+def _gap_signal(trajectory: Mapping[str, np.ndarray], key: str, flag: str) -> np.ndarray:
+    g = np.asarray(trajectory[key], dtype=np.float64)
+    g = np.where(np.isnan(g), math.inf, g)  # no veh_o (yet): nothing to touch
+    return np.where(np.asarray(trajectory[flag]) > 0, COLLISION_ROBUSTNESS_M, g)
+
+
+def _h_front(trajectory: Mapping[str, np.ndarray]) -> np.ndarray:
+    return np.asarray(trajectory["h_front"], dtype=np.float64)
+
+
+Signal = Callable[[Mapping[str, np.ndarray], float, float], np.ndarray]
+
+#: The per-sub-step signal of each per-step requirement (:data:`~mcverify.requirements.STEPWISE`, the
+#: same keys, checked by tests/test_requirements.py): (trajectory, epsilon, h0) -> shape (sub-steps,),
+#: reading the requirement's ``step_columns``.
+SIGNALS: dict[str, Signal] = {
+    "collision_front": lambda tr, eps, h0: _gap_signal(tr, "gap_front_m", "collision_front"),
+    "collision_opp": lambda tr, eps, h0: _gap_signal(tr, "gap_opp_m", "collision_opp"),
+    "ellipse": lambda tr, eps, h0: _h_front(tr),
+    "invariance": lambda tr, eps, h0: _h_front(tr) - eps if h0 >= eps else np.full_like(_h_front(tr), math.inf),
+    "safe": lambda tr, eps, h0: np.minimum(np.minimum(_gap_signal(tr, "gap_front_m", "collision_front"),
+                                                      _gap_signal(tr, "gap_opp_m", "collision_opp")), _h_front(tr)),
+}
 
 
 def _substep_signal(trajectory: Mapping[str, np.ndarray], name: str, epsilon: float, h0: float) -> np.ndarray:
-    def gap(key: str, flag: str) -> np.ndarray:
-        g = np.asarray(trajectory[key], dtype=np.float64)
-        g = np.where(np.isnan(g), math.inf, g)  # no veh_o (yet): nothing to touch
-        return np.where(np.asarray(trajectory[flag]) > 0, COLLISION_ROBUSTNESS_M, g)
-
-    h = np.asarray(trajectory["h_front"], dtype=np.float64)
-    signals = {
-        "collision_front": lambda: gap("gap_front_m", "collision_front"),
-        "collision_opp": lambda: gap("gap_opp_m", "collision_opp"),
-        "ellipse": lambda: h,
-        "invariance": lambda: h - epsilon if h0 >= epsilon else np.full_like(h, math.inf),
-        "safe": lambda: np.minimum(np.minimum(gap("gap_front_m", "collision_front"), gap("gap_opp_m", "collision_opp")),
-                                   h),
-    }
-    if name not in signals:
+    if name not in SIGNALS:
         raise ValueError(f"requirement {name!r} has no per-step robustness; stepwise: {', '.join(STEPWISE)}")
-    return signals[name]()
+    return SIGNALS[name](trajectory, epsilon, h0)
 
 
 #: The trajectory's ``mode`` of a step going back (:class:`mcverify.control.decision.Mode` GO_BACK;
 #: the analysis layer does not import the control layer, tests/falsify checks they agree).
 GO_BACK_MODE = 1
-#: The suffix of a guide restricted to the sub-steps going back.
-GO_BACK_SUFFIX = "@go_back"
 
 
 def guide_value(row: Row, trajectory: Mapping[str, np.ndarray] | None, name: str, *,

@@ -34,7 +34,7 @@ which makes the robustness a deterministic function of the searched values. A ca
 ``[falsify]`` table must define one target: no ``[grid]`` and no ``[axes]`` (checked by :func:`check_single_target`).
 Every problem is a :class:`CampaignError` of one line.
 
-``guide`` (one of :data:`~mcverify.model.GUIDE_NAMES`): the value the method is told and minimises,
+``guide`` (one of :data:`~mcverify.requirements.GUIDE_NAMES`): the value the method is told and minimises,
 when the requirement's own robustness points the search the wrong way; counterexamples, success and
 the early stops are still judged by the requirement. Besides any requirement, ``"<r>@go_back"`` is
 requirement r over the sub-steps where the ego goes back (+inf for an episode that never turned
@@ -62,7 +62,7 @@ from typing import Any
 
 from mcverify.campaign.validate import _short
 from mcverify.errors import CampaignError
-from mcverify.model import GUIDE_NAMES, REQUIREMENT_NAMES
+from mcverify.requirements import GUIDE_NAMES, REQUIREMENT_NAMES
 
 __all__ = ["MAX_POPULATION", "REQUIREMENT_NAMES", "SearchSpace", "check_single_target", "read_search_space",
            "split_element"]

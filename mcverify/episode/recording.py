@@ -23,10 +23,10 @@ unless noted:
   ``meas_opp_x_m`` (m), ``meas_opp_speed_mps`` (m/s).
 
 ``episode-NNNNNN-plans.parquet``: one row per node of every solved plan kept (every
-``PLAN_SNAPSHOT_PERIOD_S``; m rows): ``t_s`` (s, when it was solved), ``problem`` (string, "Q1" or
-"Q2"), ``node`` (int64), ``t_node_s`` (s), ``x_m``, ``y_m`` (m), ``speed_mps`` (m/s), ``opp_x_m``
-(m, veh_o's predicted position; NaN without one). Written whenever the rollout recorded the
-episode, with no columns if no plan was kept.
+``mcverify.episode.recorder.PLAN_SNAPSHOT_PERIOD_S``; m rows): ``t_s`` (s, when it was solved),
+``problem`` (string, "Q1" or "Q2"), ``node`` (int64), ``t_node_s`` (s), ``x_m``, ``y_m`` (m),
+``speed_mps`` (m/s), ``opp_x_m`` (m, veh_o's predicted position; NaN without one). Written whenever
+the rollout recorded the episode, with no columns if no plan was kept.
 """
 
 from __future__ import annotations

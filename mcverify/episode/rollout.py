@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import statistics
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
@@ -37,21 +36,22 @@ import numpy as np
 from mcverify.cell import Cell
 from mcverify.control import lane_keeping
 from mcverify.control.decision import Source
-from mcverify.control.planner import EpisodeState, Planner, StepRecord, both_certified_infeasible
+from mcverify.control.planner import EpisodeState, Planner, StepRecord
 from mcverify.episode import stop
+from mcverify.episode.draws import SCENARIO_STREAM, episode_key, noise_branches, sample_scenario, truncated_normal
+from mcverify.episode.recorder import Recorder
 from mcverify.episode.recording import EpisodeRecording
 from mcverify.episode.row import EndState, Row, episode_row
 from mcverify.episode.snapshot import Branching, branch_key
-from mcverify.model import normal_masses
-from mcverify.sim.noise import NoiseTilt
-from mcverify.sim.plant import LaneGroups, SafetyTrace, Substep, footprint_top_y_m, initial_plant
+from mcverify.sim.lanes import LaneGroups
+from mcverify.sim.plant import SafetyTrace, footprint_top_y_m, initial_plant
+from mcverify.sim.tilt import NoiseTilt
+
+__all__ = ["SCENARIO_STREAM", "SETTLING_CAUSE", "UNSAFE_CAUSES", "ChunkResult", "PhaseClock",
+           "episode_key", "noise_branches", "run_episodes", "sample_scenario", "truncated_normal"]
 
 Array = jax.Array
 
-#: fold_in stream of the per-episode scenario draws, apart from the per-step noise streams.
-SCENARIO_STREAM = 1_000_000
-#: Planned trajectories of recorded episodes are kept every this many seconds (figures).
-PLAN_SNAPSHOT_PERIOD_S = 0.5
 
 
 # --------------------------------------------------------------------------------------- phases
@@ -82,78 +82,6 @@ class PhaseClock:
 @contextmanager
 def _untimed(name: str) -> Iterator[None]:
     yield
-
-
-# --------------------------------------------------------------------------------------- keys
-
-
-def episode_key(seed: int, cell_index: int | None, episode_id: int, key_seed: int = -1) -> Array:
-    """The root key of one episode: (seed, cell, episode id), or (seed, episode id) for common
-    random numbers across cells (paired comparisons); with ``key_seed`` >= 0 (``noise.key_seed``)
-    (key_seed, episode id) whatever the campaign seed and cell."""
-    if key_seed >= 0:
-        return jax.random.fold_in(jax.random.PRNGKey(key_seed), episode_id)
-    key = jax.random.PRNGKey(seed)
-    if cell_index is not None:
-        key = jax.random.fold_in(key, cell_index)
-    return jax.random.fold_in(key, episode_id)
-
-
-def noise_branches(params) -> dict[int, int]:
-    """``noise.branch_after_steps`` / ``noise.branch_ids`` as {control step: branch id}: after that
-    step the episode's noise comes from that branch of its root key (:func:`branch_key`)."""
-    n = params.noise
-    return {int(s): int(b) for s, b in zip(n.branch_after_steps, n.branch_ids, strict=True)}
-
-
-def sample_scenario(key: Array, params) -> dict[str, float]:
-    """Per-episode scenario values drawn from the episode key, each from its own stream.
-
-    alpha_f: ``scenario.front_accel_range_mps2`` = (lo, hi) draws it uniformly in (lo, hi] (the
-    paper's Table III ranges are left-open); otherwise the fixed ``front_accel_mps2``. veh_o's speed,
-    spawn gap and spawn delay likewise from ``opposing.speed_range_mps``, ``opposing.spawn_gap_range_m``
-    and ``opposing.spawn_delay_range_s`` (NaN where they do not apply: no veh_o, or no spawn gap or
-    delay with ``spawn = "start"``).
-    """
-    sc, o = params.scenario, params.opposing
-    has_opp = o.kind != "none"
-    at_entry = o.appears_at_lane_entry
-    return {
-        "front_accel_mps2": _draw(key, 0, sc.front_accel_range_mps2, sc.front_accel_mps2),
-        "opp_speed_mps": _draw(key, 1, o.speed_range_mps, o.speed_mps) if has_opp else math.nan,
-        "opp_spawn_gap_m": _draw(key, 2, o.spawn_gap_range_m, o.spawn_gap_m) if at_entry else math.nan,
-        "opp_spawn_delay_s": (_draw(key, 3, o.spawn_delay_range_s, o.spawn_delay_s, sd=o.spawn_delay_sd_s)
-                              if at_entry else math.nan),
-    }
-
-
-def _draw(key: Array, stream: int, rng: Sequence[float], fixed: float, *, sd: float = 0.0) -> float:
-    """Uniform in (lo, hi] of ``rng`` from scenario stream ``stream`` of ``key``; ``fixed`` without a range.
-    With ``sd`` > 0: a normal of mean ``fixed`` and standard deviation ``sd`` truncated to the range
-    (:func:`truncated_normal`), from the same unit draw."""
-    if not rng:
-        return float(fixed)
-    lo, hi = rng
-    unit = float(jax.random.uniform(jax.random.fold_in(key, SCENARIO_STREAM + stream), (), dtype=float))  # [0, 1)
-    if sd > 0:
-        return truncated_normal(1.0 - unit, float(fixed), float(sd), float(lo), float(hi))
-    return float(hi - (hi - lo) * unit)
-
-
-def truncated_normal(u: float, mean: float, sd: float, lo: float, hi: float) -> float:
-    """The ``u``-quantile (0 < u <= 1) of a normal (``mean``, ``sd``) truncated to [lo, hi], by inverting its
-    distribution function. The upper tail is inverted through the survival function, so a value 4-8 sd
-    above the mean keeps its precision (where a rare event of the scenario lives)."""
-    norm = statistics.NormalDist(mean, sd)
-    below, mass, above = normal_masses(mean, sd, lo, hi)
-    tail = (1.0 - u) * mass  # the probability above the value, within the range
-    if tail + above <= 0.0:  # u = 1 (or a range beyond the normal's double precision): the top
-        return hi
-    if tail + above < 0.5:  # upper half: invert the survival function (by symmetry)
-        x = 2.0 * mean - norm.inv_cdf(tail + above)
-    else:
-        x = norm.inv_cdf(min(max(below + u * mass, 1e-300), 1.0 - 1e-16))
-    return min(max(x, lo), hi)
 
 
 def _spawn_opposing(world: LaneGroups, states: list[EpisodeState], samples: list[dict[str, float]],
@@ -214,47 +142,17 @@ def run_episodes(
     included), before the chunk ends; ``unsafe`` is what its row's ``safe`` will say, negated
     (progress bars; it changes nothing in the loop).
     noise_tilt: draw veh_f's y noise near veh_f from this proposal (importance sampling,
-    :class:`~mcverify.sim.noise.NoiseTilt`); each row then carries ``noise_log_lr``, the log likelihood
+    :class:`~mcverify.sim.tilt.NoiseTilt`); each row then carries ``noise_log_lr``, the log likelihood
     ratio (nominal over proposal) of its noise, and ``noise_tilt_sums`` (9) / ``noise_tilt_counts`` (3),
     the statistics a cross-entropy refit of the tilt needs. None: the nominal noise, and no such keys.
     """
     phase = clock.phase if clock is not None else _untimed
-    p = cell.params
-    ids = [int(e) for e in episode_ids]
-    cell_key = None if common_random_numbers else cell.index
-    keys = jnp.stack([episode_key(seed, cell_key, e, p.noise.key_seed) for e in ids])
-    samples = [sample_scenario(k, p) for k in keys]
-    for b, e in enumerate(ids):
-        samples[b].update((scenarios or {}).get(e, {}))
-    world = LaneGroups(initial_plant(p, [s["front_accel_mps2"] for s in samples],
-                                     [s["opp_speed_mps"] for s in samples]), keys, p, tilt=noise_tilt)
-    h0 = world.trace().min_h_front.copy()
-    states = [EpisodeState(e) for e in ids]
-    spawning = p.opposing.appears_at_lane_entry
-    entered_s = [math.nan] * len(ids)  # when each ego first had its footprint over the lane line
-    if p.opposing.kind != "none" and not spawning:
-        for st in states:
-            st.opp_spawn_s = 0.0
+    ch = _start(cell, [int(e) for e in episode_ids], seed, common_random_numbers, scenarios, noise_tilt)
+    p, ids, world, states, settling = cell.params, ch.ids, ch.world, ch.states, ch.settling
     recorded = set(ids) if record is True else set(record or ())
-    rec = _Recorder([b for b, e in enumerate(ids) if e in recorded], cell) if recorded else None
+    rec = Recorder([b for b, e in enumerate(ids) if e in recorded], cell) if recorded else None
     n_steps = int(math.ceil(p.sim.max_time_s / p.sim.control_period_s - 1e-9))
-    settle_steps = int(math.ceil(p.sim.settle_s / p.sim.control_period_s - 1e-9))
-    has_opp = p.opposing.kind != "none"
-    u_last = np.zeros((len(ids), 2))  # the input each episode had applied last (lateral speed)
-    settling: dict[int, _Settling] = {}  # lane -> its settling memory, while it settles
-    ends: dict[int, EndState] = {}
-    reported: set[int] = set()  # lanes whose stop on_episode has been told
-    first_step = 0
-    if branching is not None:
-        if len(ids) != 1:
-            raise ValueError(f"branching runs one episode at a time, got {len(ids)}")
-        if branching.start is not None:
-            if branching.start.episode_id != ids[0]:
-                raise ValueError(f"snapshot of episode {branching.start.episode_id} given for episode {ids[0]}")
-            states[0], entered_s[0], u_last[0], settle, end = branching.restore(world)
-            settling.update({0: settle} if settle is not None else {})
-            ends.update({0: end} if end is not None else {})
-        first_step = branching.first_step()
+    first_step = _restore(ch, branching)
     switches = noise_branches(p)
     if switches and branching is not None and branching.start is not None:
         raise ValueError("a snapshot branch of an episode with scheduled noise branches (noise.branch_after_steps)")
@@ -263,44 +161,21 @@ def run_episodes(
         t_s = step * p.sim.control_period_s
         if step - 1 in switches:  # the noise of the steps to come: a branch of each episode's root key
             for b in range(len(ids)):
-                world.set_lane_key(b, branch_key(np.asarray(keys[b]), switches[step - 1]))
+                world.set_lane_key(b, branch_key(np.asarray(ch.keys[b]), switches[step - 1]))
         with phase("plant"):
             ego = world.ego()
-            if spawning:
-                _spawn_opposing(world, states, samples, entered_s, ego, t_s, p)
-            live = None if noise_tilt is None else np.array([not st.done or b in settling
-                                                              for b, st in enumerate(states)])
+            if p.opposing.appears_at_lane_entry:
+                _spawn_opposing(world, states, ch.samples, ch.entered_s, ego, t_s, p)
+            live = None if noise_tilt is None else ch.active()
             front_meas, opp_meas = world.observe(step, live)
-        u = np.zeros((len(ids), 2))
-        records: dict[int, StepRecord] = {}
         with phase("planner"):
-            for b, st in enumerate(states):
-                if b in settling:
-                    if step >= settling[b].until_step:
-                        ends[b] = settling.pop(b).end(t_s, ego[b], u_last[b], p)
-                    else:
-                        u[b] = settling[b].input(ego[b], front_meas[b], p)
-                    continue
-                if st.done:
-                    continue
-                outcome = planner.converged(st, ego[b], front_meas[b])
-                if outcome is not None:
-                    _finish(st, t_s, outcome)
-                    settle = _Settling.start(step + settle_steps, ego[b], u_last[b], p)
-                    if settle_steps == 0:
-                        ends[b] = settle.end(t_s, ego[b], u_last[b], p)
-                    else:
-                        settling[b] = settle
-                        u[b] = settle.input(ego[b], front_meas[b], p)
-                    continue
-                u[b], records[b] = planner.step(st, t_s, ego[b], front_meas[b], opp_meas[b] if has_opp else None,
-                                                cell.level)
-        active = np.array([not st.done or b in settling for b, st in enumerate(states)])
+            u, records = _plan(ch, planner, step, t_s, ego, front_meas, opp_meas)
+        active = ch.active()
         if on_episode is not None:
-            _report_stopped(on_episode, ids, active, reported, world)
+            _report_stopped(on_episode, ids, active, ch.reported, world)
         if not active.any():
             break
-        u_last[active] = u[active]
+        ch.u_last[active] = u[active]
         with phase("plant"):
             subs = world.advance(u, active)
             trace = world.trace()
@@ -311,42 +186,143 @@ def run_episodes(
         _note_first_unsafe(states, trace, records, t_s, settling)
         if rec is not None:
             rec.add(t_s, world.substeps_of(subs), u, records, front_meas, opp_meas, active)
+        t_next = (step + 1) * p.sim.control_period_s
         if p.sim.stop_at:
-            hit = stop.violated(p.sim.stop_at, trace, states, h0, cell.epsilon, has_opp) & active
-            _stop(hit, states, settling, ends, world, u_last, (step + 1) * p.sim.control_period_s, p)
+            hit = stop.violated(p.sim.stop_at, trace, states, ch.h0, cell.epsilon, ch.has_opp) & active
+            _stop(hit, states, settling, ch.ends, world, ch.u_last, t_next, p)
         if on_step is not None:
             on_step(step)
         if branching is not None:
-            branching.after_step(step, world, keys[0], states[0], entered_s[0], u_last[0], settling.get(0), ends.get(0))
+            branching.after_step(step, world, ch.keys[0], states[0], ch.entered_s[0], ch.u_last[0], settling.get(0),
+                                 ch.ends.get(0))
             if branching.stopped:  # splitting: the score reached the failure level (absorbing)
-                _stop(active, states, settling, ends, world, u_last, (step + 1) * p.sim.control_period_s, p)
-    t_end = n_steps * p.sim.control_period_s
-    ego = world.ego()
-    for b, st in enumerate(states):
+                _stop(active, states, settling, ch.ends, world, ch.u_last, t_next, p)
+    _time_out(ch, n_steps * p.sim.control_period_s)
+    if on_episode is not None:
+        _report_stopped(on_episode, ids, np.zeros(len(ids), dtype=bool), ch.reported, world)
+    rows = _rows(ch, seed, noise_tilt)
+    return ChunkResult(rows) if rec is None else ChunkResult(rows, rec.recordings(ids))
+
+
+@dataclass
+class _Chunk:
+    """The host-side state of a chunk's episodes (lane b is episode ``ids[b]``) during the loop."""
+
+    cell: Cell
+    ids: list[int]
+    keys: Array  # (episodes, 2) root keys
+    samples: list[dict[str, float]]  # the scenario draws
+    world: LaneGroups
+    h0: np.ndarray  # h_ef at the start
+    states: list[EpisodeState]
+    entered_s: list[float]  # when each ego first had its footprint over the lane line (NaN until then)
+    u_last: np.ndarray  # (episodes, 2) the input each episode had applied last (lateral speed)
+    settle_steps: int
+    has_opp: bool
+    settling: dict[int, _Settling] = field(default_factory=dict)  # lane -> its settling memory, while it settles
+    ends: dict[int, EndState] = field(default_factory=dict)
+    reported: set[int] = field(default_factory=set)  # lanes whose stop on_episode has been told
+
+    def active(self) -> np.ndarray:
+        """(episodes,) bool: still running (settling included)."""
+        return np.array([not st.done or b in self.settling for b, st in enumerate(self.states)])
+
+
+def _start(cell: Cell, ids: list[int], seed: int, common_random_numbers: bool,
+           scenarios: Mapping[int, Mapping[str, float]] | None, noise_tilt: NoiseTilt | None) -> _Chunk:
+    """The chunk at t = 0: keys, scenario draws (``scenarios`` replacing an episode's own), the plant."""
+    p = cell.params
+    cell_key = None if common_random_numbers else cell.index
+    keys = jnp.stack([episode_key(seed, cell_key, e, p.noise.key_seed) for e in ids])
+    samples = [sample_scenario(k, p) for k in keys]
+    for b, e in enumerate(ids):
+        samples[b].update((scenarios or {}).get(e, {}))
+    world = LaneGroups(initial_plant(p, [s["front_accel_mps2"] for s in samples],
+                                     [s["opp_speed_mps"] for s in samples]), keys, p, tilt=noise_tilt)
+    h0 = world.trace().min_h_front.copy()
+    states = [EpisodeState(e) for e in ids]
+    if p.opposing.kind != "none" and not p.opposing.appears_at_lane_entry:
+        for st in states:
+            st.opp_spawn_s = 0.0
+    return _Chunk(cell, ids, keys, samples, world, h0, states, [math.nan] * len(ids), np.zeros((len(ids), 2)),
+                  settle_steps=int(math.ceil(p.sim.settle_s / p.sim.control_period_s - 1e-9)),
+                  has_opp=p.opposing.kind != "none")
+
+
+def _restore(ch: _Chunk, branching: Branching | None) -> int:
+    """Start a branching episode from its snapshot, if any; the first control step to simulate."""
+    if branching is None:
+        return 0
+    if len(ch.ids) != 1:
+        raise ValueError(f"branching runs one episode at a time, got {len(ch.ids)}")
+    if branching.start is not None:
+        if branching.start.episode_id != ch.ids[0]:
+            raise ValueError(f"snapshot of episode {branching.start.episode_id} given for episode {ch.ids[0]}")
+        ch.states[0], ch.entered_s[0], ch.u_last[0], settle, end = branching.restore(ch.world)
+        ch.settling.update({0: settle} if settle is not None else {})
+        ch.ends.update({0: end} if end is not None else {})
+    return branching.first_step()
+
+
+def _plan(ch: _Chunk, planner: Planner, step: int, t_s: float, ego: np.ndarray, front_meas: np.ndarray,
+          opp_meas: np.ndarray) -> tuple[np.ndarray, dict[int, StepRecord]]:
+    """Every running episode's input for this control period: the planner's, or the lane-keeping law's
+    while settling after the goal test (which this step may fire); the planner's step records."""
+    p, settling, ends, u_last = ch.cell.params, ch.settling, ch.ends, ch.u_last
+    u = np.zeros((len(ch.ids), 2))
+    records: dict[int, StepRecord] = {}
+    for b, st in enumerate(ch.states):
+        if b in settling:
+            if step >= settling[b].until_step:
+                ends[b] = settling.pop(b).end(t_s, ego[b], u_last[b], p)
+            else:
+                u[b] = settling[b].input(ego[b], front_meas[b], p)
+            continue
+        if st.done:
+            continue
+        outcome = planner.converged(st, ego[b], front_meas[b])
+        if outcome is not None:
+            _finish(st, t_s, outcome)
+            settle = _Settling.start(step + ch.settle_steps, ego[b], u_last[b], p)
+            if ch.settle_steps == 0:
+                ends[b] = settle.end(t_s, ego[b], u_last[b], p)
+            else:
+                settling[b] = settle
+                u[b] = settle.input(ego[b], front_meas[b], p)
+            continue
+        u[b], records[b] = planner.step(st, t_s, ego[b], front_meas[b], opp_meas[b] if ch.has_opp else None,
+                                        ch.cell.level)
+    return u, records
+
+
+def _time_out(ch: _Chunk, t_end: float) -> None:
+    """End at the time limit: a running episode as a timeout, a settling one with its settling cut."""
+    p = ch.cell.params
+    ego = ch.world.ego()
+    for b, st in enumerate(ch.states):
         if not st.done:
             st.done, st.outcome, st.end_time_s = True, "timeout", t_end
-            ends[b] = _end_state(t_end, ego[b], u_last[b], p)
-        elif b in settling:  # cut by the time limit
-            ends[b] = settling.pop(b).end(t_end, ego[b], u_last[b], p)
+            ch.ends[b] = _end_state(t_end, ego[b], ch.u_last[b], p)
+        elif b in ch.settling:  # cut by the time limit
+            ch.ends[b] = ch.settling.pop(b).end(t_end, ego[b], ch.u_last[b], p)
 
-    if on_episode is not None:
-        _report_stopped(on_episode, ids, np.zeros(len(ids), dtype=bool), reported, world)
-    trace = world.trace()
+
+def _rows(ch: _Chunk, seed: int, noise_tilt: NoiseTilt | None) -> list[Row]:
+    """One row per episode, with its noise tilt's likelihood ratio and statistics under a tilt."""
+    trace = ch.world.trace()
     rows = [
-        episode_row(cell, seed, st, samples[b], SafetyTrace(*(np.asarray(a)[b] for a in trace)), float(h0[b]),
-                    ends[b])
-        for b, st in enumerate(states)
+        episode_row(ch.cell, seed, st, ch.samples[b], SafetyTrace(*(np.asarray(a)[b] for a in trace)),
+                    float(ch.h0[b]), ch.ends[b])
+        for b, st in enumerate(ch.states)
     ]
     if noise_tilt is not None:
-        sums, counts = world.tilt_statistics()
-        log_lr = world.noise_log_lr()
+        sums, counts = ch.world.tilt_statistics()
+        log_lr = ch.world.noise_log_lr()
         for b, row in enumerate(rows):
             row["noise_log_lr"] = float(log_lr[b])
             row["noise_tilt_sums"] = [float(v) for v in sums[b]]
             row["noise_tilt_counts"] = [float(v) for v in counts[b]]
-    if rec is None:
-        return ChunkResult(rows)
-    return ChunkResult(rows, rec.recordings(ids))
+    return rows
 
 
 #: What drove the ego in the control period where it first left the safe set (``first_unsafe_cause``):
@@ -446,83 +422,3 @@ class _Settling:
         return _end_state(t_s, ego, u, p, conv_heading_rad=self.heading_rad,
                           conv_lateral_speed_mps=self.lateral_speed_mps, conv_line_excess_m=self.line_excess_m,
                           line_excess_max_m=self.line_excess_max_m)
-
-
-class _Recorder:
-    """Collects full-resolution trajectories, per-step decisions and plan snapshots of some episodes."""
-
-    def __init__(self, lanes: list[int], cell: Cell) -> None:
-        self.lanes = lanes
-        self.cell = cell
-        self.parts: dict[int, list[dict[str, np.ndarray]]] = {b: [] for b in lanes}
-        self.plans: dict[int, list[dict[str, np.ndarray]]] = {b: [] for b in lanes}
-        self.next_snapshot_s = {b: 0.0 for b in lanes}
-
-    def add(self, t_s: float, subs: Substep, u, records: dict[int, StepRecord], front_meas, opp_meas, active) -> None:
-        k = subs.t_s.shape[1]
-        for b in self.lanes:
-            if not active[b]:
-                continue
-            r = records.get(b)
-            rep = lambda v: np.full(k, v, dtype=float)  # noqa: E731 - per control step -> per sub-step
-            ego, front, opp = subs.ego[b], subs.front[b], subs.opp[b]
-            has_opp = self.cell.params.opposing.kind != "none"
-            self.parts[b].append({
-                "t_s": subs.t_s[b],
-                "ego_x_m": ego[:, 0], "ego_y_m": ego[:, 1], "ego_psi_rad": ego[:, 2], "ego_speed_mps": ego[:, 3],
-                "front_x_m": front[:, 0], "front_y_m": np.zeros(k), "front_speed_mps": front[:, 1],
-                "opp_x_m": opp[:, 0] if has_opp else rep(np.nan),
-                "opp_y_m": rep(self.cell.params.road.opp_lane_y_m if has_opp else np.nan),
-                "opp_speed_mps": -opp[:, 1] if has_opp else rep(np.nan),
-                "alpha_mps2": rep(u[b, 0]), "beta_rad": rep(u[b, 1]),
-                "h_front": subs.h_front[b], "dist_front_m": subs.dist_front_m[b], "gap_front_m": subs.gap_front_m[b],
-                "collision_front": subs.collision_front[b].astype(float),
-                "h_opp": subs.h_opp[b] if has_opp else rep(np.nan),
-                "gap_opp_m": subs.gap_opp_m[b] if has_opp else rep(np.nan),
-                "collision_opp": subs.collision_opp[b].astype(float),
-                "active_problem": rep(int(r.source) if r else 0),
-                "mode": rep(int(r.mode) if r else -1),
-                "opp_detected": rep(float(r.detected) if r else 0.0),
-                "q1_solved": rep(_solved(r.q1) if r else np.nan),
-                "q2_solved": rep(_solved(r.q2) if r else np.nan),
-                "q1_time_s": rep(_total(r.q1) if r else np.nan),
-                "q2_time_s": rep(_total(r.q2) if r else np.nan),
-                "table_one_row": rep(r.table_row if r else -1),
-                "both_certified": rep(float(both_certified_infeasible(r.q1, r.q2)) if r else np.nan),
-                "meas_front_x_m": rep(front_meas[b, 0]), "meas_front_y_m": rep(front_meas[b, 1]),
-                "meas_front_speed_mps": rep(front_meas[b, 2]),
-                "meas_opp_x_m": rep(opp_meas[b, 0] if has_opp else np.nan),
-                "meas_opp_speed_mps": rep(-opp_meas[b, 1] if has_opp else np.nan),
-            })
-            if r is not None and t_s + 1e-9 >= self.next_snapshot_s[b]:
-                self.next_snapshot_s[b] += PLAN_SNAPSHOT_PERIOD_S
-                for name, sol in (("Q1", r.q1), ("Q2", r.q2)):
-                    if sol is not None and sol.success:
-                        self.plans[b].append(_plan_table(t_s, name, sol))
-
-    def recordings(self, ids: Sequence[int]) -> dict[int, EpisodeRecording]:
-        """Cell-local episode id -> its recording (the per-step parts concatenated)."""
-        return {ids[b]: EpisodeRecording(_concat(self.parts[b]), _concat(self.plans[b])) for b in self.lanes}
-
-
-def _concat(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
-    return {key: np.concatenate([pt[key] for pt in parts]) for key in parts[0]} if parts else {}
-
-
-def _solved(sol) -> float:
-    return np.nan if sol is None else float(sol.success)
-
-
-def _total(sol) -> float:
-    return sol.total_time_s if sol is not None and sol.success else np.nan
-
-
-def _plan_table(t_s: float, name: str, sol) -> dict[str, np.ndarray]:
-    n = sol.x_plan.shape[0]
-    t_nodes = t_s + np.concatenate([[0.0], np.cumsum(sol.dt_plan)])
-    opp_x = sol.opp_plan[:, 0] if sol.opp_plan is not None else np.full(n, np.nan)
-    return {
-        "t_s": np.full(n, t_s), "problem": np.array([name] * n), "node": np.arange(n),
-        "t_node_s": t_nodes, "x_m": sol.x_plan[:, 0], "y_m": sol.x_plan[:, 1], "speed_mps": sol.x_plan[:, 3],
-        "opp_x_m": opp_x,
-    }

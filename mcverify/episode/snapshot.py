@@ -27,7 +27,8 @@ import jax
 import numpy as np
 
 from mcverify.control.planner import EpisodeState
-from mcverify.sim.plant import LaneGroups, Plant, SafetyTrace
+from mcverify.sim.lanes import LaneGroups
+from mcverify.sim.plant import Plant, SafetyTrace
 
 #: fold_in stream of branch keys (apart from the per-step noise streams and the scenario stream).
 BRANCH_STREAM = 2_000_000

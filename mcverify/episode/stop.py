@@ -14,34 +14,30 @@ from collections.abc import Sequence
 import numpy as np
 
 from mcverify.control.planner import EpisodeState
+from mcverify.requirements import REQUIREMENTS, StopInputs
 from mcverify.schema import STOPPED_OUTCOME  # noqa: F401 - re-exported; declared once, in the schema
 from mcverify.sim.plant import SafetyTrace
 
 
 def violated(name: str, trace: SafetyTrace, states: Sequence[EpisodeState], h0: np.ndarray, epsilon: float,
              has_opp: bool) -> np.ndarray:
-    """Boolean mask, shape (episodes,): requirement ``name`` is violated by the episode so far.
+    """Boolean mask, shape (episodes,): requirement ``name`` is violated by the episode so far (the
+    registry's :attr:`~mcverify.requirements.Requirement.stop`).
 
     trace: the chunk's running safety trace (arrays of shape (episodes,)); states: the host-side
     counters (Theorem 5's steps); h0: h_ef at the start, shape (episodes,); epsilon: the cell's level.
     """
-    collision_front = np.asarray(trace.collision_front, dtype=bool)
-    collision_opp = np.asarray(trace.collision_opp, dtype=bool) & has_opp
-    min_h = np.asarray(trace.min_h_front, dtype=float)
-    if name == "collision_front":
-        return collision_front
-    if name == "collision_opp":
-        return collision_opp
-    if name == "ellipse":
-        return min_h < 0.0
-    if name == "safe":
-        return collision_front | collision_opp | (min_h < 0.0)
-    if name == "invariance":
-        return (np.asarray(h0) >= epsilon) & (min_h - epsilon < 0.0)
-    if name == "h_eo":
-        return (np.asarray(trace.min_h_opp, dtype=float) < 0.0) & has_opp
-    if name == "theorem5":
-        return np.array([st.both_infeasible_steps > 0 for st in states], dtype=bool)
-    if name == "theorem5_certified":
-        return np.array([st.both_certified_infeasible_steps > 0 for st in states], dtype=bool)
-    raise ValueError(f"unknown requirement {name!r} for sim.stop_at")
+    if name not in REQUIREMENTS:
+        raise ValueError(f"unknown requirement {name!r} for sim.stop_at")
+    inputs = StopInputs(
+        collision_front=np.asarray(trace.collision_front, dtype=bool),
+        collision_opp=np.asarray(trace.collision_opp, dtype=bool),
+        min_h_front=np.asarray(trace.min_h_front, dtype=float),
+        min_h_opp=np.asarray(trace.min_h_opp, dtype=float),
+        both_infeasible_steps=np.array([st.both_infeasible_steps for st in states]),
+        both_certified_infeasible_steps=np.array([st.both_certified_infeasible_steps for st in states]),
+        h0_front=np.asarray(h0),
+        epsilon=epsilon,
+        has_opp=has_opp,
+    )
+    return np.asarray(REQUIREMENTS[name].stop(inputs), dtype=bool)

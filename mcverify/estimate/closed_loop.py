@@ -60,17 +60,14 @@ from mcverify.cell import Cell
 from mcverify.control.planner import Planner
 from mcverify.episode.rollout import run_episodes
 from mcverify.episode.snapshot import Branching, EpisodeSnapshot, StepView
+from mcverify.requirements import H_EF_SCORES, SCORE_REGISTRY, SCORES
 
-#: Score name -> the target event it reaches at level 0.
-SCORES: dict[str, str] = {"h_ef": "ellipse", "h_ef_held": "ellipse", "h_ef_run": "ellipse", "gap": "collision",
-                          "gap_run": "collision"}
+__all__ = ["H_EF_SCORES", "HELD_FACTOR", "SCORES", "BranchPoint", "ClosedLoopPath", "ClosedLoopProcess", "gap_score",
+           "h_ef_score", "score_of"]
+
 #: "h_ef_held", "h_ef_run": the factor on the remaining min h_ef per step with neither problem solved
 #: (the falsifier's ``"<r>@run"`` guides use the same one).
 HELD_FACTOR = RUN_FACTOR
-
-
-#: The scores built on h_ef (the others: "gap").
-H_EF_SCORES: tuple[str, ...] = ("h_ef", "h_ef_held", "h_ef_run")
 
 
 def h_ef_score(score: str, min_h_front: float, unsolved_steps: int) -> float:
@@ -78,7 +75,7 @@ def h_ef_score(score: str, min_h_front: float, unsolved_steps: int) -> float:
     steps with neither problem solved (all of them for ``h_ef_held``, the current run for
     ``h_ef_run``; see the module docstring); >= 0 exactly at the ellipse event."""
     m = float(min_h_front)
-    if score == "h_ef" or m <= 0.0:
+    if not SCORE_REGISTRY[score].unsolved or m <= 0.0:
         return -m
     return -m * HELD_FACTOR ** int(unsolved_steps)
 
@@ -89,7 +86,7 @@ def gap_score(score: str, min_gap_m: float, unsolved_run: int) -> float:
     g = float(min_gap_m)
     if not np.isfinite(g):
         return -np.inf
-    if score == "gap" or g <= 0.0:
+    if not SCORE_REGISTRY[score].unsolved or g <= 0.0:
         return -g
     return -g * HELD_FACTOR ** int(unsolved_run)
 
@@ -99,7 +96,8 @@ def score_of(view: StepView, score: str) -> float:
     is its running maximum."""
     trace = view.trace
     if score in H_EF_SCORES:
-        unsolved = view.both_infeasible_run if score == "h_ef_run" else view.both_infeasible_steps
+        run = SCORE_REGISTRY[score].unsolved == "run"
+        unsolved = view.both_infeasible_run if run else view.both_infeasible_steps
         return h_ef_score(score, trace.min_h_front, unsolved)
     gaps = [float(g) for g in (trace.min_gap_front_m, trace.min_gap_opp_any_m) if np.isfinite(g)]
     return gap_score(score, min(gaps) if gaps else np.inf, view.both_infeasible_run)

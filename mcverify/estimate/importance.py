@@ -22,7 +22,7 @@ weight's share of the estimate; :func:`estimate` warns when there are few failin
 small or one weight dominates, since the normal interval then means little.
 
 A score function may also draw part of each sample's randomness from a proposal of its own (the
-noise tilt of :class:`~mcverify.sim.noise.NoiseTilt`) and return :class:`Scored`: the scores with
+noise tilt of :class:`~mcverify.sim.tilt.NoiseTilt`) and return :class:`Scored`: the scores with
 each sample's log likelihood ratio of that part (nominal over proposal), which multiplies its weight
 in the cross-entropy fits and in the estimate. Give :func:`estimate` the largest such ratio
 (``max_extra_ratio``) so that the anytime bound still bets on a quantity in [0, 1]. If the score

@@ -6,7 +6,7 @@ The parameters are the cell's scenario draws that have a range: alpha_f
 (``opposing.spawn_gap_range_m``) and spawn delay (``opposing.spawn_delay_range_s``); each is uniform
 on its range under the campaign, which is the nominal distribution. The perception noise stays
 nominal (drawn from the episode key), unless a noise tilt is given (``--noise-tilt``,
-:class:`~mcverify.sim.noise.NoiseTilt`): then veh_f's lateral measurement noise at a few steps near
+:class:`~mcverify.sim.tilt.NoiseTilt`): then veh_f's lateral measurement noise at a few steps near
 veh_f is drawn from that fixed proposal, and each episode's weight carries its likelihood ratio
 (``noise_log_lr``) besides the scenario's. Every evaluation is one episode with the given values
 (``run_episodes(scenarios=...)``), run in batches of 8 lanes, in this process or, with an executor
@@ -44,93 +44,35 @@ from mcverify.campaign.executors import Executor
 from mcverify.campaign.spec import Campaign
 from mcverify.cell import Cell
 from mcverify.control.planner import Planner
+from mcverify.draws import DRAW_REGISTRY, DRAWS
 from mcverify.episode.rollout import ChunkResult, run_episodes
 from mcverify.errors import RunError
 from mcverify.estimate import evaluations, folder, importance, splitting
-from mcverify.estimate.closed_loop import H_EF_SCORES, SCORES, gap_score, h_ef_score
+from mcverify.estimate.closed_loop import gap_score, h_ef_score
 from mcverify.estimate.evaluations import EvaluationCache
 from mcverify.estimate.folder import num
+from mcverify.estimate.importance_files import (
+    draw_cell,
+    figure_file,
+    tilt_text,
+    write_samples,
+)
 from mcverify.reporting.run_figures import FigureResult
-from mcverify.sim import noise
-from mcverify.sim.noise import NoiseTilt
-
-#: Scenario key of :func:`mcverify.episode.rollout.sample_scenario` -> how to read its range from a cell.
-RANGES: dict[str, Callable] = {
-    "front_accel_mps2": lambda p: p.scenario.front_accel_range_mps2,
-    "opp_speed_mps": lambda p: p.opposing.speed_range_mps if p.opposing.kind != "none" else (),
-    "opp_spawn_gap_m": lambda p: p.opposing.spawn_gap_range_m if p.opposing.appears_at_lane_entry else (),
-    "opp_spawn_delay_s": lambda p: p.opposing.spawn_delay_range_s if p.opposing.appears_at_lane_entry else (),
-}
-
+from mcverify.requirements import H_EF_SCORES, SCORE_REGISTRY, SCORED_TARGETS, SCORES, default_score
+from mcverify.sim import tilt as tilt_mod
+from mcverify.sim.tilt import NoiseTilt
 
 #: Episodes simulated together (one lane group of the plant).
 BATCH = 8
 
 
-#: The row values kept per final draw in ``samples_cellNNN.parquet`` (those a row has).
-SAMPLE_COLUMNS = ("outcome", "collision_front", "collision_opp", "min_gap_front_m", "min_h_front",
-                  "ellipse_violation", "switched_to_q2_at_s", "steps", "noise_log_lr")
-
-
-def samples_file(out: Path, cell_index: int) -> Path:
-    """Where a cell's final draws are kept."""
-    return Path(out) / f"samples_cell{cell_index:03d}.parquet"
-
-
-def figure_file(cell_index: int) -> str:
-    """A cell's figure (nominal and proposal densities, the final draws), relative to the folder."""
-    return f"figures/importance_cell{cell_index:03d}.png"
-
-
-def draw_cell(out: Path, result: dict[str, Any], bounds: dict[str, tuple[float, float]], alpha: float,
-              final: Mapping[str, np.ndarray], nominal: importance.Nominal | None = None) -> None:
-    """Draw a finished cell's figure (:mod:`mcverify.reporting.importance_figures`); ``nominal``: the cell's
-    nominal distribution (default: uniform on the bounds)."""
-    from mcverify.reporting import importance_figures  # noqa: PLC0415 - matplotlib only where a figure is drawn
-    nominal_logpdf = (nominal or importance.Nominal.uniform(list(bounds.values()))).marginal_logpdf
-    title = (f"{result['cell']}: P({result['target']}) = {num(result['estimate'])} "
-             f"[{num(result['low'])}, {num(result['high'])}], {result['failures']} failing of {len(final['weight'])}")
-    importance_figures.draw_importance_cell(Path(out) / figure_file(result["cell_index"]), title, list(bounds),
-                                            list(bounds.values()), result["proposal_a"], result["proposal_b"],
-                                            alpha, final["theta"], final["failed"], nominal_logpdf=nominal_logpdf)
-
-
-def write_samples(out: Path, cell_index: int, names: Sequence[str], rows: Sequence[dict[str, Any]],
-                  final: Mapping[str, np.ndarray]) -> None:
-    """Keep a cell's final draws: its episode id (``cell_episode``, which replays the episode with the
-    same scenario values and noise tilt), the scenario values, the weight (nominal over proposal,
-    noise included), whether it failed and the row values of :data:`SAMPLE_COLUMNS`. The cell's
-    estimate is ``mean(weight * failed)`` over this file, exactly."""
-    import pyarrow as pa  # noqa: PLC0415 - only when writing
-    import pyarrow.parquet as pq  # noqa: PLC0415
-
-    weight = np.asarray(final["weight"], dtype=float)
-    rows = rows if len(rows) == weight.size else []  # a score function that runs no episodes has no rows
-    table: dict[str, Any] = {"cell_episode": [int(r["cell_episode"]) for r in rows]} if rows else {}
-    table.update({f"sample_{n}": np.asarray(final["theta"])[:, j].astype(float) for j, n in enumerate(names)})
-    table["weight"] = weight
-    table["failed"] = np.asarray(final["failed"], dtype=bool)
-    for key in SAMPLE_COLUMNS:
-        if any(key in r for r in rows):
-            table[key] = [r.get(key) for r in rows]
-    store.atomic_write(samples_file(out, cell_index), lambda tmp: pq.write_table(pa.table(table), tmp))
-
-
-def tilt_text(tilt: NoiseTilt) -> str:
-    """The tilts per band and unit, e.g. "approach y -5, jump y +5" (zeros left out), and the window."""
-    parts = [f"{band} {unit} {t:+.2g}" for (band, unit), t in
-             zip(((b, u) for b in noise.TILT_BANDS for u in noise.TILT_UNITS), tilt.theta, strict=True) if t != 0.0]
-    return (f"{', '.join(parts) or 'all tilts 0'}; gap window {tilt.gap_max_m:g} / {tilt.split_m:g} m, "
-            f"{tilt.band_steps:g} steps per band, defensive {tilt.defensive:g}")
-
-
 def scenario_bounds(cell: Cell) -> dict[str, tuple[float, float]]:
     """The cell's scenario parameters that are drawn from a range, with the range."""
     out = {}
-    for key, read in RANGES.items():
-        rng = read(cell.params)
+    for draw in DRAWS:
+        rng = draw.range_of(cell.params)
         if rng:
-            out[key] = (float(rng[0]), float(rng[1]))
+            out[draw.name] = (float(rng[0]), float(rng[1]))
     return out
 
 
@@ -152,12 +94,12 @@ def crude_comparison(est: importance.ISEstimate, rows: Sequence[dict[str, Any]],
 
 def scenario_nominal(cell: Cell) -> importance.Nominal:
     """The nominal distribution of the cell's drawn scenario parameters (:func:`scenario_bounds`), as
-    :func:`mcverify.episode.rollout.sample_scenario` draws them: uniform on each range, but veh_o's spawn
-    delay a truncated normal where ``opposing.spawn_delay_sd_s`` > 0."""
+    :func:`mcverify.episode.draws.sample_scenario` draws them: uniform on each range, but a truncated normal
+    where the draw's standard deviation is > 0 (veh_o's spawn delay with ``opposing.spawn_delay_sd_s`` > 0)."""
     bounds = scenario_bounds(cell)
-    o = cell.params.opposing
-    normals = [(float(o.spawn_delay_s), float(o.spawn_delay_sd_s))
-               if key == "opp_spawn_delay_s" and o.spawn_delay_sd_s > 0 else None for key in bounds]
+    p = cell.params
+    normals = [(DRAW_REGISTRY[key].fixed(p), DRAW_REGISTRY[key].sd(p)) if DRAW_REGISTRY[key].sd(p) > 0 else None
+               for key in bounds]
     return importance.Nominal.of(list(bounds.values()), normals)
 
 
@@ -225,7 +167,7 @@ class ClosedLoopScore:
         rows = [r for r, e in zip(self._last_rows, elite, strict=True) if e]
         sums = np.array([r.get("noise_tilt_sums") or [0.0] * 9 for r in rows], dtype=float).reshape(-1, 9)
         counts = np.array([r.get("noise_tilt_counts") or [0.0] * 3 for r in rows], dtype=float).reshape(-1, 3)
-        self.noise_tilt = noise.refit_tilt(self.noise_tilt, sums, counts, weights)
+        self.noise_tilt = tilt_mod.refit_tilt(self.noise_tilt, sums, counts, weights)
         if self.progress:
             self.progress(f"    noise tilt {tilt_text(self.noise_tilt)}")
 
@@ -286,9 +228,10 @@ class ClosedLoopScore:
     def _score(self, row: dict) -> float:
         if row.get("outcome") == "error":
             return -math.inf  # an episode that could not be simulated never counts as the event
-        score = self.score or ("gap" if self.target == "collision" else "h_ef")
+        score = self.score or default_score(self.target)
         if score in H_EF_SCORES:  # h_ef_run from the longest run: the row has no per-step runs
-            unsolved = row.get("both_infeasible_longest_run" if score == "h_ef_run" else "both_infeasible_steps")
+            run = SCORE_REGISTRY[score].unsolved == "run"
+            unsolved = row.get("both_infeasible_longest_run" if run else "both_infeasible_steps")
             return h_ef_score(score, row["min_h_front"], unsolved or 0)
         gaps = [float(row.get(k, math.nan)) for k in ("min_gap_front_m", "min_gap_opp_any_m")]
         collided = bool(row.get("collision_front")) or bool(row.get("collision_opp"))
@@ -304,7 +247,7 @@ class ImportanceSpec:
     """target: collision or ellipse; samples: final draws from the defensive mixture; ce_samples:
     draws per cross-entropy iteration; rho: elite share; alpha: defensive (nominal) share; level;
     score: what steers the cross-entropy stages (None: ``gap`` for collision, ``h_ef`` for ellipse);
-    noise_tilt: the fields of the starting :class:`~mcverify.sim.noise.NoiseTilt` (None: the nominal
+    noise_tilt: the fields of the starting :class:`~mcverify.sim.tilt.NoiseTilt` (None: the nominal
     noise); the cross-entropy iterations refit its tilts."""
 
     target: str = "collision"
@@ -318,8 +261,8 @@ class ImportanceSpec:
     noise_tilt: dict[str, Any] | None = None
 
     def __post_init__(self) -> None:
-        if self.target not in ("collision", "ellipse"):
-            raise ValueError("importance sampling estimates --target collision or ellipse")
+        if self.target not in SCORED_TARGETS:
+            raise ValueError(f"importance sampling estimates --target {' or '.join(SCORED_TARGETS)}")
         if self.score is not None and SCORES.get(self.score) != self.target:
             fitting = ", ".join(k for k, v in SCORES.items() if v == self.target)
             raise ValueError(f"--score {self.score} does not steer towards --target {self.target} "
@@ -340,7 +283,7 @@ class ImportanceSpec:
         """The starting noise tilt as the plant takes it, or None."""
         if self.noise_tilt is None:
             return None
-        return NoiseTilt(**{**self.noise_tilt, "theta": tuple(self.noise_tilt.get("theta", (0.0,) * 9))})
+        return NoiseTilt.from_dict(self.noise_tilt)
 
     def max_noise_ratio(self) -> float:
         """The largest likelihood ratio the tilt can give an episode (1 without a tilt)."""

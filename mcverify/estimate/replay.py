@@ -6,7 +6,7 @@ and check it against what its folder kept.
 campaign seed, the cell, its id, its scenario values (the ``sample_*`` columns) and the noise tilt the
 final draws came from (``noise_tilt`` of the cell in ``estimate.json``, none when the noise stayed
 nominal), exactly as :func:`mcverify.estimate.importance_run.scenario_unit` ran it; every value the
-file kept (:data:`~mcverify.estimate.importance_run.SAMPLE_COLUMNS` and the scenario values) is
+file kept (:data:`~mcverify.estimate.importance_files.SAMPLE_COLUMNS` and the scenario values) is
 compared bit for bit, and so is its weight, recomputed from the fitted proposal (``proposal_a``,
 ``proposal_b``), the defensive share and the replayed noise ratio. The cross-entropy iterations'
 episodes are not kept.
@@ -47,8 +47,9 @@ from mcverify.errors import RunError, UserError
 from mcverify.estimate import folder
 from mcverify.estimate.closed_loop import score_of
 from mcverify.estimate.importance import Proposal, log_defensive_weights
-from mcverify.estimate.importance_run import samples_file, scenario_nominal
-from mcverify.sim.noise import NoiseTilt
+from mcverify.estimate.importance_files import samples_file
+from mcverify.estimate.importance_run import scenario_nominal
+from mcverify.sim.tilt import NoiseTilt
 
 
 def estimate_method(path: Path) -> str | None:
@@ -86,7 +87,7 @@ def replay_draw(est_dir: Path, episode_id: int, out_dir: Path | None = None,
         cell = campaign.cells[result["cell_index"]]
         scenario = {name: float(stored[f"sample_{name}"]) for name in result["parameters"]}
         tilt = result.get("noise_tilt")
-        noise_tilt = None if tilt is None else NoiseTilt(**{**tilt, "theta": tuple(tilt["theta"])})
+        noise_tilt = None if tilt is None else NoiseTilt.from_dict(tilt)
         log_weigh = _log_weights_of(cell, result, float(manifest["estimate"]["alpha"]))
     replayed = run_episodes(cell, [episode_id], campaign.seed, executors.solver_for(cell.params),
                             scenarios={episode_id: scenario}, record=True, noise_tilt=noise_tilt)

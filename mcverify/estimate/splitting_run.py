@@ -34,8 +34,9 @@ from mcverify.campaign.spec import Campaign
 from mcverify.cell import Cell
 from mcverify.errors import RunError
 from mcverify.estimate import folder, splitting
-from mcverify.estimate.closed_loop import SCORES, ClosedLoopProcess
+from mcverify.estimate.closed_loop import ClosedLoopProcess
 from mcverify.estimate.folder import num
+from mcverify.requirements import SCORES
 from mcverify.schema import ERROR_COLUMN, ERROR_OUTCOME
 
 #: The folder of the finished AMS runs, one JSON file each (:func:`run_file`).

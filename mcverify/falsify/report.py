@@ -17,8 +17,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from mcverify import requirements as reqs
 from mcverify import store
-from mcverify.analysis import robustness as rb
 from mcverify.reporting import counterexample_report
 from mcverify.reporting import html as report_html
 from mcverify.reporting.figure_common import subplots
@@ -90,7 +90,7 @@ def _label_symlog_axis(ax: Any, most: int = 9) -> None:
 
 
 def facts(result: SearchResult, records: Sequence[Mapping[str, Any]]) -> list[tuple[str, str]]:
-    req = rb.requirement(result.config.requirement)
+    req = reqs.requirement(result.config.requirement)
     first = result.first_counterexample_text()
     space = result.space.describe()
     generations = len({e.generation for e in result.evaluations})
@@ -194,8 +194,8 @@ def _html_figures(result: SearchResult, drawn: Sequence[tuple[str, str]]) -> lis
 
 def _definitions(chosen: str) -> list[tuple[str, str]]:
     """The chosen requirement first, then every other one (the counterexample file has them all)."""
-    names = [chosen, *[n for n in rb.REQUIREMENTS if n != chosen]]
-    return [(n, f"{rb.requirement(n).statement}; robustness in {rb.requirement(n).unit or 'its own unit'}, "
+    names = [chosen, *[n for n in reqs.REQUIREMENTS if n != chosen]]
+    return [(n, f"{reqs.requirement(n).statement}; robustness in {reqs.requirement(n).unit or 'its own unit'}, "
                 f"negative iff violated") for n in names]
 
 

@@ -32,6 +32,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from mcverify import requirements as reqs
 from mcverify import store
 from mcverify.analysis import counterexamples as cx
 from mcverify.analysis import failure_regions
@@ -172,12 +173,12 @@ def check(config: SearchConfig) -> SearchSpace:
     if config.method == "splitting" and space.common_noise:
         raise RunError("--method splitting draws fresh noise for its branches; [falsify] common_noise = true "
                        "is for the other methods")
-    if config.method == "splitting" and space.guide and not space.guide.endswith(rb.RUN_SUFFIX):
+    if config.method == "splitting" and space.guide and not space.guide.endswith(reqs.RUN_SUFFIX):
         raise RunError(f"--method splitting branches on a running robustness: [falsify] guide {space.guide!r} has "
-                       f"none (splitting takes the requirement itself or a guide ending in {rb.RUN_SUFFIX!r})")
-    if config.method == "splitting" and config.requirement not in rb.STEPWISE:
+                       f"none (splitting takes the requirement itself or a guide ending in {reqs.RUN_SUFFIX!r})")
+    if config.method == "splitting" and config.requirement not in reqs.STEPWISE:
         raise RunError(f"--method splitting branches on a per-step robustness; requirement {config.requirement!r} "
-                       f"has none (choose one of {', '.join(rb.STEPWISE)})")
+                       f"has none (choose one of {', '.join(reqs.STEPWISE)})")
     return space
 
 
@@ -348,7 +349,7 @@ def _trajectory(gen_dir: Path, row: dict[str, Any], why: str) -> dict[str, np.nd
 
 def _guide(gen_dir: Path, row: dict[str, Any], guide: str, control_period_s: float) -> float:
     """The guide's value for one candidate (``@go_back`` and ``@run`` guides read its stored trajectory)."""
-    if not guide.endswith((rb.GO_BACK_SUFFIX, rb.RUN_SUFFIX)) or rb.is_error_row(row):
+    if not guide.endswith((reqs.GO_BACK_SUFFIX, reqs.RUN_SUFFIX)) or rb.is_error_row(row):
         return rb.guide_value(row, None, guide)
     return rb.guide_value(row, _trajectory(gen_dir, row, f"[falsify] guide = {guide!r} reads each candidate's "
                                                          "stored trajectory"), guide,

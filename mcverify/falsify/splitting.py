@@ -34,7 +34,7 @@ lineage), so it costs a whole episode in the search's budget, lands in its gener
 like any other candidate, and replays bit for bit with ``mcverify replay`` (the scheduled branches
 equal snapshot branches: tests/episode/test_snapshot.py). The running robustness comes from each
 candidate's stored trajectory (:func:`mcverify.analysis.robustness.running_robustness`), so only the
-requirements of :data:`~mcverify.analysis.robustness.STEPWISE` can be searched this way; with
+requirements of :data:`~mcverify.requirements.STEPWISE` can be searched this way; with
 ``[falsify] guide = "<r>@run"`` the levels and branch steps are those of the guide's running value
 (r brought forward by the current run of steps with neither problem solved), while counterexamples
 are still judged by the requirement.

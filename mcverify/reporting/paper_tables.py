@@ -223,7 +223,8 @@ def paper_table(summ: Mapping[str, Any], reference: Mapping[str, Any]) -> Table 
         "one-sided bound (≤ u or ≥ l) when k is 0 or n; means with their percentile-bootstrap interval; minima "
         "and maxima over all episodes of the cell.",
         f"ours − paper: for counts, the difference of rates (ours − paper/{runs}) with the {level:.0%} "
-        "Miettinen-Nurminen score interval, the paper's runs being a sample too; for values, the difference and the relative gap.",
+        "Miettinen-Nurminen score interval, the paper's runs being a sample too; for values, the difference and "
+        "the relative gap.",
     ]
     if bounds_shown:
         notes.append("Start-to-goal lower bound: the earliest time at which any controller can meet x_e ≥ x_f(t) + "

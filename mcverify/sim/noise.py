@@ -13,9 +13,15 @@ from typing import NamedTuple, TypeAlias
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from mcverify.model import MAX_SEGMENTS, Noise
+from mcverify.sim.tilt import TILT_BANDS, TILT_UNITS, NoiseTilt
+
+#: The noise tilt of importance sampling lives in :mod:`mcverify.sim.tilt`; these names stay importable
+#: from here for the command line's ``--noise-tilt``.
+__all__ = ["NOISE_KINDS", "TILT_BANDS", "TILT_UNITS", "Disturbance", "LateralDisturbance", "NoiseBounds", "NoiseParams",
+           "NoiseTilt", "gap_segment_offset", "lateral_offset", "measure", "measure_vehicle", "segment_offset",
+           "step_key", "structured_offsets", "unit_draws"]
 
 Array: TypeAlias = jax.Array
 ArrayLike: TypeAlias = jax.typing.ArrayLike
@@ -36,6 +42,96 @@ def step_key(episode_key: Array, step_index: ArrayLike, stream: ArrayLike) -> Ar
         stream: which independent use within the step, integer scalar >= 0.
     """
     return jax.random.fold_in(jax.random.fold_in(episode_key, stream), step_index)
+
+
+class NoiseBounds(NamedTuple):
+    """The paper's noise bounds (Sec. VI-A) as runtime numbers of :func:`measure`: position half-widths
+    beyond and within ``near_threshold_m`` of footprint gap (m), the speed half-width relative to the true
+    speed, and ``scale`` on all three (0 for the kind "none": the true values)."""
+
+    pos_far_m: ArrayLike
+    pos_near_m: ArrayLike
+    near_threshold_m: ArrayLike
+    speed_rel: ArrayLike
+    scale: ArrayLike
+
+    @classmethod
+    def of(cls, noise: Noise) -> NoiseBounds:
+        return cls(noise.pos_far_m, noise.pos_near_m, noise.near_threshold_m, noise.speed_rel,
+                   noise.scale if noise.kind == "paper" else 0.0)
+
+
+class Disturbance(NamedTuple):
+    """One vehicle's structured disturbance of its measured x and speed (:class:`~mcverify.model.Noise`):
+    ``bias_drift`` (4,) [x bias, x drift (1/s), v bias, v drift (1/s)]; ``segments`` (2, MAX_SEGMENTS) the
+    piecewise-constant offsets of [x, speed], zero padded (one array shape, one compiled plant, whatever
+    the number K of segments); ``segment_counts`` (2,) the K of each (0: none)."""
+
+    bias_drift: ArrayLike
+    segments: ArrayLike
+    segment_counts: ArrayLike
+
+    def offsets(self, t_s: ArrayLike, episode_s: ArrayLike) -> tuple[Array, Array]:
+        """s(t) for x and speed at episode time ``t_s`` (:func:`structured_offsets`)."""
+        return structured_offsets(self.bias_drift, t_s, self.segments, self.segment_counts, episode_s)
+
+
+class LateralDisturbance(NamedTuple):
+    """veh_f's structured lateral disturbance: ``bias_drift`` (2,) [y bias, y drift (1/s)], ``segments``
+    (MAX_SEGMENTS,) time offsets and ``gap_segments`` (MAX_SEGMENTS,) offsets by footprint gap band, zero
+    padded, with their counts, and ``gap_window_m`` (m) the gap the bands divide."""
+
+    bias_drift: ArrayLike
+    segments: ArrayLike
+    segment_count: ArrayLike
+    gap_segments: ArrayLike
+    gap_segment_count: ArrayLike
+    gap_window_m: ArrayLike
+
+    def offset(self, t_s: ArrayLike, gap_m: ArrayLike, episode_s: ArrayLike) -> Array:
+        """s_y at episode time ``t_s`` and veh_f's true footprint gap ``gap_m`` (:func:`lateral_offset`)."""
+        return lateral_offset(self.bias_drift, t_s, gap_m, self.segments, self.segment_count, self.gap_segments,
+                              self.gap_segment_count, self.gap_window_m, episode_s)
+
+
+class NoiseParams(NamedTuple):
+    """The noise model of :class:`~mcverify.model.Noise` as one pytree of runtime numbers (traced, not
+    compiled in: one compiled plant serves every noise of a campaign): the bounds, the share of the x
+    and speed errors taken by each vehicle's structured disturbance, veh_f's lateral share and
+    disturbance, and the episode duration ``episode_s`` (s) that the time segments divide."""
+
+    bounds: NoiseBounds
+    share: ArrayLike
+    front: Disturbance
+    opp: Disturbance
+    lateral_share: ArrayLike
+    lateral: LateralDisturbance
+    episode_s: ArrayLike
+
+    @classmethod
+    def of(cls, noise: Noise, episode_s: float) -> NoiseParams:
+        """The runtime numbers of ``noise`` (float arrays) for episodes of ``episode_s`` seconds."""
+        f = lambda v: jnp.asarray(v, dtype=float)  # noqa: E731
+
+        def vehicle(x_bias, x_drift, v_bias, v_drift, x_segments, v_segments) -> Disturbance:
+            return Disturbance(f([x_bias, x_drift, v_bias, v_drift]),
+                               f([_pad_segments(x_segments), _pad_segments(v_segments)]),
+                               f([float(len(x_segments)), float(len(v_segments))]))
+
+        n = noise
+        return cls(
+            bounds=NoiseBounds(*(f(v) for v in NoiseBounds.of(n))),
+            share=f(n.structured_share),
+            front=vehicle(n.front_x_bias, n.front_x_drift_per_s, n.front_v_bias, n.front_v_drift_per_s,
+                          n.front_x_segments, n.front_v_segments),
+            opp=vehicle(n.opp_x_bias, n.opp_x_drift_per_s, n.opp_v_bias, n.opp_v_drift_per_s,
+                        n.opp_x_segments, n.opp_v_segments),
+            lateral_share=f(n.lateral_share),
+            lateral=LateralDisturbance(f([n.front_y_bias, n.front_y_drift_per_s]), f(_pad_segments(n.front_y_segments)),
+                                       f(float(len(n.front_y_segments))), f(_pad_segments(n.front_y_gap_segments)),
+                                       f(float(len(n.front_y_gap_segments))), f(n.front_y_gap_window_m)),
+            episode_s=f(episode_s),
+        )
 
 
 def measure_vehicle(
@@ -69,59 +165,12 @@ def measure_vehicle(
     if noise.kind == "none":
         x, y, v = (jnp.asarray(a, dtype=float) for a in (true_x_m, true_y_m, true_speed_mps))
         return x, y, v
-    return measure(key, true_x_m, true_y_m, true_speed_mps, gap_m, **noise_arrays(noise))
-
-
-def noise_arrays(noise: Noise) -> dict[str, float]:
-    """The noise model as runtime numbers for :func:`measure` ("none" is scale 0)."""
-    return {
-        "pos_far_m": noise.pos_far_m,
-        "pos_near_m": noise.pos_near_m,
-        "near_threshold_m": noise.near_threshold_m,
-        "speed_rel": noise.speed_rel,
-        "scale": noise.scale if noise.kind == "paper" else 0.0,
-    }
-
-
-def disturbance_arrays(noise: Noise) -> dict[str, list[float]]:
-    """The structured disturbance per vehicle as [x bias, x drift (1/s), v bias, v drift (1/s)]."""
-    return {
-        "front": [noise.front_x_bias, noise.front_x_drift_per_s, noise.front_v_bias, noise.front_v_drift_per_s],
-        "opp": [noise.opp_x_bias, noise.opp_x_drift_per_s, noise.opp_v_bias, noise.opp_v_drift_per_s],
-    }
+    return measure(key, true_x_m, true_y_m, true_speed_mps, gap_m, NoiseBounds.of(noise))
 
 
 def _pad_segments(values: tuple[float, ...]) -> list[float]:
     """Segment values zero padded to MAX_SEGMENTS (one array shape, one compiled plant)."""
     return [*values, *([0.0] * (MAX_SEGMENTS - len(values)))]
-
-
-def segment_arrays(noise: Noise) -> dict[str, tuple[list[list[float]], list[float]]]:
-    """The piecewise-constant offsets per vehicle: (values (2, MAX_SEGMENTS) for [x, speed], zero
-    padded; counts (2,) the number K of segments of each, 0 for none). Padding keeps one array shape
-    (one compiled plant) whatever K."""
-
-    return {
-        "front": ([_pad_segments(noise.front_x_segments), _pad_segments(noise.front_v_segments)],
-                  [float(len(noise.front_x_segments)), float(len(noise.front_v_segments))]),
-        "opp": ([_pad_segments(noise.opp_x_segments), _pad_segments(noise.opp_v_segments)],
-                [float(len(noise.opp_x_segments)), float(len(noise.opp_v_segments))]),
-    }
-
-
-def lateral_arrays(noise: Noise) -> dict[str, list[float]]:
-    """veh_f's structured lateral disturbance as runtime numbers: ``disturbance`` [y bias, y drift (1/s)],
-    ``segments`` (MAX_SEGMENTS,) time offsets and ``gap_segments`` (MAX_SEGMENTS,) gap offsets, zero
-    padded, with their counts, and ``gap_window_m`` (m); :attr:`~mcverify.model.Noise.lateral_share`."""
-
-    return {
-        "disturbance": [noise.front_y_bias, noise.front_y_drift_per_s],
-        "segments": _pad_segments(noise.front_y_segments),
-        "segment_count": float(len(noise.front_y_segments)),
-        "gap_segments": _pad_segments(noise.front_y_gap_segments),
-        "gap_segment_count": float(len(noise.front_y_gap_segments)),
-        "gap_window_m": noise.front_y_gap_window_m,
-    }
 
 
 def gap_segment_offset(values: ArrayLike, count: ArrayLike, gap_m: ArrayLike, window_m: ArrayLike) -> Array:
@@ -144,7 +193,7 @@ def lateral_offset(
     episode_s: ArrayLike,
 ) -> Array:
     """s_y for veh_f's measured y: ``clip(bias + drift * t + offset(t) + gap_offset(gap), -1, 1)``.
-    disturbance (2,) [bias, drift (1/s)] as in :func:`lateral_arrays`; t_s, episode_s (s); gap_m: veh_f's
+    disturbance (2,) [bias, drift (1/s)] as in :class:`LateralDisturbance`; t_s, episode_s (s); gap_m: veh_f's
     true footprint gap (m); the time offsets as :func:`segment_offset`, the gap offsets as
     :func:`gap_segment_offset`."""
     d = jnp.asarray(disturbance, dtype=float)
@@ -169,8 +218,8 @@ def structured_offsets(
     episode_s: ArrayLike = 1.0,
 ) -> tuple[Array, Array]:
     """s(t) for x and speed: ``clip(bias + drift * t + offset(t), -1, 1)``; disturbance (4,) as in
-    :func:`disturbance_arrays`, t_s the episode time (s); segments (2, MAX_SEGMENTS) and counts (2,)
-    as in :func:`segment_arrays` over the episode duration ``episode_s`` (s), or None for none.
+    :class:`Disturbance`, t_s the episode time (s); segments (2, MAX_SEGMENTS) and counts (2,)
+    as there over the episode duration ``episode_s`` (s), or None for none.
     Without segments (count 0) the sum is not formed at all, so s(t) is bit for bit the old one."""
     d = jnp.asarray(disturbance, dtype=float)
     raw = [d[0] + d[1] * t_s, d[2] + d[3] * t_s]
@@ -191,12 +240,8 @@ def measure(
     true_y_m: ArrayLike,
     true_speed_mps: ArrayLike,
     gap_m: ArrayLike,
+    bounds: NoiseBounds,
     *,
-    pos_far_m: ArrayLike,
-    pos_near_m: ArrayLike,
-    near_threshold_m: ArrayLike,
-    speed_rel: ArrayLike,
-    scale: ArrayLike,
     share: ArrayLike = 0.0,
     x_offset: ArrayLike = 0.0,
     v_offset: ArrayLike = 0.0,
@@ -204,7 +249,8 @@ def measure(
     y_share: ArrayLike = 0.0,
     y_offset: ArrayLike = 0.0,
 ) -> tuple[Array, Array, Array]:
-    """The paper's noise model with every number a runtime argument (traced, not compiled in).
+    """The paper's noise model with every number a runtime argument (traced, not compiled in): the
+    half-widths of ``bounds``.
 
     Same draws as :func:`measure_vehicle` with kind "paper"; ``scale`` 0 returns the true values
     exactly (x + 0.0). One compiled plant then serves every noise level of a campaign.
@@ -220,162 +266,9 @@ def measure(
     v = jnp.asarray(true_speed_mps, dtype=float)
     if unit is None:
         unit = unit_draws(key)
-    pos_half_m = scale * jnp.where(gap_m > near_threshold_m, pos_far_m, pos_near_m)
-    speed_half_mps = scale * speed_rel * jnp.abs(v)
+    pos_half_m = bounds.scale * jnp.where(gap_m > bounds.near_threshold_m, bounds.pos_far_m, bounds.pos_near_m)
+    speed_half_mps = bounds.scale * bounds.speed_rel * jnp.abs(v)
     wx = (1.0 - share) * unit[0] + share * x_offset
     wv = (1.0 - share) * unit[2] + share * v_offset
     wy = (1.0 - y_share) * unit[1] + y_share * y_offset
     return x + pos_half_m * wx, y + pos_half_m * wy, v + speed_half_mps * wv
-
-
-# ------------------------------------------------------------------ importance-sampling proposal
-
-
-#: The bands of a noise tilt, by veh_f's footprint gap as the ego closes in: approach (split_m, gap_max_m],
-#: jump (near_threshold_m, split_m] (the last far-noise steps), alongside (<= near_threshold_m, near noise).
-TILT_BANDS: tuple[str, ...] = ("approach", "jump", "alongside")
-#: The measured quantities of veh_f a noise tilt draws, in the order of :func:`unit_draws`.
-TILT_UNITS: tuple[str, ...] = ("x", "y", "v")
-
-
-class NoiseTilt(NamedTuple):
-    """A proposal for veh_f's measurement noise near veh_f, for importance sampling
-    (``mcverify estimate --method importance --noise-tilt``); never part of a campaign's model.
-
-    Nominally the units z = [z_x, z_y, z_v] in [-1, 1]^3 of a step (:func:`unit_draws`) are independent
-    uniforms (density 1/2 each). The proposal is a defensive mixture *per episode* [Hes95]: with
-    probability ``defensive`` the episode draws nominally throughout, otherwise its *tilted steps* draw
-    from ``prod_c q_theta[b, c]`` with the exponential tilts
-    ``q_theta(z) = theta e^(theta z) / (2 sinh theta)``, one theta per band b (:data:`TILT_BANDS`, by
-    veh_f's footprint gap: approach (split_m, gap_max_m], jump (near_threshold_m, split_m], alongside
-    below near_threshold_m) and unit c (:data:`TILT_UNITS`). The first ``band_steps`` steps of an episode
-    in each band are tilted, no others. With theta_y < 0 on the approach and > 0 in the jump band the
-    measured veh_f jumps towards the ego at the last far-noise step, the pattern that makes Q1
-    infeasible alongside veh_f (docs/rare_events.md). The episode's likelihood ratio (nominal over
-    proposal) is ``1 / (defensive + (1 - defensive) R)`` with R the product of the tilted densities
-    over the nominal ones at its tilted steps (whichever component drew them), so it never exceeds
-    ``1 / defensive``: routes to the event that the tilt makes rarer keep at least that share of their
-    nominal rate (a per-step mixture bounds each step only, and such routes then carry heavy weights;
-    measured, docs/rare_events.md). Every untilted step draws as always. The tilts are natural
-    exponential families in z, so a cross-entropy refit needs only each episode's per-band sums of z
-    and step counts (:func:`refit_tilt`).
-
-    [Hes95] T. Hesterberg, Weighted average importance sampling and defensive mixture distributions,
-    Technometrics 37 (1995).
-
-    theta: 9 tilts, row-major (band, unit); split_m, gap_max_m: m (gap_max_m 0 turns the tilt off);
-    band_steps: count per band; defensive in (0, 1]; theta_max bounds every |theta|.
-    """
-
-    theta: tuple[float, ...] = (0.0,) * 9
-    split_m: float = 3.0
-    gap_max_m: float = 0.0
-    band_steps: float = 2.0
-    defensive: float = 0.3
-    theta_max: float = 6.0
-
-    def pack(self) -> Array:
-        """(14,) the runtime numbers of :func:`mcverify.sim.plant.observe_tilted`."""
-        return jnp.asarray([*self.theta, self.split_m, self.gap_max_m, self.band_steps, self.defensive,
-                            self.theta_max], dtype=float)
-
-    def max_ratio(self) -> float:
-        """The largest likelihood ratio an episode can carry: 1 / defensive."""
-        return 1.0 / self.defensive
-
-
-#: fold_in stream of the episode's mixture choice (apart from the per-step streams, the scenario stream
-#: 1_000_000 and the branch stream 2_000_000 of the episode layer).
-STREAM_TILT = 3_000_000
-#: Below this |theta| the tilt is the uniform itself (the closed forms divide by theta).
-_THETA_EPS = 1e-6
-
-
-def tilted_unit(unit: ArrayLike, theta: ArrayLike) -> Array:
-    """Inverse-CDF draw from ``q_theta`` on [-1, 1] given a uniform ``unit`` in [-1, 1]:
-    ``z = log(e^-theta + v (e^theta - e^-theta)) / theta`` with v = (unit + 1) / 2, written stably
-    for large |theta|; the unit itself when |theta| is tiny. Elementwise."""
-    u = jnp.asarray(unit, dtype=float)
-    th = jnp.asarray(theta, dtype=float)
-    v = 0.5 * (u + 1.0)
-    a = jnp.abs(th)
-    safe = jnp.where(a < _THETA_EPS, 1.0, a)
-    # for theta > 0: z = 1 + log(v + (1 - v) e^(-2 theta)) / theta; theta < 0 mirrors it (z -> -z, v -> 1 - v)
-    w = jnp.where(th >= 0, v, 1.0 - v)
-    z_pos = 1.0 + jnp.log(w + (1.0 - w) * jnp.exp(-2.0 * safe)) / safe
-    z = jnp.where(th >= 0, z_pos, -z_pos)
-    return jnp.where(a < _THETA_EPS, u, jnp.clip(z, -1.0, 1.0))
-
-
-def tilt_density_ratio(z: ArrayLike, theta: ArrayLike) -> Array:
-    """q_theta(z) / (1/2): the tilted density over the uniform one at z in [-1, 1] (1 at theta = 0)."""
-    z = jnp.asarray(z, dtype=float)
-    th = jnp.asarray(theta, dtype=float)
-    a = jnp.abs(th)
-    safe = jnp.where(a < _THETA_EPS, 1.0, a)
-    # theta e^(theta z) / sinh(theta) = 2 a e^(a (s z - 1)) / (1 - e^(-2 a)), s = sign(theta): no overflow
-    s = jnp.where(th >= 0, 1.0, -1.0)
-    ratio = 2.0 * safe * jnp.exp(safe * (s * z - 1.0)) / -jnp.expm1(-2.0 * safe)
-    return jnp.where(a < _THETA_EPS, 1.0, ratio)
-
-
-def tilt_log_density_ratio(z: ArrayLike, theta: ArrayLike) -> Array:
-    """log prod_c q_theta_c(z_c) / (1/2): one tilted step's log density ratio, tilted over nominal;
-    z, theta (..., k), summed over the last axis."""
-    return jnp.sum(jnp.log(tilt_density_ratio(z, theta)), axis=-1)
-
-
-def episode_log_lr(log_ratio: ArrayLike, defensive: ArrayLike) -> Array:
-    """An episode's log(nominal / proposal) from the sum of its tilted steps' log density ratios:
-    ``-log(defensive + (1 - defensive) e^log_ratio)``, at most ``-log(defensive)``; computed stably."""
-    lr = jnp.asarray(log_ratio, dtype=float)
-    return -jnp.logaddexp(jnp.log(defensive), jnp.log1p(-defensive) + lr)
-
-
-def tilted_units(raw: ArrayLike, nominal: ArrayLike, theta: ArrayLike) -> tuple[Array, Array]:
-    """One tilted step's units (3,) and their log density ratio (tilted over nominal). raw (3,): the
-    step's own uniform units (:func:`unit_draws`), used as they are in an episode the mixture drew as
-    nominal (``nominal`` True), else mapped through the tilts' inverse CDFs; theta (3,)."""
-    z = jnp.where(nominal, jnp.asarray(raw, dtype=float), tilted_unit(raw, theta))
-    return z, tilt_log_density_ratio(z, theta)
-
-
-def tilt_mean(theta: np.ndarray) -> np.ndarray:
-    """E_q[z] = coth(theta) - 1/theta (the Langevin function), 0 at theta = 0; elementwise."""
-    th = np.asarray(theta, dtype=float)
-    small = np.abs(th) < 1e-4
-    safe = np.where(small, 1.0, th)
-    return np.where(small, th / 3.0, 1.0 / np.tanh(safe) - 1.0 / safe)
-
-
-def tilt_for_mean(mean: np.ndarray, theta_max: float) -> np.ndarray:
-    """The theta in [-theta_max, theta_max] whose tilt has this mean (inverse of :func:`tilt_mean`, by
-    bisection; monotone), elementwise."""
-    m = np.asarray(mean, dtype=float)
-    lo, hi = np.full(m.shape, -float(theta_max)), np.full(m.shape, float(theta_max))
-    for _ in range(80):
-        mid = 0.5 * (lo + hi)
-        below = tilt_mean(mid) < m
-        lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
-    return 0.5 * (lo + hi)
-
-
-def refit_tilt(tilt: NoiseTilt, sums: np.ndarray, counts: np.ndarray, weights: np.ndarray,
-               smoothing: float = 0.7) -> NoiseTilt:
-    """The cross-entropy update of a tilt from the elite episodes: per band and unit, the weighted MLE
-    of the exponential tilt, whose mean must equal the weighted mean of the drawn units,
-    ``sum_i w_i S_ibc / sum_i w_i N_ib``; smoothed with the old theta; a band no elite episode was tilted
-    in keeps its theta.
-
-    sums: (m, 9) each episode's per-band sums of its tilted units (row-major (band, unit)); counts:
-    (m, 3) its tilted steps per band; weights: (m,) the episodes' likelihood ratios (nominal over the
-    proposal they were drawn from)."""
-    w = np.asarray(weights, dtype=float)[:, None]
-    n = np.repeat(np.asarray(counts, dtype=float), len(TILT_UNITS), axis=1)  # (m, 9)
-    total = np.sum(w * n, axis=0)
-    mean = np.divide(np.sum(w * np.asarray(sums, dtype=float), axis=0), total, out=np.zeros(total.shape),
-                     where=total > 0)
-    old = np.asarray(tilt.theta, dtype=float)
-    fitted = tilt_for_mean(np.clip(mean, -0.999, 0.999), tilt.theta_max)
-    theta = np.where(total > 0, smoothing * fitted + (1.0 - smoothing) * old, old)
-    return tilt._replace(theta=tuple(float(t) for t in theta))

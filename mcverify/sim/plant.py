@@ -10,15 +10,14 @@ Bit-for-bit reproducibility: XLA rewrites algebra differently for different batc
 example ``(x / a)**2`` became ``x*x * (1/a**2)`` in one shape and not in another), so the same
 episode would differ in its last bits between a chunk of 8 and a replay of 1, and the closed loop
 amplifies last bits. Hence every call runs exactly one compiled executable of fixed width
-:data:`LANES` (:class:`LaneGroups` pads and splits), with the CPU ISA capped below FMA (see
-``mcverify/sim/__init__.py``): an episode's numbers do not depend on the chunk size, its position in
-the chunk or the other episodes.
+:data:`LANES` (:class:`mcverify.sim.lanes.LaneGroups` pads and splits), with the CPU ISA capped below
+FMA (see ``mcverify/sim/__init__.py``): an episode's numbers do not depend on the chunk size, its
+position in the chunk or the other episodes.
 """
 
 from __future__ import annotations
 
 import functools
-import math
 from collections.abc import Sequence
 from typing import NamedTuple
 
@@ -29,6 +28,7 @@ import numpy as np
 from mcverify import levels
 from mcverify.model import ModelParams
 from mcverify.sim import agents, barriers, geometry, noise, vehicles
+from mcverify.sim import tilt as tilt_mod
 
 Array = jax.Array
 
@@ -69,34 +69,12 @@ class PlantParams(NamedTuple):
     decel_max_mps2: Array
     opp_accel_max_mps2: Array
     opp_brake_max_mps2: Array
-    pos_far_m: Array
-    pos_near_m: Array
-    near_threshold_m: Array
-    speed_rel: Array
-    noise_scale: Array
-    noise_share: Array
-    front_disturbance: Array
-    opp_disturbance: Array
-    front_segments: Array  # (2, MAX_SEGMENTS) piecewise-constant offsets of x and speed, zero padded
-    front_segment_counts: Array  # (2,) segments in use (0: none)
-    opp_segments: Array
-    opp_segment_counts: Array
-    episode_s: Array  # sim.max_time_s: the segments divide it
-    lateral_share: Array  # share of veh_f's y error taken by the lateral disturbance (0: none)
-    front_y_disturbance: Array  # (2,) [y bias, y drift (1/s)]
-    front_y_segments: Array  # (MAX_SEGMENTS,) time offsets of y, zero padded
-    front_y_segment_count: Array
-    front_y_gap_segments: Array  # (MAX_SEGMENTS,) offsets of y by veh_f's footprint gap band, zero padded
-    front_y_gap_segment_count: Array
-    front_y_gap_window_m: Array
+    noise: noise.NoiseParams  # the perception noise (bounds, structured disturbances)
 
 
 def plant_params(p: ModelParams) -> PlantParams:
     """The runtime numbers of a cell's plant."""
     o, road = p.opposing, p.road
-    nz = noise.noise_arrays(p.noise)
-    segments = noise.segment_arrays(p.noise)
-    lateral = noise.lateral_arrays(p.noise)
     f = lambda v: jnp.asarray(v, dtype=float)  # noqa: E731
     return PlantParams(
         control_period_s=f(p.sim.control_period_s),
@@ -120,26 +98,7 @@ def plant_params(p: ModelParams) -> PlantParams:
         decel_max_mps2=f(p.barrier.decel_max_mps2),
         opp_accel_max_mps2=f(o.accel_max_mps2),
         opp_brake_max_mps2=f(o.brake_max_mps2),
-        pos_far_m=f(nz["pos_far_m"]),
-        pos_near_m=f(nz["pos_near_m"]),
-        near_threshold_m=f(nz["near_threshold_m"]),
-        speed_rel=f(nz["speed_rel"]),
-        noise_scale=f(nz["scale"]),
-        noise_share=f(p.noise.structured_share),
-        front_disturbance=f(noise.disturbance_arrays(p.noise)["front"]),
-        opp_disturbance=f(noise.disturbance_arrays(p.noise)["opp"]),
-        front_segments=f(segments["front"][0]),
-        front_segment_counts=f(segments["front"][1]),
-        opp_segments=f(segments["opp"][0]),
-        opp_segment_counts=f(segments["opp"][1]),
-        episode_s=f(p.sim.max_time_s),
-        lateral_share=f(p.noise.lateral_share),
-        front_y_disturbance=f(lateral["disturbance"]),
-        front_y_segments=f(lateral["segments"]),
-        front_y_segment_count=f(lateral["segment_count"]),
-        front_y_gap_segments=f(lateral["gap_segments"]),
-        front_y_gap_segment_count=f(lateral["gap_segment_count"]),
-        front_y_gap_window_m=f(lateral["gap_window_m"]),
+        noise=noise.NoiseParams.of(p.noise, p.sim.max_time_s),
     )
 
 
@@ -150,9 +109,9 @@ class Plant(NamedTuple):
     opp: (2,) [x_m, v_mps] on the opposing lane centre, v <= 0 (road frame);
     front_accel_mps2: () this episode's alpha_f; t_s: () time since the episode started;
     tilt_log_ratio: () the sum of log(tilted / nominal density) over the tilted steps so far (the
-    episode's likelihood ratio follows from it, :func:`~mcverify.sim.noise.episode_log_lr`); tilt_sums:
+    episode's likelihood ratio follows from it, :func:`~mcverify.sim.tilt.episode_log_lr`); tilt_sums:
     (9,) the sums of the tilted units per (band, unit), row-major; tilt_counts: (3,) the tilted steps per
-    band (all 0 unless a :class:`~mcverify.sim.noise.NoiseTilt` is in use).
+    band (all 0 unless a :class:`~mcverify.sim.tilt.NoiseTilt` is in use).
     """
 
     ego: Array
@@ -262,54 +221,46 @@ def observe(plant: Plant, key: Array, step: Array, pp: PlantParams) -> tuple[Arr
     return _measure_front(plant, key, step, pp, c.gap_front_m), _measure_opp(plant, key, step, pp, c.gap_opp_m)
 
 
-def _noise_numbers(pp: PlantParams) -> dict[str, Array]:
-    return {"pos_far_m": pp.pos_far_m, "pos_near_m": pp.pos_near_m, "near_threshold_m": pp.near_threshold_m,
-            "speed_rel": pp.speed_rel, "scale": pp.noise_scale}
-
-
 def _measure_front(plant: Plant, key: Array, step: Array, pp: PlantParams, gap_m: Array,
                    unit: Array | None = None) -> Array:
     """veh_f measured (3,) [x, y, v], from the step's own draws or from ``unit`` (3,) (a noise tilt's)."""
-    fsx, fsv = noise.structured_offsets(pp.front_disturbance, plant.t_s, pp.front_segments, pp.front_segment_counts,
-                                        pp.episode_s)
-    fsy = noise.lateral_offset(pp.front_y_disturbance, plant.t_s, gap_m, pp.front_y_segments,
-                               pp.front_y_segment_count, pp.front_y_gap_segments, pp.front_y_gap_segment_count,
-                               pp.front_y_gap_window_m, pp.episode_s)
+    nz = pp.noise
+    fsx, fsv = nz.front.offsets(plant.t_s, nz.episode_s)
+    fsy = nz.lateral.offset(plant.t_s, gap_m, nz.episode_s)
     return jnp.stack(noise.measure(noise.step_key(key, step, STREAM_FRONT), plant.front[0], 0.0, plant.front[1],
-                                   gap_m, **_noise_numbers(pp), share=pp.noise_share, x_offset=fsx, v_offset=fsv,
-                                   unit=unit, y_share=pp.lateral_share, y_offset=fsy))
+                                   gap_m, nz.bounds, share=nz.share, x_offset=fsx, v_offset=fsv, unit=unit,
+                                   y_share=nz.lateral_share, y_offset=fsy))
 
 
 def _measure_opp(plant: Plant, key: Array, step: Array, pp: PlantParams, gap_m: Array) -> Array:
     """veh_o measured (2,) [x, v]."""
-    osx, osv = noise.structured_offsets(pp.opp_disturbance, plant.t_s, pp.opp_segments, pp.opp_segment_counts,
-                                        pp.episode_s)
+    nz = pp.noise
+    osx, osv = nz.opp.offsets(plant.t_s, nz.episode_s)
     ox, _, ov = noise.measure(noise.step_key(key, step, STREAM_OPP), plant.opp[0], pp.opp_lane_y_m, plant.opp[1],
-                              gap_m, **_noise_numbers(pp), share=pp.noise_share, x_offset=osx, v_offset=osv)
+                              gap_m, nz.bounds, share=nz.share, x_offset=osx, v_offset=osv)
     return jnp.stack([ox, ov])
 
 
-def observe_tilted(plant: Plant, key: Array, step: Array, pp: PlantParams, tilt: Array,
+def observe_tilted(plant: Plant, key: Array, step: Array, pp: PlantParams, tilt: tilt_mod.TiltParams,
                    live: Array) -> tuple[Array, Array, Plant]:
-    """:func:`observe` with veh_f's noise drawn from a :class:`~mcverify.sim.noise.NoiseTilt` at the
+    """:func:`observe` with veh_f's noise drawn from a :class:`~mcverify.sim.tilt.NoiseTilt` at the
     tilted steps (importance sampling); returns the measurements and the plant with its likelihood
     ratio and tilt statistics updated.
 
-    tilt: (14,) :meth:`NoiseTilt.pack`; live: () whether the episode still uses its measurements (a
-    stopped episode's later draws change nothing, so they are not counted: its likelihood ratio does
-    not depend on how long its chunk runs). Away from the tilted steps every draw is :func:`observe`'s,
-    bit for bit (the step's own units go through the same measurement).
+    tilt: the tilt's runtime numbers (:meth:`mcverify.sim.tilt.NoiseTilt.params`); live: () whether the
+    episode still uses its measurements (a stopped episode's later draws change nothing, so they are not
+    counted: its likelihood ratio does not depend on how long its chunk runs). Away from the tilted steps
+    every draw is :func:`observe`'s, bit for bit (the step's own units go through the same measurement).
     """
     c = checks(plant.ego, plant.front, plant.opp, jnp.zeros(2), pp)
-    theta, split_m, gap_max_m, band_steps, defensive, theta_max = (
-        tilt[:9].reshape(3, 3), tilt[9], tilt[10], tilt[11], tilt[12], tilt[13])
+    theta, split_m, gap_max_m, band_steps, defensive, theta_max = tilt
     gap = c.gap_front_m
-    band = jnp.where(gap > split_m, 0, jnp.where(gap > pp.near_threshold_m, 1, 2))
-    tilted = (live & (pp.noise_scale > 0) & (gap <= gap_max_m) & (plant.tilt_counts[band] < band_steps))
+    band = jnp.where(gap > split_m, 0, jnp.where(gap > pp.noise.bounds.near_threshold_m, 1, 2))
+    tilted = (live & (pp.noise.bounds.scale > 0) & (gap <= gap_max_m) & (plant.tilt_counts[band] < band_steps))
     raw = noise.unit_draws(noise.step_key(key, step, STREAM_FRONT))
     # one draw per episode (not per step) picks the mixture's component
-    nominal = jax.random.uniform(jax.random.fold_in(key, noise.STREAM_TILT), (), dtype=float) < defensive
-    z, log_ratio = noise.tilted_units(raw, nominal, jnp.clip(theta[band], -theta_max, theta_max))
+    nominal = jax.random.uniform(jax.random.fold_in(key, tilt_mod.STREAM_TILT), (), dtype=float) < defensive
+    z, log_ratio = tilt_mod.tilted_units(raw, nominal, jnp.clip(theta[band], -theta_max, theta_max))
     front = _measure_front(plant, key, step, pp, gap, unit=jnp.where(tilted, z, raw))
     one_hot = (jnp.arange(3) == band) & tilted
     return front, _measure_opp(plant, key, step, pp, c.gap_opp_m), plant._replace(
@@ -403,7 +354,7 @@ def initial_plant(p: ModelParams, front_accels_mps2: Sequence[float],
                   opp_speeds_mps: Sequence[float] | None = None) -> Plant:
     """The campaign's start (paper Sec. VI-B) for episodes with these alpha_f (and veh_o speeds,
     default ``opposing.speed_mps``), batched. veh_o is parked out of reach when there is none or
-    when it appears later (``opposing.spawn = "lane_entry"``, :meth:`LaneGroups.place_opposing`)."""
+    when it appears later (``opposing.spawn = "lane_entry"``, :meth:`mcverify.sim.lanes.LaneGroups.place_opposing`)."""
     n = len(front_accels_mps2)
     s, o = p.scenario, p.opposing
     ego = jnp.tile(jnp.array([s.ego_x_m, p.road.ego_lane_y_m, 0.0, s.ego_speed_mps]), (n, 1))
@@ -425,123 +376,3 @@ def footprint_top_y_m(ego: np.ndarray, p: ModelParams) -> np.ndarray:
     g = p.geometry
     psi = ego[:, 2]
     return ego[:, 1] + 0.5 * g.length_m * np.abs(np.sin(psi)) + 0.5 * g.width_m * np.cos(psi)
-
-
-class LaneGroups:
-    """A batch of n episodes run as ceil(n / LANES) fixed-width groups (see the module docstring).
-
-    Padding lanes repeat the last episode, are never active and are dropped from every output.
-    """
-
-    def __init__(self, plant: Plant, keys: Array, params: ModelParams, tilt: noise.NoiseTilt | None = None) -> None:
-        self.n = int(plant.t_s.shape[0])
-        self.pp = plant_params(params)
-        # a noise tilt (importance sampling) with an empty window is no tilt: the plain executable runs
-        self.tilt = tilt.pack() if tilt is not None and tilt.gap_max_m > 0 else None
-        self.substeps = params.sim.substeps
-        self._obs, self._adv, self._ini = compiled(self.substeps)
-        pad = (-self.n) % LANES
-        self.groups = math.ceil(self.n / LANES) if self.n else 0
-        padded = jax.tree.map(lambda a: jnp.concatenate([a, jnp.repeat(a[-1:], pad, axis=0)]), plant)
-        keys = jnp.concatenate([keys, jnp.repeat(keys[-1:], pad, axis=0)])
-        split = lambda a: [a[g * LANES:(g + 1) * LANES] for g in range(self.groups)]  # noqa: E731
-        self.plants = [jax.tree.map(lambda a, g=g: a[g * LANES:(g + 1) * LANES], padded) for g in range(self.groups)]
-        self.keys = split(keys)
-        self.traces = [self._ini(pl, self.pp) for pl in self.plants]
-
-    def _gather(self, parts: list) -> np.ndarray:
-        return np.concatenate([np.asarray(a) for a in parts])[: self.n]
-
-    def ego(self) -> np.ndarray:
-        """(n, 4) true ego states."""
-        return self._gather([pl.ego for pl in self.plants])
-
-    def observe(self, step: int, live: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Measured (front (n, 3), opp (n, 2)) at control step ``step``; ``live`` (n,) bool: the episodes
-        that still use their measurements (read only under a noise tilt; default all)."""
-        outs = self.observe_on_device(step, live)
-        return self._gather([o[0] for o in outs]), self._gather([o[1] for o in outs])
-
-    def observe_on_device(self, step: int, live: np.ndarray | None = None) -> list[tuple[Array, Array]]:
-        """Per lane group, the (front, opp) measurements as JAX arrays, not yet copied to the host
-        (under a noise tilt the plants' noise memory is updated too)."""
-        if self.tilt is None:
-            return [self._obs(pl, k, jnp.asarray(step), self.pp) for pl, k in zip(self.plants, self.keys, strict=True)]
-        live = np.ones(self.n, dtype=bool) if live is None else np.asarray(live, dtype=bool)
-        live = np.concatenate([live, np.zeros(self.groups * LANES - self.n, dtype=bool)])
-        outs = []
-        for g in range(self.groups):
-            front, opp, self.plants[g] = compiled_tilted()(self.plants[g], self.keys[g], jnp.asarray(step), self.pp,
-                                                           self.tilt, jnp.asarray(live[g * LANES:(g + 1) * LANES]))
-            outs.append((front, opp))
-        return outs
-
-    def noise_log_lr(self) -> np.ndarray:
-        """(n,) log(nominal / proposal) of each episode's noise so far (0 without a noise tilt)."""
-        if self.tilt is None:
-            return np.zeros(self.n)
-        ratio = self._gather([pl.tilt_log_ratio for pl in self.plants])
-        return np.asarray(noise.episode_log_lr(ratio, self.tilt[12]))
-
-    def tilt_statistics(self) -> tuple[np.ndarray, np.ndarray]:
-        """((n, 9) sums of the tilted units per (band, unit), (n, 3) tilted steps per band)."""
-        return self._gather([pl.tilt_sums for pl in self.plants]), self._gather([pl.tilt_counts for pl in self.plants])
-
-    def advance(self, u: np.ndarray, active: np.ndarray) -> list[Substep]:
-        """One control period for every episode; returns the per-group sub-step outputs."""
-        pad = self.groups * LANES - self.n
-        u = np.concatenate([u, np.zeros((pad, 2))])
-        active = np.concatenate([active, np.zeros(pad, dtype=bool)])
-        subs = []
-        for g in range(self.groups):
-            sl = slice(g * LANES, (g + 1) * LANES)
-            self.plants[g], self.traces[g], sub = self._adv(
-                self.plants[g], self.traces[g], jnp.asarray(u[sl]), jnp.asarray(active[sl]), self.pp
-            )
-            subs.append(sub)
-        return subs
-
-    def substeps_of(self, subs: list[Substep]) -> Substep:
-        """Concatenate per-group sub-step outputs to (n, substeps, ...) numpy arrays."""
-        return Substep(*(self._gather([getattr(s, f) for s in subs]) for f in Substep._fields))
-
-    def place_opposing(self, b: int, x_m: float, v_mps: float) -> None:
-        """Put veh_o of episode ``b`` at ``x_m`` with road-frame velocity ``v_mps`` (< 0: towards the
-        ego) now, between two control periods (the spawn rule of ``opposing.spawn``)."""
-        g, lane = divmod(b, LANES)
-        pl = self.plants[g]
-        self.plants[g] = pl._replace(opp=pl.opp.at[lane].set(jnp.array([x_m, v_mps], dtype=float)))
-
-    def lane_state(self, b: int) -> tuple[Plant, SafetyTrace, np.ndarray]:
-        """Episode ``b``'s plant state, running safety trace and noise root key, as host copies
-        (a snapshot: :meth:`set_lane_state` puts them back exactly)."""
-        g, lane = divmod(b, LANES)
-        # the whole lane group to the host first, then numpy indexing: indexing the JAX array itself
-        # dispatches one device op per field (about 0.25 ms each, 5 ms a control step for splitting's
-        # per-step snapshots); np.array copies, so nothing views a device buffer
-        take = lambda a: np.array(np.asarray(a)[lane])  # noqa: E731
-        return (Plant(*(take(a) for a in self.plants[g])), SafetyTrace(*(take(a) for a in self.traces[g])),
-                take(self.keys[g]))
-
-    def set_lane_state(self, b: int, plant: Plant, trace: SafetyTrace, key: np.ndarray) -> None:
-        """Overwrite episode ``b``'s plant state, safety trace and noise root key (restore a snapshot,
-        or switch the noise of the steps to come to a branch's key)."""
-        g, lane = divmod(b, LANES)
-
-        def put(a: Array, v: np.ndarray) -> Array:  # on the host, then one transfer (no per-field device op)
-            host = np.array(a)
-            host[lane] = np.asarray(v, dtype=host.dtype)
-            return jnp.asarray(host)
-
-        self.plants[g] = Plant(*(put(a, v) for a, v in zip(self.plants[g], plant, strict=True)))
-        self.traces[g] = SafetyTrace(*(put(a, v) for a, v in zip(self.traces[g], trace, strict=True)))
-        self.keys[g] = put(self.keys[g], key)
-
-    def set_lane_key(self, b: int, key: np.ndarray) -> None:
-        """Switch episode ``b``'s noise root key for the steps to come (a scheduled noise branch)."""
-        g, lane = divmod(b, LANES)
-        self.keys[g] = self.keys[g].at[lane].set(jnp.asarray(key, dtype=self.keys[g].dtype))
-
-    def trace(self) -> SafetyTrace:
-        """(n,) final safety metrics as numpy arrays."""
-        return SafetyTrace(*(self._gather([getattr(t, f) for t in self.traces]) for f in SafetyTrace._fields))

@@ -12,7 +12,8 @@ import pytest
 
 from mcverify.campaign import executors
 from mcverify.campaign.spec import campaign_from_dict, load_campaign
-from mcverify.episode.rollout import episode_key, run_episodes, sample_scenario
+from mcverify.episode.draws import episode_key, sample_scenario
+from mcverify.episode.rollout import run_episodes
 from mcverify.schema import COLUMN_NAMES, ERROR_COLUMN, TIMING_COLUMNS
 
 FAST_SIM = {"control_period_s": 0.1, "substeps": 20}

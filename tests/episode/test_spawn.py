@@ -10,7 +10,8 @@ import pytest
 
 from mcverify.campaign.spec import CampaignError, campaign_from_dict
 from mcverify.control.planner import Planner
-from mcverify.episode.rollout import episode_key, run_episodes, sample_scenario
+from mcverify.episode.draws import episode_key, sample_scenario
+from mcverify.episode.rollout import run_episodes
 from mcverify.model import ModelParams
 from mcverify.sim.plant import footprint_top_y_m
 from mcverify.solver.mpc import MpcSolution

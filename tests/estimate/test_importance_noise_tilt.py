@@ -1,5 +1,5 @@
 """Importance sampling with a noise tilt: the score function draws part of each sample from the
-band-wise tilts of :class:`mcverify.sim.noise.NoiseTilt` (two "steps", one in the approach band and
+band-wise tilts of :class:`mcverify.sim.tilt.NoiseTilt` (two "steps", one in the approach band and
 one in the jump band, three units each, as the plant does) and returns
 :class:`mcverify.estimate.importance.Scored` with the likelihood ratio of those draws, and refits the
 tilts by cross-entropy (``refit_noise``). Failure where theta >= 0.8 and the y unit jumps from below
@@ -16,35 +16,36 @@ import pytest
 
 from mcverify.estimate import importance
 from mcverify.sim import noise
+from mcverify.sim import tilt as tl
 
 BOUNDS = [(0.0, 1.0)]
 # P(theta >= 0.8) * P(y_approach < -0.5) * P(y_jump > 0.9) with uniform units on [-1, 1]
 P = 0.2 * 0.25 * 0.05
 
 
-def tilt_of(y_approach: float, y_jump: float) -> noise.NoiseTilt:
+def tilt_of(y_approach: float, y_jump: float) -> tl.NoiseTilt:
     theta = np.zeros((3, 3))
     theta[0, 1], theta[1, 1] = y_approach, y_jump
-    return noise.NoiseTilt(theta=tuple(theta.ravel()), split_m=1.0, gap_max_m=2.0, band_steps=1, defensive=0.3)
+    return tl.NoiseTilt(theta=tuple(theta.ravel()), split_m=1.0, gap_max_m=2.0, band_steps=1, defensive=0.3)
 
 
 def _draw(key: jax.Array, theta: jax.Array, defensive: float):
     """Two tilted steps (bands 0 and 1) as in observe_tilted: units (2, 3), the episode's log ratio
     (nominal over the episode-level mixture) and the sums (9,)."""
-    nominal = jax.random.uniform(jax.random.fold_in(key, noise.STREAM_TILT), (), dtype=float) < defensive
+    nominal = jax.random.uniform(jax.random.fold_in(key, tl.STREAM_TILT), (), dtype=float) < defensive
     units, log_ratio = [], 0.0
     for band in range(2):
-        z, lr = noise.tilted_units(noise.unit_draws(noise.step_key(key, band, 0)), nominal, theta[band])
+        z, lr = tl.tilted_units(noise.unit_draws(noise.step_key(key, band, 0)), nominal, theta[band])
         units.append(z)
         log_ratio = log_ratio + lr
     sums = jnp.concatenate([units[0], units[1], jnp.zeros(3)])
-    return jnp.stack(units), noise.episode_log_lr(log_ratio, defensive), sums
+    return jnp.stack(units), tl.episode_log_lr(log_ratio, defensive), sums
 
 
 @dataclass
 class TiltedScore:
     seed: int
-    tilt: noise.NoiseTilt
+    tilt: tl.NoiseTilt
     calls: int = 0
     last: dict = field(default_factory=dict)
 
@@ -59,7 +60,7 @@ class TiltedScore:
         return importance.Scored(np.minimum(theta[:, 0] - 0.8, jump), log_lr)
 
     def refit_noise(self, elite: np.ndarray, weights: np.ndarray) -> None:
-        self.tilt = noise.refit_tilt(self.tilt, self.last["sums"][elite], self.last["counts"][elite], weights)
+        self.tilt = tl.refit_tilt(self.tilt, self.last["sums"][elite], self.last["counts"][elite], weights)
 
 
 def test_a_good_tilt_makes_the_event_common_and_the_estimate_is_close():
@@ -115,8 +116,8 @@ def test_the_refit_matches_the_weighted_mean_of_the_drawn_units():
     tilt = tilt_of(0.0, 0.0)
     sums = np.zeros((2, 9))
     sums[:, 1] = [-0.6, -0.8]  # approach y of two elite episodes, one tilted step each
-    new = noise.refit_tilt(tilt, sums, np.array([[1.0, 0, 0], [1.0, 0, 0]]), np.array([1.0, 3.0]), smoothing=1.0)
+    new = tl.refit_tilt(tilt, sums, np.array([[1.0, 0, 0], [1.0, 0, 0]]), np.array([1.0, 3.0]), smoothing=1.0)
     fitted = new.theta[1]
-    assert noise.tilt_mean(np.array(fitted)) == pytest.approx((-0.6 + 3 * -0.8) / 4, abs=1e-9)
+    assert tl.tilt_mean(np.array(fitted)) == pytest.approx((-0.6 + 3 * -0.8) / 4, abs=1e-9)
     assert new.theta[0] == pytest.approx(0.0, abs=1e-9)  # approach x: drawn, mean 0
     assert new.theta[4] == 0.0  # the jump band had no tilted step: its tilt is kept

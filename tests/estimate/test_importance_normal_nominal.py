@@ -15,7 +15,7 @@ from scipy import integrate
 from scipy import stats as sps
 
 from mcverify.campaign.spec import apply_overrides
-from mcverify.episode import rollout
+from mcverify.episode import draws as episode_draws
 from mcverify.estimate import importance
 from mcverify.model import ModelParams
 
@@ -34,14 +34,14 @@ def window_score(theta: np.ndarray) -> np.ndarray:
 
 @pytest.mark.parametrize("u", [1e-9, 0.01, 0.3, 0.5, 0.9, 0.9999, 1 - 1e-7, 1 - 1e-12, 1.0])
 def test_the_episode_sampler_inverts_the_truncated_normal_in_both_tails(u):
-    x = rollout.truncated_normal(u, MEAN_S, SD_S, *BOX)
+    x = episode_draws.truncated_normal(u, MEAN_S, SD_S, *BOX)
     expected = MEAN_S + SD_S * sps.truncnorm.isf(1 - u, A, B) if u > 0.5 else MEAN_S + SD_S * sps.truncnorm.ppf(u, A, B)
     assert x == pytest.approx(min(expected, BOX[1]), rel=1e-9, abs=1e-12)
     assert BOX[0] <= x <= BOX[1]
 
 
 def test_a_narrow_box_truncates():
-    xs = [rollout.truncated_normal(u, 1.5, 0.5, 1.0, 1.2) for u in np.linspace(0.001, 1.0, 50)]
+    xs = [episode_draws.truncated_normal(u, 1.5, 0.5, 1.0, 1.2) for u in np.linspace(0.001, 1.0, 50)]
     assert min(xs) >= 1.0 and max(xs) <= 1.2 and xs == sorted(xs)
 
 
@@ -49,13 +49,14 @@ def test_episodes_draw_their_spawn_delay_from_the_normal():
     params = apply_overrides(ModelParams(), {
         "opposing.kind": "human", "opposing.spawn": "lane_entry", "opposing.spawn_delay_s": MEAN_S,
         "opposing.spawn_delay_range_s": list(BOX), "opposing.spawn_delay_sd_s": SD_S}, "test")
-    draws = np.array([rollout.sample_scenario(jax.random.PRNGKey(i), params)["opp_spawn_delay_s"] for i in range(400)])
+    draws = np.array([episode_draws.sample_scenario(jax.random.PRNGKey(i), params)["opp_spawn_delay_s"]
+                      for i in range(400)])
     assert sps.kstest(draws, sps.truncnorm(A, B, loc=MEAN_S, scale=SD_S).cdf).pvalue > 1e-3
     uniform = apply_overrides(ModelParams(), {
         "opposing.kind": "human", "opposing.spawn": "lane_entry", "opposing.spawn_delay_range_s": list(BOX)}, "test")
-    assert rollout.sample_scenario(jax.random.PRNGKey(0), uniform)["opp_spawn_delay_s"] == pytest.approx(
+    assert episode_draws.sample_scenario(jax.random.PRNGKey(0), uniform)["opp_spawn_delay_s"] == pytest.approx(
         BOX[1] - (BOX[1] - BOX[0]) * float(jax.random.uniform(jax.random.fold_in(
-            jax.random.PRNGKey(0), rollout.SCENARIO_STREAM + 3), (), dtype=float)))
+            jax.random.PRNGKey(0), episode_draws.SCENARIO_STREAM + 3), (), dtype=float)))
 
 
 def test_a_uniform_nominal_draws_and_weighs_exactly_as_before():

@@ -121,7 +121,9 @@ def test_vmap_batch_does_not_change_episode_draws(assert_batch_equals_loop) -> N
 
 
 def _measure_args():
-    return {"pos_far_m": 0.5, "pos_near_m": 0.1, "near_threshold_m": 2.0, "speed_rel": 0.1, "scale": 1.0}
+    from mcverify.sim.noise import NoiseBounds  # noqa: PLC0415
+
+    return {"bounds": NoiseBounds(pos_far_m=0.5, pos_near_m=0.1, near_threshold_m=2.0, speed_rel=0.1, scale=1.0)}
 
 
 def test_no_disturbance_is_bit_identical_to_the_plain_draw():
@@ -220,7 +222,8 @@ def test_segment_fields_are_validated_and_padded():
 
     noise_params = camp([0.5, -1.0, 0.0]).cells[0].params.noise
     assert noise_params.opp_x_segments == (0.5, -1.0, 0.0)
-    values, counts = nz.segment_arrays(noise_params)["opp"]
+    opp = nz.NoiseParams.of(noise_params, 25.0).opp
+    values, counts = opp.segments.tolist(), opp.segment_counts.tolist()
     assert counts == [3.0, 0.0] and values[0][:4] == [0.5, -1.0, 0.0, 0.0] and len(values[1]) == 8
     for bad in ([1.5], [0.0] * 9):
         with pytest.raises(CampaignError, match="noise.opp_x_segments") as err:

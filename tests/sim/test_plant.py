@@ -8,9 +8,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mcverify.episode.rollout import episode_key
+from mcverify.episode.draws import episode_key
 from mcverify.model import ModelParams
-from mcverify.sim import plant
+from mcverify.sim import lanes, plant
 
 HUMAN = dataclasses.replace(
     ModelParams(),
@@ -21,7 +21,7 @@ HUMAN = dataclasses.replace(
 def run_world(params: ModelParams, ids: list[int], inputs: np.ndarray, steps: int = 12):
     """Drive the episodes ``ids`` (as one batch) with per-episode scripted inputs; collect everything."""
     keys = jnp.stack([episode_key(5, 0, e) for e in ids])
-    world = plant.LaneGroups(plant.initial_plant(params, [0.0] * len(ids)), keys, params)
+    world = lanes.LaneGroups(plant.initial_plant(params, [0.0] * len(ids)), keys, params)
     out = []
     for step in range(steps):
         front, opp = world.observe(step)
@@ -78,7 +78,7 @@ def test_perception_noise_bounds_and_none_is_exact():
     for params, exact in ((dataclasses.replace(HUMAN, noise=dataclasses.replace(HUMAN.noise, kind="none")), True),
                           (HUMAN, False)):
         keys = jnp.stack([episode_key(1, 0, e) for e in range(16)])
-        world = plant.LaneGroups(plant.initial_plant(params, [0.0] * 16), keys, params)
+        world = lanes.LaneGroups(plant.initial_plant(params, [0.0] * 16), keys, params)
         front, opp = world.observe(0)
         true_f = np.array([params.scenario.front_x_m, 0.0, params.scenario.front_speed_mps])
         true_o = np.array([params.opposing.x_m, -params.opposing.speed_mps])
