@@ -8,6 +8,7 @@ import logging
 import sys
 from pathlib import Path
 
+from mcverify import requirements
 from mcverify.cli import options, run
 
 _log = logging.getLogger("mcverify.cli")
@@ -30,8 +31,7 @@ def _add_method_options(p: argparse.ArgumentParser) -> None:
                         "importance sampling over the scenario ranges (both in this process unless --workers "
                         "or --executor ray is given)")
     p.add_argument("--target", default=None,
-                   help="event whose rate is estimated: collision (default), ellipse, unsafe, invariance, "
-                        "opp_invariance")
+                   help=f"event whose rate is estimated: {requirements.target_help()} (default collision)")
     p.add_argument("--until-halfwidth", type=options.halfwidth, default=None, metavar="H",
                    help="stop a cell when the interval's half-width is <= H (absolute, e.g. 0.01) or <= H "
                         "of the estimate (relative, e.g. 30%%)")
@@ -47,11 +47,9 @@ def _add_method_options(p: argparse.ArgumentParser) -> None:
 
 def _add_rare_event_options(p: argparse.ArgumentParser) -> None:
     """Splitting's and importance sampling's options."""
-    p.add_argument("--score", choices=("gap", "gap_run", "h_ef", "h_ef_held", "h_ef_run"), default=None,
-                   help="splitting, importance: footprint gap (target collision, the default) or gap_run (the gap "
-                   "brought forward by the current run of steps with neither problem solved; target collision), "
-                   "h_ef, h_ef_held or h_ef_run (h_ef brought forward by all such steps, or by the current run; "
-                   "all three target ellipse); for importance it steers the cross-entropy stages only")
+    p.add_argument("--score", choices=tuple(requirements.SCORES), default=None,
+                   help=f"splitting, importance: {requirements.score_help()} (default: the target's first); for "
+                        "importance it steers the cross-entropy stages only")
     p.add_argument("--particles", type=options.positive_int, default=None,
                    help="splitting: particles per run (default 20)")
     p.add_argument("--replicates", type=options.positive_int, default=None,
@@ -171,14 +169,14 @@ def _estimate_spec(args, method: str):
 
     if args.campaign is None:
         raise RunError("missing campaign file, e.g. `mcverify estimate campaigns/eps_sweep_rare.toml`")
-    if method != "mc" and args.target not in ("collision", "ellipse"):
-        raise RunError(f"{method} estimates --target collision or ellipse")
+    if method != "mc" and args.target not in requirements.SCORED_TARGETS:
+        raise RunError(f"{method} estimates --target {' or '.join(requirements.SCORED_TARGETS)}")
     try:
         if method == "mc":
             halfwidth, relative = args.until_halfwidth or (None, False)
             return EstimateSpec(args.method, args.target, halfwidth, relative, args.budget, args.level)
         if method == "splitting":
-            score = args.score or ("gap" if args.target == "collision" else "h_ef")
+            score = args.score or requirements.default_score(args.target)
             spec = splitting_run.SplittingSpec(score, args.particles, 1, args.replicates, args.level,
                                                args.max_iterations)
             if spec.target != args.target:

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from mcverify import requirements
 from mcverify.cli import options
 from mcverify.errors import RunError
 
@@ -26,9 +27,8 @@ def add(sub, parents: list[argparse.ArgumentParser]) -> None:
     p.add_argument("--budget", type=options.positive_int,
                    help="episodes the search may spend (required for a new search)")
     p.add_argument("--requirement",
-                   help="requirement to falsify: collision_front, collision_opp, ellipse, invariance, h_eo, "
-                        "theorem5, theorem5_certified or safe (docs/falsification.md; default: the file's "
-                        "[falsify] requirement, else safe)")
+                   help=f"requirement to falsify: {requirements.requirement_help()} (docs/falsification.md; "
+                        "default: the file's [falsify] requirement, else safe)")
     p.add_argument("--dry-run", action="store_true",
                    help="check the campaign, its [falsify] table and the options, say what the search would "
                         "spend, and run nothing")
@@ -75,7 +75,6 @@ def _dry_run(config: Any, campaign: Any, workers: int | None) -> str:
 
 def command(args: Any) -> int:
     """Start a search (``CAMPAIGN.toml``) or resume one (``--resume OUT``); prints the report."""
-    from mcverify.analysis import robustness as rb  # noqa: PLC0415
     from mcverify.campaign import executors  # noqa: PLC0415 - keep `mcverify --help` fast
     from mcverify.campaign.spec import apply_settings, load_campaign  # noqa: PLC0415
     from mcverify.falsify import methods, search  # noqa: PLC0415
@@ -115,9 +114,9 @@ def command(args: Any) -> int:
         method = args.method or "cma"
         if method not in methods.METHODS:
             raise RunError(f"unknown --method {method!r}; choose one of {', '.join(methods.METHODS)}")
-        if args.requirement is not None and args.requirement not in rb.REQUIREMENTS:
+        if args.requirement is not None and args.requirement not in requirements.REQUIREMENTS:
             raise RunError(f"--requirement {args.requirement!r}: unknown requirement; known: "
-                           f"{', '.join(rb.REQUIREMENTS)}")
+                           f"{', '.join(requirements.REQUIREMENTS)}")
         import tomllib  # noqa: PLC0415
 
         raw = apply_settings(tomllib.loads(Path(args.campaign).read_text(encoding="utf-8")), args.settings)
