@@ -210,7 +210,7 @@ SCORES: dict[str, str] = {s.name: s.target for s in _SCORES}
 #: The scores built on h_ef (the others on the footprint gap).
 H_EF_SCORES: tuple[str, ...] = tuple(s.name for s in _SCORES if s.signal == "h_ef")
 #: The targets a score reaches (what splitting and importance sampling can estimate).
-SCORED_TARGETS: tuple[str, ...] = tuple(dict.fromkeys(s.target for s in _SCORES))
+SCORED_TARGETS: tuple[str, ...] = tuple(t for t in TARGETS if any(s.target == t for s in _SCORES))
 
 
 def default_score(target: str) -> str:

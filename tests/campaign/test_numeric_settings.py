@@ -34,7 +34,8 @@ if sys.argv[1:] == ["unpinned"]:
     mcverify.provenance.pin_xla_flags = lambda environ=None: ""
 import jax, jax.numpy as jnp, numpy as np
 from mcverify.campaign.spec import load_campaign
-from mcverify.sim.plant import LaneGroups, initial_plant
+from mcverify.sim.lanes import LaneGroups
+from mcverify.sim.plant import initial_plant
 p = load_campaign("campaigns/table4.toml", episodes=1).cells[0].params
 n = 8
 keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.PRNGKey(3), i))(jnp.arange(n))
