@@ -97,13 +97,13 @@ class Settings:
 class Stage:
     """One stage's population: its threshold y_j (failure_level at the last), the share P_j of it at or
     below, Au and Beck's gamma_j, and how it was made: the moves' acceptance rate and the scale lambda
-    they started from (NaN at stage 0, drawn from the prior), its evaluations and control steps."""
+    they started from (None at stage 0, drawn from the prior), its evaluations and control steps."""
 
     threshold: float
     share: float
     gamma: float
-    acceptance: float
-    scale: float
+    acceptance: float | None
+    scale: float | None
     evaluations: int
     steps: int
 
@@ -119,8 +119,8 @@ class Run:
     evaluations: int
     steps: int
     capped: bool
-    failing: np.ndarray = field(repr=False)
-    failing_g: np.ndarray = field(repr=False)
+    failing: np.ndarray = field(repr=False, compare=False)  # == leaves the arrays out; same_as compares them
+    failing_g: np.ndarray = field(repr=False, compare=False)
 
     def same_as(self, other: Run) -> bool:
         """Bit-for-bit equality, arrays included."""
@@ -210,7 +210,7 @@ class _State:
     stage: int
     x: np.ndarray
     g: np.ndarray
-    made: tuple[float, float, int, int]  # acceptance, scale, evaluations, steps of this population
+    made: tuple[float | None, float | None, int, int]  # acceptance, scale, evaluations, steps of this population
     scale: float
     stages: list[Stage]
 
@@ -247,7 +247,7 @@ def _evaluate(problem: Problem, x: np.ndarray) -> tuple[np.ndarray, int]:
 def _start(problem: Problem, settings: Settings, seed: int, run: int) -> _State:
     x = _rng(seed, run, 0, 0).standard_normal((settings.n, problem.dimension))
     g, steps = _evaluate(problem, x)
-    return _State(0, x, g, (math.nan, math.nan, settings.n, steps), settings.initial_scale, [])
+    return _State(0, x, g, (None, None, settings.n, steps), settings.initial_scale, [])
 
 
 def run(problem: Problem, settings: Settings = Settings(), *, seed: int = 0, run: int = 0,
