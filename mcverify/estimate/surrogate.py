@@ -236,3 +236,64 @@ class Surrogate:
             m = min(batch, episodes - start)
             hits += int(np.sum(self.performance(rng.standard_normal((m, self.dimension))) <= 0.0))
         return hits
+
+
+# -- the surrogate as a branching process, for adaptive multilevel splitting ---------------------------
+
+
+@dataclass(frozen=True)
+class SurrogatePath:
+    """One episode (or branch) of :class:`SplittingProcess`: its whole input vector, the running
+    danger score after each control step from step 0, and the steps this simulation ran."""
+
+    x: np.ndarray
+    scores: np.ndarray
+    steps: int
+
+    def snapshot(self, step: int) -> tuple[int, np.ndarray]:
+        return step, self.x
+
+    def replay_record(self) -> dict[str, list[float]]:
+        return {"x": self.x.tolist()}
+
+
+@dataclass(frozen=True)
+class SplittingProcess:
+    """The surrogate as a :class:`mcverify.estimate.splitting.BranchingProcess`: the danger score after
+    step t is minus the robustness with the decisive draws not yet made counted as neutral (e = 0),
+    its running maximum the path's score; it reaches 0 exactly on the event (only the jump route can
+    be complete before the last decisive draw, and then it is the event). A branch from the snapshot
+    after step t keeps every unit used up to t (the scenario units among them) and draws the later
+    ones afresh from (``seed``, branch id): the closed loop's time-restart splitting."""
+
+    surrogate: Surrogate
+    seed: int = 0
+
+    def _step_of_units(self, tau: int) -> np.ndarray:
+        """The control step at which each noise unit (per step, all channels together) is used."""
+        t = np.arange(self.surrogate.horizon_steps)
+        return t if self.surrogate.clock == "time" else (t + tau) % self.surrogate.horizon_steps
+
+    def run(self, start, branch_id: int, stop_level: float) -> SurrogatePath:
+        s = self.surrogate
+        fresh = np.random.default_rng([self.seed, branch_id]).standard_normal(s.dimension)
+        if start is None:
+            after, x = -1, fresh
+        else:
+            after, parent = start
+            _, tau = s.scenario(parent[None, :])
+            later = np.repeat(self._step_of_units(int(tau[0])) > after, s.channels)
+            x = parent.copy()
+            x[SCENARIO_UNITS:][later] = fresh[SCENARIO_UNITS:][later]
+        k, tau = s.scenario(x[None, :])
+        a, b, c = s.tails(tau, k)
+        z = s.noise_units(x[None, :], tau)[0]
+        end = int(min(s.horizon_steps, tau[0] + 3 + s.depth_steps))
+        t = np.arange(end)
+        seen = (t[:, None] >= tau[0] + np.arange(3)[None, :])  # (steps, 3): decisive draw j made by step t
+        partial = np.where(seen, z[None, :], 0.0)  # a draw not yet made counts as e = 0 (z = 0)
+        danger = -np.asarray(s.depth_m)[k[0]] * s.margins(partial, a, b, c)
+        scores = np.maximum.accumulate(danger)
+        hit = np.flatnonzero(scores >= stop_level)
+        stop = int(hit[0]) + 1 if hit.size else end  # the failure set is absorbing for the estimate
+        return SurrogatePath(x, scores[:stop], stop - (after + 1))

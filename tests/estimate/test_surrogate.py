@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from mcverify.estimate.surrogate import Surrogate, union_probability
+from mcverify.estimate.surrogate import SplittingProcess, Surrogate, union_probability
 
 
 @pytest.mark.parametrize("a, b, c", [(0.01, 0.2, 0.1), (0.05, 0.1, 0.3), (0.001, 0.3, 0.8)])
@@ -101,3 +101,19 @@ def test_bad_inputs_are_refused():
         Surrogate.at(0.5)
     with pytest.raises(ValueError):
         Surrogate().performance(np.zeros((2, 10)))
+
+
+def test_the_splitting_process_scores_the_event_and_branches_keep_the_past():
+    s = Surrogate.at(1e-2)
+    process = SplittingProcess(s, seed=1)
+    whole = process.run(None, 5, math.inf)
+    # the final running danger is minus the robustness: the score reaches 0 exactly on the event
+    assert whole.scores[-1] == pytest.approx(max(-s.performance(whole.x[None, :])[0], whole.scores[-2]))
+    assert whole.steps == s.steps(whole.x[None, :])[0]
+    _, tau = s.scenario(whole.x[None, :])
+    t = int(tau[0])
+    again = process.run(whole.snapshot(t), 5, math.inf)  # the same branch id replays the episode
+    np.testing.assert_array_equal(again.x, whole.x)
+    other = process.run(whole.snapshot(t), 6, math.inf)
+    np.testing.assert_array_equal(other.x[: 2 + t + 1], whole.x[: 2 + t + 1])  # the scenario and steps <= t kept
+    assert not np.array_equal(other.x, whole.x) and other.steps == whole.steps - (t + 1)
