@@ -143,3 +143,37 @@ def test_bad_settings_are_refused(options):
 def test_an_interval_needs_two_runs():
     with pytest.raises(ValueError):
         subset.estimate(SURROGATE, SMALL, runs=1)
+
+
+def _coverage(problem, p: float, settings: subset.Settings, reps: int, runs: int) -> float:
+    return float(np.mean([subset.estimate(problem, settings, runs=runs, seed=rep, crude_episode_steps=1.0).contains(p)
+                          for rep in range(reps)]))
+
+
+@pytest.mark.slow
+def test_coverage_on_a_half_space_at_1e_6():
+    """A single route, no stopping time: the t interval of 5 runs holds p in >= 90 % of 100 repetitions."""
+    p = float(ndtr(-4.75))
+    assert _coverage(HalfSpace(4.75), p, SMALL, reps=100, runs=5) >= 0.9
+
+
+ROUTE_LOSS = ("measured (benchmarks.surrogate_coverage): the populations of the intermediate stages lose the "
+              "sustained and away-then-towards routes, whose near misses the robustness grades as far, so the "
+              "10-run t interval misses; under the time clock a change of the scenario also hands the decision "
+              "to unconditioned units")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("clock, p", [
+    ("decision", 1e-3),
+    pytest.param("decision", 1e-4, marks=pytest.mark.xfail(strict=True, reason=ROUTE_LOSS)),
+    pytest.param("decision", 1e-6, marks=pytest.mark.xfail(strict=True, reason=ROUTE_LOSS)),
+    pytest.param("time", 1e-4, marks=pytest.mark.xfail(strict=True, reason=ROUTE_LOSS)),
+    pytest.param("time", 1e-6, marks=pytest.mark.xfail(strict=True, reason=ROUTE_LOSS)),
+])
+def test_coverage_on_the_surrogate(clock, p):
+    """The coverage study of benchmarks.surrogate_coverage (N = 500, p0 = 0.1, 10 runs per interval,
+    100 repetitions): the target is >= 90 %; the cells measured below it are strict expected failures,
+    so that a fix shows."""
+    problem = Surrogate.at(p, clock=clock)
+    assert _coverage(problem, problem.exact_p(), SMALL, reps=100, runs=10) >= 0.9
