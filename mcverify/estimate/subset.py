@@ -361,8 +361,9 @@ def estimate(problem: Problem, settings: Settings = Settings(), *, runs: int = 1
              crude_episode_steps: float | None = None, level: float = 0.95,
              checkpoint_dir: Path | None = None) -> Estimate:
     """``runs`` independent runs (run ids 0 .. runs - 1 under ``seed``) and their t interval.
-    crude_episode_steps: one crude episode's control steps (default: the mean over stage 0's draws
-    is not known here, so the problem's ``mean_steps()`` if it has one, else NaN)."""
+    crude_episode_steps: the control steps of one crude Monte Carlo episode, for the comparison (default:
+    the problem's ``mean_steps()`` where it has one, else NaN). checkpoint_dir: run r keeps its
+    checkpoint in run-r.npz there (four digits), so a killed estimate resumes by the same call."""
     if runs < 2:
         raise ValueError(f"an interval needs at least 2 runs, got {runs}")
     done = [run(problem, settings, seed=seed, run=r,

@@ -89,6 +89,13 @@ def test_a_killed_run_resumed_from_its_checkpoint_equals_an_uninterrupted_one(tm
     assert subset.run(Killed(SURROGATE, 0), settings, seed=5, run=2, checkpoint=path).same_as(whole)
 
 
+def test_an_estimate_with_checkpoints_equals_one_without(tmp_path):
+    plain = subset.estimate(SURROGATE, SMALL, runs=2, seed=8)
+    assert subset.estimate(SURROGATE, SMALL, runs=2, seed=8, checkpoint_dir=tmp_path) == plain
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run-0000.npz", "run-0001.npz"]
+    assert subset.estimate(SURROGATE, SMALL, runs=2, seed=8, checkpoint_dir=tmp_path) == plain  # read back
+
+
 def test_a_checkpoint_of_another_run_is_refused(tmp_path):
     path = tmp_path / "run.npz"
     subset.run(SURROGATE, SMALL, seed=5, run=0, checkpoint=path)
