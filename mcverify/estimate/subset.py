@@ -24,7 +24,8 @@ Error: the within-run coefficient of variation of [AB01], delta^2 = sum_j (1 - P
 (1 + gamma_j), gamma_j from the indicator's correlation along the chains; the interval is the
 Student t interval of independent runs (:func:`estimate`), with the within-run value reported beside.
 
-Determinism: stage 0's draws come from SeedSequence(seed, spawn_key=(run, 0, 0)); chain c of stage j
+Determinism: stage 0's draws come from SeedSequence(seed, spawn_key=(run, 0, 0)) (seed: an int or ints such as
+(campaign seed, cell index)); chain c of stage j
 from (run, j, 1, c), step s being the s-th block of its stream; the seeds' order from (run, j, 0).
 A run with a ``checkpoint`` path saves its state after each stage and resumes from it: the resumed
 run is bit for bit the uninterrupted one. Every failing sample of the last stage is returned with its
@@ -128,7 +129,12 @@ class Run:
                 and np.array_equal(self.failing, other.failing) and np.array_equal(self.failing_g, other.failing_g))
 
 
-def _rng(seed: int, *key: int) -> np.random.Generator:
+#: A run's seed: an int, or ints such as (campaign seed, cell index) so that the cells of one campaign
+#: share no stream (SeedSequence entropy; a trailing 0 adds nothing, so (seed, 0) is seed's stream).
+Seed = int | tuple[int, ...]
+
+
+def _rng(seed: Seed, *key: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=key))
 
 
@@ -159,7 +165,7 @@ def _propose(x: np.ndarray, sigma: np.ndarray, normals: np.ndarray, uniforms: np
 
 
 def _chains(problem: Problem, seeds: np.ndarray, seed_g: np.ndarray, threshold: float, scale: float,
-            settings: Settings, key: tuple[int, int, int]) -> tuple[np.ndarray, np.ndarray, float, float, int]:
+            settings: Settings, key: tuple[Seed, int, int]) -> tuple[np.ndarray, np.ndarray, float, float, int]:
     """Run the chains of stage ``key`` = (seed, run, stage) from ``seeds``: returns states (chains,
     length, d), their g, the acceptance rate, the adapted scale and the control steps spent."""
     seed, run, stage = key
@@ -196,7 +202,7 @@ def _chains(problem: Problem, seeds: np.ndarray, seed_g: np.ndarray, threshold: 
 # -- checkpoints -------------------------------------------------------------------------------------
 
 
-def _fingerprint(problem: Problem, settings: Settings, seed: int, run: int) -> str:
+def _fingerprint(problem: Problem, settings: Settings, seed: Seed, run: int) -> str:
     """What a checkpoint must match: a problem names itself by a ``key`` attribute, else by its repr."""
     name = getattr(problem, "key", None) or repr(problem)
     return json.dumps({"settings": asdict(settings), "seed": seed, "run": run, "dimension": int(problem.dimension),
@@ -244,13 +250,13 @@ def _evaluate(problem: Problem, x: np.ndarray) -> tuple[np.ndarray, int]:
     return np.asarray(g, dtype=float), int(np.sum(steps))
 
 
-def _start(problem: Problem, settings: Settings, seed: int, run: int) -> _State:
+def _start(problem: Problem, settings: Settings, seed: Seed, run: int) -> _State:
     x = _rng(seed, run, 0, 0).standard_normal((settings.n, problem.dimension))
     g, steps = _evaluate(problem, x)
     return _State(0, x, g, (None, None, settings.n, steps), settings.initial_scale, [])
 
 
-def run(problem: Problem, settings: Settings = Settings(), *, seed: int = 0, run: int = 0,
+def run(problem: Problem, settings: Settings = Settings(), *, seed: Seed = 0, run: int = 0,
         checkpoint: Path | None = None) -> Run:
     """One subset simulation run (see the module docstring). With ``checkpoint``, the state after
     each stage is saved there, and a run that finds its own checkpoint continues from it."""
@@ -357,7 +363,7 @@ def from_runs(runs: list[Run], crude_episode_steps: float, level: float = 0.95) 
                     evaluations, steps, crude, warnings=tuple(warnings))
 
 
-def estimate(problem: Problem, settings: Settings = Settings(), *, runs: int = 10, seed: int = 0,
+def estimate(problem: Problem, settings: Settings = Settings(), *, runs: int = 10, seed: Seed = 0,
              crude_episode_steps: float | None = None, level: float = 0.95,
              checkpoint_dir: Path | None = None) -> Estimate:
     """``runs`` independent runs (run ids 0 .. runs - 1 under ``seed``) and their t interval.

@@ -67,6 +67,9 @@ def test_runs_are_keyed_by_seed_and_run():
     assert subset.run(SURROGATE, SMALL, seed=1, run=0).same_as(one)
     assert not subset.run(SURROGATE, SMALL, seed=1, run=1).same_as(one)
     assert not subset.run(SURROGATE, SMALL, seed=2, run=0).same_as(one)
+    # (campaign seed, cell index): cell 0 is the seed's own stream, another cell has its own
+    assert subset.run(SURROGATE, SMALL, seed=(1, 0), run=0).same_as(one)
+    assert not subset.run(SURROGATE, SMALL, seed=(1, 1), run=0).same_as(one)
 
 
 @pytest.mark.parametrize("move", subset.MOVES)
