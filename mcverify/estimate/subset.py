@@ -24,9 +24,9 @@ Error: the within-run coefficient of variation of [AB01], delta^2 = sum_j (1 - P
 (1 + gamma_j), gamma_j from the indicator's correlation along the chains; the interval is the
 Student t interval of independent runs (:func:`estimate`), with the within-run value reported beside.
 
-Determinism: stage 0's draws come from SeedSequence(seed, spawn_key=(run, 0, 0)) (seed: an int or ints such as
-(campaign seed, cell index)); chain c of stage j
-from (run, j, 1, c), step s being the s-th block of its stream; the seeds' order from (run, j, 0).
+Determinism: stage 0's draws come from SeedSequence(seed, spawn_key=(run, 0, 0)), seed an int or ints
+such as (campaign seed, cell index); chain c of stage j from (run, j, 1, c), step s being the s-th
+block of its stream; the seeds' order from (run, j, 0).
 A run with a ``checkpoint`` path saves its state after each stage and resumes from it: the resumed
 run is bit for bit the uninterrupted one. Every failing sample of the last stage is returned with its
 full input vector, so a deterministic episode function replays it.
