@@ -11,6 +11,7 @@ import dataclasses
 import math
 from typing import Any
 
+from mcverify.draws import DRAWS, field_value
 from mcverify.errors import CampaignError
 from mcverify.levels import Level
 from mcverify.model import (
@@ -233,13 +234,13 @@ def _validate_front_and_opposing(p: ModelParams, bad) -> None:
                   f"got {short(o.spawn_gap_m)}")
     if not (math.isfinite(o.spawn_delay_s) and o.spawn_delay_s >= 0):
         raise bad("opposing.spawn_delay_s", f"must be a finite number >= 0, got {short(o.spawn_delay_s)}")
-    _check_range(bad, "opposing.spawn_gap_range_m", o.spawn_gap_range_m, lo_min=p.geometry.length_m)
-    _check_range(bad, "opposing.spawn_delay_range_s", o.spawn_delay_range_s, lo_min=0.0)
+    for draw in DRAWS:  # every per-episode draw's range within the bounds its registry entry gives
+        _check_range(bad, draw.range_field, field_value(p, draw.range_field), lo_min=draw.lowest(p),
+                     hi_max=draw.highest(p))
     if not (math.isfinite(o.spawn_delay_sd_s) and o.spawn_delay_sd_s >= 0):
         raise bad("opposing.spawn_delay_sd_s", f"must be a finite number >= 0, got {short(o.spawn_delay_sd_s)}")
     if o.spawn_delay_sd_s > 0:
         _check_normal_range(bad, o)
-    _check_range(bad, "opposing.speed_range_mps", o.speed_range_mps, lo_min=0.0, hi_max=o.speed_limit_mps)
 
 
 def _check_normal_range(bad, o) -> None:
