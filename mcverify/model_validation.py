@@ -47,6 +47,15 @@ def validate_params(p: ModelParams, where: str) -> None:
     def bad(key: str, why: str) -> CampaignError:
         return CampaignError(f"{where}: {key}: {why}")
 
+    _check_finite(p, bad)
+    _check_signs(p, bad)
+    _check_mpc_and_sim(p, bad)
+    _check_barrier_and_scenario(p, bad)
+    _validate_front_and_opposing(p, bad)
+    _check_start_outside_level(p, bad)
+
+
+def _check_finite(p: ModelParams, bad) -> None:
     # NaN and inf slip through the comparisons below: refuse them first (inf only where the model's
     # own default is inf, meaning "no limit", e.g. scenario.front_accel_duration_s).
     for sec in dataclasses.fields(p):
@@ -58,6 +67,10 @@ def validate_params(p: ModelParams, where: str) -> None:
             for x in v if isinstance(v, tuple) else (v,):
                 if isinstance(x, float) and not math.isfinite(x) and not (unbounded and x == default):
                     raise bad(f"{sec.name}.{f.name}", f"must be finite, got {short(v)}")
+
+
+def _check_signs(p: ModelParams, bad) -> None:
+    """Fields that must be positive, non-negative or fractions of the noise bound."""
     e, b, m, n, s, sc = p.ego, p.barrier, p.mpc, p.noise, p.sim, p.scenario
     positive = {
         "geometry.length_m": p.geometry.length_m,
@@ -112,6 +125,10 @@ def validate_params(p: ModelParams, where: str) -> None:
     for key, v in nonneg.items():
         if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
             raise bad(key, f"must be a finite number >= 0, got {short(v)}")
+
+
+def _check_mpc_and_sim(p: ModelParams, bad) -> None:
+    e, m, s = p.ego, p.mpc, p.sim
     if e.accel_min_mps2 >= 0:
         raise bad("ego.accel_min_mps2", f"must be < 0 (braking), got {e.accel_min_mps2}")
     if e.y_min_m >= e.y_max_m:
@@ -155,6 +172,10 @@ def validate_params(p: ModelParams, where: str) -> None:
     if type(m.infeasibility_audit_every) is not int or m.infeasibility_audit_every < 1:
         raise bad("mpc.infeasibility_audit_every",
                   f"must be an integer >= 1, got {short(m.infeasibility_audit_every)}")
+
+
+def _check_barrier_and_scenario(p: ModelParams, bad) -> None:
+    e, b, n, sc = p.ego, p.barrier, p.noise, p.scenario
     if n.kind not in ("paper", "none"):
         raise bad("noise.kind", f"unknown noise model {short(n.kind)}; valid: paper, none")
     if not b.lambdas_m or any(not (isinstance(x, int | float) and math.isfinite(x) and x > 0) for x in b.lambdas_m):
@@ -179,7 +200,11 @@ def validate_params(p: ModelParams, where: str) -> None:
     if sc.front_x_m <= sc.ego_x_m:
         raise bad("scenario.front_x_m", f"the front vehicle must start ahead of the ego (x > scenario.ego_x_m = "
                   f"{sc.ego_x_m:.4g})")
-    _validate_front_and_opposing(p, bad)
+
+
+def _check_start_outside_level(p: ModelParams, bad) -> None:
+    """The ego must start outside the level set h >= eps of veh_f's ellipse (Theorem 2's premise)."""
+    b, sc = p.barrier, p.scenario
     level = "barrier.epsilon" if b.epsilon is not None else "barrier.lambda0"
     try:
         eps = Level.of_barrier(b).epsilon
