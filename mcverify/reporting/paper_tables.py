@@ -217,6 +217,15 @@ def paper_table(summ: Mapping[str, Any], reference: Mapping[str, Any]) -> Table 
                 rows.append([label, *values])
                 bounds_shown = True
 
+    notes = _notes(summ, reference, runs, bounds_shown=bounds_shown,
+                   margin_rows=any(_is_margin_row(q) for q, _ in quantities),
+                   absent=[n for n in names if n not in by_name], missing_metrics=missing_metrics)
+    return Table(f"paper-table-{key}", layout.title, ["", *headers], rows, notes)
+
+
+def _notes(summ: Mapping[str, Any], reference: Mapping[str, Any], runs: int, *, bounds_shown: bool,
+           margin_rows: bool, absent: list[str], missing_metrics: set[str]) -> list[str]:
+    """The notes under a paper table: how ours and the gaps are given, and what the run lacks."""
     level = summ["confidence_level"]
     notes = [
         f"ours: counts as k/n [{method_name(summ['interval_method'])} {level:.0%} interval], with the exact "
@@ -231,19 +240,18 @@ def paper_table(summ: Mapping[str, Any], reference: Mapping[str, Any]) -> Table 
                      "φ v_f from the cell's start with veh_f at its constant speed (true values), the ego at its "
                      "speed limit from t = 0, or accelerating at its limit up to it (mcverify.analysis.bounds). "
                      "Our overtake time is taken on measured values, so noise can put it slightly below the bound.")
-    if any(_is_margin_row(q) for q, _ in quantities):
+    if margin_rows:
         notes.append("Two meanings of safe: \"safe\" is no collision and h_ef ≥ 0 (outside the ellipse) at every "
                      "sub-step; \"outside the ε margin\" also needs h_ef ≥ ε, the cell's level (min h_ef − ε ≥ 0).")
     if reference.get("source"):
         notes.append(f"Paper: {reference['source']}.")
-    absent = [n for n in names if n not in by_name]
     if absent:
         notes.append("Not in this run: " + "; ".join(absent) + ".")
     if missing_metrics:
         notes.append("Not measured in this run: " + ", ".join(sorted(missing_metrics)) + f" ({DASH}).")
     if reference.get("note"):
         notes.append(" ".join(str(reference["note"]).split()))
-    return Table(f"paper-table-{key}", layout.title, ["", *headers], rows, notes)
+    return notes
 
 
 def _bound(cell: Mapping[str, Any] | None, key: str) -> str:
