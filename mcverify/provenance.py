@@ -52,6 +52,7 @@ NOT_RESULTS = {
     "campaign/ray_executor.py": "Ray tasks (which machine runs a chunk)",
     "campaign/executors.py": "the choice of executor",
     "campaign/replay.py": "re-simulates a stored episode and compares it",
+    "campaign/audit.py": "re-simulates a stored episode with the reference solver and compares the verdicts",
 }
 #: Parts that only read, present or measure stored rows; editing them never refuses a resume.
 PRESENTATION_PARTS = (

@@ -22,6 +22,10 @@ def add(sub, parents: list[argparse.ArgumentParser]) -> None:
     p.add_argument("--cell", metavar="NAME",
                    help="estimate folders: the cell of the draw or particle (needed when the folder "
                           "estimates several cells)")
+    p.add_argument("--backend", choices=("ipopt",), default=None,
+                   help="audit instead: re-simulate the episode on the same noise with the reference solver "
+                        "(IPOPT at every step) and say whether its safety verdict is confirmed by the reference "
+                        "solver or solver-dependent (run folders)")
     p.set_defaults(handler="replay")
 
 
@@ -31,6 +35,8 @@ def command(args) -> int:
     from mcverify.estimate.replay import estimate_method
 
     method = estimate_method(args.run_dir)
+    if args.backend is not None:
+        return _audit(args, method)
     try:
         res = api.replay(args.run_dir, args.episode_id, args.out, cell=args.cell)
     except ReplayMismatch as err:
@@ -46,4 +52,19 @@ def command(args) -> int:
         print(f"(not compared: {len(res.not_stored)} column(s) newer than the run: {', '.join(res.not_stored)})")
     print(f"trajectory: {res.trajectory_path}")
     print(f"plot: {res.plot_path}")
+    return 0
+
+
+def _audit(args, method: str | None) -> int:
+    from mcverify.campaign.audit import audit
+    from mcverify.errors import RunError
+
+    if method or args.cell is not None:
+        raise RunError("--backend audits an episode of a run folder (a search's generation folder is one), not "
+                       "an estimate folder's draw or particle")
+    res = audit(args.run_dir, args.episode_id, args.out)
+    print(res.describe())
+    if res.trajectory_path is not None:
+        print(f"trajectory: {res.trajectory_path}")
+        print(f"plot: {res.plot_path}")
     return 0

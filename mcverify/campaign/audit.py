@@ -1,0 +1,85 @@
+"""Audit a stored episode with the reference solver: the same episode (same noise, same scenario draws)
+re-simulated with ``mpc.backend = "ipopt"``, IPOPT solving every problem in full at every step.
+
+A verdict of the fast path (``ipm``) can sit on a knife edge of the solver path: an unsafe episode the
+reference solver reproduces is the controller's ("confirmed by the reference solver"); one whose verdict
+changes is the solver's as much as the controller's ("solver-dependent"). Nothing is compared bit for
+bit here (the solvers differ); :func:`mcverify.campaign.replay.replay` does that.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from enum import Enum
+from pathlib import Path
+
+from mcverify import store
+from mcverify.campaign import executors
+from mcverify.campaign.replay import write_recording
+from mcverify.campaign.runner import campaign_from_manifest
+from mcverify.cell import Cell
+from mcverify.episode.rollout import run_episodes
+from mcverify.errors import RunError
+
+#: The reference solver's backend name (:data:`mcverify.model.BACKEND_NAMES`).
+REFERENCE_BACKEND = "ipopt"
+
+
+class AuditVerdict(str, Enum):
+    """What the reference solver says of a stored episode's safety verdict."""
+
+    CONFIRMED = "confirmed by the reference solver"  # the same safe/unsafe verdict
+    SOLVER_DEPENDENT = "solver-dependent"  # the reference solver gives the other verdict
+    REFERENCE_RUN = "the run used the reference solver"  # nothing to audit
+
+
+@dataclass(frozen=True)
+class AuditResult:
+    episode_id: int
+    verdict: AuditVerdict
+    stored: dict  # the run's row
+    reference: dict | None  # the reference solver's row (None for a run made with it)
+    trajectory_path: Path | None
+    plot_path: Path | None
+
+    def describe(self) -> str:
+        """One line: both outcomes and the verdict."""
+        ran = f"{self.stored['outcome']}, safe={self.stored['safe']}"
+        if self.reference is None:
+            return f"episode {self.episode_id} ({ran}): {self.verdict.value}; nothing to audit"
+        ref = f"{self.reference['outcome']}, safe={self.reference['safe']}"
+        return (f"episode {self.episode_id}: {self.verdict.value} (the run: {ran}; "
+                f"the reference solver {REFERENCE_BACKEND}: {ref})")
+
+
+def reference_cell(cell: Cell) -> Cell:
+    """``cell`` with the reference solver: every other parameter, the level and the keys as they were."""
+    mpc = dataclasses.replace(cell.params.mpc, backend=REFERENCE_BACKEND)
+    return dataclasses.replace(cell, params=dataclasses.replace(cell.params, mpc=mpc))
+
+
+def audit(run_dir: Path, episode_id: int, out_dir: Path | None = None) -> AuditResult:
+    """Re-simulate ``episode_id`` of ``run_dir`` with the reference solver and compare the verdicts;
+    its trajectory and plot go to ``out_dir`` (default ``RUN_DIR/replay``) as ``episode-NNNNNN-ipopt``."""
+    run_dir = Path(run_dir)
+    campaign = campaign_from_manifest(store.read_json(run_dir / store.MANIFEST))
+    table = store.read_episodes(run_dir)
+    ids = table.column("episode_id").to_pylist()
+    if episode_id not in ids:
+        raise RunError(f"{run_dir}: no episode {episode_id}; episode ids run from {min(ids)} to {max(ids)}")
+    stored = table.slice(ids.index(episode_id), 1).to_pylist()[0]
+    cell = campaign.cells[stored["cell_index"]]
+    if cell.params.mpc.backend == REFERENCE_BACKEND:
+        return AuditResult(episode_id, AuditVerdict.REFERENCE_RUN, stored, None, None, None)
+    ref_cell = reference_cell(cell)
+    local = stored["cell_episode"]
+    result = run_episodes(ref_cell, [local], campaign.seed, executors.solver_for(ref_cell.params),
+                          common_random_numbers=campaign.common_random_numbers, record=True)
+    row = result.rows[0]
+    out = Path(out_dir) if out_dir else run_dir / "replay"
+    traj, plot = write_recording(result.recordings[local], ref_cell, row, out,
+                                 f"episode-{episode_id:06d}-{REFERENCE_BACKEND}")
+    same = bool(row["safe"]) == bool(stored["safe"])
+    verdict = AuditVerdict.CONFIRMED if same else AuditVerdict.SOLVER_DEPENDENT
+    return AuditResult(episode_id, verdict, stored, row, traj, plot)
