@@ -1,7 +1,7 @@
 """Which figures a run gets, drawn into ``RUN_DIR/figures/`` from stored data only.
 
 Every run gets the rates per cell and the minimum-distance histograms. A grid with a numeric axis
-of three or more values (ε, λ₀, a noise scale, ...) gets the rates against that axis with interval
+of two or more values (ε, λ₀, a noise scale, ...) gets the rates against that axis with interval
 bands; a grid over exactly two axes gets heat maps of the safe and overtaking rates with the counts
 written in. Cells with a stored trajectory (``trajectories/episode-NNNNNN.parquet``, else
 ``replay/episode-NNNNNN.parquet`` from ``mcverify replay``; the lowest episode id of the cell) get
@@ -86,9 +86,10 @@ def numeric_axes(cells: Sequence[Mapping[str, Any]], axes: Mapping[str, Sequence
 
 
 def sweep_axis(cells: Sequence[Mapping[str, Any]], axes: Mapping[str, Sequence[str]]) -> str | None:
-    """The axis to plot rates against: ε, else λ₀, else the numeric axis with most values (>= 3)."""
+    """The axis to plot rates against: ε, else λ₀, else the numeric axis with most values (>= 2: an ε
+    sweep of two levels gets its figure too)."""
     numeric = numeric_axes(cells, axes)
-    candidates = [a for a in numeric if len(axes[a]) >= 3]
+    candidates = [a for a in numeric if len(axes[a]) >= 2]
     for preferred in ("epsilon", "lambda0"):
         if preferred in candidates:
             return preferred

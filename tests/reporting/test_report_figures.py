@@ -84,7 +84,8 @@ def test_sweep_axis_choice():
     axes = {"scale": ["1", "2", "3"], "epsilon": ["0.1", "0.2", "0.3"]}
     assert run_figures.sweep_axis(cells, axes) == "epsilon"  # preferred over an equally long axis
     assert run_figures.sweep_axis(cells, {"scale": ["1", "2", "3"]}) == "scale"
-    assert run_figures.sweep_axis(cells, {"scale": ["1", "2"]}) is None  # two values: no curve
+    assert run_figures.sweep_axis(cells, {"scale": ["1", "2"]}) == "scale"  # two values: a figure too
+    assert run_figures.sweep_axis(cells, {"scale": ["1"]}) is None
 
 
 def test_nothing_to_draw_is_said(tmp_path):
