@@ -51,6 +51,9 @@ CHUNK_DIR = "chunks"
 LEDGER = "chunks.jsonl"
 TRAJECTORY_DIR = "trajectories"
 LOCK = ".lock"
+#: Verdicts of the reference solver on stored episodes (``mcverify replay --backend ipopt``,
+#: ``mcverify report --audit``): episode id -> the audit (:mod:`mcverify.campaign.audit`).
+AUDITS = "audits.json"
 #: Version of the run-folder layout; a resume refuses another one.
 FORMAT = 2
 

@@ -53,6 +53,42 @@ class AuditResult:
                 f"the reference solver {REFERENCE_BACKEND}: {ref})")
 
 
+def record(run_dir: Path, result: AuditResult) -> None:
+    """Keep ``result`` in ``RUN_DIR/audits.json`` (the report reads it; an audit is never repeated)."""
+    if result.reference is None:
+        return
+    path = Path(run_dir) / store.AUDITS
+    audits = store.read_json(path) if path.is_file() else {}
+    audits[str(result.episode_id)] = {
+        "verdict": result.verdict.value, "backend": REFERENCE_BACKEND,
+        "outcome": result.stored["outcome"], "safe": bool(result.stored["safe"]),
+        "reference_outcome": result.reference["outcome"], "reference_safe": bool(result.reference["safe"]),
+    }
+    store.write_json_atomic(path, dict(sorted(audits.items(), key=lambda kv: int(kv[0]))))
+
+
+def recorded(run_dir: Path) -> dict[str, dict]:
+    """The audits kept in ``RUN_DIR/audits.json`` (episode id as text -> audit); {} when none."""
+    path = Path(run_dir) / store.AUDITS
+    return store.read_json(path) if path.is_file() else {}
+
+
+def audit_unsafe(run_dir: Path, progress=lambda msg: None) -> list[AuditResult]:
+    """Audit every unsafe episode of ``run_dir`` not audited yet, keeping each in ``audits.json``."""
+    table = store.read_episodes(Path(run_dir))
+    done = recorded(run_dir)
+    ids = [e for e, safe in zip(table.column("episode_id").to_pylist(), table.column("safe").to_pylist(), strict=True)
+           if safe is False and str(e) not in done]
+    results = []
+    for k, episode_id in enumerate(ids):
+        progress(f"auditing episode {episode_id} with the reference solver ({k + 1} of {len(ids)})")
+        res = audit(run_dir, episode_id)
+        record(run_dir, res)
+        progress(res.describe())
+        results.append(res)
+    return results
+
+
 def reference_cell(cell: Cell) -> Cell:
     """``cell`` with the reference solver: every other parameter, the level and the keys as they were."""
     mpc = dataclasses.replace(cell.params.mpc, backend=REFERENCE_BACKEND)

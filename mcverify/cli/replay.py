@@ -56,13 +56,14 @@ def command(args) -> int:
 
 
 def _audit(args, method: str | None) -> int:
-    from mcverify.campaign.audit import audit
+    from mcverify.campaign.audit import audit, record
     from mcverify.errors import RunError
 
     if method or args.cell is not None:
         raise RunError("--backend audits an episode of a run folder (a search's generation folder is one), not "
                        "an estimate folder's draw or particle")
     res = audit(args.run_dir, args.episode_id, args.out)
+    record(args.run_dir, res)
     print(res.describe())
     if res.trajectory_path is not None:
         print(f"trajectory: {res.trajectory_path}")

@@ -22,6 +22,10 @@ def add(sub, parents: list[argparse.ArgumentParser]) -> None:
                    help="also write every figure in this format beside the report's PNG (repeatable)")
     p.add_argument("--dpi", type=options.positive_int, default=None,
                    help="resolution of the --format files (default 300; the report's own PNGs stay at 100)")
+    p.add_argument("--audit", action="store_true",
+                   help="first re-simulate every unsafe episode not audited yet with the reference solver "
+                        "(mcverify replay --backend ipopt; about a minute of CPU each) and say in the report "
+                        "which are confirmed by it and which are solver-dependent")
     p.set_defaults(handler="report")
 
 
@@ -32,6 +36,12 @@ def command(args) -> int:
         from mcverify.errors import RunError
 
         raise RunError("--dpi sets the resolution of the --format files: add --format png, svg or pdf")
+    if args.audit:
+        import sys
+
+        from mcverify.campaign.audit import audit_unsafe
+
+        audit_unsafe(args.run_dir, progress=lambda msg: print(msg, file=sys.stderr))
     path = run_report.write(
         args.run_dir, level=args.level, method=args.method, bootstrap_resamples=args.bootstrap_resamples,
         figure_formats=args.formats, figure_dpi=args.dpi or 300,

@@ -50,19 +50,31 @@ def _shown_parameters(records: Sequence[Mapping[str, Any]]) -> list[str]:
     return params + [k for k in keys if k.startswith("sample_") and informative(k)]
 
 
-def table(records: Sequence[Mapping[str, Any]], requirement: str, total_episodes: int) -> Table:
-    """The counterexample table: one row per violating episode, worst first."""
+def table(records: Sequence[Mapping[str, Any]], requirement: str, total_episodes: int, *,
+          audits: Mapping[str, Mapping[str, Any]] | None = None, run_dir: str = "RUN_DIR") -> Table:
+    """The counterexample table: one row per violating episode, worst first. With ``audits`` (a run's
+    ``audits.json``) a column says what the reference solver made of each episode."""
     params = _shown_parameters(records)
     columns = ["episode", "cell", *[p.removeprefix("param:") for p in params], "robustness", "first violation (s)",
                "cause", "min gap veh_f (m)", "min h_ef", "min gap veh_o, any time (m)", "min h_eo (m)", "replay"]
+    if audits is not None:
+        columns.insert(-1, "reference solver")
     rows = []
     for r in records[:MAX_ROWS]:
-        rows.append([str(r["episode_id"]), str(r["cell"]), *[_value(r.get(p)) for p in params],
-                     fmt_num(r["robustness"], 3, signed=True), fmt_num(_first_violation(r), 2),
-                     r["failure_mode"], fmt_num(r.get("min_gap_front_m"), 2), fmt_num(r.get("min_h_front"), 3),
-                     fmt_num(r.get("min_gap_opp_any_m"), 2), fmt_num(r.get("min_h_opp"), 2), r["replay"]])
+        row = [str(r["episode_id"]), str(r["cell"]), *[_value(r.get(p)) for p in params],
+               fmt_num(r["robustness"], 3, signed=True), fmt_num(_first_violation(r), 2),
+               r["failure_mode"], fmt_num(r.get("min_gap_front_m"), 2), fmt_num(r.get("min_h_front"), 3),
+               fmt_num(r.get("min_gap_opp_any_m"), 2), fmt_num(r.get("min_h_opp"), 2), r["replay"]]
+        if audits is not None:
+            row.insert(-1, _audit_text(audits.get(str(r["episode_id"]))))
+        rows.append(row)
     notes = [f"Episodes violating `{requirement}` (robustness < 0), worst first: {len(records)} of "
              f"{total_episodes}; all of them, with the robustness of every requirement, in `{FILE}`."]
+    if audits is not None:
+        notes.append("Reference solver: the same episode (same noise and draws) re-simulated with IPOPT solving "
+                     "every problem at every step; \"confirmed\": it is unsafe there too (the controller's "
+                     "counterexample), \"solver-dependent\": it is safe there (the fast solver's path decided it); "
+                     f"\"not audited\": `mcverify report {run_dir} --audit` audits the rest.")
     if len(records) > MAX_ROWS:
         notes.append(f"Only the worst {MAX_ROWS} are listed here.")
     modes = cx.failure_modes(records)
@@ -101,6 +113,15 @@ def regions_table(records: Sequence[Mapping[str, Any]]) -> Table:
                         "counterexample table's).")
     return Table("failure_regions", "Failure regions", columns, rows, notes,
                  align="l" * 2 + "r" * (len(columns) - 3) + "l")
+
+
+def _audit_text(entry: Mapping[str, Any] | None) -> str:
+    if entry is None:
+        return "not audited"
+    if entry["verdict"] == "confirmed by the reference solver":
+        return f"confirmed ({entry['reference_outcome']})"
+    verdict = "safe" if entry["reference_safe"] else "unsafe"
+    return f"solver-dependent ({entry['backend']}: {entry['reference_outcome']}, {verdict})"
 
 
 def _first_violation(record: Mapping[str, Any]) -> float:

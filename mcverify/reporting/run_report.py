@@ -117,7 +117,10 @@ def write(
     # Counterexamples (issue 19.4): every unsafe episode, worst first, with its replay command.
     cx_records = counterexamples.counterexamples(table, manifest, str(run_dir),
                                                  trajectory=lambda eid: store.read_trajectory(run_dir, eid))
-    tables.append(counterexample_report.table(cx_records, "safe", table.num_rows))
+    audits_path = run_dir / store.AUDITS
+    audits = store.read_json(audits_path) if audits_path.is_file() else None
+    tables.append(counterexample_report.table(cx_records, "safe", table.num_rows, audits=audits,
+                                              run_dir=str(run_dir)))
     with figure_common.exporting(figure_formats, figure_dpi):
         figs = [*figs, *counterexample_report.figures(run_dir, cx_records, manifest)]
     _write_parquet(run_dir / counterexample_report.FILE, counterexamples.to_arrow(cx_records))

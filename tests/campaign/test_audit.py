@@ -60,3 +60,34 @@ def test_audit_mistakes_are_one_line(run_dir, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and all(line.startswith("mcverify: error:") for line in err)
     assert "no episode 99" in err[1]
+
+
+def test_the_report_says_what_the_reference_solver_made_of_each_counterexample(run_dir, tmp_path):
+    """audits.json, as `replay --backend ipopt` and `report --audit` keep it, becomes a column of the
+    counterexample table; an unsafe episode without an audit reads "not audited"."""
+    from mcverify.reporting import counterexample_report
+
+    records = [{"episode_id": e, "cell": "c", "robustness": -0.1, "failure_mode": "ellipse/Q2", "replay": "r",
+                "first_unsafe_t_s": 1.0} for e in (3, 4, 5)]
+    audits = {"3": {"verdict": "confirmed by the reference solver", "backend": "ipopt", "outcome": "went_back",
+                    "safe": False, "reference_outcome": "went_back", "reference_safe": False},
+              "4": {"verdict": "solver-dependent", "backend": "ipopt", "outcome": "went_back", "safe": False,
+                    "reference_outcome": "overtook", "reference_safe": True}}
+    t = counterexample_report.table(records, "safe", 10, audits=audits, run_dir="RUN")
+    col = t.columns.index("reference solver")
+    assert [r[col] for r in t.rows] == ["confirmed (went_back)", "solver-dependent (ipopt: overtook, safe)",
+                                        "not audited"]
+    assert any("mcverify report RUN --audit" in n for n in t.notes)
+    assert "reference solver" not in counterexample_report.table(records, "safe", 10).columns
+
+
+def test_an_audit_is_kept_for_the_report(run_dir):
+    res = audit.audit(run_dir, 0, run_dir / "audit-keep")
+    audit.record(run_dir, res)
+    kept = audit.recorded(run_dir)["0"]
+    assert kept["verdict"] == res.verdict.value and kept["reference_safe"] == bool(res.reference["safe"])
+    table = store.read_episodes(run_dir)
+    pending = [e for e, safe in zip(table.column("episode_id").to_pylist(), table.column("safe").to_pylist(),
+                                    strict=True) if safe is False and str(e) not in audit.recorded(run_dir)]
+    assert [r.episode_id for r in audit.audit_unsafe(run_dir)] == pending  # the unsafe ones not yet audited
+    assert audit.audit_unsafe(run_dir) == []  # never repeated
