@@ -95,6 +95,15 @@ EPISODE_COLUMNS: tuple[Column, ...] = (
        "the ego footprint reaches into the opposing lane with veh_o ahead (NaN if never)"),
     _c("min_gap_opp_any_m", _FLOAT, "m", "smallest footprint gap to veh_o at any time (NaN without veh_o)"),
     _c("min_h_opp", _FLOAT, "m", "minimum of h_eo under the condition of min_gap_opp_m (NaN if never)"),
+    _c("speed_excess_mps", _FLOAT, "m/s", "largest ego speed above ego.speed_max_mps on the true trajectory, at "
+       "every sub-step (<= 0: the limit held; the MPC keeps it at its nodes only)", finite=True),
+    _c("speed_excess_t_s", _FLOAT, "s", "when speed_excess_mps was reached (NaN if the limit held)"),
+    _c("accel_excess_mps2", _FLOAT, "m/s^2", "largest excess of the applied acceleration alpha over "
+       "[ego.accel_min_mps2, ego.accel_max_mps2] (<= 0: within)"),
+    _c("accel_excess_t_s", _FLOAT, "s", "start of the control period of accel_excess_mps2 (NaN if within)"),
+    _c("slip_excess_rad", _FLOAT, "rad", "largest excess of the applied slip abs(beta) over ego.slip_max_rad "
+       "(<= 0: within)"),
+    _c("slip_excess_t_s", _FLOAT, "s", "start of the control period of slip_excess_rad (NaN if within)"),
     _c("ellipse_violation", _BOOL, "", "min_h_front < 0: the ego c.g. entered the safety ellipse"),
     _c("safe", _BOOL, "", "no collision with either vehicle and no ellipse violation"),
     _c("first_unsafe_s", _FLOAT, "s", "start of the control period in which the ego first left the safe set"),

@@ -71,6 +71,10 @@ RATE_METRICS: tuple[Metric, ...] = (
            "keeping, the ego footprint lay inside its lane"),
     Metric("unsafe_in_settling", "unsafe in settling", "the ego first left the safe set after the goal test, while "
            "settling"),
+    Metric("speed_limit_exceeded", "over the speed limit", "the ego's true speed exceeded ego.speed_max_mps at some "
+           "integration sub-step (the MPC keeps the limit at its nodes only)"),
+    Metric("input_limit_exceeded", "input beyond its bounds", "the applied acceleration or slip lay beyond the ego's "
+           "bounds (ego.accel_min/max_mps2, ego.slip_max_rad) in some control period"),
 )
 
 #: Continuous metrics summarised by count, min, max, quantiles and mean with a bootstrap interval.
@@ -102,6 +106,11 @@ VALUE_METRICS: tuple[Metric, ...] = (
            "m/s"),
     Metric("settle_line_excess_max_m", "past lane line while settling", "largest reach of the ego footprint past "
            "the lane line from the goal test to the end of settling (0 inside)", "m"),
+    # limits of the ego on the true trajectory (<= 0: held)
+    Metric("speed_excess_mps", "speed excess", "largest ego speed above ego.speed_max_mps at any sub-step", "m/s"),
+    Metric("accel_excess_mps2", "acceleration excess", "largest excess of the applied acceleration over its bounds",
+           "m/s²"),
+    Metric("slip_excess_rad", "slip excess", "largest excess of the applied slip angle over ego.slip_max_rad", "rad"),
 )
 
 RATE_NAMES = tuple(m.name for m in RATE_METRICS)
@@ -162,7 +171,7 @@ OPPOSING_METRICS = ("collision_opp", "opp_invariance_breach", "min_gap_opp_m", "
 SOLVER_COLUMNS = ("solves", "iterations_mean", "iterations_max", "cold_retries", "solve_time_mean_s",
                   "solve_time_max_s", "solver_statuses")
 #: Summary metrics that are not episode columns (derived here from several).
-DERIVED_METRICS = ("collision", "outside_margin")
+DERIVED_METRICS = ("collision", "outside_margin", "speed_limit_exceeded", "input_limit_exceeded")
 
 
 def summarised_columns() -> frozenset[str]:
@@ -438,6 +447,12 @@ def _flags(t: Columns, name: str) -> np.ndarray | None:
         collision = _flags(t, "collision")
         outside = floats(t, "invariance_margin") >= 0.0  # NaN (no level): not outside
         return outside if collision is None else outside & ~collision
+    if name == "speed_limit_exceeded":
+        return floats(t, "speed_excess_mps") > 0.0 if "speed_excess_mps" in t.column_names else None
+    if name == "input_limit_exceeded":
+        if "accel_excess_mps2" not in t.column_names:
+            return None
+        return (floats(t, "accel_excess_mps2") > 0.0) | (floats(t, "slip_excess_rad") > 0.0)
     if name in t.column_names:
         return bools(t, name)
     if name in OUTCOMES and "outcome" in t.column_names:  # the flag columns are derived from outcome

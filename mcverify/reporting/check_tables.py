@@ -49,6 +49,26 @@ def end_state_table(summ: Mapping[str, Any]) -> Table | None:
              "timeouts included; the rates are over every episode that ran.", rate_note(summ)]
     return Table("end-state", "End state per cell: at the goal test and after settling", columns, rows, notes)
 
+def limits_table(summ: Mapping[str, Any]) -> Table | None:
+    """The ego's own limits on the true trajectory per cell: speed at every sub-step, the held input
+    once per control period (None for a run made before they were counted)."""
+    cells = summ["cells"]
+    if not any("speed_limit_exceeded" in c["rates"] for c in cells):
+        return None
+    columns = ["cell", "over the speed limit", "largest speed excess (m/s)", "input beyond its bounds",
+               "largest acceleration excess (m/s²)", "largest slip excess (rad)"]
+    rows = [[c["cell"], fmt_rate(c["rates"].get("speed_limit_exceeded")),
+             stat_text(value_of(c, "speed_excess_mps"), "max", 3), fmt_rate(c["rates"].get("input_limit_exceeded")),
+             stat_text(value_of(c, "accel_excess_mps2"), "max", 3), stat_text(value_of(c, "slip_excess_rad"), "max", 4)]
+            for c in cells]
+    notes = ["The MPC bounds the ego's speed at its nodes; the plant integrates between them, so the true speed is "
+             "checked at every integration sub-step, and the input held over each control period against the "
+             "acceleration and slip bounds. Excess: the largest amount beyond the limit over the episode, the "
+             "largest over the cell's episodes here (≤ 0: the limit held); per episode in speed_excess_mps, "
+             "accel_excess_mps2 and slip_excess_rad, with the time in the *_t_s columns.", rate_note(summ)]
+    return Table("limits", "Limits of the ego per cell: speed, acceleration and slip", columns, rows, notes)
+
+
 def _int(d: Mapping[str, Any], key: str) -> str:
     return str(d[key]) if key in d else DASH
 

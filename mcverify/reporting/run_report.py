@@ -38,6 +38,7 @@ from mcverify.reporting import counterexample_report, figure_common, html, paper
 from mcverify.reporting.check_tables import (
     end_state_table,
     findings_table,
+    limits_table,
     rate_note,
     solver_table,
     stat_text,
@@ -177,9 +178,7 @@ def report_tables(summ: Mapping[str, Any], manifest: Mapping[str, Any], run_dir:
     out += [distance_table(summ), time_table(summ), theorem_table(summ)]
     findings = findings_table(summ, run_dir)
     out += ([findings] if findings is not None else []) + [solver_table(summ)]
-    settle = end_state_table(summ)
-    if settle is not None:
-        out.append(settle)
+    out += [t for t in (end_state_table(summ), limits_table(summ)) if t is not None]
     return out
 
 

@@ -69,6 +69,10 @@ class PlantParams(NamedTuple):
     decel_max_mps2: Array
     opp_accel_max_mps2: Array
     opp_brake_max_mps2: Array
+    ego_speed_max_mps: Array
+    ego_accel_min_mps2: Array
+    ego_accel_max_mps2: Array
+    ego_slip_max_rad: Array
     noise: noise.NoiseParams  # the perception noise (bounds, structured disturbances)
 
 
@@ -98,6 +102,10 @@ def plant_params(p: ModelParams) -> PlantParams:
         decel_max_mps2=f(p.barrier.decel_max_mps2),
         opp_accel_max_mps2=f(o.accel_max_mps2),
         opp_brake_max_mps2=f(o.brake_max_mps2),
+        ego_speed_max_mps=f(p.ego.speed_max_mps),
+        ego_accel_min_mps2=f(p.ego.accel_min_mps2),
+        ego_accel_max_mps2=f(p.ego.accel_max_mps2),
+        ego_slip_max_rad=f(p.ego.slip_max_rad),
         noise=noise.NoiseParams.of(p.noise, p.sim.max_time_s),
     )
 
@@ -134,6 +142,10 @@ class SafetyTrace(NamedTuple):
     collision_opp; min_gap_opp_m, the footprint gap while the ego borrows the opposing lane and veh_o
     is ahead of it (the paper's "min dist. with veh_o"; inf if never); min_gap_opp_any_m, the gap at
     any time; min_h_opp, h_eo (m) while borrowing with veh_o ahead (inf if never).
+    Limits of the ego (the MPC keeps them at its nodes; the plant is checked at every sub-step, the
+    held input once per control period): the largest excess over the speed limit, the acceleration
+    bounds and the slip bound (<= 0 when the limit held), each with the time it was reached (NaN
+    while no excess was positive).
     """
 
     min_h_front: Array
@@ -146,6 +158,24 @@ class SafetyTrace(NamedTuple):
     min_gap_opp_m: Array
     min_gap_opp_any_m: Array
     min_h_opp: Array
+    speed_excess_mps: Array
+    speed_excess_t_s: Array
+    accel_excess_mps2: Array
+    accel_excess_t_s: Array
+    slip_excess_rad: Array
+    slip_excess_t_s: Array
+
+
+def _worse(best: Array, best_t: Array, excess: Array, t: Array) -> tuple[Array, Array]:
+    """The larger excess and its time (the time stays NaN until an excess is positive)."""
+    later = (excess > best) & (excess > 0.0)
+    return jnp.maximum(best, excess), jnp.where(later, t, best_t)
+
+
+def input_excess(u: Array, pp: PlantParams) -> tuple[Array, Array]:
+    """How far the held input (alpha, beta) lies beyond the ego's acceleration and slip bounds."""
+    accel = jnp.maximum(u[0] - pp.ego_accel_max_mps2, pp.ego_accel_min_mps2 - u[0])
+    return accel, jnp.abs(u[1]) - pp.ego_slip_max_rad
 
 
 class Substep(NamedTuple):
@@ -206,9 +236,11 @@ def checks(ego: Array, front: Array, opp: Array, u: Array, pp: PlantParams) -> _
 def initial_trace(plant: Plant, pp: PlantParams) -> SafetyTrace:
     c = checks(plant.ego, plant.front, plant.opp, jnp.zeros(2), pp)
     t0 = jnp.where(c.borrowing, plant.t_s, jnp.nan)
+    speed = plant.ego[3] - pp.ego_speed_max_mps
     return SafetyTrace(
         c.h_front, c.dist_front_m, c.gap_front_m, c.hit_front, t0, t0, c.hit_opp,
         jnp.where(c.opp_relevant, c.gap_opp_m, jnp.inf), c.gap_opp_m, jnp.where(c.opp_relevant, c.h_opp, jnp.inf),
+        speed, jnp.where(speed > 0.0, plant.t_s, jnp.nan), -jnp.inf, jnp.nan, -jnp.inf, jnp.nan,
     )
 
 
@@ -295,6 +327,9 @@ def advance(plant: Plant, trace: SafetyTrace, u: Array, active: Array, pp: Plant
     """
     alpha_o = opposing_accel(plant, u, pp)
     dt = pp.dt_sub_s
+    accel_excess, slip_excess = input_excess(u, pp)  # held for the whole period
+    accel_best = _worse(trace.accel_excess_mps2, trace.accel_excess_t_s, accel_excess, plant.t_s)
+    slip_best = _worse(trace.slip_excess_rad, trace.slip_excess_t_s, slip_excess, plant.t_s)
 
     def body(carry, i):
         ego, front, opp, tr = carry
@@ -317,6 +352,8 @@ def advance(plant: Plant, trace: SafetyTrace, u: Array, active: Array, pp: Plant
             jnp.where(c.opp_relevant, jnp.minimum(tr.min_gap_opp_m, c.gap_opp_m), tr.min_gap_opp_m),
             jnp.minimum(tr.min_gap_opp_any_m, c.gap_opp_m),
             jnp.where(c.opp_relevant, jnp.minimum(tr.min_h_opp, c.h_opp), tr.min_h_opp),
+            *_worse(tr.speed_excess_mps, tr.speed_excess_t_s, ego_n[3] - pp.ego_speed_max_mps, t_n),
+            *accel_best, *slip_best,
         )
         sub = Substep(t_n, ego_n, front_n, opp_n, c.h_front, c.dist_front_m, c.gap_front_m, c.hit_front,
                       c.h_opp, c.gap_opp_m, c.hit_opp)
