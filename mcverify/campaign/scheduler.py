@@ -157,7 +157,8 @@ class _Scheduler:
     def _output(self, chunk: Chunk, rows: list[Row], recordings: dict[int, EpisodeRecording]):
         rows = sorted(rows, key=lambda r: int(r["cell_episode"]))
         # a chunk planned as several tasks that each ran once took one attempt
-        attempts = self.runs.pop(chunk.name, 1) - self.pieces.get(chunk.name, 1) + 1
+        attempts = self.runs.pop(chunk.name, 1) - self.pieces.pop(chunk.name, 1) + 1
+        self.started.discard(chunk.name)  # no task of it is left: memory stays flat over long runs
         return chunk, ChunkOutput(rows, dict(recordings), attempts)
 
 

@@ -96,7 +96,7 @@ def test_solve_classes_account_for_every_solve_of_every_side():
     orig = eng.load_campaign
     eng.load_campaign = lambda path, **_: camp
     try:
-        result = eng.run(campaign="mix", engine_episodes=2, baseline_episodes=1, write=False, progress=lambda m: None)
+        result = eng.run(campaign="mix", engine_episodes=2, baseline_episodes=1, progress=lambda m: None)
     finally:
         eng.load_campaign = orig
     assert result["cells"] == [c.name for c in camp.cells] and set(result["sides"]) == {"engine", "baseline"}
