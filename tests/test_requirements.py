@@ -35,7 +35,8 @@ def test_what_the_registry_says_it_reads_is_stored():
         assert set(t.flags) <= set(COLUMN_NAMES), t.name
         assert set(t.requirements) <= set(REQUIREMENTS), t.name
         assert not t.negated or len(t.flags) == 1
-    assert set(SCORES.values()) <= set(TARGETS) and requirements.SCORED_TARGETS == ("collision", "ellipse")  # in TARGETS order
+    assert set(SCORES.values()) <= set(TARGETS)
+    assert requirements.SCORED_TARGETS == ("collision", "ellipse")  # in TARGETS order
     assert requirements.default_score("collision") == "gap" and requirements.default_score("ellipse") == "h_ef"
 
 
