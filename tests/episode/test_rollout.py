@@ -168,7 +168,10 @@ def test_settling_does_not_change_the_decisions_and_settle_s_0_ends_at_the_goal_
     safety = {"collision_front", "collision_opp", "min_h_front", "min_dist_front_m", "min_gap_front_m",
               "min_gap_opp_m", "min_gap_opp_any_m", "min_h_opp", "ellipse_violation", "safe", "first_unsafe_s",
               "first_unsafe_cause", "invariance_breach", "invariance_margin", "opp_invariance_breach",
-              "lane_borrow_time_s", *SETTLE_COLUMNS}
+              "lane_borrow_time_s", *SETTLE_COLUMNS,
+              # the ego's limits are checked over the settling period too
+              "speed_excess_mps", "speed_excess_t_s", "accel_excess_mps2", "accel_excess_t_s", "slip_excess_rad",
+              "slip_excess_t_s"}
     for k in without.keys() - safety:
         assert same({k: with_settling[k]}, {k: without[k]}), k
     for k in ("conv_heading_rad", "conv_lateral_speed_mps", "conv_line_excess_m"):

@@ -97,10 +97,10 @@ def test_a_folder_with_no_estimate_yet_says_why_there_is_no_figure(sweep_folder)
     assert "not drawn: no cell has an estimate" in (out / "report.html").read_text()
 
 
-def test_a_campaign_without_a_numeric_sweep_has_no_sweep_figure(tmp_path):
+def test_a_sweep_of_two_values_gets_its_figure(tmp_path):
     campaign = load_campaign(Path(__file__).resolve().parents[1] / "fixtures" / "tiny.toml")  # 2 speeds only
     out = tmp_path / "est"
     folder.create(out, campaign, {"method": "splitting"}, None)
     _write(out, {0: _result(0, campaign.cells[0].name, 0.01, 0.005, 0.015)})
-    assert not (out / "figures").exists() or not list((out / "figures").glob("estimate-vs-*"))
+    assert [p.name for p in (out / "figures").glob("estimate-vs-*")] == ["estimate-vs-front_speed_kmh.png"]
     assert (out / "report.html").is_file() and "1 of 2" in (out / "report.html").read_text()
