@@ -29,7 +29,6 @@ import sys
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
-from pathlib import Path
 from typing import Any
 
 import jax
@@ -254,8 +253,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=nonneg_int, help="campaign seed (overrides the file: other episodes)")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", dest="settings",
                    help="override a model parameter of every cell, on every side (repeatable)")
-    p.add_argument("--write", type=Path, default=section.BENCHMARKS_MD, help="Markdown file whose section is replaced")
-    p.add_argument("--no-write", action="store_true", help="print only; leave results/BENCHMARKS.md as it is")
+    section.add_output_options(p)
     return p
 
 

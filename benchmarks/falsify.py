@@ -227,8 +227,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="override a model parameter of every target (repeatable)")
     p.add_argument("--out-dir", type=Path, default=Path("results/bench-falsify"), help="search folders")
     p.add_argument("--workers", type=positive_int, default=None, help="worker processes")
-    p.add_argument("--write", type=Path, default=section.BENCHMARKS_MD, help="Markdown file to update")
-    p.add_argument("--no-write", action="store_true", help="print the section only")
+    section.add_output_options(p)
     return p
 
 

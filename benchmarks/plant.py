@@ -238,8 +238,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--only-include", action="store_true",
                    help="measure nothing here: write the section from the --include files alone")
     p.add_argument("--json", type=Path, default=None, help="also write this run's results as JSON")
-    p.add_argument("--write", type=Path, default=section.BENCHMARKS_MD, help="Markdown file to update")
-    p.add_argument("--no-write", action="store_true", help="print the section only")
+    section.add_output_options(p)
     return p
 
 

@@ -103,8 +103,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--repetitions", type=positive_int, default=20, help="independent estimates (default 20)")
     p.add_argument("--reference-episodes", type=positive_int, default=30_000_000,
                    help="crude reference walks (default 30000000)")
-    p.add_argument("--write", type=Path, default=section.BENCHMARKS_MD, help="Markdown file to update")
-    p.add_argument("--no-write", action="store_true", help="print the section only")
+    section.add_output_options(p)
     return p
 
 

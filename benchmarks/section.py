@@ -66,6 +66,14 @@ def parser(name: str, description: str) -> argparse.ArgumentParser:
     return _Parser(prog=f"python -m benchmarks.{name}", description=description)
 
 
+def add_output_options(p: argparse.ArgumentParser, *, also: str = "") -> None:
+    """``--write PATH`` (the page whose section is replaced) and ``--no-write`` (print the section only),
+    the same for every benchmark; ``also`` says what else goes beside the page."""
+    p.add_argument("--write", type=Path, default=BENCHMARKS_MD,
+                   help=f"Markdown file whose generated section is replaced (default: {BENCHMARKS_MD}){also}")
+    p.add_argument("--no-write", action="store_true", help="print the section only; leave the page as it is")
+
+
 def run_main(name: str, body: Callable[[], int]) -> int:
     """Run a benchmark's ``main`` body: a user mistake (bad option, missing file) is one line on stderr
     and exit status 2, ``--help`` exits 0."""

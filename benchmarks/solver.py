@@ -347,10 +347,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="reference episodes recorded for the per-solve timing (first cell)")
     p.add_argument("--workers", type=positive_int, default=None, help="worker processes (default: cores)")
     p.add_argument("--chunk-size", type=positive_int, default=4, help="episodes per chunk")
-    p.add_argument("--write", type=Path, default=section.BENCHMARKS_MD,
-                   help="Markdown file whose generated section is replaced (default: results/BENCHMARKS.md); the "
-                        "JSON of the run goes beside it")
-    p.add_argument("--no-write", action="store_true", help="print the section only")
+    section.add_output_options(p, also="; the JSON of the run goes beside it")
     return p
 
 

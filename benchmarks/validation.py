@@ -411,8 +411,7 @@ def _parser() -> argparse.ArgumentParser:
                    "runs of --until-halfwidth H (absolute, e.g. 0.08, or relative, e.g. 50%%), each checked against "
                    "the reference without its episodes; one row per H, and the invalid fixed-n Clopper-Pearson "
                    "stopping beside it")
-    p.add_argument("--write", type=Path, default=section.BENCHMARKS_MD, help="Markdown file to update")
-    p.add_argument("--no-write", action="store_true", help="print the section only")
+    section.add_output_options(p)
     p.add_argument("--json", type=Path, default=None, help="also write every figure as JSON to this file")
     p.add_argument("--figure", type=Path, default=None, metavar="PNG",
                    help="also draw every repetition's interval against the reference into this PNG")

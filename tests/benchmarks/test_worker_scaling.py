@@ -16,7 +16,7 @@ from mcverify.errors import UserError
 def test_the_section_states_command_commit_machine_and_one_line_per_worker_count(tmp_path: Path) -> None:
     camp = load_campaign("campaigns/table4.toml", episodes=1)
     points = [ws.Point(1, 8, 120.0, True), ws.Point(2, 8, 75.0, True), ws.Point(4, 8, 60.0, False)]
-    text = ws.section(points, camp, 8, "python -m benchmarks.worker_scaling --episodes 1")
+    text = ws.render(points, camp, 8, "python -m benchmarks.worker_scaling --episodes 1")
     assert text.startswith(ws.BEGIN) and text.rstrip().endswith(ws.END)
     assert "Command: `python -m benchmarks.worker_scaling --episodes 1`; commit `" in text
     assert "logical cores" in text and "campaigns/table4.toml" in text
