@@ -272,10 +272,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.json:
             store.atomic_write_bytes(args.json, json.dumps(results, indent=1).encode())
         text = markdown(included + results, section.command("plant", argv))
-        print(text)
-        if not args.no_write:
-            section.write("plant", text, args.write)
-            print(f"written: {args.write} (section benchmarks.plant)", file=sys.stderr)
+        section.publish("plant", text, args)
         return 0
 
     return section.run_main("plant", body)

@@ -18,7 +18,6 @@ import platform
 import sys
 import time
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -89,11 +88,6 @@ def markdown(res: dict[str, Any], command: str) -> str:
     return "\n".join(lines)
 
 
-def write(res: dict[str, Any], command: str, path: Path) -> None:
-    """Replace this benchmark's section of ``path`` (or append it), keeping the rest of the file."""
-    section.write("rare", markdown(res, command), path)
-
-
 def _parser() -> argparse.ArgumentParser:
     p = section.parser("rare", "Splitting against crude Monte Carlo on the calibration walk (p about 1e-4).")
     p.add_argument("--barrier", type=float, default=6.2, help="event level of the walk (default 6.2: p ~ 1e-4)")
@@ -117,11 +111,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                             "lowest particle and branches a survivor")
         res = run(barrier=args.barrier, particles=args.particles, replicates=args.replicates,
                   repetitions=args.repetitions, reference_episodes=args.reference_episodes)
-        command = section.command("rare", argv)
-        print(markdown(res, command))
-        if not args.no_write:
-            write(res, command, args.write)
-            print(f"written: {args.write} (section benchmarks.rare)", file=sys.stderr)
+        section.publish("rare", markdown(res, section.command("rare", argv)), args)
         return 0
 
     return section.run_main("rare", body)

@@ -61,6 +61,15 @@ class _Parser(argparse.ArgumentParser):
         raise UserError(f"{message} (see `{self.prog} --help`)")
 
 
+def publish(name: str, text: str, args: argparse.Namespace) -> None:
+    """Print the section, and write it into ``args.write`` unless ``args.no_write``
+    (:func:`add_output_options`)."""
+    print(text)
+    if not args.no_write:
+        write(name, text, args.write)
+        print(f"written: {args.write} (section benchmarks.{name})", file=sys.stderr)
+
+
 def parser(name: str, description: str) -> argparse.ArgumentParser:
     """An argument parser whose mistakes are one line (``python -m benchmarks.NAME: ...``)."""
     return _Parser(prog=f"python -m benchmarks.{name}", description=description)

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 import time
 from dataclasses import dataclass
 
@@ -227,11 +226,7 @@ def _main(argv: list[str] | None) -> int:
             print(f"{split_row.method} {clock}: coverage {split_row.coverage:.0%}, bias {split_row.bias:+.0%}",
                   flush=True)
     text = render(rows, routes, section.command(NAME, argv), settings, time.process_time() - start)
-    if args.no_write:
-        print(text)
-    else:
-        section.write(NAME, text, args.write)
-        print(f"wrote its section of {args.write}", file=sys.stderr)
+    section.publish(NAME, text, args)
     return 0
 
 

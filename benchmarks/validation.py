@@ -43,7 +43,7 @@ import numpy as np
 import pyarrow as pa
 
 from benchmarks import section
-from benchmarks.validation_report import figure, markdown, write
+from benchmarks.validation_report import figure, markdown
 from mcverify import provenance, store
 from mcverify.analysis.columns import Columns, floats
 from mcverify.analysis.estimates import ordered_prefix, target_events
@@ -423,15 +423,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = _parser().parse_args(argv)
         res = run(args.reference, splitting_pools=args.splitting, importance_dirs=args.importance,
                   groups=args.group, sequential=args.sequential)
-        command = section.command("validation", argv)
-        print(markdown(res, command))
         if args.json:
             store.write_json_atomic(args.json, res)
         if args.figure:
             print(f"figure: {figure(res, args.figure)}", file=sys.stderr)
-        if not args.no_write:
-            write(res, command, args.write)
-            print(f"written: {args.write} (section benchmarks.validation)", file=sys.stderr)
+        section.publish("validation", markdown(res, section.command("validation", argv)), args)
         return 0
 
     return section.run_main("validation", body)

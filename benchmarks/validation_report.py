@@ -105,8 +105,3 @@ def figure(res: dict[str, Any], path: Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
     return path
-
-
-def write(res: dict[str, Any], command: str, path: Path) -> None:
-    """Replace this benchmark's section of ``path`` (or append it), keeping the rest of the file."""
-    section.write("validation", markdown(res, command), path)

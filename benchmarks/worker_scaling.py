@@ -124,11 +124,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         counts = _worker_counts(args.workers)
         campaign = load_campaign(args.campaign, episodes=args.episodes)
         text = render(run(campaign, counts, args.chunk_size), campaign, args.chunk_size, section.command(NAME, argv))
-        if args.no_write:
-            print(text)
-        else:
-            section.write(NAME, text, args.write)
-            print(f"wrote its section of {args.write}", file=sys.stderr)
+        section.publish(NAME, text, args)
         return 0
 
     return section.run_main(NAME, body)
