@@ -1,7 +1,7 @@
 """Campaign-level figures of a run, drawn from its summary (one entry per cell).
 
 Rates per cell with their intervals (:func:`rates_per_cell`), a rate against a numeric axis such as
-ε with interval bands (:func:`rate_vs_axis`), a heat map of a rate over two axes with the counts
+ε on a log scale with intervals and bounds (:func:`rate_vs_axis`), a heat map of a rate over two axes with the counts
 written in (:func:`rate_heatmap`) and minimum-distance histograms per cell
 (:func:`distance_histograms`). Sizes and saving: :mod:`mcverify.reporting.figure_common`.
 """
@@ -101,36 +101,62 @@ def rate_vs_axis(
     level: float,
     x_label: str | None = None,
 ) -> dict[str, int]:
-    """One panel per ``(metric, title)``: the rate against ``x_values`` (one per cell), one line per
-    group label (``groups``, one per cell), each with its two-sided interval as a band; zero-event
-    points show the exact one-sided upper bound as a marker."""
+    """One panel per ``(metric, title)``: the probability against ``x_values`` (one per cell) on a log
+    scale, one line per group label (``groups``, one per cell). A cell with events is a point k/n with
+    its two-sided interval as a bar; a cell without any is drawn as what it is, a bound: ▼ at its exact
+    one-sided upper bound with a dotted line down to the axis (the probability is somewhere below).
+    A log scale because the curve's interest is where it falls off: 0.3 and 0.003 must both read."""
     fig, axes = subplots(1, len(metrics), figsize=inches(6 * len(metrics), 4.2), squeeze=False)
     xs, gs = np.asarray(x_values, dtype=float), list(groups)
     colours = matplotlib.colormaps.get_cmap("tab10")
+    floor = _log_floor(cells, [m for m, _ in metrics])
+    names = list(dict.fromkeys(gs))
+    # groups side by side around each x value, so that equal bounds of two groups do not hide each other
+    dodge = 0.012 * (float(np.ptp(xs)) or 1.0)
     for ax, (metric, title) in zip(axes[0], metrics, strict=True):
-        for gi, group in enumerate(dict.fromkeys(gs)):
-            idx = [i for i, g in enumerate(gs) if g == group and cells[i]["rates"].get(metric, {}).get("n")]
-            if not idx:
-                continue
-            idx.sort(key=lambda i: xs[i])
-            r = [cells[i]["rates"][metric] for i in idx]
-            x = xs[idx]
-            colour = colours(gi % 10)
-            ax.fill_between(x, [q["low"] for q in r], [q["high"] for q in r], color=colour, alpha=0.18, lw=0)
-            ax.plot(x, [q["rate"] for q in r], "o-", color=colour, ms=4, lw=1.4, label=group or "all cells")
-            zero = [j for j, q in enumerate(r) if q["k"] == 0]
-            if zero:
-                ax.plot(x[zero], [r[j]["upper_one_sided"] for j in zero], "v", color=colour, ms=5, alpha=0.8)
+        for gi, group in enumerate(names):
+            idx = sorted((i for i, g in enumerate(gs) if g == group and cells[i]["rates"].get(metric, {}).get("n")),
+                         key=lambda i: xs[i])
+            if idx:
+                shift = (gi - (len(names) - 1) / 2) * dodge
+                _draw_group(ax, xs[idx] + shift, [cells[i]["rates"][metric] for i in idx], colours(gi % 10),
+                            group or "all cells", floor)
+        ax.set_yscale("log")
+        ax.set_ylim(floor, 1.0)
         ax.set_title(title, fontsize=10)
         ax.set_xlabel(x_label or x_axis)
-        ax.set_ylabel(f"rate with {level:.0%} interval")
-        ax.set_ylim(bottom=0)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, loc="upper right")
-    fig.suptitle(f"band: two-sided {level:.0%} interval; ▼: exact one-sided upper bound where no event occurred",
-                 fontsize=9)
+        ax.set_ylabel(f"probability, {level:.0%} interval")
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=8, loc="best")
+    fig.suptitle(f"●: k/n with its two-sided {level:.0%} interval; ▼: no event, the exact one-sided {level:.0%} "
+                 "upper bound (a bound, not an estimate)", fontsize=9)
     fig.tight_layout()
     return save(fig, path)
+
+
+def _log_floor(cells: Sequence[Mapping[str, Any]], metrics: Sequence[str]) -> float:
+    """The bottom of the log axis: a third of the smallest positive number drawn (a lower interval end
+    of a cell with events, or an upper bound of one without), at most 0.1."""
+    drawn = [v for c in cells for m in metrics if (r := c["rates"].get(m)) and r.get("n")
+             for v in ((r["low"], r["rate"]) if r["k"] else (r["upper_one_sided"],)) if v > 0]
+    return min([0.1, *drawn]) / 3.0
+
+
+def _draw_group(ax, x: np.ndarray, rates: Sequence[Mapping[str, Any]], colour, label: str, floor: float) -> None:
+    """One group's cells: points with interval bars joined by a line where events occurred; bounds
+    (▼ and a dotted line down) where none did."""
+    seen = [j for j, r in enumerate(rates) if r["k"] > 0]
+    zero = [j for j, r in enumerate(rates) if r["k"] == 0]
+    if seen:
+        est = np.array([rates[j]["rate"] for j in seen])
+        low = np.array([max(rates[j]["low"], floor) for j in seen])
+        high = np.array([rates[j]["high"] for j in seen])
+        ax.errorbar(x[seen], est, yerr=[est - low, high - est], fmt="o-", color=colour, ms=4, lw=1.3, capsize=3,
+                    label=label)
+    if zero:
+        bound = np.array([rates[j]["upper_one_sided"] for j in zero])
+        ax.vlines(x[zero], floor, bound, colors=[colour], linestyles="dotted", lw=1.1)
+        ax.plot(x[zero], bound, "v", color=colour, ms=6, label=None if seen else label)
 
 
 def estimate_vs_axis(

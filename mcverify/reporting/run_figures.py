@@ -138,9 +138,10 @@ def write_figures(
         metrics = [(m, summary.METRICS[m].label) for m in ("collision", "ellipse_violation", "invariance_breach")
                    if any(m in c["rates"] for c in cells)]
         x_label = {"epsilon": "level ε of the VL-CBF", "lambda0": "λ₀"}.get(x_axis, x_axis)
-        draw(f"rate-vs-{x_axis}", f"Rates against {x_label}",
-             f"Rate per cell against {x_label}, one line per {', '.join(others) or 'campaign'}; the band is the "
-             f"two-sided {level:.0%} interval and ▼ marks the exact one-sided upper bound of a cell with no event.",
+        draw(f"rate-vs-{x_axis}", f"Probabilities against {x_label}",
+             f"Probability per cell against {x_label} (log scale), one line per {', '.join(others) or 'campaign'}: "
+             f"a point is k/n with its two-sided {level:.0%} {method_name(summ['interval_method'])} interval; ▼ with "
+             f"a dotted line marks a cell without any event at its exact one-sided {level:.0%} upper bound.",
              cell_figures.rate_vs_axis, cells, x_axis, numeric_axes(cells, axes)[x_axis], groups, metrics,
              level=level, x_label=x_label)
 

@@ -47,7 +47,7 @@ def test_rates_per_cell(tmp_path):
     assert drawn["lines"] >= 3 * 3  # three rates with error bars (points + caps)
 
 
-def test_rate_vs_axis_has_one_band_per_group_and_metric(tmp_path):
+def test_rate_vs_axis_draws_points_with_bars_and_bounds_on_a_log_scale(tmp_path):
     summ, _ = _cells(synthetic.EPS_SWEEP, probs=synthetic.eps_probs)
     cells = summ["cells"]
     xs = [summary.axis_value(c, "epsilon") for c in cells]
@@ -55,8 +55,23 @@ def test_rate_vs_axis_has_one_band_per_group_and_metric(tmp_path):
     metrics = [("collision", "collision"), ("ellipse_violation", "ellipse violated")]
     drawn = cell_figures.rate_vs_axis(cells, "epsilon", xs, groups, metrics, tmp_path / "e.png", level=0.95)
     check_png(tmp_path / "e.png", (12, 4.2))
-    assert drawn["collections"] == 2 * 2  # a band per group per panel
-    assert drawn["lines"] >= 2 * 2  # a line per group per panel (plus one-sided markers)
+    # per panel and group: an interval bar collection where some cell saw events, a dotted bound line
+    # collection where some cell saw none
+    expected = 0
+    for metric, _ in metrics:
+        for group in dict.fromkeys(groups):
+            ks = [c["rates"][metric]["k"] for c, g in zip(cells, groups, strict=True) if g == group]
+            expected += any(k > 0 for k in ks) + any(k == 0 for k in ks)
+    assert drawn["collections"] == expected
+
+
+def test_log_floor_sits_below_every_drawn_number():
+    cells = [{"rates": {"collision": {"k": 1, "n": 200, "rate": 0.005, "low": 1.3e-4, "high": 0.027,
+                                      "upper_one_sided": 0.023}}},
+             {"rates": {"collision": {"k": 0, "n": 100, "rate": 0.0, "low": 0.0, "high": 0.036,
+                                      "upper_one_sided": 0.0295}}}]
+    assert cell_figures._log_floor(cells, ["collision"]) == pytest.approx(1.3e-4 / 3)
+    assert cell_figures._log_floor(cells[1:], ["collision"]) == pytest.approx(0.0295 / 3)
 
 
 def test_heatmap_writes_every_count(tmp_path):

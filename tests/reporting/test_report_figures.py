@@ -43,7 +43,7 @@ def test_eps_sweep_gets_rates_against_eps_and_heat_maps(tmp_path):
                              trajectories=False)
     drawn = _check_all(run, _figures(run))
     assert {"rates", "rate-vs-epsilon", "heatmap-safe", "heatmap-overtook", "min-dist-front"} <= set(drawn)
-    assert drawn["rate-vs-epsilon"].drawn["collections"] == 3 * 2  # 3 rates x 2 noise levels, each a band
+    assert drawn["rate-vs-epsilon"].drawn["collections"] >= 3 * 2  # 3 rates x 2 noise levels: bars or bounds
     unsafe = drawn["heatmap-safe"].drawn["patches"]  # an outline and a ⚠ per cell with an unsafe episode
     assert drawn["heatmap-safe"].drawn["texts"] == 10 + unsafe  # 5 levels x 2 noise levels, counts written in
 
