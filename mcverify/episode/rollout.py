@@ -45,6 +45,7 @@ from mcverify.episode.row import EndState, Row, episode_row
 from mcverify.episode.snapshot import Branching, branch_key
 from mcverify.sim.lanes import LaneGroups
 from mcverify.sim.plant import SafetyTrace, footprint_top_y_m, initial_plant
+from mcverify.sim.schedule import ErrorInput, ErrorSchedule
 from mcverify.sim.tilt import NoiseTilt
 
 __all__ = ["SCENARIO_STREAM", "SETTLING_CAUSE", "UNSAFE_CAUSES", "ChunkResult", "PhaseClock",
@@ -107,10 +108,12 @@ def _spawn_opposing(world: LaneGroups, states: list[EpisodeState], samples: list
 @dataclass
 class ChunkResult:
     """Rows (one per episode, :mod:`mcverify.episode.row`) and the recordings of the recorded
-    episodes, by cell-local episode id."""
+    episodes, by cell-local episode id; under error schedules, ``realised``: each episode's error as the
+    time schedule it applied (:meth:`mcverify.sim.lanes.LaneGroups.realised`), by cell-local episode id."""
 
     rows: list[Row]
     recordings: dict[int, EpisodeRecording] = field(default_factory=dict)
+    realised: dict[int, ErrorSchedule] = field(default_factory=dict)
 
 
 def run_episodes(
@@ -127,6 +130,7 @@ def run_episodes(
     scenarios: Mapping[int, Mapping[str, float]] | None = None,
     on_episode: Callable[[int, bool], None] | None = None,
     noise_tilt: NoiseTilt | None = None,
+    schedules: Sequence[ErrorInput] | None = None,
 ) -> ChunkResult:
     """Simulate ``episode_ids`` (ids within the cell) of ``cell`` as one batch; one row per episode.
 
@@ -145,9 +149,14 @@ def run_episodes(
     :class:`~mcverify.sim.tilt.NoiseTilt`); each row then carries ``noise_log_lr``, the log likelihood
     ratio (nominal over proposal) of its noise, and ``noise_tilt_sums`` (9) / ``noise_tilt_counts`` (3),
     the statistics a cross-entropy refit of the tilt needs. None: the nominal noise, and no such keys.
+    schedules: one error input per episode, in the order of ``episode_ids``
+    (:class:`~mcverify.sim.schedule.ErrorSchedule` or :class:`~mcverify.sim.schedule.GapBandSchedule`): the
+    measurement errors come from them alone (no draw; the structured disturbances and the noise branches'
+    keys are not used), and the result's ``realised`` holds what each applied. Refused with ``noise_tilt``.
+    None: the drawn noise, bit for bit as without this argument. The scenario draws are unchanged.
     """
     phase = clock.phase if clock is not None else _untimed
-    ch = _start(cell, [int(e) for e in episode_ids], seed, common_random_numbers, scenarios, noise_tilt)
+    ch = _start(cell, [int(e) for e in episode_ids], seed, common_random_numbers, scenarios, noise_tilt, schedules)
     p, ids, world, states, settling = cell.params, ch.ids, ch.world, ch.states, ch.settling
     recorded = set(ids) if record is True else set(record or ())
     rec = Recorder([b for b, e in enumerate(ids) if e in recorded], cell) if recorded else None
@@ -201,7 +210,8 @@ def run_episodes(
     if on_episode is not None:
         _report_stopped(on_episode, ids, np.zeros(len(ids), dtype=bool), ch.reported, world)
     rows = _rows(ch, seed, noise_tilt)
-    return ChunkResult(rows) if rec is None else ChunkResult(rows, rec.recordings(ids))
+    realised = {} if schedules is None else {e: world.realised(b) for b, e in enumerate(ids)}
+    return ChunkResult(rows, {} if rec is None else rec.recordings(ids), realised)
 
 
 @dataclass
@@ -229,7 +239,8 @@ class _Chunk:
 
 
 def _start(cell: Cell, ids: list[int], seed: int, common_random_numbers: bool,
-           scenarios: Mapping[int, Mapping[str, float]] | None, noise_tilt: NoiseTilt | None) -> _Chunk:
+           scenarios: Mapping[int, Mapping[str, float]] | None, noise_tilt: NoiseTilt | None,
+           schedules: Sequence[ErrorInput] | None = None) -> _Chunk:
     """The chunk at t = 0: keys, scenario draws (``scenarios`` replacing an episode's own), the plant."""
     p = cell.params
     cell_key = None if common_random_numbers else cell.index
@@ -238,7 +249,8 @@ def _start(cell: Cell, ids: list[int], seed: int, common_random_numbers: bool,
     for b, e in enumerate(ids):
         samples[b].update((scenarios or {}).get(e, {}))
     world = LaneGroups(initial_plant(p, [s["front_accel_mps2"] for s in samples],
-                                     [s["opp_speed_mps"] for s in samples]), keys, p, tilt=noise_tilt)
+                                     [s["opp_speed_mps"] for s in samples]), keys, p, tilt=noise_tilt,
+                       schedules=None if schedules is None else list(schedules))
     h0 = world.trace().min_h_front.copy()
     states = [EpisodeState(e) for e in ids]
     if p.opposing.kind != "none" and not p.opposing.appears_at_lane_entry:

@@ -9,14 +9,26 @@ position in the chunk.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from mcverify.model import ModelParams
+from mcverify.sim import schedule as schedule_mod
 from mcverify.sim import tilt as tilt_mod
-from mcverify.sim.plant import LANES, Plant, SafetyTrace, Substep, compiled, compiled_tilted, plant_params
+from mcverify.sim.plant import (
+    LANES,
+    Plant,
+    SafetyTrace,
+    Substep,
+    compiled,
+    compiled_scheduled,
+    compiled_tilted,
+    plant_params,
+)
 
 Array = jax.Array
 
@@ -27,8 +39,13 @@ class LaneGroups:
     Padding lanes repeat the last episode, are never active and are dropped from every output.
     """
 
-    def __init__(self, plant: Plant, keys: Array, params: ModelParams, tilt: tilt_mod.NoiseTilt | None = None) -> None:
+    def __init__(self, plant: Plant, keys: Array, params: ModelParams, tilt: tilt_mod.NoiseTilt | None = None,
+                 schedules: Sequence[schedule_mod.ErrorInput] | None = None) -> None:
         self.n = int(plant.t_s.shape[0])
+        if schedules is not None and tilt is not None:
+            raise ValueError("an error schedule replaces the random noise: it cannot be combined with a noise tilt")
+        if schedules is not None and len(schedules) != self.n:
+            raise ValueError(f"{len(schedules)} error schedules for {self.n} episodes: give one per episode")
         self.pp = plant_params(params)
         # a noise tilt (importance sampling) with an empty window is no tilt: the plain executable runs
         self.tilt = tilt.params() if tilt is not None and tilt.gap_max_m > 0 else None
@@ -42,6 +59,10 @@ class LaneGroups:
         self.plants = [jax.tree.map(lambda a, g=g: a[g * LANES:(g + 1) * LANES], padded) for g in range(self.groups)]
         self.keys = split(keys)
         self.traces = [self._ini(pl, self.pp) for pl in self.plants]
+        self.schedule = None if schedules is None else _ScheduleTable.of(schedules, self.groups * LANES,
+                                                                          schedule_mod.control_steps(params.sim))
+        #: control step -> (n, 5) the units each episode's schedule applied there (error schedules only)
+        self.applied: dict[int, np.ndarray] = {}
 
     def _gather(self, parts: list) -> np.ndarray:
         return np.concatenate([np.asarray(a) for a in parts])[: self.n]
@@ -58,7 +79,10 @@ class LaneGroups:
 
     def observe_on_device(self, step: int, live: np.ndarray | None = None) -> list[tuple[Array, Array]]:
         """Per lane group, the (front, opp) measurements as JAX arrays, not yet copied to the host
-        (under a noise tilt the plants' noise memory is updated too)."""
+        (under a noise tilt the plants' noise memory is updated too; under error schedules the units applied
+        are kept in :attr:`applied`)."""
+        if self.schedule is not None:
+            return self._observe_scheduled(step)
         if self.tilt is None:
             return [self._obs(pl, k, jnp.asarray(step), self.pp) for pl, k in zip(self.plants, self.keys, strict=True)]
         live = np.ones(self.n, dtype=bool) if live is None else np.asarray(live, dtype=bool)
@@ -69,6 +93,27 @@ class LaneGroups:
                                                            self.tilt, jnp.asarray(live[g * LANES:(g + 1) * LANES]))
             outs.append((front, opp))
         return outs
+
+    def _observe_scheduled(self, step: int) -> list[tuple[Array, Array]]:
+        outs, applied = [], []
+        for g in range(self.groups):
+            front, opp, units = compiled_scheduled()(self.plants[g], self.keys[g], self.schedule.step(g, step), self.pp)
+            outs.append((front, opp))
+            applied.append(units)
+        self.applied[step] = self._gather(applied)
+        return outs
+
+    def realised(self, b: int) -> schedule_mod.ErrorSchedule:
+        """Episode ``b``'s error as an :class:`~mcverify.sim.schedule.ErrorSchedule` in time: the units it
+        applied at every step observed so far (0 at steps not observed, e.g. before a restored snapshot),
+        with its shares; re-simulates the episode bit for bit."""
+        if self.schedule is None:
+            raise ValueError("this batch runs without error schedules")
+        last = max(self.applied, default=0)
+        units = np.zeros((last + 1, len(schedule_mod.CHANNELS)))
+        for k, u in self.applied.items():
+            units[k] = u[b]
+        return schedule_mod.ErrorSchedule.of(units, *(float(v) for v in self.schedule.shares[b]))
 
     def noise_log_lr(self) -> np.ndarray:
         """(n,) log(nominal / proposal) of each episode's noise so far (0 without a noise tilt)."""
@@ -139,3 +184,40 @@ class LaneGroups:
     def trace(self) -> SafetyTrace:
         """(n,) final safety metrics as numpy arrays."""
         return SafetyTrace(*(self._gather([getattr(t, f) for t in self.traces]) for f in SafetyTrace._fields))
+
+
+class _ScheduleTable(NamedTuple):
+    """A padded batch's error inputs as host arrays (lanes first): time units (lanes, steps, 5), zero
+    beyond each schedule; the gap-band form's units (lanes, 3, 5), edges (lanes, 3) and flag (lanes,);
+    shares (lanes, 2). Padding lanes repeat the last episode's."""
+
+    units: np.ndarray
+    band_units: np.ndarray
+    edges_m: np.ndarray
+    banded: np.ndarray
+    shares: np.ndarray
+
+    @classmethod
+    def of(cls, schedules: Sequence[schedule_mod.ErrorInput], lanes: int, steps: int) -> _ScheduleTable:
+        full = [*schedules, *([schedules[-1]] * (lanes - len(schedules)))]
+        c = len(schedule_mod.CHANNELS)
+        units, band_units = np.zeros((lanes, steps, c)), np.zeros((lanes, len(schedule_mod.BANDS), c))
+        edges, banded = np.zeros((lanes, len(schedule_mod.BANDS))), np.zeros(lanes, dtype=bool)
+        for b, s in enumerate(full):
+            if isinstance(s, schedule_mod.GapBandSchedule):
+                band_units[b], edges[b], banded[b] = s.units, s.edges_m, True
+            elif isinstance(s, schedule_mod.ErrorSchedule):
+                units[b] = s.padded(steps)
+            else:
+                raise TypeError(f"episode {b}: an error schedule must be an ErrorSchedule or a GapBandSchedule, "
+                                f"got {type(s).__name__}")
+        shares = np.array([[s.front_share, s.opp_share] for s in full], dtype=float)
+        return cls(units, band_units, edges, banded, shares)
+
+    def step(self, group: int, step: int) -> schedule_mod.ScheduleStep:
+        """Lane group ``group``'s runtime numbers at control step ``step`` (0 beyond the table)."""
+        sl = slice(group * LANES, (group + 1) * LANES)
+        units = self.units[sl, step] if step < self.units.shape[1] else np.zeros((LANES, self.units.shape[2]))
+        return schedule_mod.ScheduleStep(jnp.asarray(units), jnp.asarray(self.band_units[sl]),
+                                         jnp.asarray(self.edges_m[sl]), jnp.asarray(self.banded[sl]),
+                                         jnp.asarray(self.shares[sl]))

@@ -28,6 +28,7 @@ import numpy as np
 from mcverify import levels
 from mcverify.model import ModelParams
 from mcverify.sim import agents, barriers, geometry, noise, vehicles
+from mcverify.sim import schedule as schedule_mod
 from mcverify.sim import tilt as tilt_mod
 
 Array = jax.Array
@@ -302,6 +303,23 @@ def observe_tilted(plant: Plant, key: Array, step: Array, pp: PlantParams, tilt:
     )
 
 
+def observe_scheduled(plant: Plant, key: Array, step_input: schedule_mod.ScheduleStep,
+                      pp: PlantParams) -> tuple[Array, Array, Array]:
+    """:func:`observe` with the error given by an error schedule instead of drawn (:mod:`mcverify.sim.schedule`):
+    each vehicle's measurement error is its share times the step's units, scaled by the bounds as
+    :func:`~mcverify.sim.noise.measure` scales its draws; the structured disturbances are not applied.
+    Returns (front (3,), opp (2,), the units (5,) applied, before the shares). ``key`` is unused (no draw)."""
+    c = checks(plant.ego, plant.front, plant.opp, jnp.zeros(2), pp)
+    units = schedule_mod.step_units(step_input, c.gap_front_m)
+    front_unit = step_input.shares[0] * units[jnp.array(schedule_mod.FRONT_CHANNELS)]
+    opp_x, opp_v = (step_input.shares[1] * units[i] for i in schedule_mod.OPP_CHANNELS)
+    front = jnp.stack(noise.measure(key, plant.front[0], 0.0, plant.front[1], c.gap_front_m, pp.noise.bounds,
+                                    unit=front_unit))
+    ox, _, ov = noise.measure(key, plant.opp[0], pp.opp_lane_y_m, plant.opp[1], c.gap_opp_m, pp.noise.bounds,
+                              unit=jnp.stack([opp_x, 0.0, opp_v]))
+    return front, jnp.stack([ox, ov]), units
+
+
 def opposing_accel(plant: Plant, u: Array, pp: PlantParams) -> Array:
     """veh_o's acceleration for this control period (its controller samples at the ego's rate)."""
     auto = agents.autonomous_accel(
@@ -385,6 +403,12 @@ def compiled(substeps: int):
 def compiled_tilted():
     """:func:`observe_tilted`, jitted and vmapped over :data:`LANES` episodes (importance sampling only)."""
     return jax.jit(jax.vmap(observe_tilted, in_axes=(0, 0, None, None, None, 0)))
+
+
+@functools.lru_cache(maxsize=1)
+def compiled_scheduled():
+    """:func:`observe_scheduled`, jitted and vmapped over :data:`LANES` episodes (episodes run with error schedules)."""
+    return jax.jit(jax.vmap(observe_scheduled, in_axes=(0, 0, 0, None)))
 
 
 def initial_plant(p: ModelParams, front_accels_mps2: Sequence[float],
