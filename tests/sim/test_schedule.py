@@ -46,7 +46,8 @@ def test_units_from_normals_is_two_phi_minus_one():
                                rtol=1e-12)
 
 
-def _step(units, band_units=np.zeros((3, 5)), edges=(2.0, 3.0, 15.0), banded=False, shares=(1.0, 1.0)):
+def _step(units, band_units=None, edges=(2.0, 3.0, 15.0), banded=False, shares=(1.0, 1.0)):
+    band_units = np.zeros((3, 5)) if band_units is None else band_units
     return ScheduleStep(jnp.asarray(units, dtype=float), jnp.asarray(band_units, dtype=float),
                         jnp.asarray(edges, dtype=float), jnp.asarray(banded), jnp.asarray(shares, dtype=float))
 
@@ -67,10 +68,11 @@ def test_scheduled_measurement_is_share_times_unit_times_the_bound():
     gap = float(plant.checks(one.ego, one.front, one.opp, jnp.zeros(2), pp).gap_front_m)
     assert gap > p.noise.near_threshold_m  # far noise
     units = np.array([0.5, -1.0, 1.0, 0.25, -0.5])
-    front, _, applied = plant.observe_scheduled(one, jnp.zeros(2, dtype=jnp.uint32), _step(units, shares=(0.5, 0.0)), pp)
+    key = jnp.zeros(2, dtype=jnp.uint32)  # unused: no draw
+    front, _, applied = plant.observe_scheduled(one, key, _step(units, shares=(0.5, 0.0)), pp)
     pos, speed = p.noise.scale * p.noise.pos_far_m, p.noise.scale * p.noise.speed_rel * float(one.front[1])
     np.testing.assert_allclose(np.asarray(front), [float(one.front[0]) + 0.5 * 0.5 * pos, -0.5 * pos,
                                                    float(one.front[1]) + 0.5 * speed], rtol=0, atol=1e-12)
     np.testing.assert_array_equal(np.asarray(applied), units)
-    exact, _, _ = plant.observe_scheduled(one, jnp.zeros(2, dtype=jnp.uint32), _step(np.zeros(5)), pp)
+    exact, _, _ = plant.observe_scheduled(one, key, _step(np.zeros(5)), pp)
     np.testing.assert_array_equal(np.asarray(exact), [float(one.front[0]), 0.0, float(one.front[1])])
