@@ -5,10 +5,13 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pyarrow.parquet as pq
 import pytest
 
 from mcverify import cli
+from mcverify.campaign import executors, runner
 from mcverify.campaign.spec import campaign_from_dict
+from mcverify.episode.rollout import run_episodes
 from mcverify.episode.schedule_file import SCHEDULES, read_schedule, schedule_path
 from mcverify.falsify import adversary
 from mcverify.falsify.parametrisations import GapBands, random_uniform
@@ -61,7 +64,6 @@ def test_the_schedule_is_the_whole_error(cell, batch):
     assert drawn.rows == []
     assert _same_rows(batch.rows[0], exact.rows[0])  # the errors change the episode
     with pytest.raises(ValueError, match="noise tilt"):
-        from mcverify.episode.rollout import run_episodes
         run_episodes(cell, [0], 3, None, noise_tilt=NoiseTilt(gap_max_m=5.0), schedules=[ErrorSchedule.exact(3)])
 
 
@@ -78,7 +80,6 @@ def test_a_run_with_schedules_replays_bit_for_bit(run_dir, batch, episode_id, ca
     assert type(kept).__name__ in ("ErrorSchedule", "GapBandSchedule")
     assert cli.main(["replay", str(run_dir), str(episode_id)]) == 0
     assert "reproduced exactly" in capsys.readouterr().out
-    import pyarrow.parquet as pq
     stored = [r for r in pq.read_table(run_dir / "episodes.parquet").to_pylist() if r["episode_id"] == episode_id][0]
     assert _same_rows(batch.rows[episode_id], stored) == []  # the run folder's episode is evaluate's
 
@@ -94,3 +95,20 @@ def test_a_bad_stored_schedule_is_one_line_exit_2(run_dir, capsys):
         assert "outside [-1, 1]" in err and len(err.splitlines()) == 1
     finally:
         path.write_bytes(good)
+
+
+class _Interrupt(Exception):
+    pass
+
+
+def test_an_interrupted_run_with_schedules_resumes_with_them(tmp_path, schedules, batch):
+    def stop(_record):
+        raise _Interrupt
+
+    run = tmp_path / "run"
+    with pytest.raises(_Interrupt):
+        runner.run(campaign_from_dict(RAW), run, executor=executors.SerialExecutor(), chunk_size=1, progress=False,
+                   on_chunk=stop, schedules=dict(enumerate(schedules)))
+    runner.resume(run, executor=executors.SerialExecutor(), progress=False)  # the plain episode function
+    rows = sorted(pq.read_table(run / "episodes.parquet").to_pylist(), key=lambda r: r["episode_id"])
+    assert [_same_rows(batch.rows[e], rows[e]) for e in (0, 1)] == [[], []]
