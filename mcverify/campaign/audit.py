@@ -16,7 +16,7 @@ from pathlib import Path
 
 from mcverify import store
 from mcverify.campaign import executors
-from mcverify.campaign.replay import write_recording
+from mcverify.campaign.replay import stored_schedules, write_recording
 from mcverify.campaign.runner import campaign_from_manifest
 from mcverify.cell import Cell
 from mcverify.episode.rollout import run_episodes
@@ -99,7 +99,8 @@ def audit(run_dir: Path, episode_id: int, out_dir: Path | None = None) -> AuditR
     """Re-simulate ``episode_id`` of ``run_dir`` with the reference solver and compare the verdicts;
     its trajectory and plot go to ``out_dir`` (default ``RUN_DIR/replay``) as ``episode-NNNNNN-ipopt``."""
     run_dir = Path(run_dir)
-    campaign = campaign_from_manifest(store.read_json(run_dir / store.MANIFEST))
+    manifest = store.read_json(run_dir / store.MANIFEST)
+    campaign = campaign_from_manifest(manifest)
     table = store.read_episodes(run_dir)
     ids = table.column("episode_id").to_pylist()
     if episode_id not in ids:
@@ -111,7 +112,8 @@ def audit(run_dir: Path, episode_id: int, out_dir: Path | None = None) -> AuditR
     ref_cell = reference_cell(cell)
     local = stored["cell_episode"]
     result = run_episodes(ref_cell, [local], campaign.seed, executors.solver_for(ref_cell.params),
-                          common_random_numbers=campaign.common_random_numbers, record=True)
+                          common_random_numbers=campaign.common_random_numbers, record=True,
+                          schedules=stored_schedules(run_dir, manifest, episode_id))  # the same error
     row = result.rows[0]
     out = Path(out_dir) if out_dir else run_dir / "replay"
     traj, plot = write_recording(result.recordings[local], ref_cell, row, out,

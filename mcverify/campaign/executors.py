@@ -41,6 +41,8 @@ from mcverify.campaign.work import (
     one_line,
     run_work,
     simulate,
+    simulate_scheduled,
+    simulates,
     solver_for,
 )
 from mcverify.episode.row import error_row
@@ -51,7 +53,7 @@ __all__ = [
     "EpisodeFn", "Executor", "ExecutorError", "KeptAlive", "LocalExecutor", "Outcome", "RayExecutor",
     "SerialExecutor", "Work",
     "default_workers", "error_row", "execute", "make_executor", "one_line", "probe_address", "run_work",
-    "simulate", "solver_for",
+    "simulate", "simulate_scheduled", "simulates", "solver_for",
 ]
 
 

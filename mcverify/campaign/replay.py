@@ -13,10 +13,12 @@ import pyarrow.parquet as pq
 from mcverify import store
 from mcverify.campaign import executors
 from mcverify.campaign.runner import campaign_from_manifest
+from mcverify.episode import schedule_file
 from mcverify.episode.recording import PLANS_SUFFIX
 from mcverify.episode.rollout import run_episodes
 from mcverify.errors import RunError
 from mcverify.schema import ERROR_COLUMN, ERROR_OUTCOME, TIMING_COLUMNS
+from mcverify.sim.schedule import ErrorInput
 
 
 class ReplayMismatch(RuntimeError):
@@ -46,6 +48,7 @@ def replay(run_dir: Path, episode_id: int, out_dir: Path | None = None) -> Repla
     stored = table.slice(ids.index(episode_id), 1).to_pylist()[0]
     cell = campaign.cells[stored["cell_index"]]
     local = stored["cell_episode"]
+    schedules = stored_schedules(run_dir, manifest, episode_id)
     try:
         result = run_episodes(
             cell,
@@ -54,6 +57,7 @@ def replay(run_dir: Path, episode_id: int, out_dir: Path | None = None) -> Repla
             executors.solver_for(cell.params),
             common_random_numbers=campaign.common_random_numbers,
             record=True,
+            schedules=schedules,
         )
     except Exception as exc:  # noqa: BLE001 - the stored error row says what to expect
         if stored.get("outcome") != ERROR_OUTCOME:
@@ -66,6 +70,15 @@ def replay(run_dir: Path, episode_id: int, out_dir: Path | None = None) -> Repla
     out_dir = Path(out_dir) if out_dir else run_dir / "replay"
     traj_path, plot_path = write_recording(result.recordings[local], cell, row, out_dir, f"episode-{episode_id:06d}")
     return checked(episode_id, stored, row, traj_path, plot_path)
+
+
+def stored_schedules(run_dir: Path, manifest: dict, episode_id: int) -> list[ErrorInput] | None:
+    """[the episode's error schedule] when its run kept error schedules (manifest ``error_schedules``), else
+    None (the episode drew its noise)."""
+    folder = manifest.get(schedule_file.MANIFEST_KEY)
+    if not folder:
+        return None
+    return [schedule_file.read_schedule(schedule_file.schedule_path(Path(run_dir) / folder, episode_id))]
 
 
 def write_recording(recording, cell, row: dict, out_dir: Path, stem: str) -> tuple[Path, Path]:

@@ -11,11 +11,12 @@ would then not be the episodes this code would produce.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import logging
 import os
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from datetime import datetime
 from pathlib import Path
 from typing import Any, Protocol
@@ -27,11 +28,13 @@ from mcverify.campaign import executors, lint
 from mcverify.campaign.executors import ChunkOutput, EpisodeFn, Executor
 from mcverify.campaign.progress import ProgressTally
 from mcverify.campaign.spec import Campaign, CampaignError, campaign_from_dict
+from mcverify.episode import schedule_file
 from mcverify.episode.recording import EpisodeRecording
 from mcverify.errors import RunError
 from mcverify.levels import Level
 from mcverify.model_validation import params_from_record
 from mcverify.reporting import run_report
+from mcverify.sim.schedule import ErrorInput
 
 log = logging.getLogger(__name__)
 
@@ -237,6 +240,7 @@ def run(
     on_start: Callable[[int, int], None] | None = None,
     stopper: Stopper | None = None,
     manifest_extra: dict[str, Any] | None = None,
+    schedules: Mapping[int, ErrorInput] | None = None,
 ) -> Path:
     """Run ``campaign`` into a new folder ``run_dir``; returns the report path.
 
@@ -246,7 +250,10 @@ def run(
     chunk is safely on disk; on_start: called with (chunks planned, chunks already done) once every
     check has passed and the executor is up, just before the first chunk runs; stopper: skips the
     chunks of cells already decided (only the chunks that ran are merged); manifest_extra: entries
-    added to the manifest (the estimate's specification).
+    added to the manifest (the estimate's specification); schedules: global episode id -> its error
+    schedule (:mod:`mcverify.sim.schedule`), one for every episode of the campaign: they are kept in the
+    folder (:mod:`mcverify.episode.schedule_file`, named in the manifest) before any episode runs, and the
+    real episode function reads them from there (so do ``resume`` and ``mcverify replay``).
     """
     run_dir = Path(run_dir)
     if chunk_size < 1:
@@ -260,6 +267,9 @@ def run(
         kernels = _prepare_kernels(campaign, episode_fn)
         run_dir.mkdir(parents=True, exist_ok=True)
         with store.run_lock(run_dir):
+            if schedules is not None:
+                episode_fn = _keep_schedules(campaign, run_dir, schedules, episode_fn)
+                manifest_extra = {**(manifest_extra or {}), schedule_file.MANIFEST_KEY: schedule_file.SCHEDULES}
             manifest = {**manifest_for(campaign, chunk_size, kernels), **(manifest_extra or {})}
             manifest["sessions"].append(_session(executor, resumed=False))
             store.write_json_atomic(run_dir / store.MANIFEST, manifest)
@@ -334,10 +344,13 @@ def resume(
             f"cannot resume {run_dir} with chunk size {chunk_size}: it was planned with {planned} "
             "(leave --chunk-size out)"
         )
+    if manifest.get(schedule_file.MANIFEST_KEY) and episode_fn is executors.simulate:
+        episode_fn = functools.partial(executors.simulate_scheduled,
+                                       str(run_dir / manifest[schedule_file.MANIFEST_KEY]))
     executor = executor or executors.LocalExecutor()
     with executor:
         kernels = _prepare_kernels(rebuilt, episode_fn)
-        if episode_fn is executors.simulate and kernels != manifest.get("kernels"):
+        if executors.simulates(episode_fn) and kernels != manifest.get("kernels"):
             raise RunError(f"cannot resume {run_dir}: the solver kernels differ from the run's (compiler or CasADi)")
         with store.run_lock(run_dir):
             manifest["sessions"] = [*manifest.get("sessions", []), _session(executor, resumed=True)]
@@ -375,7 +388,7 @@ def _execute(
             log.warning("warning: %s", warning)
     done_episodes = sum(len(c.episode_ids) for c in chunks if c.name in done)
     record = [(c.index, 0) for c in campaign.cells if c.episodes > 0] if record_first else []
-    if todo and episode_fn is executors.simulate and not executor.warm:
+    if todo and executors.simulates(episode_fn) and not executor.warm:
         bar_note = (f"; then the bar moves as episodes finish (chunks of up to {chunk_size} run together; with Ray, "
                     "as whole chunks finish)" if progress else "")
         log.info("starting %s: each worker imports JAX and CasADi, loads the solver and compiles the plant once "
@@ -420,6 +433,23 @@ def _execute(
     return path
 
 
+def _keep_schedules(campaign: Campaign, run_dir: Path, schedules: Mapping[int, ErrorInput],
+                    episode_fn: EpisodeFn) -> EpisodeFn:
+    """Write every episode's error schedule into the run folder; the episode function that reads them
+    (a test's stand-in is kept as it is)."""
+    wanted = {c.episode_offset + e for c in campaign.cells for e in range(c.episodes)}
+    if set(schedules) != wanted:
+        missing, extra = sorted(wanted - set(schedules)), sorted(set(schedules) - wanted)
+        raise RunError(f"error schedules must be given for exactly the campaign's episodes 0 to {len(wanted) - 1}"
+                       f" (missing: {missing[:5]}, not in the campaign: {extra[:5]})")
+    folder = run_dir / schedule_file.SCHEDULES
+    for episode_id, schedule in sorted(schedules.items()):
+        schedule_file.write_schedule(schedule_file.schedule_path(folder, episode_id), schedule)
+    if episode_fn is executors.simulate:
+        return functools.partial(executors.simulate_scheduled, str(folder))
+    return episode_fn
+
+
 def _unsafe_in(run_dir: Path, chunks: list[store.Chunk]) -> int:
     """Unsafe episodes in chunks already on disk (a resumed run's count starts from them)."""
     count = 0
@@ -440,7 +470,7 @@ def _write_recording(run_dir: Path, episode_id: int, recording: EpisodeRecording
 def _prepare_kernels(campaign: Campaign, episode_fn: EpisodeFn) -> dict[str, str]:
     """Build (or load) every cell's kernel here, once, before any worker starts: workers then only
     load the cached shared object and never race to compile it. Cell name -> kernel hash."""
-    if episode_fn is not executors.simulate:
+    if not executors.simulates(episode_fn):
         return {}
     return {c.name: executors.solver_for(c.params).kernel_hash for c in campaign.cells}
 

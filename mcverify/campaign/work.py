@@ -18,11 +18,13 @@ pipe before the outcome). They only move the progress bar: the rows come with th
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import socket
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Protocol
 
 from mcverify import provenance
@@ -99,6 +101,30 @@ def simulate(
         cell, list(episode_ids), seed, solver_for(cell.params),
         common_random_numbers=common_random_numbers, record=record, on_episode=episode_done,
     )
+
+
+def simulate_scheduled(
+    schedules_dir: str, cell: Cell, episode_ids: tuple[int, ...], seed: int, common_random_numbers: bool,
+    record: tuple[int, ...],
+) -> ChunkResultLike:
+    """:func:`simulate` with each episode's measurement error from its stored error schedule
+    (:mod:`mcverify.episode.schedule_file`: ``schedules_dir``, by global episode id); bind the folder
+    with ``functools.partial``."""
+    from mcverify.episode.rollout import run_episodes
+    from mcverify.episode.schedule_file import read_schedule, schedule_path
+
+    schedules = [read_schedule(schedule_path(Path(schedules_dir), cell.episode_offset + e)) for e in episode_ids]
+    return run_episodes(
+        cell, list(episode_ids), seed, solver_for(cell.params),
+        common_random_numbers=common_random_numbers, record=record, on_episode=episode_done, schedules=schedules,
+    )
+
+
+def simulates(episode_fn: EpisodeFn) -> bool:
+    """Whether ``episode_fn`` is a real closed loop (:func:`simulate`, or :func:`simulate_scheduled` bound
+    to a folder), which needs the solver kernels, rather than a test's stand-in."""
+    bound = isinstance(episode_fn, functools.partial) and episode_fn.func is simulate_scheduled
+    return episode_fn is simulate or bound
 
 
 def default_workers() -> int:

@@ -204,6 +204,8 @@ class _ScheduleTable(NamedTuple):
         units, band_units = np.zeros((lanes, steps, c)), np.zeros((lanes, len(schedule_mod.BANDS), c))
         edges, banded = np.zeros((lanes, len(schedule_mod.BANDS))), np.zeros(lanes, dtype=bool)
         for b, s in enumerate(full):
+            if isinstance(s, (schedule_mod.ErrorSchedule, schedule_mod.GapBandSchedule)):
+                s = type(s).of(*s)  # validated, also when built without ``of``
             if isinstance(s, schedule_mod.GapBandSchedule):
                 band_units[b], edges[b], banded[b] = s.units, s.edges_m, True
             elif isinstance(s, schedule_mod.ErrorSchedule):

@@ -80,12 +80,13 @@ def _units(units: object, shape_text: str, rows: int | None) -> np.ndarray:
     bad = ~np.isfinite(arr)
     if bad.any():
         step, ch = (int(i) for i in np.argwhere(bad)[0])
-        raise ValueError(f"error schedule: unit {CHANNELS[ch]} at row {step} is {arr[step, ch]!r}, not a number "
-                         "in [-1, 1]")
+        raise ValueError(f"error schedule: unit {CHANNELS[ch]} at row {step} is {float(arr[step, ch])!r}, "
+                         "not a number in [-1, 1]")
     out = np.abs(arr) > 1.0
     if out.any():
         step, ch = (int(i) for i in np.argwhere(out)[0])
-        raise ValueError(f"error schedule: unit {CHANNELS[ch]} at row {step} is {arr[step, ch]!r}, outside [-1, 1]")
+        raise ValueError(f"error schedule: unit {CHANNELS[ch]} at row {step} is {float(arr[step, ch])!r}, "
+                         "outside [-1, 1]")
     arr.setflags(write=False)
     return arr
 
