@@ -126,7 +126,7 @@ def replay(run_dir: PathLike, episode_id: int, out_dir: PathLike | None = None, 
     or a failing particle's place in ``failing_particles``, and ``cell`` names its cell where the
     folder estimates several (:mod:`mcverify.estimate.replay`)."""
     from mcverify.campaign.replay import replay as _replay
-    from mcverify.estimate.replay import estimate_method, replay_draw, replay_particle
+    from mcverify.estimate.replay import estimate_method, replay_draw, replay_particle, replay_sample
 
     if isinstance(episode_id, bool) or not isinstance(episode_id, numbers.Integral) or episode_id < 0:
         raise RunError(f"the episode id must be an integer >= 0, not {episode_id!r}")
@@ -134,7 +134,8 @@ def replay(run_dir: PathLike, episode_id: int, out_dir: PathLike | None = None, 
     out = Path(out_dir) if out_dir is not None else None
     method = estimate_method(Path(run_dir))
     if method:
-        return (replay_particle if method == "splitting" else replay_draw)(Path(run_dir), episode_id, out, cell)
+        fn = {"splitting": replay_particle, "subset": replay_sample}.get(method, replay_draw)
+        return fn(Path(run_dir), episode_id, out, cell)
     if cell is not None:
         raise RunError(f"--cell is for estimate folders (importance sampling, splitting); {run_dir} is not one "
                        "(a run folder's episode ids already name the cell)")

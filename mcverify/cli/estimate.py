@@ -25,11 +25,12 @@ def add(sub, parents: list[argparse.ArgumentParser]) -> None:
 
 def _add_method_options(p: argparse.ArgumentParser) -> None:
     """The method, its target, the stopping rule and crude Monte Carlo's options."""
-    p.add_argument("--method", choices=("mc", "splitting", "importance"), default=None,
+    p.add_argument("--method", choices=("mc", "splitting", "importance", "subset"), default=None,
                    help="mc: crude Monte Carlo stopped on an anytime-valid interval (default); splitting: "
                         "adaptive multilevel splitting on the per-step noise; importance: cross-entropy "
-                        "importance sampling over the scenario ranges (both in this process unless --workers "
-                        "or --executor ray is given)")
+                        "importance sampling over the scenario ranges; subset: subset simulation over every "
+                        "input of an episode (scenario draws and per-step perception errors) (the last three in "
+                        "this process unless --workers or --executor ray is given)")
     p.add_argument("--target", default=None,
                    help=f"event whose rate is estimated: {requirements.target_help()} (default collision)")
     p.add_argument("--until-halfwidth", type=options.halfwidth, default=None, metavar="H",
@@ -53,8 +54,12 @@ def _add_rare_event_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--particles", type=options.positive_int, default=None,
                    help="splitting: particles per run (default 20)")
     p.add_argument("--replicates", type=options.positive_int, default=None,
-                   help="splitting: independent runs whose spread gives the interval (default 8; "
+                   help="splitting, subset: independent runs whose spread gives the interval (default 8; "
                         "fewer under-cover, docs/rare_events.md)")
+    p.add_argument("--stage-samples", type=options.positive_int, default=None, metavar="N",
+                   help="subset: episodes per stage (default 500)")
+    p.add_argument("--p0", type=options.open_unit, default=None,
+                   help="subset: conditional level of each stage (default 0.1; N * p0 chains of 1 / p0 episodes)")
     p.add_argument("--cell", action="append", default=[], metavar="NAME",
                    help="splitting, importance: only this cell (repeatable; default: every cell); splitting runs its "
                         "AMS runs, importance its batches of 8 episodes, in this process unless --workers (local) "
@@ -85,9 +90,11 @@ _ESTIMATE_METHOD_OPTIONS: tuple[tuple[str, str, tuple[str, ...]], ...] = (
     ("budget", "--budget", ("mc",)),
     ("chunk_size", "--chunk-size", ("mc",)),
     ("score", "--score", ("splitting", "importance")),
-    ("cell", "--cell", ("splitting", "importance")),
+    ("cell", "--cell", ("splitting", "importance", "subset")),
     ("particles", "--particles", ("splitting",)),
-    ("replicates", "--replicates", ("splitting",)),
+    ("replicates", "--replicates", ("splitting", "subset")),
+    ("stage_samples", "--stage-samples", ("subset",)),
+    ("p0", "--p0", ("subset",)),
     ("max_iterations", "--max-iterations", ("splitting",)),
     ("samples", "--samples", ("importance",)),
     ("ce_samples", "--ce-samples", ("importance",)),
@@ -99,6 +106,7 @@ _ESTIMATE_METHOD_OPTIONS: tuple[tuple[str, str, tuple[str, ...]], ...] = (
 _ESTIMATE_DEFAULTS: dict[str, object] = {
     "method": "mc", "target": "collision", "budget": 1000, "level": 0.95, "particles": 20, "replicates": 8,
     "samples": 400, "ce_samples": 100, "ce_iterations": 10, "elite_share": 0.1, "max_iterations": 2000,
+    "stage_samples": 500, "p0": 0.1,
 }
 
 
@@ -136,7 +144,7 @@ def command(args) -> int:
     _check_estimate_options(args, method)
     if args.dry_run:
         return _estimate_dry_run(args, method)
-    if method in ("splitting", "importance"):
+    if method in ("splitting", "importance", "subset"):
         return _in_process(args, method)
     executor = executors.make_executor(args.executor, workers=args.workers, address=args.address)
     if args.resume:
@@ -165,11 +173,11 @@ def _estimate_spec(args, method: str):
     """The estimate's rule from the command line (a new estimate), refused in one line if invalid."""
     from mcverify.analysis.estimates import EstimateSpec
     from mcverify.errors import RunError
-    from mcverify.estimate import importance_run, splitting_run
+    from mcverify.estimate import importance_run, splitting_run, subset_run
 
     if args.campaign is None:
         raise RunError("missing campaign file, e.g. `mcverify estimate campaigns/eps_sweep_rare.toml`")
-    if method != "mc" and args.target not in requirements.SCORED_TARGETS:
+    if method in ("splitting", "importance") and args.target not in requirements.SCORED_TARGETS:
         raise RunError(f"{method} estimates --target {' or '.join(requirements.SCORED_TARGETS)}")
     try:
         if method == "mc":
@@ -182,6 +190,8 @@ def _estimate_spec(args, method: str):
             if spec.target != args.target:
                 raise RunError(f"--score {score} estimates {spec.target}, not --target {args.target}")
             return spec
+        if method == "subset":
+            return subset_run.SubsetSpec(args.target, args.stage_samples, args.p0, args.replicates, args.level)
         return importance_run.ImportanceSpec(args.target, args.samples, args.ce_samples, rho=args.elite_share,
                                              level=args.level, max_ce_iterations=args.ce_iterations,
                                              score=args.score, noise_tilt=args.noise_tilt)
@@ -201,6 +211,12 @@ def _estimate_campaign(args, method: str):
         folder.check_cells(campaign, args.cell)
     if method == "importance":
         importance_run.check_cells_have_ranges(campaign, args.cell or None)
+    if method == "subset":
+        from mcverify.estimate.input_vector import check_law
+
+        for cell in campaign.cells:
+            if not args.cell or cell.name in args.cell:
+                check_law(cell)
     return campaign
 
 
@@ -218,7 +234,8 @@ def _estimate_dry_run(args, method: str) -> int:
     options = plan.EstimateOptions(
         method, args.target, budget=args.budget, samples=args.samples, ce_samples=args.ce_samples,
         ce_iterations=args.ce_iterations, particles=args.particles, replicates=args.replicates,
-        max_iterations=args.max_iterations, cells=tuple(args.cell), workers=workers)
+        max_iterations=args.max_iterations, cells=tuple(args.cell), workers=workers,
+        stage_samples=args.stage_samples, p0=args.p0)
     print(plan.render(campaign, options))
     return 0
 
@@ -228,7 +245,7 @@ def _executor_for(args, method: str) -> dict:
     named on the command line (default: this process)."""
     from mcverify.campaign import executors
 
-    if method not in ("splitting", "importance"):
+    if method not in ("splitting", "importance", "subset"):
         return {}
     kind = "serial" if args.executor == "local" and args.workers is None else args.executor
     return {"executor": executors.make_executor(kind, workers=args.workers, address=args.address)}
@@ -248,9 +265,9 @@ def _in_process(args, method: str) -> int:
     from mcverify.campaign import runner
     from mcverify.campaign.spec import campaign_from_dict
     from mcverify.errors import RunError
-    from mcverify.estimate import importance_run, splitting_run
+    from mcverify.estimate import importance_run, splitting_run, subset_run
 
-    module = splitting_run if method == "splitting" else importance_run
+    module = {"splitting": splitting_run, "importance": importance_run, "subset": subset_run}[method]
     # progress lines on stderr, unless -q ("only warnings and errors on stderr")
     log = (lambda msg: None) if args.quiet else (lambda msg: print(msg, file=sys.stderr))  # noqa: E731
     if args.resume:

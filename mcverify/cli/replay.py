@@ -45,6 +45,9 @@ def command(args) -> int:
     if method == "splitting":
         print(f"failing particle {res.episode_id} reproduced exactly (its running score at its last step) "
               f"({res.row['outcome']}, safe={res.row['safe']})")
+    elif method == "subset":
+        print(f"failing sample {res.episode_id} reproduced exactly (its robustness) "
+              f"({res.row['outcome']}, safe={res.row['safe']})")
     else:
         kept = " (the values its estimate folder keeps)" if method else ""
         print(f"episode {res.episode_id} reproduced exactly{kept} ({res.row['outcome']}, safe={res.row['safe']})")

@@ -11,7 +11,8 @@ import jax
 from mcverify.draws import DRAWS, SCENARIO_STREAM, Draw
 from mcverify.model import normal_masses
 
-__all__ = ["SCENARIO_STREAM", "episode_key", "noise_branches", "sample_scenario", "truncated_normal"]
+__all__ = ["SCENARIO_STREAM", "episode_key", "noise_branches", "sample_scenario", "truncated_normal",
+           "value_of_unit"]
 
 Array = jax.Array
 
@@ -45,14 +46,22 @@ def sample_scenario(key: Array, params) -> dict[str, float]:
 
 
 def _draw(key: Array, draw: Draw, params) -> float:
-    """Uniform in (lo, hi] of the draw's range from its stream of ``key``; its fixed value without a
-    range. With a standard deviation > 0: a normal around the fixed value truncated to the range
-    (:func:`truncated_normal`), from the same unit draw."""
+    """The draw's value from its stream of ``key`` (:func:`value_of_unit`)."""
+    if not draw.range_of(params):
+        return draw.fixed(params)
+    unit = float(jax.random.uniform(jax.random.fold_in(key, SCENARIO_STREAM + draw.stream), (), dtype=float))  # [0, 1)
+    return value_of_unit(draw, params, unit)
+
+
+def value_of_unit(draw: Draw, params, unit: float) -> float:
+    """The draw's value for a uniform ``unit`` in [0, 1): uniform in (lo, hi] of its range; its fixed value
+    without a range. With a standard deviation > 0: a normal around the fixed value truncated to the range
+    (:func:`truncated_normal`), from the same unit. Any unit law in [0, 1) other than the uniform (subset
+    simulation's Phi of a normal, a proposal's) goes through here, so the transform is the rollout's own."""
     rng, fixed, sd = draw.range_of(params), draw.fixed(params), draw.sd(params)
     if not rng:
         return fixed
     lo, hi = rng
-    unit = float(jax.random.uniform(jax.random.fold_in(key, SCENARIO_STREAM + draw.stream), (), dtype=float))  # [0, 1)
     if sd > 0:
         return truncated_normal(1.0 - unit, fixed, sd, float(lo), float(hi))
     return float(hi - (hi - lo) * unit)

@@ -11,6 +11,8 @@ model (:mod:`mcverify.campaign.cost`, a rough range measured on this project's m
   ``particles * ln(1 / p)`` iterations (Cerou and Guyader 2007), so the total depends on the
   probability being estimated; the plan shows it for p = 1e-2 and 1e-5 (each restart counted as
   a whole episode: an upper figure) and the cap ``max_iterations``.
+- ``subset``: ``stage_samples`` episodes at stage 0 and ``stage_samples (1 - p0)`` per further stage,
+  about ``log p / log p0`` stages, ``replicates`` runs; shown for the same two probabilities.
 """
 
 from __future__ import annotations
@@ -43,6 +45,8 @@ class EstimateOptions:
     max_iterations: int
     cells: tuple[str, ...]
     workers: int
+    stage_samples: int = 500
+    p0: float = 0.1
 
 
 def _selected(campaign: Campaign, cells: Sequence[str]) -> list[Cell]:
@@ -74,6 +78,8 @@ def render(campaign: Campaign, options: EstimateOptions) -> str:
                  f"({ce}; they stop once the elite reaches the event) and {options.samples} final draws: at most "
                  f"{n} episodes per cell, {n * len(cells)} in all",
                  _cpu_line(cells, n, options.workers, "at most")]
+    elif options.method == "subset":
+        lines = _subset_lines(cells, options)
     else:
         lines = _splitting_lines(cells, options)
     return "\n".join([head, *lines, rough])
@@ -89,4 +95,18 @@ def _splitting_lines(cells: list[Cell], options: EstimateOptions) -> list[str]:
         per_cell = first + runs * min(iterations, options.max_iterations)
         lines.append(f"at p = {p:.0e}: about {iterations} iterations per run, at most {per_cell} episode "
                      f"equivalents per cell; " + _cpu_line(cells, per_cell, options.workers, "at most"))
+    return lines
+
+
+def _subset_lines(cells: list[Cell], options: EstimateOptions) -> list[str]:
+    """Subset simulation: N episodes at stage 0, N (1 - p0) more per further stage; a run reaching p needs
+    about ceil(log p / log p0) stages."""
+    n, p0, runs = options.stage_samples, options.p0, options.replicates
+    lines = [f"{runs} subset simulation runs per cell of {n} episodes per stage (conditional level {p0}): "
+             f"{n} episodes at stage 0, {round(n * (1 - p0))} per further stage"]
+    for p in SPLITTING_PROBABILITIES:
+        stages = max(1, math.ceil(math.log(p) / math.log(p0)))
+        per_cell = runs * (n + (stages - 1) * round(n * (1 - p0)))
+        lines.append(f"at p = {p:.0e}: about {stages} stages per run, {per_cell} episodes per cell; "
+                     + _cpu_line(cells, per_cell, options.workers, "about"))
     return lines

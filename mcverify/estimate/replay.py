@@ -21,7 +21,12 @@ simulated on, as any episode).
 A folder whose kept values cannot be read as written (a missing column or field, a wrong type, an
 unreadable file) gives one :class:`~mcverify.errors.RunError` naming it, not a traceback.
 
-Either writes the trajectory and plot as a run's replay does.
+**Subset simulation**: K is the place of a sample in the cell's ``failing_samples`` (every sample of
+an uncapped run's last stage at or below the failure level, in run order). A sample is its whole
+input vector, kept in the run's ``-failing.npz``; it is re-simulated as one episode
+(:class:`~mcverify.estimate.input_vector.ClosedLoopProblem`) and its robustness compared bit for bit.
+
+Each writes the trajectory and plot as a run's replay does.
 """
 
 from __future__ import annotations
@@ -53,14 +58,14 @@ from mcverify.sim.tilt import NoiseTilt
 
 
 def estimate_method(path: Path) -> str | None:
-    """``importance`` or ``splitting`` for such an estimate folder (its manifest says so, also before its
+    """``importance``, ``splitting`` or ``subset`` for such an estimate folder (its manifest says so, also before its
     first cell is finished); None for anything else."""
     try:
         manifest = store.read_json(Path(path) / store.MANIFEST)
         method = (manifest.get("estimate") or {}).get("method")
     except (RunError, AttributeError):
         return None
-    return method if method in ("importance", "splitting") else None
+    return method if method in ("importance", "splitting", "subset") else None
 
 
 @contextlib.contextmanager
@@ -198,3 +203,34 @@ def _failing_particle(est_dir: Path, result: dict[str, Any], k: int) -> dict[str
         raise ValueError(f"failing particle {k} is not (episode id, end step, branch steps and ids: integers >= 0, "
                          "as many ids as steps; a score)")
     return p
+
+
+def replay_sample(est_dir: Path, k: int, out_dir: Path | None = None, cell_name: str | None = None) -> ReplayResult:
+    """Re-simulate failing sample ``k`` of a subset simulation estimate's cell and check its robustness;
+    the trajectory and plot go to ``out_dir`` (default ESTIMATE_DIR/replay)."""
+    from mcverify.estimate import subset_run  # noqa: PLC0415 - only for subset folders
+
+    est_dir = Path(est_dir)
+    manifest, campaign, result = _open(est_dir, cell_name)
+    with _reading(est_dir):
+        samples = result.get("failing_samples") or []
+        if not samples:
+            raise RunError(f"{est_dir}: no sample of cell {result['cell']} reached the event: nothing to replay")
+        if k >= len(samples):
+            raise RunError(f"{est_dir}: cell {result['cell']} has {len(samples)} failing samples (0 to "
+                           f"{len(samples) - 1}), not {k}")
+        run_id, j = int(samples[k]["run"]), int(samples[k]["sample"])
+        x, g = subset_run.failing_inputs(est_dir, result["cell_index"], run_id)
+        cell = campaign.cells[result["cell_index"]]
+        target = manifest["estimate"]["target"]
+    problem = subset_run.problem_for(cell, campaign.seed, target)
+    replayed = problem.simulate(x[j:j + 1], record=True)
+    row = replayed.rows[0]
+    stem = f"cell{result['cell_index']:03d}-sample-{k:04d}"
+    traj, plot = write_recording(replayed.recordings[0], cell, row, Path(out_dir) if out_dir else est_dir / "replay",
+                                 stem)
+    got = problem.performance(row)
+    if np.float64(got).tobytes() != np.float64(g[j]).tobytes():
+        raise ReplayMismatch(f"failing sample {k} does not reproduce: its {target} robustness was {float(g[j])!r}, "
+                             f"replayed {got!r}")
+    return ReplayResult(k, traj, plot, row, ())

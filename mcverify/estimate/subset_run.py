@@ -1,0 +1,242 @@
+"""``mcverify estimate CAMPAIGN --method subset``: subset simulation per cell on the real closed loop,
+into a folder with ``manifest.json``, ``estimate.json`` and ``report.md`` (:mod:`mcverify.estimate.folder`).
+
+Every cell gets ``runs`` independent subset simulation runs (:func:`mcverify.estimate.subset.run`) over
+the whole input vector of its episodes (:class:`~mcverify.estimate.input_vector.ClosedLoopProblem`:
+the scenario draws and every per-step perception error as standard normals); the estimate is their
+mean with a Student t interval (asymptotic), the mean within-run coefficient of variation of Au and Beck
+(chains' correlation included) beside it. The cost is counted in control steps; crude Monte Carlo's
+steps for the same relative half-width come from the estimate and the mean length of stage 0's
+episodes (prior draws: crude episodes).
+
+Work units: one run of one cell, on the executors (this process by default, local workers or Ray),
+each deterministic from (campaign seed, cell, run) (:mod:`mcverify.estimate.subset`'s SeedSequence keys;
+under common random numbers the cells share their keys). A run saves its state after every stage in
+``runs/cellNNN_runNNN.npz`` and a finished run its record in ``runs/cellNNN_runNNN.json`` and its
+failing samples' inputs in ``runs/cellNNN_runNNN-failing.npz``; ``--resume`` keeps finished runs and
+continues unfinished ones from their last stage, bit for bit the uninterrupted estimate.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mcverify import store
+from mcverify.analysis.cells import json_ready
+from mcverify.campaign import executors
+from mcverify.campaign.executors import Executor
+from mcverify.campaign.spec import Campaign
+from mcverify.cell import Cell
+from mcverify.errors import RunError
+from mcverify.estimate import folder, subset
+from mcverify.estimate.folder import num
+from mcverify.estimate.input_vector import ClosedLoopProblem, check_law
+from mcverify.requirements import TARGETS
+from mcverify.schema import ERROR_COLUMN, ERROR_OUTCOME
+
+#: The folder of the runs' checkpoints, records and failing inputs.
+RUNS = "runs"
+
+
+@dataclass(frozen=True)
+class SubsetSpec:
+    """target: the event (:data:`mcverify.requirements.TARGETS`); samples: N per stage; p0: the
+    conditional level; runs: independent runs for the interval; level; max_stages per run."""
+
+    target: str = "collision"
+    samples: int = 500
+    p0: float = 0.1
+    runs: int = 8
+    level: float = 0.95
+    max_stages: int = 20
+
+    def __post_init__(self) -> None:
+        if self.target not in TARGETS:
+            raise ValueError(f"unknown target {self.target!r}; valid: {', '.join(TARGETS)}")
+        if self.runs < 2:
+            raise ValueError(f"--replicates must be at least 2 (got {self.runs}) for an interval")
+        self.settings()  # N and p0 checked there
+
+    def settings(self) -> subset.Settings:
+        try:
+            return subset.Settings(n=self.samples, p0=self.p0, max_stages=self.max_stages)
+        except ValueError as err:
+            raise ValueError(f"--samples and --p0: {err}") from None
+
+
+def run(campaign: Campaign, spec: SubsetSpec, out: Path, *, progress=print,
+        cells: list[str] | None = None, executor: Executor | None = None) -> Path:
+    """Estimate every cell of ``campaign`` (or those in ``cells``) into the new folder ``out``."""
+    for cell in campaign.cells:
+        if not cells or cell.name in cells:
+            check_law(cell)
+    folder.create(out, campaign, {"method": "subset", **asdict(spec)}, cells)
+    return _cells(campaign, spec, Path(out), {}, progress, cells, executor)
+
+
+def resume(out: Path, campaign: Campaign, *, progress=print, executor: Executor | None = None) -> Path:
+    """Finish an interrupted subset estimate: finished cells kept, finished runs kept, runs in progress
+    continued from their last stage."""
+    manifest, done = folder.load(out, "subset")
+    spec = SubsetSpec(**{k: v for k, v in manifest["estimate"].items() if k != "method"})
+    return _cells(campaign, spec, Path(out), done, progress, manifest.get("only_cells"), executor)
+
+
+def run_stem(out: Path, cell_index: int, run_id: int) -> Path:
+    return Path(out) / RUNS / f"cell{cell_index:03d}_run{run_id:03d}"
+
+
+@dataclass
+class _UnitResult:
+    rows: list[dict[str, Any]]
+    recordings: dict = field(default_factory=dict)
+
+
+def problem_for(cell: Cell, seed: int, target: str) -> ClosedLoopProblem:
+    return ClosedLoopProblem(cell, seed, target, executors.solver_for(cell.params))
+
+
+def run_key(campaign_seed: int, cell: Cell, common_random_numbers: bool) -> tuple[int, ...]:
+    """The SeedSequence entropy of a cell's runs: the campaign seed, and the cell unless its keys are shared."""
+    return (campaign_seed,) if common_random_numbers else (campaign_seed, cell.index)
+
+
+def run_unit(cell: Cell, episode_ids: tuple[int, ...], seed: int, common_random_numbers: bool,
+             record: tuple[int, ...], *, spec: dict[str, Any], out: str) -> _UnitResult:
+    """One subset simulation run (run ``episode_ids[0]``) of ``cell`` as an executor work unit."""
+    sp = SubsetSpec(**spec)
+    (run_id,) = episode_ids
+    stem = run_stem(Path(out), cell.index, run_id)
+    stem.parent.mkdir(parents=True, exist_ok=True)
+    problem = problem_for(cell, seed, sp.target)
+    start = time.process_time()
+    result = subset.run(problem, sp.settings(), seed=run_key(seed, cell, common_random_numbers), run=run_id,
+                        checkpoint=stem.with_suffix(".npz"))
+    failing = stem.parent / f"{stem.name}-failing.npz"
+    store.atomic_write(failing, lambda tmp: _save_failing(tmp, result))
+    first = result.stages[0]
+    return _UnitResult([{"cell_episode": run_id, "outcome": "subset", "run": _run_record(result),
+                         "cpu_s": time.process_time() - start,
+                         "stage0_episode_steps": first.steps / max(1, first.evaluations)}])
+
+
+def _save_failing(tmp: str, result: subset.Run) -> None:
+    with open(tmp, "wb") as f:
+        np.savez(f, x=result.failing, g=result.failing_g)
+
+
+def _run_record(result: subset.Run) -> dict[str, Any]:
+    return {"estimate": result.estimate, "cov": result.cov, "stages": [asdict(s) for s in result.stages],
+            "evaluations": result.evaluations, "steps": result.steps, "capped": result.capped,
+            "failing": int(result.failing.shape[0])}
+
+
+def as_run(record: dict[str, Any]) -> subset.Run:
+    """A :class:`subset.Run` from its record (its failing inputs are kept apart: :func:`failing_inputs`)."""
+    stages = tuple(subset.Stage(**s) for s in record["stages"])
+    est = math.nan if record["estimate"] is None else float(record["estimate"])
+    cov = math.inf if record["cov"] is None else float(record["cov"])
+    return subset.Run(est, cov, stages, int(record["evaluations"]), int(record["steps"]), bool(record["capped"]),
+                      np.empty((0, 0)), np.empty(0))
+
+
+def failing_inputs(out: Path, cell_index: int, run_id: int) -> tuple[np.ndarray, np.ndarray]:
+    """(x, g) of the failing samples a finished run kept."""
+    path = run_stem(out, cell_index, run_id).parent / f"cell{cell_index:03d}_run{run_id:03d}-failing.npz"
+    if not path.is_file():
+        raise RunError(f"{out}: run {run_id} of cell {cell_index} kept no failing samples ({path.name} is missing)")
+    with np.load(path) as data:
+        return data["x"].copy(), data["g"].copy()
+
+
+def _load_runs(out: Path, cell: Cell, runs: int) -> dict[int, dict[str, Any]]:
+    got = {}
+    for r in range(runs):
+        path = run_stem(out, cell.index, r).with_suffix(".json")
+        if path.is_file():
+            row = store.read_json(path)
+            if row.get("cell_index") != cell.index or row.get("cell_episode") != r:
+                raise RunError(f"{path} is not run {r} of cell {cell.name}; move it away to run it again")
+            got[r] = {k: v for k, v in row.items() if k not in ("cell_index", "cell")}
+    return got
+
+
+def _cells(campaign: Campaign, spec: SubsetSpec, out: Path, done: dict[int, dict], progress,
+           only: list[str] | None = None, executor: Executor | None = None) -> Path:
+    results = dict(done)
+    unit = functools.partial(run_unit, spec=asdict(spec), out=str(out))
+    with executor or executors.SerialExecutor() as ex:
+        for cell in campaign.cells:
+            if cell.index in results or (only and cell.name not in only):
+                continue
+            got = _load_runs(out, cell, spec.runs)
+            kept = f" ({len(got)} finished before, kept)" if got else ""
+            progress(f"cell {cell.name}: {spec.runs} subset simulation runs of {spec.samples} episodes per stage{kept}")
+
+            def on_done(chunk: store.Chunk, output, cell=cell, got=got) -> None:
+                row = output.rows[0]
+                if row.get("outcome") == ERROR_OUTCOME:
+                    raise RunError(f"subset run {chunk.episode_ids[0]} of {cell.name} failed: {row.get(ERROR_COLUMN)}")
+                store.write_json_atomic(run_stem(out, cell.index, chunk.episode_ids[0]).with_suffix(".json"),
+                                        json_ready({"cell_index": cell.index, "cell": cell.name, **row}))
+                got[chunk.episode_ids[0]] = row
+                r = row["run"]
+                progress(f"  run {chunk.episode_ids[0]} done ({len(got)} of {spec.runs}): estimate "
+                         f"{num(r['estimate'])}, {len(r['stages'])} stages, {r['steps']} control steps, "
+                         f"{row['cpu_s']:.0f} CPU-s")
+
+            chunks = [store.Chunk(cell.index, (r,)) for r in range(spec.runs) if r not in got]
+            if chunks:
+                executors.execute(campaign, chunks, on_done, executor=ex, episode_fn=unit)
+            rows = [got[r] for r in range(spec.runs)]
+            results[cell.index] = cell_result(cell, spec, rows)
+            _write(out, spec, campaign, results)
+    folder.finish(out)
+    return _write(out, spec, campaign, results)
+
+
+def cell_result(cell: Cell, spec: SubsetSpec, rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """A cell's estimate from its runs' records: the t interval, the within-run CoV, the cost, crude
+    Monte Carlo's steps for the same width, and where each failing sample is kept (for replay)."""
+    runs = [as_run(r["run"]) for r in rows]
+    episode_steps = float(np.mean([r["stage0_episode_steps"] for r in rows]))
+    est = subset.from_runs(runs, episode_steps, spec.level)
+    failing = [{"run": i, "sample": j} for i, r in enumerate(rows) if not r["run"]["capped"]
+               for j in range(int(r["run"]["failing"]))]
+    return {"cell_index": cell.index, "cell": cell.name, "method": "subset", "target": spec.target,
+            **{k: v for k, v in est.as_dict().items() if k != "runs"}, "runs": list(est.runs),
+            "stages": [len(r["run"]["stages"]) for r in rows], "failing_samples": failing,
+            "cpu_s": sum(r["cpu_s"] for r in rows), "mean_episode_steps": episode_steps,
+            "crude_steps_same_width": est.crude_steps,
+            "steps_ratio_vs_crude": est.factor if math.isfinite(est.factor) else math.nan}
+
+
+def columns(out: Path, cells: int) -> list[folder.Column]:
+    return [
+        ("cell", lambda c: c["cell"]), ("estimate", lambda c: folder.estimate_text(c["estimate"])),
+        ("interval", lambda c: folder.interval_text(c["low"], c["high"])),
+        ("rel. half-width", lambda c: num(c["relative_halfwidth"], ".2f")),
+        ("within-run CoV of the mean", lambda c: num(c["within_run_cov"], ".2f")),
+        ("control steps", lambda c: str(c["steps"])), ("CPU (s)", lambda c: num(c["cpu_s"], ".0f")),
+        ("crude MC steps, same width", lambda c: num(c["crude_steps_same_width"])),
+        ("ratio", lambda c: num(c["steps_ratio_vs_crude"], ".2f")),
+        ("warnings", lambda c: "; ".join(c["warnings"]) or "-"),
+        ("replay a failing sample", lambda c: folder.replay_text(out, c, c.get("failing_samples"), 0, cells)),
+    ]
+
+
+def _write(out: Path, spec: SubsetSpec, campaign: Campaign, results: dict[int, dict]) -> Path:
+    intro = (f"Target: {spec.target} (its robustness <= 0). Subset simulation over the whole input vector (the "
+             f"scenario draws and every per-step perception error as standard normals), {spec.runs} independent "
+             f"runs of {spec.samples} episodes per stage at conditional level {spec.p0}; the interval is asymptotic "
+             f"({spec.level:.0%} Student t on the runs' estimates), the within-run CoV (Au and Beck, chains' "
+             "correlation included) beside it.")
+    return folder.write(out, f"mcverify subset estimate: {campaign.name}", intro,
+                        {"method": "subset", **asdict(spec)}, results, columns(out, len(campaign.cells)))
