@@ -105,8 +105,8 @@ def _subset_lines(cells: list[Cell], options: EstimateOptions) -> list[str]:
     lines = [f"{runs} subset simulation runs per cell of {n} episodes per stage (conditional level {p0}): "
              f"{n} episodes at stage 0, {round(n * (1 - p0))} per further stage"]
     for p in SPLITTING_PROBABILITIES:
-        stages = max(1, math.ceil(math.log(p) / math.log(p0)))
+        stages = max(1, math.ceil(math.log(p) / math.log(p0) - 1e-9))
         per_cell = runs * (n + (stages - 1) * round(n * (1 - p0)))
         lines.append(f"at p = {p:.0e}: about {stages} stages per run, {per_cell} episodes per cell; "
-                     + _cpu_line(cells, per_cell, options.workers, "about"))
+                     + _cpu_line(cells, per_cell, options.workers, "in all"))
     return lines

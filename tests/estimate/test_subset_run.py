@@ -1,0 +1,120 @@
+"""``mcverify estimate --method subset``: the folder, its report and resume, with the closed loop replaced
+by the structure-matched surrogate (exact p) so that the mechanics run in seconds; the closed-loop
+problem itself is tested in test_input_vector.py, and a failing sample's replay end to end (slow)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mcverify.campaign.spec import load_campaign
+from mcverify.cli import main
+from mcverify.estimate import subset_run
+from mcverify.estimate.surrogate import Surrogate
+
+FIXTURE = Path(__file__).resolve().parents[1] / "fixtures" / "tiny.toml"
+CELL = "front_speed_kmh=36"
+
+
+@dataclass
+class _SurrogateProblem:
+    surrogate: Surrogate
+    key: str = "surrogate"
+
+    @property
+    def dimension(self) -> int:
+        return self.surrogate.dimension
+
+    def evaluate(self, x):
+        return self.surrogate.evaluate(x)
+
+
+@pytest.fixture
+def surrogate(monkeypatch):
+    s = Surrogate.at(1e-3, clock="decision")
+    monkeypatch.setattr(subset_run, "problem_for", lambda cell, seed, target: _SurrogateProblem(s))
+    monkeypatch.setattr(subset_run, "check_law", lambda cell: None)
+    return s
+
+
+def _estimate(out: Path) -> dict:
+    cells = json.loads((out / "estimate.json").read_text())["cells"]
+    return {k: v for k, v in cells[0].items() if k != "cpu_s"}
+
+
+def test_subset_folder_holds_the_estimate_its_interval_and_cost(tmp_path, surrogate):
+    out = tmp_path / "sub"
+    argv = ["estimate", str(FIXTURE), "--method", "subset", "--target", "ellipse", "--stage-samples", "200",
+            "--replicates", "3", "--cell", CELL, "--run-dir", str(out), "-q"]
+    assert main(argv) == 0
+    c = _estimate(out)
+    assert c["method"] == "subset" and c["target"] == "ellipse" and len(c["runs"]) == 3
+    assert c["low"] <= c["estimate"] <= c["high"] and c["estimate"] > 0
+    assert c["steps"] > 0 and c["crude_steps_same_width"] > 0 and c["within_run_cov"] > 0
+    assert len(c["stages"]) == 3 and all(s >= 2 for s in c["stages"])
+    assert len(c["failing_samples"]) > 0
+    x, g = subset_run.failing_inputs(out, 1, c["failing_samples"][0]["run"])
+    assert x.shape[1] == surrogate.dimension and np.all(g <= 0)
+    assert np.array_equal(surrogate.performance(x), g)  # the kept inputs give back their robustness
+    report = (out / "report.md").read_text()
+    assert "Subset simulation over the whole input vector" in report and "| front_speed_kmh=36 |" in report
+
+
+def test_an_interrupted_subset_estimate_resumes_to_the_uninterrupted_one(tmp_path, surrogate):
+    campaign = load_campaign(FIXTURE)
+    spec = subset_run.SubsetSpec("ellipse", samples=100, runs=2)
+    subset_run.run(campaign, spec, tmp_path / "whole", progress=lambda msg: None, cells=[CELL])
+
+    class Stop(KeyboardInterrupt):
+        pass
+
+    def stop_after_the_first_run(msg: str) -> None:
+        if "run 0 done" in msg:
+            raise Stop
+
+    with pytest.raises(Stop):
+        subset_run.run(campaign, spec, tmp_path / "cut", progress=stop_after_the_first_run, cells=[CELL])
+    assert not (tmp_path / "cut" / "estimate.json").exists()
+    subset_run.resume(tmp_path / "cut", campaign, progress=lambda msg: None)
+    assert _estimate(tmp_path / "cut") == _estimate(tmp_path / "whole")
+
+
+def test_subset_bad_options_are_one_line(capsys):
+    for argv, message in (
+        (["--p0", "0.3", "--stage-samples", "10"], "n * p0 must be an integer"),
+        (["--replicates", "1"], "--replicates must be at least 2"),
+        (["--particles", "4"], "--particles is for --method splitting"),
+        (["--set", "noise.structured_share=0.5"], "noise.structured_share = 0.5"),
+    ):
+        assert main(["estimate", str(FIXTURE), "--method", "subset", *argv]) == 2, argv
+        err = capsys.readouterr().err.strip()
+        assert message in err and len(err.splitlines()) == 1, err
+
+
+def test_subset_dry_run_counts_stages(capsys):
+    assert main(["estimate", str(FIXTURE), "--method", "subset", "--stage-samples", "100", "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    assert "8 subset simulation runs per cell of 100 episodes per stage" in out
+    assert "at p = 1e-05: about 5 stages per run, 3680 episodes per cell" in out
+
+
+@pytest.mark.slow
+def test_a_failing_closed_loop_sample_replays_bit_for_bit(tmp_path, capsys):
+    """On the closed loop (tiny fixture, veh_f 18.5 m ahead: h_ef starts at 0.51 and falls below eps = 0.3
+    within the 1 s episode at 25 km/h), every sample breaks invariance; a kept sample replays exactly."""
+    out = tmp_path / "sub"
+    cell = "front_speed_kmh=25"
+    assert main(["estimate", str(FIXTURE), "--method", "subset", "--target", "invariance", "--stage-samples", "10",
+                 "--p0", "0.2", "--replicates", "2", "--cell", cell, "--set", "scenario.front_x_m=18.5",
+                 "--run-dir", str(out), "-q"]) == 0
+    c = _estimate(out)
+    assert c["estimate"] == 1.0 and len(c["failing_samples"]) == 20
+    capsys.readouterr()
+    assert main(["replay", str(out), "3", "--cell", cell]) == 0
+    assert "failing sample 3 reproduced exactly" in capsys.readouterr().out
+    assert main(["replay", str(out), "20", "--cell", cell]) == 2
+    assert "has 20 failing samples (0 to 19), not 20" in capsys.readouterr().err
