@@ -60,9 +60,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from mcverify.analysis import stl
 from mcverify.campaign.validate import _short
 from mcverify.errors import CampaignError
-from mcverify.analysis import stl
 from mcverify.requirements import GUIDE_NAMES, REQUIREMENT_NAMES, STL_PREFIX, is_stl
 
 __all__ = ["MAX_POPULATION", "REQUIREMENT_NAMES", "SearchSpace", "check_single_target", "read_search_space",
