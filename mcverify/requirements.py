@@ -137,12 +137,40 @@ GUIDE_NAMES: tuple[str, ...] = REQUIREMENT_NAMES + tuple(
     f"{name}{suffix}" for suffix in (GO_BACK_SUFFIX, RUN_SUFFIX) for name in STEPWISE)
 
 
+#: The prefix of a user's requirement in Signal Temporal Logic: ``"stl:<formula>"`` names the requirement
+#: that ``<formula>`` (rtamt's STL syntax over the stored per-sub-step signals) holds from the episode's first
+#: recorded sub-step; its robustness is :func:`mcverify.analysis.stl.robustness` on the stored trajectory.
+STL_PREFIX = "stl:"
+
+
+def is_stl(name: str) -> bool:
+    """Is ``name`` an STL requirement (``"stl:<formula>"``)?"""
+    return name.startswith(STL_PREFIX)
+
+
+def _never_stops(s: StopInputs) -> np.ndarray:
+    raise ValueError("an STL requirement cannot stop an episode (sim.stop_at): it is evaluated on the stored "
+                     "trajectory after the episode")
+
+
+def _stl_requirement(name: str) -> Requirement:
+    formula = name.removeprefix(STL_PREFIX).strip()
+    if not formula:
+        raise ValueError(f"requirement {name!r}: empty STL formula after {STL_PREFIX!r}")
+    return Requirement(name, "", f"the STL formula {formula} holds (robustness by rtamt on the stored trajectory)",
+                       (), (), False, _never_stops)
+
+
 def requirement(name: str) -> Requirement:
-    """The requirement ``name``; ValueError listing the known names otherwise."""
+    """The requirement ``name`` (a built-in one, or ``"stl:<formula>"``, whose formula is parsed where
+    it is evaluated, :mod:`mcverify.analysis.stl`); ValueError listing the known names otherwise."""
+    if is_stl(name):
+        return _stl_requirement(name)
     try:
         return REQUIREMENTS[name]
     except KeyError:
-        raise ValueError(f"unknown requirement {name!r}; known: {', '.join(REQUIREMENTS)}") from None
+        raise ValueError(f"unknown requirement {name!r}; known: {', '.join(REQUIREMENTS)} or "
+                         f"{STL_PREFIX}<formula>") from None
 
 
 # ------------------------------------------------------------------------------ estimate targets
@@ -223,7 +251,7 @@ def default_score(target: str) -> str:
 
 def requirement_help() -> str:
     """The requirement names as the command line lists them: "a, b, ... or z"."""
-    return _spoken(REQUIREMENT_NAMES)
+    return _spoken(REQUIREMENT_NAMES + (f"{STL_PREFIX}<formula> (STL over the stored signals)",))
 
 
 def target_help() -> str:

@@ -51,6 +51,8 @@ def members(requirement: str) -> tuple[str, ...]:
 def failure_mode(row: Mapping[str, Any], requirement: str) -> str:
     """``<most violated member>/<what drove the ego at the first unsafe instant>`` (the driver is
     known for the safe set only; other requirements give just the member)."""
+    if rb.needs_trajectory(requirement):
+        return requirement
     worst = min(members(requirement), key=lambda n: (rb.robustness(row, n), n))
     cause = row.get("first_unsafe_cause") or ""
     return f"{worst}/{cause}" if cause and worst in rb.SAFE_SET else worst
@@ -71,10 +73,11 @@ def counterexamples(
     (see the module docstring); ``run_dir`` is written into the replay commands as given;
     ``trajectory(episode_id)`` gives an episode's stored trajectory (None if not stored), read only
     for the counterexamples, to locate their first violation."""
-    rb.requirement(requirement)
+    rb.check_requirement(requirement)
     cells = {int(c["index"]): c for c in manifest.get("cells", [])}
-    rows = [r for r in table.to_pylist() if rb.robustness(r, requirement) < 0.0]
-    rows.sort(key=lambda r: (rb.robustness(r, requirement), int(r["episode_id"])))
+    robs = {int(r["episode_id"]): _robustness(r, requirement, trajectory) for r in table.to_pylist()}
+    rows = [r for r in table.to_pylist() if robs[int(r["episode_id"])] < 0.0]
+    rows.sort(key=lambda r: (robs[int(r["episode_id"])], int(r["episode_id"])))
     fields = sorted({k for r in rows for k in cells.get(int(r["cell_index"]), {}).get("overrides", {})})
     samples = [n for n in table.column_names if n.startswith("sample_")]
     out = []
@@ -83,7 +86,7 @@ def counterexamples(
         rec: dict[str, Any] = {k: r.get(k) for k in ("episode_id", "cell", "cell_index", "cell_episode")}
         rec.update({f"param:{f}": _param(overrides.get(f)) for f in fields})
         rec.update({s: r.get(s) for s in samples})
-        rec["robustness"] = rb.robustness(r, requirement)
+        rec["robustness"] = robs[int(r["episode_id"])]
         rec.update({f"rob:{n}": rb.robustness(r, n) for n in REPORTED})
         rec.update({m: r.get(m) for m in MARGIN_COLUMNS})
         rec.update({c: r.get(c) for c in ROW_COLUMNS})
@@ -93,6 +96,15 @@ def counterexamples(
         out.append(rec)
     failure_regions.assign(out, run_bounds(out, table, cells.values()))
     return out
+
+
+def _robustness(row: Mapping[str, Any], requirement: str,
+                trajectory: Callable[[int], Mapping[str, np.ndarray] | None] | None) -> float:
+    """The chosen requirement's robustness (an STL one from the stored trajectory: NaN if not stored)."""
+    if not rb.needs_trajectory(requirement) or rb.is_error_row(row):
+        return rb.robustness(row, requirement)
+    traj = trajectory(int(row["episode_id"])) if trajectory is not None else None
+    return rb.robustness(row, requirement, traj)
 
 
 def _first_violation_s(row: Mapping[str, Any], cell: Mapping[str, Any], requirement: str,

@@ -5,8 +5,8 @@ non-negative otherwise); larger means farther from a violation. The values come 
 columns (each of which is itself recomputed from the stored trajectory by the tests of
 :mod:`mcverify.episode`), so a robustness can be re-derived from ``episodes.parquet`` alone.
 
-Requirements (the registry :data:`mcverify.requirements.REQUIREMENTS`; units differ, so a minimum over
-a set compares raw values):
+Requirements (the registry :data:`mcverify.requirements.REQUIREMENTS`; units differ between
+requirements, so :func:`min_robustness` over a set compares raw values):
 
 - ``collision_front`` / ``collision_opp`` (m): the smallest footprint gap to veh_f / veh_o; the
   stored gap is 0 when the footprints touched or overlapped (it does not measure penetration), so a
@@ -15,10 +15,20 @@ a set compares raw values):
 - ``invariance`` (dimensionless): min h_ef - epsilon (Theorem 2) for an episode that started at or
   above the level; +inf for one that started below it (the theorem says nothing there).
 - ``h_eo`` (m): min h_eo while the ego borrowed the opposing lane with veh_o ahead; +inf if never.
-- ``theorem5`` (steps): "Q1 or Q2 is solvable at every control step": -(steps with neither solved)
-  if there were any, else +1 (the row holds no finer margin); ``theorem5_certified`` counts only the
-  steps where IPOPT certified both infeasible.
-- ``safe``: the minimum of ``collision_front``, ``collision_opp`` and ``ellipse`` (the row's ``safe``).
+- ``theorem5`` (NLP row units): "Q1 or Q2 is solvable at every control step", graded: the row's
+  ``theorem5_margin``, the lowest over the control steps of the larger signed room of the step's Q1
+  and Q2 solves (:func:`mcverify.control.planner.problem_margin`: the smallest barrier-row slack of a
+  solved plan, >= 0; minus the violation left at the point a failed solve returned, < 0), negative
+  exactly when some step solved neither (per step: :func:`theorem5_step_margin`). A row without the
+  margin (MPC-DC, or stored before it existed) falls back to -(steps with neither solved) if any,
+  else +1. ``theorem5_certified`` (steps) counts only the steps where both failures were certificates
+  of infeasibility: -(such steps), else +1.
+- ``safe`` (dimensionless): the minimum of ``collision_front`` / :data:`SAFE_GAP_SCALE_M`,
+  ``collision_opp`` / :data:`SAFE_GAP_SCALE_M` and ``ellipse``: the row's ``safe`` event (the same
+  sign as the unscaled minimum), with the gaps in h_ef's unit.
+- ``"stl:<formula>"``: a user's requirement in Signal Temporal Logic over the stored per-sub-step
+  signals, evaluated by rtamt on the episode's stored trajectory (:mod:`mcverify.analysis.stl`;
+  :func:`robustness` takes the trajectory; NaN without it). Not stepwise, no stop, no first-violation time.
 
 An error row (an episode that could not be simulated) has NaN robustness for every requirement.
 
@@ -43,6 +53,8 @@ from typing import Any
 
 import numpy as np
 
+from mcverify.analysis import stl
+from mcverify.analysis.theorem5 import theorem5_step_margin
 from mcverify.requirements import (
     GO_BACK_SUFFIX,
     REQUIREMENTS,
@@ -50,6 +62,7 @@ from mcverify.requirements import (
     SAFE_SET,
     STEPWISE,
     Requirement,
+    is_stl,
     requirement,
 )
 from mcverify.requirements import GUIDE_NAMES as GUIDES
@@ -57,7 +70,8 @@ from mcverify.requirements import GUIDE_NAMES as GUIDES
 __all__ = ["COLLISION_ROBUSTNESS_M", "GO_BACK_MODE", "GO_BACK_SUFFIX", "GUIDES", "REQUIREMENTS", "ROBUSTNESS",
            "RUN_FACTOR", "RUN_SUFFIX", "SAFE_SET", "SIGNALS", "STEPWISE", "THEOREM5_SATISFIED", "Requirement",
            "first_violation_s", "guide_value", "is_error_row", "min_robustness", "requirement", "robustness",
-           "robustness_table", "running_robustness", "violated"]
+           "robustness_table", "running_robustness", "theorem5_step_margin", "violated", "SAFE_GAP_SCALE_M",
+           "check_requirement", "needs_trajectory"]
 
 #: Robustness of a collision (m): the stored footprint gap is 0 on contact, whatever the overlap.
 COLLISION_ROBUSTNESS_M = -1.0
@@ -100,7 +114,7 @@ def _h_eo(row: Row) -> float:
     return math.inf if math.isnan(value) else value
 
 
-def _theorem5(key: str) -> Callable[[Row], float]:
+def _theorem5_count(key: str) -> Callable[[Row], float]:
     def rob(row: Row) -> float:
         steps = _num(row, key)
         if math.isnan(steps):
@@ -108,6 +122,13 @@ def _theorem5(key: str) -> Callable[[Row], float]:
         return -steps if steps > 0 else THEOREM5_SATISFIED
 
     return rob
+
+
+def _theorem5(row: Row) -> float:
+    """The row's ``theorem5_margin`` (graded); a row without one (MPC-DC, which has no Q2, or a run
+    stored before the margin existed) falls back to the step count (same sign)."""
+    margin = _num(row, "theorem5_margin")
+    return _theorem5_count("both_infeasible_steps")(row) if math.isnan(margin) else margin
 
 
 #: The robustness of each requirement of :data:`mcverify.requirements.REQUIREMENTS` (the same keys,
@@ -118,10 +139,24 @@ ROBUSTNESS: dict[str, Callable[[Row], float]] = {
     "ellipse": _ellipse,
     "invariance": _invariance,
     "h_eo": _h_eo,
-    "theorem5": _theorem5("both_infeasible_steps"),
-    "theorem5_certified": _theorem5("both_certified_infeasible_steps"),
-    "safe": lambda row: min_robustness(row, SAFE_SET),
+    "theorem5": _theorem5,
+    "theorem5_certified": _theorem5_count("both_certified_infeasible_steps"),
+    "safe": lambda row: _safe(row),
 }
+
+
+#: The length (m) that turns a footprint gap into ``safe``'s dimensionless unit: half the default
+#: ellipse semi-axis a (``BarrierParams.ellipse_a_m`` / 2, checked by tests/analysis). At the ellipse's
+#: longitudinal tip dh_ef/dx = 2/a, so a metre of gap weighs what a metre along the road weighs in
+#: h_ef there. A fixed unit (not the cell's a), so that ``safe`` compares across cells.
+SAFE_GAP_SCALE_M = 0.5 * math.sqrt(2.0) * 4.885
+
+
+def _safe(row: Row) -> float:
+    """min(collision_front / scale, collision_opp / scale, ellipse): every member in h_ef's
+    dimensionless unit (:data:`SAFE_GAP_SCALE_M`); dividing by a positive length keeps each sign."""
+    gaps = (ROBUSTNESS["collision_front"](row), ROBUSTNESS["collision_opp"](row))
+    return min(*(g / SAFE_GAP_SCALE_M for g in gaps), _ellipse(row))
 
 
 def _robustness_of(name: str) -> Callable[[Row], float]:
@@ -129,14 +164,37 @@ def _robustness_of(name: str) -> Callable[[Row], float]:
     return ROBUSTNESS[name]
 
 
+def check_requirement(name: str) -> None:
+    """ValueError of one line unless ``name`` is a built-in requirement or an STL requirement whose
+    formula parses over the known signals (:func:`mcverify.analysis.stl.parse`)."""
+    if is_stl(name):
+        stl.parse(name)
+    else:
+        requirement(name)
+
+
+def needs_trajectory(name: str) -> bool:
+    """Does requirement ``name``'s robustness read the episode's stored trajectory (an STL one)?"""
+    return is_stl(name)
+
+
 def is_error_row(row: Row) -> bool:
     return row.get("error_message") is not None or row.get("outcome") == "error"
 
 
-def robustness(row: Row, name: str) -> float:
-    """Signed robustness of requirement ``name`` for one episode row (NaN for an error row)."""
+def robustness(row: Row, name: str, trajectory: Mapping[str, np.ndarray] | None = None) -> float:
+    """Signed robustness of requirement ``name`` for one episode row (NaN for an error row). An STL
+    requirement (``"stl:<formula>"``, :mod:`mcverify.analysis.stl`) is evaluated on the episode's
+    stored ``trajectory``; NaN without one."""
+    if is_stl(name):
+        formula = stl.parse(name)
+        if is_error_row(row) or trajectory is None:
+            return math.nan
+        return stl.robustness(formula, trajectory)
     rob = _robustness_of(name)
     return math.nan if is_error_row(row) else float(rob(row))
+
+
 
 
 def min_robustness(row: Row, names: Sequence[str]) -> float:
@@ -185,7 +243,8 @@ SIGNALS: dict[str, Signal] = {
     "ellipse": lambda tr, eps, h0: _h_front(tr),
     "invariance": lambda tr, eps, h0: _h_front(tr) - eps if h0 >= eps else np.full_like(_h_front(tr), math.inf),
     "safe": lambda tr, eps, h0: np.minimum(np.minimum(_gap_signal(tr, "gap_front_m", "collision_front"),
-                                                      _gap_signal(tr, "gap_opp_m", "collision_opp")), _h_front(tr)),
+                                                      _gap_signal(tr, "gap_opp_m", "collision_opp"))
+                                           / SAFE_GAP_SCALE_M, _h_front(tr)),
 }
 
 

@@ -60,9 +60,10 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from mcverify.analysis import stl
 from mcverify.campaign.validate import _short
 from mcverify.errors import CampaignError
-from mcverify.requirements import GUIDE_NAMES, REQUIREMENT_NAMES
+from mcverify.requirements import GUIDE_NAMES, REQUIREMENT_NAMES, STL_PREFIX, is_stl
 
 __all__ = ["MAX_POPULATION", "REQUIREMENT_NAMES", "SearchSpace", "check_single_target", "read_search_space",
            "split_element"]
@@ -173,9 +174,14 @@ def read_search_space(table: Any, where: str, known_fields: Mapping[str, type]) 
         if key not in _KEYS:
             raise CampaignError(f"{here}: unknown key {_short(key)} (known: {', '.join(sorted(_KEYS))})")
     requirement = table.get("requirement", "safe")
-    if requirement not in REQUIREMENT_NAMES:
+    if not isinstance(requirement, str) or (requirement not in REQUIREMENT_NAMES and not is_stl(requirement)):
         raise CampaignError(f"{here}.requirement: unknown requirement {_short(requirement)}; known: "
-                            f"{', '.join(REQUIREMENT_NAMES)}")
+                            f"{', '.join(REQUIREMENT_NAMES)} or {STL_PREFIX}<formula>")
+    if is_stl(requirement):
+        try:
+            stl.parse(requirement)
+        except ValueError as exc:
+            raise CampaignError(f"{here}.requirement: {exc}") from None
     guide = table.get("guide", "")
     if guide != "" and guide not in GUIDE_NAMES:
         raise CampaignError(f"{here}.guide: unknown guide {_short(guide)}; known: {', '.join(GUIDE_NAMES)}")

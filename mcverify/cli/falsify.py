@@ -115,8 +115,15 @@ def command(args: Any) -> int:
         if method not in methods.METHODS:
             raise RunError(f"unknown --method {method!r}; choose one of {', '.join(methods.METHODS)}")
         if args.requirement is not None and args.requirement not in requirements.REQUIREMENTS:
-            raise RunError(f"--requirement {args.requirement!r}: unknown requirement; known: "
-                           f"{', '.join(requirements.REQUIREMENTS)}")
+            if not requirements.is_stl(args.requirement):
+                raise RunError(f"--requirement {args.requirement!r}: unknown requirement; known: "
+                               f"{', '.join(requirements.REQUIREMENTS)} or {requirements.STL_PREFIX}<formula>")
+            from mcverify.analysis import robustness as rb  # noqa: PLC0415
+
+            try:
+                rb.check_requirement(args.requirement)
+            except ValueError as exc:
+                raise RunError(f"--requirement: {exc}") from None
         import tomllib  # noqa: PLC0415
 
         raw = apply_settings(tomllib.loads(Path(args.campaign).read_text(encoding="utf-8")), args.settings)

@@ -8,7 +8,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from mcverify.cell import Cell
-from mcverify.control.planner import StepRecord, both_certified_infeasible
+from mcverify.control.planner import StepRecord, both_certified_infeasible, problem_margin
 from mcverify.episode.recording import EpisodeRecording
 from mcverify.sim.plant import Substep
 
@@ -57,6 +57,8 @@ class Recorder:
                 "q2_time_s": rep(_total(r.q2) if r else np.nan),
                 "table_one_row": rep(r.table_row if r else -1),
                 "both_certified": rep(float(both_certified_infeasible(r.q1, r.q2)) if r else np.nan),
+                "q1_margin": rep(_margin(r.q1) if r else np.nan),
+                "q2_margin": rep(_margin(r.q2) if r else np.nan),
                 "meas_front_x_m": rep(front_meas[b, 0]), "meas_front_y_m": rep(front_meas[b, 1]),
                 "meas_front_speed_mps": rep(front_meas[b, 2]),
                 "meas_opp_x_m": rep(opp_meas[b, 0] if has_opp else np.nan),
@@ -79,6 +81,10 @@ def _concat(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
 
 def _solved(sol) -> float:
     return np.nan if sol is None else float(sol.success)
+
+
+def _margin(sol) -> float:
+    return np.nan if sol is None else problem_margin(sol)
 
 
 def _total(sol) -> float:

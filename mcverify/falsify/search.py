@@ -176,6 +176,10 @@ def check(config: SearchConfig) -> SearchSpace:
     if config.method == "splitting" and space.guide and not space.guide.endswith(reqs.RUN_SUFFIX):
         raise RunError(f"--method splitting branches on a running robustness: [falsify] guide {space.guide!r} has "
                        f"none (splitting takes the requirement itself or a guide ending in {reqs.RUN_SUFFIX!r})")
+    if space.stop_episodes and reqs.is_stl(config.requirement):
+        raise RunError(f"[falsify] stop_episodes = true ends each episode at its first violation, which the rollout "
+                       f"cannot see for an STL requirement ({config.requirement!r}: evaluated on the stored "
+                       "trajectory afterwards); set it false")
     if config.method == "splitting" and config.requirement not in reqs.STEPWISE:
         raise RunError(f"--method splitting branches on a per-step robustness; requirement {config.requirement!r} "
                        f"has none (choose one of {', '.join(reqs.STEPWISE)})")
@@ -280,7 +284,7 @@ def _generations(config: SearchConfig, out_dir: Path, make_executor: Callable[[]
         else:
             _check_same(gen_dir, gen_campaign)
         rows = {int(r["cell_index"]): r for r in store.read_episodes(gen_dir).to_pylist()}
-        robs = np.array([rb.robustness(rows[k], config.requirement) for k in range(n)])
+        robs = np.array([_robustness(gen_dir, rows[k], config.requirement) for k in range(n)])
         periods_s = [cell.params.sim.control_period_s for cell in gen_campaign.cells]
         guides = (np.array([_guide(gen_dir, rows[k], space.guide, periods_s[k]) for k in range(n)])
                   if space.guide else None)
@@ -345,6 +349,14 @@ def _trajectory(gen_dir: Path, row: dict[str, Any], why: str) -> dict[str, np.nd
     if trajectory is None:
         raise RunError(f"{store.trajectory_path(gen_dir, int(row['episode_id']))} is missing: {why}")
     return trajectory
+
+
+def _robustness(gen_dir: Path, row: dict[str, Any], requirement: str) -> float:
+    """The requirement's robustness for one candidate (an STL requirement reads its stored trajectory)."""
+    if not rb.needs_trajectory(requirement) or rb.is_error_row(row):
+        return rb.robustness(row, requirement)
+    return rb.robustness(row, requirement, _trajectory(gen_dir, row, f"requirement {requirement!r} is evaluated on "
+                                                                     "each candidate's stored trajectory"))
 
 
 def _guide(gen_dir: Path, row: dict[str, Any], guide: str, control_period_s: float) -> float:

@@ -139,6 +139,19 @@ class Problem:
         parts = (self.lbg - g, g - self.ubg, self.lbx - w, w - self.ubx)
         return max(0.0, *(float(np.max(v)) for v in parts))
 
+    def min_slack(self, w: np.ndarray, p: np.ndarray, rows: np.ndarray) -> float:
+        """Smallest slack g_i(w, p) - lbg_i over the inequality ``rows`` of g (negative where violated);
+        NaN if w or g is not finite, +inf for no rows."""
+        w = np.asarray(w, dtype=float).ravel()
+        if w.size != self.n_w or not np.all(np.isfinite(w)):
+            return float("nan")
+        self._g.inputs[0][:] = w
+        self._g.inputs[1][:] = p
+        slack = self._g()[0][rows] - self.lbg[rows]
+        if not np.all(np.isfinite(slack)):
+            return float("nan")
+        return float(np.min(slack)) if slack.size else float("inf")
+
     def accept(self, res: BackendResult, p: np.ndarray) -> BackendResult:
         """``res`` with max_violation filled in and success = own verdict AND finite AND feasible."""
         viol = self.max_violation(res.w, p)

@@ -64,6 +64,9 @@ class MpcSolution:
     max_violation: float = float("nan")  # largest constraint or bound violation of the returned plan
     retried_cold: bool = False  # the warm start failed and this is the cold retry's result
     opp_plan: np.ndarray | None = None  # (N+1, 2) predicted veh_o [x_o, v_o]; None without one
+    # smallest slack of the barrier rows of g (the front and opposing vehicles' CBF, or MPC-DC's distance
+    # rows) over the horizon at the returned plan, in those rows' units; NaN unless solved (Theorem 5's margin)
+    cbf_slack: float = float("nan")
 
 
 class MpcSolver:
@@ -93,6 +96,9 @@ class MpcSolver:
         lbg, ubg = constraint_bounds(structure, distance_margin(params))
         self.problem = Problem(self.kernel, lbx, ubx, lbg, ubg)
         self.backend = create_backend(params.mpc.backend, self.problem, params, kernel_dir=kernel_dir)
+        gs = self.layout.g_slices
+        # the rows whose slack measures how much room a solved plan leaves (MpcSolution.cbf_slack)
+        self._barrier_rows = np.r_[gs["front"], gs["opp"]]
 
     # ------------------------------------------------------------------------------------------
     def solve(
@@ -139,7 +145,7 @@ class MpcSolver:
             res = self.backend.solve(p, start, cold_guess, fast_only=fast_only)
         except Exception as exc:  # noqa: BLE001 - solver errors become a failed solution
             return self._failure(SolveStatus.exception(str(exc)), t0)
-        return self._solution(res, direction, t0, 0 if start is None else start.hard_run)
+        return self._solution(res, direction, t0, 0 if start is None else start.hard_run, p)
 
     def guess_from_plan(self, plan: MpcSolution, opp_xv: np.ndarray | None) -> np.ndarray | None:
         """A primal guess for this solver's structure from a plan of another structure (the same
@@ -158,8 +164,10 @@ class MpcSolver:
         """Largest violation of g's bounds and of w's bounds at (w, p); inf if anything is NaN."""
         return self.problem.max_violation(w, p)
 
-    def _solution(self, res: BackendResult, direction: int, t0: float, start_hard_run: int) -> MpcSolution:
-        """start_hard_run: the hard solves in a row before this one (the warm start's count; 0 for a cold solve)."""
+    def _solution(self, res: BackendResult, direction: int, t0: float, start_hard_run: int,
+                  p: np.ndarray) -> MpcSolution:
+        """start_hard_run: the hard solves in a row before this one (the warm start's count; 0 for a cold
+        solve); p: the parameters it was solved for (the barrier rows' slack is evaluated at them)."""
         x_plan, u_plan, dt_plan = self.layout.unpack(res.w)
         run = start_hard_run + 1 if res.hard else 0
         warm = WarmStart(res.w, res.lam_x, res.lam_g, int(direction), hard_run=run) if res.success else None
@@ -176,6 +184,7 @@ class MpcSolver:
             max_violation=res.max_violation,
             retried_cold=res.retried_cold,
             opp_plan=self.layout.unpack_opposing(res.w) if self.structure.with_opposing else None,
+            cbf_slack=self.problem.min_slack(res.w, p, self._barrier_rows) if res.success else float("nan"),
         )
 
     def _failure(self, status: SolveStatus, t0: float) -> MpcSolution:

@@ -27,7 +27,7 @@ def test_a_clean_episode_satisfies_every_requirement():
         assert rb.robustness(row, name) >= 0.0, name
     assert rb.robustness(row, "collision_front") == pytest.approx(0.8)
     assert rb.robustness(row, "invariance") == pytest.approx(0.05)
-    assert rb.robustness(row, "safe") == pytest.approx(0.35)
+    assert rb.robustness(row, "safe") == pytest.approx(0.8 / rb.SAFE_GAP_SCALE_M)  # the gap, in h_ef units
 
 
 @pytest.mark.parametrize(
@@ -138,3 +138,29 @@ def test_first_violation_without_a_trajectory():
     bare = {"t_s": np.array([0.01, 0.02])}
     assert math.isnan(rb.first_violation_s(row, bare, "ellipse", control_period_s=0.02))
     assert rb.first_violation_s(row, bare, "safe", control_period_s=0.02) == 4.2
+
+
+def test_safe_is_the_same_event_in_one_unit():
+    """``safe`` = min(gaps / SAFE_GAP_SCALE_M, h_ef): the sign of the unscaled minimum (the same event),
+    and the scale is half the default ellipse semi-axis a."""
+    from mcverify.model import ModelParams  # noqa: PLC0415 - the analysis layer does not import the model
+
+    assert rb.SAFE_GAP_SCALE_M == 0.5 * ModelParams().barrier.ellipse_a_m
+    rng = np.random.default_rng(0)
+    for gap_f, gap_o, h in rng.uniform(-0.5, 3.0, size=(200, 3)):
+        row = _row(min_gap_front_m=max(gap_f, 0.0), collision_front=gap_f < 0, min_gap_opp_any_m=max(gap_o, 0.0),
+                   collision_opp=gap_o < 0, min_h_front=h)
+        unscaled = min(rb.robustness(row, n) for n in rb.SAFE_SET)
+        assert (rb.robustness(row, "safe") < 0.0) == (unscaled < 0.0)
+    # a 0.5 m gap is closer to touching than h_ef = 0.3 is to the ellipse, once both are in h_ef's unit
+    assert rb.robustness(_row(min_gap_front_m=0.5, min_h_front=0.3), "safe") == pytest.approx(0.5 / rb.SAFE_GAP_SCALE_M)
+    assert rb.robustness(_row(min_gap_front_m=2.0, min_h_front=0.3), "safe") == 0.3
+
+
+def test_theorem5_reads_the_graded_margin_and_falls_back_to_the_count():
+    assert rb.robustness(_row(theorem5_margin=0.02), "theorem5") == 0.02
+    assert rb.robustness(_row(theorem5_margin=-0.4, both_infeasible_steps=2), "theorem5") == -0.4
+    assert rb.robustness(_row(theorem5_margin=math.nan, both_infeasible_steps=3), "theorem5") == -3.0
+    assert rb.robustness(_row(theorem5_margin=math.nan), "theorem5") == rb.THEOREM5_SATISFIED
+    # near-violations rank: the lower margin is the nearer miss
+    assert rb.robustness(_row(theorem5_margin=0.001), "theorem5") < rb.robustness(_row(theorem5_margin=3.0), "theorem5")

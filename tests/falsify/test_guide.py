@@ -47,7 +47,7 @@ def test_go_back_guide_of_a_trajectory():
             "gap_opp_m": np.full(5, np.nan), "collision_opp": np.zeros(5)}
     assert rb.guide_value(row, traj, "ellipse@go_back") == 0.4  # the dip before the switch is not counted
     assert rb.guide_value(row, traj, "invariance@go_back") == pytest.approx(0.1)
-    assert rb.guide_value(row, traj, "safe@go_back") == 0.4
+    assert rb.guide_value(row, traj, "safe@go_back") == 1.0 / rb.SAFE_GAP_SCALE_M  # the 1 m gap, in h_ef units
     assert rb.guide_value(row, {**traj, "mode": np.zeros(5)}, "ellipse@go_back") == math.inf
     assert rb.guide_value(row, None, "ellipse") == -0.2  # a requirement is its row's robustness
     assert math.isnan(rb.guide_value({**row, "outcome": "error"}, traj, "ellipse@go_back"))
