@@ -100,7 +100,7 @@ def test_a_set_of_a_field_only_falsify_sets_names_the_option(tmp_path, capsys):
     (["--particles", "10"], "--particles is for --method splitting, not mc"),
     (["--method", "splitting", "--budget", "10"], "--budget is for --method mc, not splitting"),
     (["--method", "importance", "--chunk-size", "4"], "--chunk-size is for --method mc, not importance"),
-    (["--method", "importance", "--replicates", "4"], "--replicates is for --method splitting, not importance"),
+    (["--method", "importance", "--replicates", "4"], "--replicates is for --method splitting or subset, not importance"),
     (["--method", "splitting", "--ce-samples", "4"], "--ce-samples is for --method importance, not splitting"),
     (["--method", "splitting", "--elite-share", "0.2"], "--elite-share is for --method importance, not splitting"),
     (["--method", "importance", "--elite-share", "1"], "--elite-share: must be in (0, 1), got 1.0"),
