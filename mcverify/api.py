@@ -141,8 +141,10 @@ def replay(run_dir: PathLike, episode_id: int, out_dir: PathLike | None = None, 
     return _replay(Path(run_dir), episode_id, out)
 
 
-def report(run_dir: PathLike, *, level: float = 0.95, method: str = "clopper-pearson") -> Path:
-    """Regenerate every report file of a run folder from stored data; returns ``report.md``."""
+def report(run_dir: PathLike, *, level: float | None = None, method: str | None = None) -> Path:
+    """Regenerate every report file of a run folder from stored data; returns ``report.md``. level /
+    method: the rates' interval of a fixed-count run (default 0.95, exact Clopper-Pearson); an estimate
+    folder's rates keep its estimator's anytime-valid interval (another method or level is refused)."""
     from mcverify.reporting import run_report
 
     return run_report.write(Path(run_dir), level=level, method=method)

@@ -12,10 +12,11 @@ def add(sub, parents: list[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("report", parents=parents,
                        help="regenerate summary.json, cells.parquet, tables, figures, report.md and report.html")
     p.add_argument("run_dir", type=Path)
-    p.add_argument("--level", type=options.level, default=0.95,
-                   help="confidence level of every interval (default 0.95)")
-    p.add_argument("--method", choices=("clopper-pearson", "wilson"), default="clopper-pearson",
-                   help="two-sided interval for rates (default: exact Clopper-Pearson)")
+    p.add_argument("--level", type=options.level, default=None,
+                   help="confidence level of every interval (default 0.95; an estimate folder keeps its own)")
+    p.add_argument("--method", choices=("clopper-pearson", "wilson"), default=None,
+                   help="two-sided interval for the rates of a fixed-count run (default: exact Clopper-Pearson); "
+                        "an estimate folder's rates carry its estimator's anytime-valid interval")
     p.add_argument("--bootstrap-resamples", type=options.positive_int, default=2000,
                    help="resamples of the (seeded) bootstrap interval of every mean (default 2000)")
     p.add_argument("--format", action="append", choices=("png", "svg", "pdf"), dest="formats", default=[],

@@ -100,10 +100,11 @@ def rate_vs_axis(
     *,
     level: float,
     x_label: str | None = None,
+    bound: str = "exact one-sided",
 ) -> dict[str, int]:
     """One panel per ``(metric, title)``: the rate against ``x_values`` (one per cell), one line per
     group label (``groups``, one per cell), each with its two-sided interval as a band; zero-event
-    points show the exact one-sided upper bound as a marker."""
+    points show the rates' ``upper_one_sided`` bound as a marker (``bound`` names it in the title)."""
     fig, axes = subplots(1, len(metrics), figsize=inches(6 * len(metrics), 4.2), squeeze=False)
     xs, gs = np.asarray(x_values, dtype=float), list(groups)
     colours = matplotlib.colormaps.get_cmap("tab10")
@@ -127,7 +128,7 @@ def rate_vs_axis(
         ax.set_ylim(bottom=0)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="upper right")
-    fig.suptitle(f"band: two-sided {level:.0%} interval; ▼: exact one-sided upper bound where no event occurred",
+    fig.suptitle(f"band: two-sided {level:.0%} interval; ▼: {bound} upper bound where no event occurred",
                  fontsize=9)
     fig.tight_layout()
     return save(fig, path)

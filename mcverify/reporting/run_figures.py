@@ -22,7 +22,7 @@ import pyarrow as pa
 from mcverify.analysis import summary
 from mcverify.reporting import cell_figures, episode_figures, figure_common
 from mcverify.reporting.paper_tables import pretty_label
-from mcverify.reporting.tables import method_name
+from mcverify.reporting.tables import bound_name, method_name
 
 FIGURES_DIR = "figures"
 TRAJECTORY_DIRS = ("trajectories", "replay")
@@ -140,9 +140,10 @@ def write_figures(
         x_label = {"epsilon": "level ε of the VL-CBF", "lambda0": "λ₀"}.get(x_axis, x_axis)
         draw(f"rate-vs-{x_axis}", f"Rates against {x_label}",
              f"Rate per cell against {x_label}, one line per {', '.join(others) or 'campaign'}; the band is the "
-             f"two-sided {level:.0%} interval and ▼ marks the exact one-sided upper bound of a cell with no event.",
+             f"two-sided {level:.0%} {method_name(summ['interval_method'])} interval and ▼ marks "
+             f"{bound_name(summ['interval_method'])} upper bound of a cell with no event.",
              cell_figures.rate_vs_axis, cells, x_axis, numeric_axes(cells, axes)[x_axis], groups, metrics,
-             level=level, x_label=x_label)
+             level=level, x_label=x_label, bound=bound_name(summ["interval_method"]).removeprefix("the "))
 
     est = summ.get("estimates")
     if x_axis and est:  # a run of `mcverify estimate`: its estimates against the sweep axis
@@ -164,8 +165,9 @@ def write_figures(
         for metric, better in (("safe", True), ("overtook", True)):
             label = summary.METRICS[metric].label
             draw(f"heatmap-{metric}", f"{label.capitalize()} rate per {row_axis} × {col_axis}",
-                 f"Colour: {label} rate; each square: k/n and the two-sided {level:.0%} interval (≥ l or ≤ u: the "
-                 "exact one-sided bound when every or no episode counts).",
+                 f"Colour: {label} rate; each square: k/n and the two-sided {level:.0%} "
+                 f"{method_name(summ['interval_method'])} interval (≥ l or ≤ u: {bound_name(summ['interval_method'])} "
+                 "bound when every or no episode counts).",
                  cell_figures.rate_heatmap, cells, row_axis, axes[row_axis], col_axis, axes[col_axis], metric,
                  title=f"{label} rate", higher_is_better=better,
                  tick_labels=([pretty_label(row_axis, x) for x in axes[row_axis]],
