@@ -402,6 +402,9 @@ def search_table(result: SearchResult) -> pa.Table:
         cols[f"u:{name}"] = [e.point[i] for e in ev]
         cols[name] = [e.values[name] for e in ev]
     cols["parent"] = [e.parent for e in ev]  # splitting: the evaluation it branched from (0: none)
+    # ... and that parent's replay id, as the report names it (-1: none)
+    cols["parent_generation"] = [ev[e.parent - 1].generation if e.parent else -1 for e in ev]
+    cols["parent_episode_id"] = [int(ev[e.parent - 1].row["episode_id"]) if e.parent else -1 for e in ev]
     cols["branch_after_step"] = [e.branch_after_step for e in ev]  # splitting: where its last noise branch starts
     cols["move"] = [e.move for e in ev]  # splitting: fresh, noise (branch) or scenario (step)
     cols["robustness"] = [e.robustness for e in ev]
