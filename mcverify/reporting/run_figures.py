@@ -20,6 +20,7 @@ import numpy as np
 import pyarrow as pa
 
 from mcverify.analysis import summary
+from mcverify.model import kept_level
 from mcverify.reporting import cell_figures, episode_figures, figure_common
 from mcverify.reporting.paper_tables import pretty_label
 from mcverify.reporting.tables import bound_name, method_name
@@ -250,7 +251,7 @@ def _trajectory_figures(
             results.append(FigureResult(key, f"Snapshots: {c['cell']}", "", None, f"not drawn: {err}"))
         title = f"{c['cell']} · episode {ep.episode_id}"
         if figure_common.column(traj, "h_front") is not None:
-            series_h.append((title, traj, float(c["epsilon"])))
+            series_h.append((title, traj, kept_level(p["mpc"]["controller"], float(c["epsilon"]))))
         if figure_common.column(traj, "h_opp") is not None:
             series_opp.append((title, traj, float(p["barrier"]["opp_epsilon_m"])))
         series_v.append((title, traj, float(p["ego"]["speed_max_mps"])))
@@ -263,9 +264,10 @@ def _trajectory_figures(
     note = (" (" + "; ".join(notes) + ")") if notes else ""
     for key, title, series, caption, fn, kw in (
         ("barrier-h-ef", "h_ef(t) against its level ε", series_h,
-         "h_ef along the true trajectory of each cell's stored episode, against the level ε (dashed) and the "
-         "ellipse h = 0 (dotted); the view is clipped above; background: what drove the ego (Q1 green, Q2 "
-         "orange, fallback red, a held MPC-DC plan purple; MPC-DC's own plans count as Q1)." + note,
+         "h_ef along the true trajectory of each cell's stored episode, against the level ε (dashed; none for "
+         "plain MPC-DC, which keeps h ≥ 0) and the ellipse h = 0 (dotted); the view is clipped above; background: "
+         "what drove the ego (Q1 green, Q2 orange, fallback red, a held MPC-DC plan purple; MPC-DC's own plans "
+         "count as Q1)." + note,
          episode_figures.barrier_series, {}),
         ("barrier-h-eo", "h_eo(t) against its level", series_opp,
          "h_eo (m) while the ego borrows the opposing lane, against its level (dashed)." + note,
