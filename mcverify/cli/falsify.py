@@ -70,6 +70,7 @@ def _dry_run(config: Any, campaign: Any, workers: int | None) -> str:
         "measured rates; "
         + ("the search stops after the generation of its first counterexample)" if space.stop_at_first
            else "[falsify] stop_at_first = false: the search spends its whole budget)"),
+        cost.kernels_to_build(campaign.cells).text(),
     ])
 
 
