@@ -111,9 +111,12 @@ def run(campaign: Campaign | PathLike, out: PathLike | None = None, *, episodes:
 
 def resume(run_dir: PathLike, *, executor: str = "local", workers: int | None = None,
            address: str | None = None, progress: bool = True) -> Run:
-    """Finish an interrupted run: only the chunks that are not done are run."""
+    """Finish an interrupted run: only the chunks that are not done are run; a complete run is
+    returned as it is (the ``--resume`` rule: nothing to run is no error)."""
     from mcverify.campaign import executors, runner
 
+    if Run(Path(run_dir)).finished:
+        return Run(Path(run_dir))
     runner.resume(Path(run_dir), executor=executors.make_executor(executor, workers=workers, address=address),
                   progress=progress)
     return Run(Path(run_dir))

@@ -98,6 +98,8 @@ def command(args: Any) -> int:
                 or args.requirement is not None:
             raise RunError("--resume keeps the search's campaign, method, budget, seed, requirement and folder: "
                            "give only --resume OUT (and --executor/--workers)")
+        if options.already_complete(args.resume):
+            return options.say_complete(args.resume)
         args.run_dir = args.resume
         if (Path(args.resume) / search.CONFIG).is_file():
             say(f"resuming {args.resume}: {search.stored_generations(args.resume)} generation(s) already stored")

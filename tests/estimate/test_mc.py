@@ -201,3 +201,15 @@ def test_the_report_of_an_estimate_keeps_its_interval(tmp_path: Path, capsys):
         assert main(["report", str(run_dir), *extra]) == 2
         err = capsys.readouterr().err.strip()
         assert "estimate" in err and len(err.splitlines()) == 1
+
+
+def test_resuming_a_complete_estimate_runs_and_rewrites_nothing(tmp_path: Path, capsys):
+    """The one --resume rule of run, estimate and falsify: a complete folder says so and exits 0."""
+    camp = campaign_from_dict(RAW, episodes=40)
+    mc.run(camp, EstimateSpec("mc", "collision", 0.3, True, 40), tmp_path / "run",
+           executor=executors.SerialExecutor(), chunk_size=16, progress=False, episode_fn=_fn(0.0))
+    summary = (tmp_path / "run" / "summary.json").stat().st_mtime_ns
+    capsys.readouterr()
+    assert main(["estimate", "--resume", str(tmp_path / "run")]) == 0
+    assert capsys.readouterr().out.startswith(f"{tmp_path / 'run'} is already complete: nothing to run")
+    assert (tmp_path / "run" / "summary.json").stat().st_mtime_ns == summary
