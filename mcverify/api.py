@@ -111,9 +111,12 @@ def run(campaign: Campaign | PathLike, out: PathLike | None = None, *, episodes:
 
 def resume(run_dir: PathLike, *, executor: str = "local", workers: int | None = None,
            address: str | None = None, progress: bool = True) -> Run:
-    """Finish an interrupted run: only the chunks that are not done are run."""
+    """Finish an interrupted run: only the chunks that are not done are run; a complete run is
+    returned as it is (the ``--resume`` rule: nothing to run is no error)."""
     from mcverify.campaign import executors, runner
 
+    if Run(Path(run_dir)).finished:
+        return Run(Path(run_dir))
     runner.resume(Path(run_dir), executor=executors.make_executor(executor, workers=workers, address=address),
                   progress=progress)
     return Run(Path(run_dir))
@@ -142,8 +145,10 @@ def replay(run_dir: PathLike, episode_id: int, out_dir: PathLike | None = None, 
     return _replay(Path(run_dir), episode_id, out)
 
 
-def report(run_dir: PathLike, *, level: float = 0.95, method: str = "clopper-pearson") -> Path:
-    """Regenerate every report file of a run folder from stored data; returns ``report.md``."""
+def report(run_dir: PathLike, *, level: float | None = None, method: str | None = None) -> Path:
+    """Regenerate every report file of a run folder from stored data; returns ``report.md``. level /
+    method: the rates' interval of a fixed-count run (default 0.95, exact Clopper-Pearson); an estimate
+    folder's rates keep its estimator's anytime-valid interval (another method or level is refused)."""
     from mcverify.reporting import run_report
 
     return run_report.write(Path(run_dir), level=level, method=method)

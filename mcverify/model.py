@@ -114,6 +114,14 @@ BACKEND_NAMES = ("ipopt", "ipm")
 #: The MPC-DC baselines (Sec. VI-D): "mpcdc" keeps the ellipses at the nodes (h >= 0), "mpcdc_eps"
 #: at the level of the cell (h >= barrier.epsilon); everything else about them is the same.
 MPCDC_CONTROLLERS = ("mpcdc", "mpcdc_eps")
+#: The controllers that keep no level ε of h_ef: plain MPC-DC keeps the ellipse itself (h >= 0 at the
+#: nodes), so a figure draws no ε line for it.
+CONTROLLERS_WITHOUT_LEVEL = ("mpcdc",)
+
+
+def kept_level(controller: str | None, epsilon: float) -> float | None:
+    """The level of h_ef that ``controller`` keeps: the cell's ε, or None for plain MPC-DC (h >= 0)."""
+    return None if controller in CONTROLLERS_WITHOUT_LEVEL else float(epsilon)
 #: The evidence that makes the ego abandon the overtake (:attr:`Mpc.abandon_rule`).
 ABANDON_RULES = ("first_failure", "consecutive", "certified")
 #: When the dual planner solves Q2 while overtaking (:attr:`Mpc.q2_solve`).

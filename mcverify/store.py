@@ -321,14 +321,14 @@ def _not_a_run(folder: Path) -> str:
                     else "each cell's failing particles (estimate.json)")
             return (f"it is an `estimate --method {method}` folder, which stores its estimate (estimate.json, "
                     f"report.md) and {what}, not episodes; `mcverify replay {folder} K [--cell NAME]` replays "
-                    "one; report and compare work on run folders and on `estimate --method mc` folders")
+                    f"one, `mcverify report {folder}` rebuilds its report; compare and export work on run folders "
+                    "and on `estimate --method mc` folders")
         return (f"it is an `estimate --method {method}` folder, which stores its estimate (estimate.json, "
-                "report.md), not episodes; replay, report and compare work on run folders and on "
+                "report.md), not episodes; replay, compare and export work on run folders and on "
                 "`estimate --method mc` folders")
     if (folder / "falsify.json").is_file():
         return (f"it is a falsification search, whose episodes are in its generation folders (e.g. "
-                f"`mcverify replay {folder}/generations/g000 0`); `mcverify falsify --resume {folder}` rebuilds "
-                "its report")
+                f"`mcverify replay {folder}/generations/g000 0`); `mcverify report {folder}` rebuilds its report")
     return "is this a finished mcverify run folder?"
 
 

@@ -52,3 +52,18 @@ def test_a_script_without_a_main_guard_runs_a_campaign_on_worker_processes(tmp_p
     assert out.returncode == 0, out.stderr[-3000:]
     assert out.stdout.count("ROWS") == 1, out.stdout  # the script ran once, not once per worker
     assert "ROWS 2 2 [0, 1]" in out.stdout
+
+
+def test_resume_of_a_complete_run_returns_it_running_nothing(tmp_path: Path) -> None:
+    """The --resume rule of the command line holds in the API: a complete folder is no error."""
+    import synthetic_episodes as synth
+
+    from mcverify.campaign import executors, runner
+    from mcverify.campaign.spec import campaign_from_dict
+
+    raw = {"campaign": {"name": "r", "seed": 1, "episodes": 2}}
+    runner.run(campaign_from_dict(raw), tmp_path / "run", executor=executors.SerialExecutor(), progress=False,
+               episode_fn=synth.episodes)
+    ledger = (tmp_path / "run" / "chunks.jsonl").read_bytes()
+    run = mcverify.resume(tmp_path / "run", executor="serial", progress=False)
+    assert run.finished and (tmp_path / "run" / "chunks.jsonl").read_bytes() == ledger

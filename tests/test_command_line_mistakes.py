@@ -145,7 +145,7 @@ def test_compare_says_which_run_had_command_line_settings(tmp_path):
     assert "--set" not in line_a and "--set `noise.scale=2`" in line_b
 
 
-def test_resuming_a_finished_search_says_so_and_rebuilds_its_report(tmp_path, monkeypatch, capsys):
+def test_resuming_a_finished_search_says_so_and_report_rebuilds_it(tmp_path, monkeypatch, capsys):
     real = search.start
     monkeypatch.setattr(search, "start", lambda config, out_dir, **kw: real(
         config, out_dir, **{**kw, "make_executor": executors.SerialExecutor, "episode_fn": fake_episodes.episodes}))
@@ -155,11 +155,14 @@ def test_resuming_a_finished_search_says_so_and_rebuilds_its_report(tmp_path, mo
     report = (tmp_path / "s" / "report.md").read_text()
     (tmp_path / "s" / "report.md").unlink()
     capsys.readouterr()
+    # the one --resume rule (run, estimate, falsify): a complete folder is no error, and nothing is rewritten
     assert cli.main(["falsify", "--resume", str(tmp_path / "s")]) == 0
-    err = capsys.readouterr().err
-    assert f"resuming {tmp_path / 's'}: 1 generation(s) already stored" in err
-    assert "nothing left to run" in err
+    assert "is already complete: nothing to run" in capsys.readouterr().out
+    assert not (tmp_path / "s" / "report.md").exists()
+    assert cli.main(["report", str(tmp_path / "s")]) == 0  # what rebuilds it, running nothing
     assert (tmp_path / "s" / "report.md").read_text() == report
+    assert cli.main(["report", str(tmp_path / "s"), "--method", "wilson"]) == 2
+    assert "--method is for run and crude Monte Carlo estimate folders" in capsys.readouterr().err
 
 
 def test_a_speed_given_in_kmh_is_named_as_given_when_out_of_range():

@@ -57,7 +57,10 @@ def test_folders_that_are_not_runs_say_what_they_are(tmp_path, capsys):
     est.mkdir()
     (est / "manifest.json").write_text('{"campaign": {"name": "x"}, "cells": [], "estimate": {"method": "splitting"}}')
     (est / "estimate.json").write_text('{"spec": {"method": "splitting"}, "cells": []}')
-    assert cli.main(["report", str(est)]) == 2
+    assert cli.main(["report", str(est)]) == 2  # report rebuilds such a folder's report once it is complete
+    assert f"is not complete: `mcverify estimate --resume {est}` finishes it" in _one_error_line(
+        capsys.readouterr().err)
+    assert cli.main(["compare", str(est), str(est)]) == 2
     line = _one_error_line(capsys.readouterr().err)
     assert "it is an `estimate --method splitting` folder, which stores its estimate" in line
     assert f"`mcverify replay {est} K [--cell NAME]` replays one" in line
@@ -67,8 +70,11 @@ def test_folders_that_are_not_runs_say_what_they_are(tmp_path, capsys):
     fal.mkdir()
     (fal / "falsify.json").write_text("{}")
     assert cli.main(["report", str(fal)]) == 2
+    assert f"is not complete: `mcverify falsify --resume {fal}` finishes it" in _one_error_line(
+        capsys.readouterr().err)
+    assert cli.main(["compare", str(fal), str(fal)]) == 2
     line = _one_error_line(capsys.readouterr().err)
-    assert "it is a falsification search" in line and f"`mcverify falsify --resume {fal}` rebuilds its report" in line
+    assert "it is a falsification search" in line and f"`mcverify report {fal}` rebuilds its report" in line
 
 
 def test_theorem_five_findings_name_the_folder_as_the_counterexamples_do(tmp_path):

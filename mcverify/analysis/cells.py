@@ -33,8 +33,9 @@ def cells_table(summ: Mapping[str, Any]) -> pa.Table:
     differs between cells (the grid's and the axes' fields) under its campaign name, e.g.
     ``barrier.epsilon`` or ``scenario.front_speed_kmh``, typed (:func:`varied_fields`), ``controller``,
     ``opposing_kind``, ``epsilon``, ``lambda0``, ``episodes_planned``, ``episodes``, ``valid``,
-    ``outcome_<o>``; per rate ``<rate>_{k,n,rate,low,high,lower_one_sided,upper_one_sided}``; per
-    value ``<value>_{count,min,max,mean,mean_low,mean_high,std,q5,q25,q50,q75,q95}``; then
+    ``interval_method`` (the rates' interval: exact, Wilson or an estimate's confidence sequence),
+    ``outcome_<o>``; per rate ``<rate>_{k,n,rate,low,high,lower_one_sided,upper_one_sided}``; per value
+    ``<value>_{count,min,max,mean,mean_low,mean_high,std,q5,q25,q50,q75,q95}``; then
     ``thm_<check>``, ``count_<column>`` (JSON object strings) and ``solver_<field>``. Missing
     statistics are nulls; the column order is fixed.
     """
@@ -69,6 +70,7 @@ def cells_table(summ: Mapping[str, Any]) -> pa.Table:
         put("lambda0", pa.float64(), c["lambda0"])
         for key in ("episodes_planned", "episodes", "valid"):
             put(key, pa.int64(), c[key])
+        put("interval_method", pa.string(), summ.get("interval_method"))  # which interval every rate carries
         for o in OUTCOMES:
             put(f"outcome_{o}", pa.int64(), c["outcomes"].get(o, 0))  # a summary from before "stopped" lacks it
         for r in rate_names:

@@ -184,3 +184,29 @@ def _check_prior(prior: tuple[float, float]) -> tuple[float, float]:
     if not (a > 0 and b > 0 and math.isfinite(a) and math.isfinite(b)):
         raise ValueError(f"the mixture prior Beta(a, b) needs a, b > 0, got {prior}")
     return a, b
+
+
+#: ``interval_method`` of a rate summarised by :func:`sequence_rate_summary` (what an estimate folder's
+#: ``summary.json`` says beside every rate).
+CONFIDENCE_SEQUENCE = "confidence-sequence"
+
+
+def sequence_rate_summary(outcomes: npt.ArrayLike, level: float = 0.95,
+                          prior: tuple[float, float] = DEFAULT_PRIOR) -> dict[str, Any]:
+    """A rate over a 0/1 sequence in episode order with the anytime-valid interval, in the keys of
+    :func:`mcverify.analysis.intervals.rate_summary`: ``low``/``high`` are the running intersection of
+    C_1..C_n at the last outcome, the interval :func:`sequential_estimate` reports for the same
+    sequence. The one-sided bounds are the interval's ends: where k = 0 the interval is [0, high], so
+    ``high`` bounds p from above at ``level`` on its own (and ``low`` from below where k = n); no exact
+    fixed-n bound is mixed in, since the episode count was chosen by looking at the data.
+    An empty sequence gives NaN, as ``rate_summary`` of an empty cell does."""
+    level = _check_level(level)
+    x = np.asarray(outcomes, dtype=bool)
+    if x.size == 0:
+        rate = low = high = math.nan
+        k = 0
+    else:
+        ks, _, lows, highs = running_bounds(x, level, prior)
+        k, rate, low, high = int(ks[-1]), float(ks[-1] / x.size), float(lows[-1]), float(highs[-1])
+    return {"k": k, "n": int(x.size), "rate": rate, "low": low, "high": high, "level": level,
+            "method": CONFIDENCE_SEQUENCE, "upper_one_sided": high, "lower_one_sided": low}

@@ -26,6 +26,7 @@ import pyarrow as pa
 from mcverify import schema
 from mcverify.analysis import bounds, stats
 from mcverify.analysis.columns import Columns, bools, floats, strings
+from mcverify.analysis.sequential import CONFIDENCE_SEQUENCE, DEFAULT_PRIOR, sequence_rate_summary
 from mcverify.schema import ERROR_OUTCOME, OUTCOME_FLAGS, STOPPED_OUTCOME
 
 #: Version of the summary.json / cells.parquet layout.
@@ -196,13 +197,16 @@ def summarise(
     method: str = "clopper-pearson",
     bootstrap_resamples: int = 2000,
     bootstrap_seed: int = 0,
+    prior: tuple[float, float] = DEFAULT_PRIOR,
 ) -> dict[str, Any]:
     """Statistics per cell, in the order of the cells' indices.
 
     ``table``: the run's episodes (``episodes.parquet``). ``manifest``: the run's manifest; it
     supplies each cell's labels, controller, overrides and planned episode count, and lists cells
     that have no episode row yet. ``level`` / ``method``: the two-sided interval for every rate
-    (``stats.PROPORTION_METHODS``). The bootstrap interval of each mean uses
+    (``stats.PROPORTION_METHODS``, or :data:`CONFIDENCE_SEQUENCE` for the episodes an estimate used:
+    the anytime-valid interval of each rate over its cell's episodes in episode order, with the mixture
+    ``prior``, :func:`rate_of`). The bootstrap interval of each mean uses
     ``bootstrap_resamples`` resamples seeded from (``bootstrap_seed``, cell name, metric), so
     regenerating the summary gives the same numbers.
 
@@ -211,7 +215,7 @@ def summarise(
     order, and each cell is the dict of :func:`cell_summary`.
     """
     level = float(level)
-    stats.rate_summary(0, 1, level, method)  # validate level and method once, with stats' messages
+    rate_of(np.zeros(1, dtype=bool), level, method, prior)  # validate level and method once, with their messages
     info = _manifest_cells(manifest)
     cols = Columns.from_table(table)
     idx = cols["cell_index"].astype(np.int64) if cols.num_rows else np.zeros(0, dtype=np.int64)
@@ -230,6 +234,7 @@ def summarise(
                 method=method,
                 bootstrap_resamples=bootstrap_resamples,
                 bootstrap_seed=bootstrap_seed,
+                prior=prior,
             )
         )
     return {
@@ -252,6 +257,7 @@ def cell_summary(
     method: str = "clopper-pearson",
     bootstrap_resamples: int = 2000,
     bootstrap_seed: int = 0,
+    prior: tuple[float, float] = DEFAULT_PRIOR,
 ) -> dict[str, Any]:
     """One cell's statistics from its episode rows ``t`` and its manifest entry ``info``.
 
@@ -266,6 +272,8 @@ def cell_summary(
     return statuses summed over episodes).
     """
     t = t if isinstance(t, Columns) else Columns.from_table(t)
+    if method == CONFIDENCE_SEQUENCE and t.num_rows and "cell_episode" in t.column_names:
+        t = t.take(np.argsort(floats(t, "cell_episode"), kind="stable"))  # the sequence is in episode order
     params = info.get("params") or {}
     opposing_kind = params.get("opposing", {}).get("kind") or _first(t, "opposing_kind")  # None: not recorded
     if opposing_kind == "none":
@@ -280,8 +288,8 @@ def cell_summary(
     for m in RATE_METRICS:
         flags = _flags(v, m.name)
         if flags is not None:
-            rates[m.name] = stats.rate_summary(int(flags.sum()), n, level=level, method=method)
-    rates["error"] = stats.rate_summary(int(error.sum()), n_all, level=level, method=method)
+            rates[m.name] = rate_of(flags, level, method, prior)
+    rates["error"] = rate_of(error, level, method, prior)
 
     name = info.get("name") or (str(t["cell"][0]) if n_all and "cell" in t.column_names else f"cell {cell_index}")
     values = {}
@@ -314,6 +322,17 @@ def cell_summary(
         "theorem_findings": theorem_findings(v),
         "solver": _solver(v),
     }
+
+
+def rate_of(flags: np.ndarray, level: float, method: str, prior: tuple[float, float] = DEFAULT_PRIOR
+            ) -> dict[str, Any]:
+    """The rate of ``flags`` (one per episode, in episode order) with its interval: the fixed-count
+    :func:`stats.rate_summary` by ``method``, or the anytime-valid :func:`sequence_rate_summary` for
+    :data:`CONFIDENCE_SEQUENCE` (an estimate's episode count was chosen by looking at its outcomes, so
+    a fixed-count interval would not keep its coverage there)."""
+    if method == CONFIDENCE_SEQUENCE:
+        return sequence_rate_summary(flags, level, prior)
+    return stats.rate_summary(int(np.sum(flags)), int(np.size(flags)), level=level, method=method)
 
 
 def value_summary(

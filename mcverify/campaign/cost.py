@@ -9,6 +9,7 @@ range, not a promise.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 from mcverify.campaign.episode_cost import (  # noqa: F401 - the figures, read through this module too
@@ -18,6 +19,7 @@ from mcverify.campaign.episode_cost import (  # noqa: F401 - the figures, read t
     cell_seconds,
 )
 from mcverify.campaign.spec import Campaign
+from mcverify.cell import Cell
 
 
 @dataclass(frozen=True)
@@ -61,6 +63,36 @@ def duration_range(low_s: float, high_s: float) -> str:
     return low if low == high else f"{low} to {high}"
 
 
+@dataclass(frozen=True)
+class KernelCount:
+    """The solver kernels some cells need (one per problem structure: the plain problem, and the one
+    with veh_o where the cells have opposing traffic) and how many of them are not compiled yet."""
+
+    needed: int
+    missing: int
+
+    def text(self) -> str:
+        """What the kernels add to a dry run's wall time, e.g. "1 of the 2 solver kernels it needs is not
+        compiled yet: add 1-3 minutes for it (once per machine)"."""
+        kernels = f"solver kernel{'s' if self.needed != 1 else ''}"
+        if not self.missing:
+            return f"the {kernels} it needs ({self.needed}) {'are' if self.needed != 1 else 'is'} compiled already"
+        each = "it" if self.missing == 1 else "each"
+        return (f"{self.missing} of the {self.needed} {kernels} it needs {'is' if self.missing == 1 else 'are'} not "
+                f"compiled yet: add 1-3 minutes for {each} (once per machine)")
+
+
+def kernels_to_build(cells: Sequence[Cell], kernel_dir=None) -> KernelCount:
+    """Count the kernels ``cells`` need and those missing from the cache (``kernel_dir``, default the
+    one the run would use); looks only, builds nothing."""
+    from mcverify.ocp.layout import OcpStructure  # noqa: PLC0415 - CasADi only for a dry run
+    from mcverify.solver import kernels  # noqa: PLC0415
+
+    structures = {OcpStructure.from_params(c.params, with_opposing=opp) for c in cells
+                  for opp in ((False, True) if c.params.opposing.kind != "none" else (False,))}
+    return KernelCount(len(structures), sum(not kernels.is_cached(s, kernel_dir) for s in structures))
+
+
 def render(campaign: Campaign, chunk_size: int, workers: int) -> str:
     """The dry run's report: the cells, the counts and the estimate."""
     from mcverify.campaign.runner import describe
@@ -71,7 +103,6 @@ def render(campaign: Campaign, chunk_size: int, workers: int) -> str:
         describe(campaign),
         f"{est.episodes} episodes in {est.chunks} chunks of up to {chunk_size}",
         f"estimated CPU: {duration_range(est.cpu_s_low, est.cpu_s_high)}; wall time on {workers} worker(s): "
-        f"{duration_range(lo, hi)}, plus about a minute of start-up (and 1-3 minutes per solver kernel "
-        "not yet compiled)",
+        f"{duration_range(lo, hi)}, plus about a minute of start-up; {kernels_to_build(campaign.cells).text()}",
         "(per-episode costs measured on a 2-core machine, results/BENCHMARKS.md; a rough range)",
     ])

@@ -150,6 +150,8 @@ def command(args) -> int:
     if args.resume:
         if args.campaign or args.out or args.new_run_dir or args.seed is not None or args.settings:
             raise RunError("--resume keeps the estimate's campaign and rule: give only RUN_DIR (and the executor)")
+        if options.already_complete(args.resume):
+            return options.say_complete(args.resume)
         args.run_dir = args.resume
 
         def resuming(planned: int, done: int) -> None:
@@ -278,6 +280,8 @@ def _in_process(args, method: str) -> int:
         if args.campaign or args.seed is not None or args.settings:
             raise RunError("--resume keeps the estimate's campaign, seed and settings: give only RUN_DIR (and the "
                            "executor)")
+        if options.already_complete(args.resume):
+            return options.say_complete(args.resume)
         manifest = store.read_manifest(args.resume)
         camp = manifest["campaign"]
         campaign = runner.with_recorded_params(  # the cells' parameters as the run recorded them

@@ -70,6 +70,7 @@ def _dry_run(config: Any, campaign: Any, workers: int | None) -> str:
         "measured rates; "
         + ("the search stops after the generation of its first counterexample)" if space.stop_at_first
            else "[falsify] stop_at_first = false: the search spends its whole budget)"),
+        cost.kernels_to_build(campaign.cells).text(),
     ])
 
 
@@ -97,6 +98,8 @@ def command(args: Any) -> int:
                 or args.requirement is not None:
             raise RunError("--resume keeps the search's campaign, method, budget, seed, requirement and folder: "
                            "give only --resume OUT (and --executor/--workers)")
+        if options.already_complete(args.resume):
+            return options.say_complete(args.resume)
         args.run_dir = args.resume
         if (Path(args.resume) / search.CONFIG).is_file():
             say(f"resuming {args.resume}: {search.stored_generations(args.resume)} generation(s) already stored")

@@ -72,7 +72,8 @@ def folder(noun: str, pattern: str, metavar: str = "RUN_DIR",
                         "else ./results)")
     p.add_argument("--run-dir", type=Path, dest="new_run_dir", metavar=metavar,
                    help=f"the exact (new or empty) folder for this {noun}, instead of a fresh one under --out")
-    p.add_argument("--resume", type=Path, metavar=metavar, help=f"finish an interrupted {noun}")
+    p.add_argument("--resume", type=Path, metavar=metavar,
+                   help=f"finish an interrupted {noun} (a complete one: nothing to run, exit 0)")
     p.add_argument("--no-progress", action="store_true", help=progress_help)
     return p
 
@@ -175,3 +176,35 @@ def integer(text: str) -> int:
         return int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+
+
+# ----------------------------------------------------------------------------- --resume
+
+
+#: Where each kind of folder records that it is complete (``finished_utc``): a run's or an estimate's
+#: manifest, a falsification search's ``falsify.json``.
+_FINISHED_RECORDS = ("manifest.json", "falsify.json")
+
+
+def already_complete(run_dir: Path | None) -> bool:
+    """Whether ``run_dir`` holds a complete run, estimate or search. The one ``--resume`` rule of
+    ``run``, ``estimate`` and ``falsify``: resuming a complete folder is no error; it runs and rewrites
+    nothing, says so (:func:`say_complete`) and exits 0 (``mcverify report`` rebuilds a report)."""
+    import json
+
+    if run_dir is None:
+        return False
+    for name in _FINISHED_RECORDS:
+        try:
+            record = json.loads((Path(run_dir) / name).read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            continue
+        if isinstance(record, dict) and record.get("finished_utc"):
+            return True
+    return False
+
+
+def say_complete(run_dir: Path) -> int:
+    """The line a ``--resume`` of a complete folder prints (on stdout, where the report would go); exit 0."""
+    print(f"{run_dir} is already complete: nothing to run (`mcverify report {run_dir}` rebuilds its report)")
+    return 0

@@ -12,10 +12,11 @@ def add(sub, parents: list[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("report", parents=parents,
                        help="regenerate summary.json, cells.parquet, tables, figures, report.md and report.html")
     p.add_argument("run_dir", type=Path)
-    p.add_argument("--level", type=options.level, default=0.95,
-                   help="confidence level of every interval (default 0.95)")
-    p.add_argument("--method", choices=("clopper-pearson", "wilson"), default="clopper-pearson",
-                   help="two-sided interval for rates (default: exact Clopper-Pearson)")
+    p.add_argument("--level", type=options.level, default=None,
+                   help="confidence level of every interval (default 0.95; an estimate folder keeps its own)")
+    p.add_argument("--method", choices=("clopper-pearson", "wilson"), default=None,
+                   help="two-sided interval for the rates of a fixed-count run (default: exact Clopper-Pearson); "
+                        "an estimate folder's rates carry its estimator's anytime-valid interval")
     p.add_argument("--bootstrap-resamples", type=options.positive_int, default=2000,
                    help="resamples of the (seeded) bootstrap interval of every mean (default 2000)")
     p.add_argument("--format", action="append", choices=("png", "svg", "pdf"), dest="formats", default=[],
@@ -30,12 +31,14 @@ def add(sub, parents: list[argparse.ArgumentParser]) -> None:
 
 
 def command(args) -> int:
+    from mcverify.errors import RunError
     from mcverify.reporting import run_report
 
     if args.dpi is not None and not args.formats:
-        from mcverify.errors import RunError
-
         raise RunError("--dpi sets the resolution of the --format files: add --format png, svg or pdf")
+    kind = _own_report_kind(args.run_dir)
+    if kind is not None:
+        return _rebuild_own_report(args, kind)
     if args.audit:
         import sys
 
@@ -47,4 +50,56 @@ def command(args) -> int:
         figure_formats=args.formats, figure_dpi=args.dpi or 300,
     )
     print(f"report: {path} (also report.html, summary.json, cells.parquet, tables/, figures/)")
+    return 0
+
+
+def _own_report_kind(run_dir: Path) -> str | None:
+    """``falsify`` for a search folder, ``splitting`` or ``importance`` for such an estimate folder:
+    folders whose report their own code writes (None: a run or a crude Monte Carlo estimate)."""
+    from mcverify.estimate.replay import estimate_method
+    from mcverify.falsify import search
+
+    if (Path(run_dir) / search.CONFIG).is_file():
+        return "falsify"
+    return estimate_method(Path(run_dir))
+
+
+def _rebuild_own_report(args, kind: str) -> int:
+    """Rewrite a complete search's or splitting / importance estimate's report from its stored
+    results, running nothing (what ``--resume`` of such a folder did before the one ``--resume`` rule)."""
+    from mcverify.errors import RunError
+
+    given = [opt for opt, value in (("--level", args.level), ("--method", args.method), ("--audit", args.audit),
+                                    ("--format", args.formats)) if value]
+    if given:
+        raise RunError(f"{given[0]} is for run and crude Monte Carlo estimate folders; {args.run_dir} is a "
+                       f"{kind} folder")
+    command = "falsify" if kind == "falsify" else "estimate"
+    if not options.already_complete(args.run_dir):
+        raise RunError(f"{args.run_dir} is not complete: `mcverify {command} --resume {args.run_dir}` finishes it "
+                       "and writes its report")
+
+    def run_nothing(*_args, **_kw):
+        raise RunError(f"{args.run_dir}: its stored results do not cover the search; not rebuilt")
+
+    if kind == "falsify":
+        from mcverify.campaign import executors
+        from mcverify.falsify import search
+
+        path = search.resume(args.run_dir, make_executor=executors.SerialExecutor, episode_fn=run_nothing).out_dir
+        path = path / "report.md"
+    else:
+        from mcverify import store
+        from mcverify.campaign import runner
+        from mcverify.campaign.spec import campaign_from_dict
+        from mcverify.estimate import importance_run, splitting_run
+
+        manifest = store.read_manifest(args.run_dir)
+        camp = manifest["campaign"]
+        campaign = runner.with_recorded_params(
+            campaign_from_dict(camp["raw"], source=camp["source"], seed=camp["seed"]), manifest.get("cells", []),
+            str(args.run_dir))
+        module = splitting_run if kind == "splitting" else importance_run
+        path = module.resume(args.run_dir, campaign, progress=lambda msg: None)
+    print(f"report: {path} (also report.html)")
     return 0

@@ -37,6 +37,8 @@ def command(args) -> int:
         raise RunError("--dry-run checks a campaign file; it does not apply to --resume")
     if args.resume:
         path = _resume(args)
+        if path is None:
+            return options.say_complete(args.resume)
     else:
         if args.campaign is None:
             raise RunError("missing campaign file, e.g. `mcverify run campaigns/smoke.toml`")
@@ -62,7 +64,7 @@ def command(args) -> int:
     return 0
 
 
-def _resume(args) -> Path:
+def _resume(args) -> Path | None:
     from mcverify.campaign import executors, runner
     from mcverify.campaign.spec import load_campaign
     from mcverify.errors import RunError
@@ -72,6 +74,8 @@ def _resume(args) -> Path:
                        "and --set")
     if args.out is not None or args.new_run_dir is not None:
         raise RunError("--resume writes into RUN_DIR: leave out --out and --run-dir")
+    if options.already_complete(args.resume):
+        return None
     # A campaign file given with --resume is a check: it must be the one the run started with.
     campaign = load_campaign(args.campaign) if args.campaign else None
     executor = executors.make_executor(args.executor, workers=args.workers, address=args.address)

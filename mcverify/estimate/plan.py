@@ -82,7 +82,7 @@ def render(campaign: Campaign, options: EstimateOptions) -> str:
         lines = _subset_lines(cells, options)
     else:
         lines = _splitting_lines(cells, options)
-    return "\n".join([head, *lines, rough])
+    return "\n".join([head, *lines, cost.kernels_to_build(cells).text(), rough])
 
 
 def _splitting_lines(cells: list[Cell], options: EstimateOptions) -> list[str]:

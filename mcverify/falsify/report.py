@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
+from matplotlib.ticker import MaxNLocator
 
 from mcverify import requirements as reqs
 from mcverify import store
@@ -50,28 +51,67 @@ REPORT = "report.md"
 HTML = "report.html"
 FIGURES = "figures"
 ROBUSTNESS_CAPTION = ("Each episode's robustness (dots) and the smallest so far (line); below the dashed line the "
-                      "requirement is violated. Per episode in `search.parquet`.")
+                      "requirement is violated. Episodes are named by their replay ids, gG/E: episode E of generation "
+                      "G (`mcverify replay OUT/generations/gGGG E`); the axis runs through the generations in "
+                      "evaluation order, each tick at a generation's episode 0, and the worst episode is labelled. Per "
+                      "episode in `search.parquet`.")
+
+#: Most generation ticks on the robustness axis (more are thinned to every k-th generation).
+MAX_GENERATION_TICKS = 12
 
 
-def robustness_curves(curves: Mapping[str, Sequence[float]], path: Path, requirement: str) -> None:
+def robustness_curves(curves: Mapping[str, Sequence[float]], path: Path, requirement: str,
+                      episodes: Sequence[tuple[int, int]] | None = None) -> None:
     """Robustness against episodes: one marker per episode and the running minimum, per method.
-    The vertical axis is symmetric-log so that margins of metres and of hundredths both show."""
+    The vertical axis is symmetric-log so that margins of metres and of hundredths both show.
+
+    ``episodes``: with one curve, each episode's replay id (generation, episode id); the axis then
+    names episodes as ``mcverify replay`` does (a tick ``gG/0`` at each generation's first episode, the
+    worst episode labelled). Without it (curves of several searches) the axis counts episodes evaluated."""
     fig, ax = subplots(figsize=(7.0, 3.6), dpi=150)
     for k, (label, values) in enumerate(curves.items()):
         y = np.asarray(values, dtype=float)
-        x = np.arange(1, y.size + 1)
+        x = np.arange(y.size) if episodes is not None else np.arange(1, y.size + 1)
         colour = f"C{k}"
         ax.plot(x, y, ".", color=colour, alpha=0.5, ms=5)
         ax.step(x, np.fmin.accumulate(np.where(np.isnan(y), np.inf, y)), where="post", color=colour, label=label)
     ax.axhline(0.0, color="k", lw=0.8, ls="--")
     ax.set_yscale("symlog", linthresh=0.05)
     _label_symlog_axis(ax)
-    ax.set_xlabel("episodes evaluated")
+    if episodes is not None:
+        _replay_id_axis(ax, list(next(iter(curves.values()), [])), list(episodes))
+    else:
+        ax.set_xlabel("episodes evaluated")
     ax.set_ylabel(f"robustness ({requirement})")
     ax.legend(loc="upper right", fontsize=8)
     ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, metadata={"Software": None})
+
+
+def replay_id(generation: int, episode_id: int) -> str:
+    """How the report names a search's episode: ``gG/E``, episode E (from 0) of generation G's folder."""
+    return f"g{generation:03d}/{episode_id}"
+
+
+def _replay_id_axis(ax: Any, values: Sequence[float], episodes: Sequence[tuple[int, int]]) -> None:
+    """Ticks at each generation's first episode (``gG/0``), thinned to :data:`MAX_GENERATION_TICKS`,
+    and the worst episode labelled with its replay id."""
+    starts = [i for i, (g, _) in enumerate(episodes) if i == 0 or episodes[i - 1][0] != g]
+    step = max(1, math.ceil(len(starts) / MAX_GENERATION_TICKS))
+    ticks = starts[::step]
+    ax.set_xticks(ticks)
+    ax.set_xticklabels([replay_id(*episodes[i]) for i in ticks], fontsize=7,
+                       rotation=30 if len(ticks) > 6 else 0)
+    ax.set_xlabel("episode (replay id gG/E: generation G, episode E)" if len(starts) > 1 else
+                  f"episode id (generation g{episodes[0][0]:03d})" if episodes else "episode")
+    if len(starts) == 1 and episodes:  # one generation: the position is the episode id itself
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    y = np.asarray(values, dtype=float)
+    if y.size and np.isfinite(y).any():
+        worst = int(np.nanargmin(y))
+        ax.annotate(replay_id(*episodes[worst]), (worst, y[worst]), textcoords="offset points", xytext=(6, -10),
+                    fontsize=7, color="C3")
 
 
 def _label_symlog_axis(ax: Any, most: int = 9) -> None:
@@ -142,14 +182,16 @@ def _noise_facts(result: SearchResult) -> list[tuple[str, str]]:
 
 
 def lineage(evaluations: Sequence[Any], number: int) -> str:
-    """``evaluation N (how it came) <- its parent (...) <- ...`` back to a fresh draw (1-based numbers)."""
+    """``episode gG/E (how it came) <- its parent (...) <- ...`` back to a fresh draw, each named by its
+    replay id (:func:`replay_id`); ``number`` and each ``parent`` are 1-based evaluation numbers."""
     how = {"fresh": "fresh", "scenario": "scenario step"}
     steps = []
     while number > 0:
         e = evaluations[number - 1]
-        steps.append(f"{number} ({how.get(e.move, f'noise branch after step {e.branch_after_step}')})")
+        name = replay_id(e.generation, int(e.row["episode_id"]))
+        steps.append(f"{name} ({how.get(e.move, f'noise branch after step {e.branch_after_step}')})")
         number = e.parent
-    return "evaluation " + " ← ".join(steps)
+    return "episode " + " ← ".join(steps)
 
 
 def write(result: SearchResult, records: Sequence[Mapping[str, Any]]) -> Path:
@@ -157,7 +199,8 @@ def write(result: SearchResult, records: Sequence[Mapping[str, Any]]) -> Path:
     out = result.out_dir
     (out / FIGURES).mkdir(exist_ok=True)
     robustness_curves({result.config.method: [e.robustness for e in result.evaluations]},
-                      out / FIGURES / "robustness.png", result.config.requirement)
+                      out / FIGURES / "robustness.png", result.config.requirement,
+                      [(e.generation, int(e.row["episode_id"])) for e in result.evaluations])
     fact_list = facts(result, records)
     tables = [counterexample_report.table(records, result.config.requirement, result.episodes)]
     if records:

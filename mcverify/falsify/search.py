@@ -32,8 +32,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from mcverify import provenance, store
 from mcverify import requirements as reqs
-from mcverify import store
 from mcverify.analysis import counterexamples as cx
 from mcverify.analysis import failure_regions
 from mcverify.analysis import robustness as rb
@@ -307,7 +307,22 @@ def _generations(config: SearchConfig, out_dir: Path, make_executor: Callable[[]
         progress("nothing left to run: every generation of this search is stored; its report is rebuilt from them")
     result = SearchResult(out_dir, config, space, tuple(evaluations))
     write_outputs(result)
+    mark_finished(out_dir)
     return result
+
+
+def mark_finished(out_dir: Path) -> None:
+    """Record in ``falsify.json`` that the search is complete (``finished_utc``, as a run's manifest
+    does), once its outputs are written; kept as it is when a finished search is read again."""
+    data = store.read_json(Path(out_dir) / CONFIG)
+    if not data.get("finished_utc"):
+        store.write_json_atomic(Path(out_dir) / CONFIG, {**data, "finished_utc": provenance.now_utc()})
+
+
+def is_finished(out_dir: Path) -> bool:
+    """Whether the search in ``out_dir`` is complete (a search from before the record reads as not)."""
+    path = Path(out_dir) / CONFIG
+    return path.is_file() and bool(store.read_json(path).get("finished_utc"))
 
 
 def _ask(search: methods.Searcher | NoiseSplitting, common_seed: int = -1) -> list[Candidate]:
@@ -414,6 +429,9 @@ def search_table(result: SearchResult) -> pa.Table:
         cols[f"u:{name}"] = [e.point[i] for e in ev]
         cols[name] = [e.values[name] for e in ev]
     cols["parent"] = [e.parent for e in ev]  # splitting: the evaluation it branched from (0: none)
+    # ... and that parent's replay id, as the report names it (-1: none)
+    cols["parent_generation"] = [ev[e.parent - 1].generation if e.parent else -1 for e in ev]
+    cols["parent_episode_id"] = [int(ev[e.parent - 1].row["episode_id"]) if e.parent else -1 for e in ev]
     cols["branch_after_step"] = [e.branch_after_step for e in ev]  # splitting: where its last noise branch starts
     cols["move"] = [e.move for e in ev]  # splitting: fresh, noise (branch) or scenario (step)
     cols["robustness"] = [e.robustness for e in ev]

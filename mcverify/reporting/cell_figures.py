@@ -100,11 +100,12 @@ def rate_vs_axis(
     *,
     level: float,
     x_label: str | None = None,
+    bound: str = "exact one-sided",
 ) -> dict[str, int]:
     """One panel per ``(metric, title)``: the probability against ``x_values`` (one per cell) on a log
     scale, one line per group label (``groups``, one per cell). A cell with events is a point k/n with
-    its two-sided interval as a bar; a cell without any is drawn as what it is, a bound: ▼ at its exact
-    one-sided upper bound with a dotted line down to the axis (the probability is somewhere below).
+    its two-sided interval as a bar; a cell without any is drawn as what it is, a bound: ▼ at its
+    one-sided upper bound (``upper_one_sided``, named by ``bound``) with a dotted line down to the axis (the probability is somewhere below).
     A log scale because the curve's interest is where it falls off: 0.3 and 0.003 must both read."""
     fig, axes = subplots(1, len(metrics), figsize=inches(6 * len(metrics), 4.2), squeeze=False)
     xs, gs = np.asarray(x_values, dtype=float), list(groups)
@@ -128,8 +129,8 @@ def rate_vs_axis(
         ax.set_ylabel(f"probability, {level:.0%} interval")
         ax.grid(alpha=0.3, which="both")
         ax.legend(fontsize=8, loc="best")
-    fig.suptitle(f"●: k/n with its two-sided {level:.0%} interval; ▼: no event, the exact one-sided {level:.0%} "
-                 "upper bound (a bound, not an estimate)", fontsize=9)
+    fig.suptitle(f"●: k/n with its two-sided {level:.0%} interval; ▼: no event, {bound} {level:.0%} upper bound "
+                 "(a bound, not an estimate)", fontsize=9)
     fig.tight_layout()
     return save(fig, path)
 

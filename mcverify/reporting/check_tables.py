@@ -6,12 +6,13 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from mcverify.reporting.tables import DASH, Table, fmt_num, fmt_rate, is_missing, method_name
+from mcverify.reporting.tables import DASH, Table, bound_name, fmt_num, fmt_rate, is_missing, method_name
 
 
 def rate_note(summ: Mapping[str, Any]) -> str:
     return (f"k/n [low, high]: k episodes of n with the two-sided {summ['confidence_level']:.0%} "
-            f"{method_name(summ['interval_method'])} interval; 0/n (≤ u) and n/n (≥ l): the exact one-sided "
+            f"{method_name(summ['interval_method'])} interval; 0/n (≤ u) and n/n (≥ l): "
+            f"{bound_name(summ['interval_method'])} "
             f"{summ['confidence_level']:.0%} bound when no or every episode counts.")
 
 

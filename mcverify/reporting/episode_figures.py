@@ -19,6 +19,7 @@ import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
+from mcverify.model import kept_level
 from mcverify.reporting import road_panels, unsafe_event
 from mcverify.reporting.figure_common import column, inches, panel_grid, params_dict, save
 from mcverify.reporting.road_panels import EGO, FRONT, OPP, Q1_COLOUR, Q2_COLOUR, UNSAFE
@@ -130,9 +131,10 @@ def _shade_problems(ax: Axes, t: np.ndarray, problem: np.ndarray | None) -> None
 
 
 def barrier_panel(
-    ax: Axes, traj: Trajectory, level: float, *, opp: bool = False, clip: float | None = None
+    ax: Axes, traj: Trajectory, level: float | None, *, opp: bool = False, clip: float | None = None
 ) -> None:
-    """h_ef(t) (or h_eo(t) with ``opp``) along the true trajectory against its level and 0."""
+    """h_ef(t) (or h_eo(t) with ``opp``) along the true trajectory against its level and 0; ``level``
+    None: the controller keeps none (plain MPC-DC keeps h >= 0, :func:`mcverify.model.kept_level`)."""
     t = np.asarray(traj["t_s"], dtype=float)
     h = column(traj, "h_opp" if opp else "h_front")
     if h is None:
@@ -140,11 +142,13 @@ def barrier_panel(
         return
     name = "h_eo (m)" if opp else "h_ef"
     ax.plot(t, h, color="black", lw=1.1, label=f"{name}, true state")
-    ax.axhline(level, color="tab:blue", ls="--", lw=1, label=f"level {'ε_eo' if opp else 'ε'} = {level:.3g}")
-    ax.axhline(0.0, color="tab:red", ls=":", lw=1, label="h = 0 (boundary)")
+    if level is not None:
+        ax.axhline(level, color="tab:blue", ls="--", lw=1, label=f"level {'ε_eo' if opp else 'ε'} = {level:.3g}")
+    ax.axhline(0.0, color="tab:red", ls=":", lw=1,
+               label="h = 0 (boundary)" if level is not None else "h = 0 (boundary; MPC-DC\nkeeps h ≥ 0, no level ε)")
     finite = h[np.isfinite(h)]
     top = clip if clip is not None else float(finite.max())
-    ax.set_ylim(min(-0.1 * max(level, 1e-3), float(finite.min())) - 0.05 * max(abs(top), 1.0), top)
+    ax.set_ylim(min(-0.1 * max(level or 0.0, 1e-3), float(finite.min())) - 0.05 * max(abs(top), 1.0), top)
     _shade_problems(ax, t, column(traj, "active_problem"))
     event = unsafe_event.first_unsafe_event(traj)
     if event is not None:
@@ -155,12 +159,15 @@ def barrier_panel(
 
 
 def mark_event(ax: Axes, event: UnsafeEvent, *, text: bool = True) -> None:
-    """A red vertical line at the first unsafe moment (s), its cause written beside it."""
+    """A red vertical line at the first unsafe moment (s), its cause written beside it: to its right,
+    or to its left when the moment lies in the right part of the panel (where the text would run out)."""
     ax.axvline(event.t_s, color=UNSAFE, lw=1.2, label="first unsafe moment")
     if text:
-        ax.text(event.t_s, 0.96, f" {event.label()}", transform=ax.get_xaxis_transform(), fontsize=7,
-                color=UNSAFE, ha="left", va="top", clip_on=True,
-                bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none", "pad": 1.0})
+        low, high = ax.get_xlim()
+        right = event.t_s > low + 0.55 * (high - low)
+        ax.text(event.t_s, 0.96, f"{event.label()} " if right else f" {event.label()}",
+                transform=ax.get_xaxis_transform(), fontsize=7, color=UNSAFE, ha="right" if right else "left",
+                va="top", clip_on=True, bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none", "pad": 1.0})
 
 
 def speed_panel(ax: Axes, traj: Trajectory, speed_limit_mps: float | None) -> None:
@@ -196,12 +203,24 @@ def barrier_series(
     level, the active problem shaded (Q1 green, Q2 orange, fallback red, held MPC-DC plan purple)."""
     fig, axes = panel_grid(len(episodes), 2, 6.0, 2.6)
     for ax, (title, traj, level) in zip(axes, episodes, strict=True):
-        barrier_panel(ax, traj, level, opp=opp, clip=None if opp else _barrier_clip(level))
+        barrier_panel(ax, traj, level, opp=opp, clip=None if opp else _barrier_clip(level or 0.0))
         ax.set_title(title, fontsize=8)
-    if axes[0].lines:
-        axes[0].legend(fontsize=7, loc="upper right")
-    fig.tight_layout()
+    _legend_below(fig, axes)
     return save(fig, path)
+
+
+def _legend_below(fig: Figure, axes: Sequence[Axes]) -> None:
+    """One legend for all panels, below them, so that it hides no curve and no label (each entry once:
+    a panel with a level line or an unsafe moment adds its own)."""
+    entries: dict[str, Any] = {}
+    for ax in axes:
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            entries.setdefault(label, handle)
+    height = fig.get_size_inches()[1]
+    fig.tight_layout(rect=(0.0, 0.45 / height if entries else 0.0, 1.0, 1.0))
+    if entries:
+        fig.legend(list(entries.values()), list(entries), loc="lower center", ncol=min(len(entries), 5), fontsize=7,
+                   frameon=False)
 
 
 def speed_profiles(episodes: Sequence[tuple[str, Trajectory, float]], path: Path) -> dict[str, int]:
@@ -210,8 +229,7 @@ def speed_profiles(episodes: Sequence[tuple[str, Trajectory, float]], path: Path
     for ax, (title, traj, limit) in zip(axes, episodes, strict=True):
         speed_panel(ax, traj, limit)
         ax.set_title(title, fontsize=8)
-    axes[0].legend(fontsize=7, loc="lower right")
-    fig.tight_layout()
+    _legend_below(fig, axes)
     return save(fig, path)
 
 
@@ -234,14 +252,14 @@ def episode_overview(
     series_in = 2 * 2.4 + 0.5
     fig, _, free_top = _road_stack(series_in, traj, plans, p, times, event, bottom_in=0.3)
     height = fig.get_size_inches()[1]
-    grid = fig.add_gridspec(2, 1, left=0.07, right=0.99, top=free_top - 0.2 / height, bottom=0.5 / height,
+    grid = fig.add_gridspec(2, 1, left=0.07, right=0.83, top=free_top - 0.2 / height, bottom=0.5 / height,
                             hspace=0.45)
     ax_h, ax_v = fig.add_subplot(grid[0, 0]), fig.add_subplot(grid[1, 0], sharex=None)
-    barrier_panel(ax_h, traj, level, clip=_barrier_clip(level))
-    ax_h.legend(loc="upper right", fontsize=7)
+    barrier_panel(ax_h, traj, kept_level(p["mpc"]["controller"], level), clip=_barrier_clip(level))
     speed_panel(ax_v, traj, p["ego"]["speed_max_mps"])
     if event is not None:
         mark_event(ax_v, event, text=False)
-    ax_v.legend(loc="lower right", fontsize=7, ncol=2)
+    for ax in (ax_h, ax_v):  # beside the panel, not on it: it hid the unsafe moment's label
+        ax.legend(loc="upper left", bbox_to_anchor=(1.005, 1.0), fontsize=7, borderaxespad=0.0)
     fig.text(0.5, 1 - 0.12 / height, title, ha="center", va="top", fontsize=9)
     return save(fig, path)

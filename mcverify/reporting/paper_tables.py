@@ -39,6 +39,7 @@ from mcverify.reporting.tables import (
     DASH,
     Section,
     Table,
+    bound_name,
     fmt_mean_ci,
     fmt_num,
     fmt_p,
@@ -228,9 +229,9 @@ def _notes(summ: Mapping[str, Any], reference: Mapping[str, Any], runs: int, *, 
     """The notes under a paper table: how ours and the gaps are given, and what the run lacks."""
     level = summ["confidence_level"]
     notes = [
-        f"ours: counts as k/n [{method_name(summ['interval_method'])} {level:.0%} interval], with the exact "
-        "one-sided bound (≤ u or ≥ l) when k is 0 or n; means with their percentile-bootstrap interval; minima "
-        "and maxima over all episodes of the cell.",
+        f"ours: counts as k/n [{method_name(summ['interval_method'])} {level:.0%} interval], with "
+        f"{bound_name(summ['interval_method'])} bound (≤ u or ≥ l) when k is 0 or n; means with their "
+        "percentile-bootstrap interval; minima and maxima over all episodes of the cell.",
         f"ours − paper: for counts, the difference of rates (ours − paper/{runs}) with the {level:.0%} "
         "Miettinen-Nurminen score interval, the paper's runs being a sample too; for values, the difference and "
         "the relative gap.",

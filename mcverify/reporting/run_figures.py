@@ -20,9 +20,10 @@ import numpy as np
 import pyarrow as pa
 
 from mcverify.analysis import summary
+from mcverify.model import kept_level
 from mcverify.reporting import cell_figures, episode_figures, figure_common
 from mcverify.reporting.paper_tables import pretty_label
-from mcverify.reporting.tables import method_name
+from mcverify.reporting.tables import bound_name, method_name
 
 FIGURES_DIR = "figures"
 TRAJECTORY_DIRS = ("trajectories", "replay")
@@ -141,9 +142,10 @@ def write_figures(
         draw(f"rate-vs-{x_axis}", f"Probabilities against {x_label}",
              f"Probability per cell against {x_label} (log scale), one line per {', '.join(others) or 'campaign'}: "
              f"a point is k/n with its two-sided {level:.0%} {method_name(summ['interval_method'])} interval; ▼ with "
-             f"a dotted line marks a cell without any event at its exact one-sided {level:.0%} upper bound.",
+             f"a dotted line marks a cell without any event at {bound_name(summ['interval_method'])} {level:.0%} upper "
+             "bound.",
              cell_figures.rate_vs_axis, cells, x_axis, numeric_axes(cells, axes)[x_axis], groups, metrics,
-             level=level, x_label=x_label)
+             level=level, x_label=x_label, bound=bound_name(summ["interval_method"]).removeprefix("the "))
 
     est = summ.get("estimates")
     if x_axis and est:  # a run of `mcverify estimate`: its estimates against the sweep axis
@@ -165,8 +167,9 @@ def write_figures(
         for metric, better in (("safe", True), ("overtook", True)):
             label = summary.METRICS[metric].label
             draw(f"heatmap-{metric}", f"{label.capitalize()} rate per {row_axis} × {col_axis}",
-                 f"Colour: {label} rate; each square: k/n and the two-sided {level:.0%} interval (≥ l or ≤ u: the "
-                 "exact one-sided bound when every or no episode counts).",
+                 f"Colour: {label} rate; each square: k/n and the two-sided {level:.0%} "
+                 f"{method_name(summ['interval_method'])} interval (≥ l or ≤ u: {bound_name(summ['interval_method'])} "
+                 "bound when every or no episode counts).",
                  cell_figures.rate_heatmap, cells, row_axis, axes[row_axis], col_axis, axes[col_axis], metric,
                  title=f"{label} rate", higher_is_better=better,
                  tick_labels=([pretty_label(row_axis, x) for x in axes[row_axis]],
@@ -249,7 +252,7 @@ def _trajectory_figures(
             results.append(FigureResult(key, f"Snapshots: {c['cell']}", "", None, f"not drawn: {err}"))
         title = f"{c['cell']} · episode {ep.episode_id}"
         if figure_common.column(traj, "h_front") is not None:
-            series_h.append((title, traj, float(c["epsilon"])))
+            series_h.append((title, traj, kept_level(p["mpc"]["controller"], float(c["epsilon"]))))
         if figure_common.column(traj, "h_opp") is not None:
             series_opp.append((title, traj, float(p["barrier"]["opp_epsilon_m"])))
         series_v.append((title, traj, float(p["ego"]["speed_max_mps"])))
@@ -262,9 +265,10 @@ def _trajectory_figures(
     note = (" (" + "; ".join(notes) + ")") if notes else ""
     for key, title, series, caption, fn, kw in (
         ("barrier-h-ef", "h_ef(t) against its level ε", series_h,
-         "h_ef along the true trajectory of each cell's stored episode, against the level ε (dashed) and the "
-         "ellipse h = 0 (dotted); the view is clipped above; background: what drove the ego (Q1 green, Q2 "
-         "orange, fallback red, a held MPC-DC plan purple; MPC-DC's own plans count as Q1)." + note,
+         "h_ef along the true trajectory of each cell's stored episode, against the level ε (dashed; none for "
+         "plain MPC-DC, which keeps h ≥ 0) and the ellipse h = 0 (dotted); the view is clipped above; background: "
+         "what drove the ego (Q1 green, Q2 orange, fallback red, a held MPC-DC plan purple; MPC-DC's own plans "
+         "count as Q1)." + note,
          episode_figures.barrier_series, {}),
         ("barrier-h-eo", "h_eo(t) against its level", series_opp,
          "h_eo (m) while the ego borrows the opposing lane, against its level (dashed)." + note,

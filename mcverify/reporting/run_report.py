@@ -23,16 +23,19 @@ the same bytes (``tests/reporting/test_report.py``).
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
 from mcverify import store
 from mcverify.analysis import counterexamples, estimates, stats, summary
 from mcverify.analysis.cells import cells_table, json_ready
+from mcverify.analysis.columns import Columns, floats
+from mcverify.analysis.sequential import CONFIDENCE_SEQUENCE
 from mcverify.errors import RunError
 from mcverify.reporting import counterexample_report, figure_common, html, paper_tables, run_figures
 from mcverify.reporting.check_tables import (
@@ -49,6 +52,7 @@ from mcverify.reporting.run_figures import FigureResult
 from mcverify.reporting.tables import (
     DASH,
     Table,
+    bound_name,
     fmt_mean_ci,
     fmt_rate,
     method_name,
@@ -62,6 +66,9 @@ SUMMARY = "summary.json"
 CELLS = "cells.parquet"
 TABLES_DIR = "tables"
 
+#: The two-sided interval of a fixed-count run's rates.
+DEFAULT_METHOD = "clopper-pearson"
+
 #: Kept for callers of the former module: a reference quantity's value in a cell summary.
 lookup = paper_tables.lookup
 
@@ -69,28 +76,47 @@ lookup = paper_tables.lookup
 @dataclass(frozen=True)
 class Options:
     """How the statistics are computed: two-sided ``level`` and ``method`` of every rate interval
-    (``stats.PROPORTION_METHODS``) and the bootstrap of every mean."""
+    (``stats.PROPORTION_METHODS``; None: the folder's own, :meth:`for_folder`) and the bootstrap of
+    every mean."""
 
-    level: float = 0.95
-    method: str = "clopper-pearson"
+    level: float | None = None
+    method: str | None = None
     bootstrap_resamples: int = 2000
     bootstrap_seed: int = 0
 
     def check(self) -> Options:
         try:
-            stats.rate_summary(0, 1, self.level, self.method)
+            stats.rate_summary(0, 1, 0.95 if self.level is None else self.level, self.method or DEFAULT_METHOD)
         except ValueError as err:
             raise RunError(f"report options: {err}") from None
         if self.bootstrap_resamples < 1:
             raise RunError(f"report options: bootstrap resamples must be >= 1, got {self.bootstrap_resamples}")
         return self
 
+    def for_folder(self, manifest: Mapping[str, Any]) -> Options:
+        """The options with the folder's interval: a fixed-count run's rates get the exact interval (or
+        the ``method`` asked for) at ``level`` (default 0.95); an estimate folder's rates get its
+        estimator's anytime-valid interval at the estimate's level, the only one valid at its
+        data-dependent episode count, and another ``method`` or ``level`` is refused."""
+        raw = manifest.get("estimate")
+        if not raw:
+            return replace(self, level=0.95 if self.level is None else self.level,
+                           method=self.method or DEFAULT_METHOD)
+        level = float(raw.get("level", 0.95))
+        if self.method not in (None, CONFIDENCE_SEQUENCE):
+            raise RunError("an estimate folder's rates use its estimator's anytime-valid interval (a confidence "
+                           "sequence); --method chooses the interval of a fixed-count run (mcverify run)")
+        if self.level is not None and abs(self.level - level) > 1e-12:
+            raise RunError(f"this estimate ran at level {level:g} and its rates keep it; --level applies to "
+                           "fixed-count runs (mcverify run)")
+        return replace(self, level=level, method=CONFIDENCE_SEQUENCE)
+
 
 def write(
     run_dir: Path,
     *,
-    level: float = 0.95,
-    method: str = "clopper-pearson",
+    level: float | None = None,
+    method: str | None = None,
     bootstrap_resamples: int = 2000,
     bootstrap_seed: int = 0,
     figure_formats: Sequence[str] = (),
@@ -98,6 +124,8 @@ def write(
 ) -> Path:
     """Regenerate every report file of a finished run folder; returns the path of ``report.md``.
 
+    level / method: the rates' interval of a fixed-count run (default 0.95, exact Clopper-Pearson); an
+    estimate folder keeps its estimator's (:meth:`Options.for_folder`).
     figure_formats / figure_dpi: also write every figure as png, svg or pdf at that dpi, for papers
     (:func:`mcverify.reporting.figure_common.exporting`); the PNGs the report embeds do not change.
 
@@ -108,6 +136,7 @@ def write(
         raise RunError(f"run folder not found: {run_dir}")
     opts = Options(level, method, bootstrap_resamples, bootstrap_seed).check()
     manifest = store.read_json(run_dir / store.MANIFEST)
+    opts = opts.for_folder(manifest)
     table = store.read_episodes(run_dir)
     summ = build_summary(manifest, table, opts)
     tables = report_tables(summ, manifest, str(run_dir))
@@ -142,20 +171,40 @@ def write(
 
 
 def build_summary(manifest: Mapping[str, Any], table: pa.Table, opts: Options = Options()) -> dict[str, Any]:
-    """:func:`summary.summarise` of the run, with the campaign's name."""
+    """:func:`summary.summarise` of the run, with the campaign's name. For a run of ``mcverify estimate``
+    every statistic is over the episodes the estimate used (each cell's episodes up to its stopping
+    episode, in episode order; those run after it are cost, counted in ``episodes_run``) and every rate
+    carries the estimator's anytime-valid interval, so that the estimate's target reads the same in
+    every table, figure and file."""
+    opts = opts.for_folder(manifest)
+    est = estimates.estimate_summary(table, manifest)
+    used = table if est is None else used_episodes(table, est["cells"])
     summ = summary.summarise(
-        table,
+        used,
         manifest,
         level=opts.level,
         method=opts.method,
         bootstrap_resamples=opts.bootstrap_resamples,
         bootstrap_seed=opts.bootstrap_seed,
+        **({} if est is None else {"prior": tuple(est["spec"]["prior"])}),
     )
     out = {"campaign": manifest["campaign"]["name"], **summ}
-    est = estimates.estimate_summary(table, manifest)
     if est is not None:  # a run of `mcverify estimate`
+        out["episodes_run"] = int(table.num_rows)
         out["estimates"] = est
     return out
+
+
+def used_episodes(table: pa.Table, cells: Sequence[Mapping[str, Any]]) -> pa.Table:
+    """The rows an estimate used: per cell those with a cell-local episode id below its
+    ``episodes_used``, sorted by cell and episode id."""
+    if not table.num_rows:
+        return table
+    cols = Columns.from_table(table)
+    limit = {int(c["cell_index"]): int(c["episodes_used"]) for c in cells}
+    idx, ep = floats(cols, "cell_index").astype(int), floats(cols, "cell_episode").astype(int)
+    keep = [i for i in np.lexsort((ep, idx)) if ep[i] < limit.get(int(idx[i]), 0)]
+    return table.take(pa.array(keep, type=pa.int64()))
 
 
 # ----------------------------------------------------------------------------------------- tables
@@ -202,10 +251,10 @@ def estimate_table(est: Mapping[str, Any]) -> Table:
         f"stop at half-width <= {width} or after {spec['budget']} episodes per cell.",
         "The interval is a confidence sequence (prior Beta"
         f"({spec['prior'][0]:g}, {spec['prior'][1]:g})): it keeps its coverage at the data-dependent stopping "
-        "episode, unlike the per-cell Clopper-Pearson rates of the other tables, which assume a fixed episode "
-        "count and must not be read as intervals for this run. Episodes are taken in their pre-assigned order; "
-        "episodes run after the stopping episode count as cost only. Solver time: solves x mean solve time, "
-        "machine-dependent.",
+        "episode, which a fixed-count interval such as Clopper-Pearson would not; every rate of this report (tables, "
+        "figures, summary.json, cells.parquet) carries the same kind of interval, over the same episodes. Episodes "
+        "are taken in their pre-assigned order; episodes run after the stopping episode count as cost only (in "
+        "episodes run, not in any statistic). Solver time: solves x mean solve time, machine-dependent.",
     ]
     return Table("estimates", f"Estimated {spec['target']} rate per cell", columns, rows, notes)
 
@@ -327,7 +376,8 @@ def facts(manifest: Mapping[str, Any], summ: Mapping[str, Any]) -> list[tuple[st
     out = [
         ("campaign", f"{camp['name']} ({source})"),
         ("description", " ".join(str(camp.get("description") or DASH).split())),
-        ("episodes", f"{summ['episodes']} in {len(cells)} cell(s)"),
+        ("episodes", (f"{summ['episodes']} used by the estimate ({summ['episodes_run']} run)" if "episodes_run" in summ
+                      else str(summ["episodes"])) + f" in {len(cells)} cell(s)"),
         ("grid", "; ".join(f"{a}: {', '.join(v)}" for a, v in axes.items()) or "one cell"),
         ("seed", f"{camp.get('seed')} (common random numbers: {'yes' if camp.get('common_random_numbers') else 'no'})"),
     ]
@@ -335,8 +385,9 @@ def facts(manifest: Mapping[str, Any], summ: Mapping[str, Any]) -> list[tuple[st
         out.append(("settings", "--set " + ", --set ".join(f"`{s}`" for s in camp["settings"])))
     out += [
         ("controllers", ", ".join(controllers)),
-        ("intervals", f"two-sided {summ['confidence_level']:.0%} {method_name(summ['interval_method'])} for rates; exact one-sided "
-                      f"bounds when no or every episode counts; percentile bootstrap "
+        ("intervals", f"two-sided {summ['confidence_level']:.0%} {method_name(summ['interval_method'])} for rates; "
+                      f"{bound_name(summ['interval_method'])} bound when no or every episode "
+                      "counts; percentile bootstrap "
                       f"({summ['bootstrap']['resamples']} resamples, seed {summ['bootstrap']['seed']}) for means"),
         ("code", f"git {(manifest.get('environment') or {}).get('git_commit') or DASH}; kernels "
                  f"{', '.join(kernels) or DASH}"),

@@ -88,12 +88,21 @@ def fmt_p(x: Any) -> str:
 
 def method_name(method: str) -> str:
     """How a rate interval method is named in rendered text."""
-    return {"clopper-pearson": "exact Clopper-Pearson", "wilson": "Wilson score"}.get(method, method)
+    return {"clopper-pearson": "exact Clopper-Pearson", "wilson": "Wilson score",
+            "confidence-sequence": "anytime-valid (beta-binomial confidence sequence)"}.get(method, method)
+
+
+def bound_name(method: str) -> str:
+    """How the bound that ``0/n (≤ u)`` and ``n/n (≥ l)`` show is named: the exact one-sided bound of a
+    fixed-count run, or, for an estimate's anytime-valid interval, that interval's own end."""
+    if method == "confidence-sequence":
+        return "the anytime-valid interval's end as a one-sided"
+    return "the exact one-sided"
 
 
 def fmt_rate(r: Mapping[str, Any] | None) -> str:
     """A rate as ``k/n [low, high]``; with no event ``0/n (≤ u)`` and with only events ``n/n (≥ l)``,
-    u and l the exact one-sided bounds at the same level; :data:`DASH` for an empty cell."""
+    u and l the one-sided bounds at the same level (:func:`bound_name`); :data:`DASH` for an empty cell."""
     if not r or not r.get("n"):
         return DASH
     k, n = r["k"], r["n"]

@@ -149,6 +149,11 @@ def get_kernel(structure: OcpStructure, kernel_dir: str | os.PathLike | None = N
     return _get_or_build(resolve_kernel_dir(kernel_dir), name, lambda tmp: _build(structure, name, tmp))
 
 
+def is_cached(structure: OcpStructure, kernel_dir: str | os.PathLike | None = None) -> bool:
+    """Whether the kernel of ``structure`` is compiled in the cache already (nothing is built)."""
+    return _read_kernel(resolve_kernel_dir(kernel_dir) / kernel_name(structure)) is not None
+
+
 def runtime_headers() -> list[Path]:
     """The headers of ``csrc`` (sorted): every runtime library may include any of them."""
     return sorted(CSRC_DIR.glob("*.h"))

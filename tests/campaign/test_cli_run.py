@@ -97,8 +97,12 @@ def test_resume_errors(tmp_path, capsys, finished_run):
     assert code == 2 and "not an mcverify run folder (no manifest.json)" in one_line(err)
 
     ledger = (finished_run / store.LEDGER).read_bytes()
-    code, err = run_cli(capsys, "run", "--resume", str(finished_run))
-    assert code == 2 and "is already finished (2 episodes); nothing to resume" in one_line(err)
+    report = (finished_run / "report.md").stat().st_mtime_ns
+    # the one --resume rule (run, estimate, falsify): a complete folder is no error, and nothing is rewritten
+    assert cli.main(["run", "--resume", str(finished_run)]) == 0
+    assert capsys.readouterr().out.strip() == (f"{finished_run} is already complete: nothing to run "
+                                               f"(`mcverify report {finished_run}` rebuilds its report)")
+    assert (finished_run / "report.md").stat().st_mtime_ns == report
     for extra, fragment in [(["--episodes", "3"], "leave out --episodes"), (["--out", "x"], "leave out --out"),
                             (["--run-dir", "x"], "and --run-dir"),
                             (["--set", "mpc.backend=ipopt"], "and --set")]:

@@ -108,3 +108,35 @@ def test_verbosity_flags_set_the_notice_level(flags, level, monkeypatch):
     assert cli.main(["kernels", "list", *flags]) == 0
     assert seen == [level]
     assert logging.getLogger("mcverify").level == before, "main() leaves logging as it found it"
+
+
+def _fake_kernel(root: Path, structure) -> None:
+    """A cache entry as :func:`kernels._read_kernel` accepts it (a manifest and a shared object)."""
+    folder = root / kernels.kernel_name(structure)
+    folder.mkdir(parents=True)
+    (folder / "manifest.json").write_text("{}")
+    (folder / kernels.SO_FILE).write_text("")
+
+
+def test_dry_runs_count_the_solver_kernels_not_yet_compiled(tmp_path: Path, capsys, monkeypatch):
+    """Issue 51: run, falsify and estimate dry runs say how many kernels they would build (each 1-3
+    minutes, once per machine), looking at the cache only."""
+    from mcverify.ocp.layout import OcpStructure
+
+    monkeypatch.setenv("MCVERIFY_KERNEL_DIR", str(tmp_path / "k"))
+    campaign = load_campaign(REPO / "campaigns/falsify_theorem5_opposing.toml")
+    assert cost.kernels_to_build(campaign.cells) == cost.KernelCount(2, 2)  # plain and with veh_o
+    assert not (tmp_path / "k").exists(), "a count builds nothing"
+    assert cli.main(["falsify", str(REPO / "campaigns/falsify_theorem5_opposing.toml"), "--dry-run",
+                     "--budget", "10"]) == 0
+    assert "2 of the 2 solver kernels it needs are not compiled yet: add 1-3 minutes for each" in \
+        capsys.readouterr().out
+    _fake_kernel(tmp_path / "k", OcpStructure.from_params(campaign.cells[0].params, with_opposing=True))
+    assert cost.kernels_to_build(campaign.cells).text() == ("1 of the 2 solver kernels it needs is not compiled "
+                                                            "yet: add 1-3 minutes for it (once per machine)")
+    smoke = load_campaign(REPO / "campaigns/smoke.toml")
+    assert cli.main(["run", str(REPO / "campaigns/smoke.toml"), "--dry-run"]) == 0
+    assert "1 of the 1 solver kernel it needs is not compiled yet" in capsys.readouterr().out
+    _fake_kernel(tmp_path / "k", OcpStructure.from_params(smoke.cells[0].params))
+    assert cli.main(["estimate", str(REPO / "campaigns/smoke.toml"), "--dry-run", "--budget", "8"]) == 0
+    assert "the solver kernel it needs (1) is compiled already" in capsys.readouterr().out

@@ -42,8 +42,13 @@ def test_splitting_cli_writes_its_estimate_and_resumes(tmp_path: Path, capsys):
     assert mcverify.open_run(out).finished  # the manifest says the estimate is complete
     finished = json.loads((out / "manifest.json").read_text())["finished_utc"]
     before = (out / "estimate.json").read_text()
-    assert main(["estimate", "--resume", str(out)]) == 0
-    assert (out / "estimate.json").read_text() == before
+    report = (out / "report.md").read_text()
+    (out / "report.md").unlink()
+    capsys.readouterr()
+    assert main(["estimate", "--resume", str(out)]) == 0  # complete: nothing run, nothing rewritten
+    assert "is already complete: nothing to run" in capsys.readouterr().out
+    assert (out / "estimate.json").read_text() == before and not (out / "report.md").exists()
+    assert main(["report", str(out)]) == 0 and (out / "report.md").read_text() == report
     assert json.loads((out / "manifest.json").read_text())["finished_utc"] == finished
     assert main(argv) == 2 and "not empty" in capsys.readouterr().err
 

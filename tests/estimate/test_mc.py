@@ -159,3 +159,57 @@ def test_a_spent_budget_with_error_rows_is_finished():
     assert (res["status"], res["n"], res["episodes_used"], res["errors_used"]) == ("budget", 19, 20, 1)
     early = cell_estimate(Columns.from_table(pa.Table.from_pylist(rows[:12])), EstimateSpec(budget=20))
     assert early["status"] == "running" and early["n"] == 11
+
+
+def _one_interval_folder(tmp_path: Path, p: float = 0.2) -> tuple[dict, list]:
+    camp, spec = _campaign(), EstimateSpec("mc", "collision", 0.15, False, BUDGET)
+    mc.run(camp, spec, tmp_path / "run", executor=executors.SerialExecutor(), chunk_size=16, progress=False,
+           episode_fn=_fn(p))
+    return json.loads((tmp_path / "run" / "summary.json").read_text()), _expected(camp, spec, p)
+
+
+def test_an_estimate_folder_gives_its_target_one_interval_everywhere(tmp_path: Path):
+    """Issue 51: the outcome tables, figures, summary.json and cells.parquet of an estimate folder carry
+    the estimator's anytime-valid interval over the episodes it used, never a fixed-count one."""
+    summ, expected = _one_interval_folder(tmp_path)
+    assert summ["interval_method"] == "confidence-sequence"
+    for cell, est, exp in zip(summ["cells"], summ["estimates"]["cells"], expected, strict=True):
+        rate = cell["rates"]["collision"]
+        assert (rate["k"], rate["n"]) == (est["k"], est["n"]) == (exp.k, exp.n)
+        assert (rate["low"], rate["high"]) == (est["low"], est["high"])
+        assert rate["method"] == "confidence-sequence" and est["episodes_run"] > exp.n  # a later chunk: cost only
+        assert cell["valid"] == exp.n
+    assert summ["episodes_run"] > summ["episodes"]
+    cells = pq.read_table(tmp_path / "run" / "cells.parquet").to_pylist()
+    assert [(c["collision_low"], c["collision_high"]) for c in cells] == [(e.low, e.high) for e in expected]
+    assert {c["interval_method"] for c in cells} == {"confidence-sequence"}
+    report = (tmp_path / "run" / "report.md").read_text()
+    assert "exact Clopper-Pearson" not in report and "exact one-sided" not in report
+    assert "anytime-valid (beta-binomial confidence sequence)" in report
+    first = summ["cells"][0]["rates"]["collision"]
+    assert f"{first['k']}/{first['n']} [{first['low']:.3f}, {first['high']:.3f}]" in report
+
+
+def test_the_report_of_an_estimate_keeps_its_interval(tmp_path: Path, capsys):
+    """`mcverify report` rebuilds the same numbers; another method or level is refused in one line."""
+    summ, _ = _one_interval_folder(tmp_path)
+    run_dir = tmp_path / "run"
+    assert main(["report", str(run_dir)]) == 0
+    assert json.loads((run_dir / "summary.json").read_text())["cells"] == summ["cells"]
+    capsys.readouterr()
+    for extra in (["--method", "wilson"], ["--level", "0.9"]):
+        assert main(["report", str(run_dir), *extra]) == 2
+        err = capsys.readouterr().err.strip()
+        assert "estimate" in err and len(err.splitlines()) == 1
+
+
+def test_resuming_a_complete_estimate_runs_and_rewrites_nothing(tmp_path: Path, capsys):
+    """The one --resume rule of run, estimate and falsify: a complete folder says so and exits 0."""
+    camp = campaign_from_dict(RAW, episodes=40)
+    mc.run(camp, EstimateSpec("mc", "collision", 0.3, True, 40), tmp_path / "run",
+           executor=executors.SerialExecutor(), chunk_size=16, progress=False, episode_fn=_fn(0.0))
+    summary = (tmp_path / "run" / "summary.json").stat().st_mtime_ns
+    capsys.readouterr()
+    assert main(["estimate", "--resume", str(tmp_path / "run")]) == 0
+    assert capsys.readouterr().out.startswith(f"{tmp_path / 'run'} is already complete: nothing to run")
+    assert (tmp_path / "run" / "summary.json").stat().st_mtime_ns == summary

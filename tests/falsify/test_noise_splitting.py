@@ -97,8 +97,10 @@ def test_splitting_finds_the_noise_driven_violation_and_it_replays(tmp_path):
     assert branches
     report = (tmp_path / "s" / "report.md").read_text(encoding="utf-8")
     # the report gives the best one's lineage, back to a fresh draw
-    assert f"evaluation {worst['evaluation']} (" in report and "(fresh)" in report
+    assert f"episode g{worst['generation']:03d}/{worst['episode_id']} (" in report and "(fresh)" in report
     for r in branches:
+        parent = table[r["parent"] - 1]  # search.parquet names the parent by its replay id too
+        assert (r["parent_generation"], r["parent_episode_id"]) == (parent["generation"], parent["episode_id"])
         h_parent, h_child, step = margins(table[r["parent"] - 1]), margins(r), r["branch_after_step"]
         assert np.array_equal(h_parent[: step + 1], h_child[: step + 1])
         # fresh noise after the branch step; a branch after the episode's last step is its parent again

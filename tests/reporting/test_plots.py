@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import matplotlib.image as mpimg
 import numpy as np
 import synthetic
@@ -67,3 +69,42 @@ def test_an_episode_that_ran_on_gets_a_panel_at_its_first_step_without_a_plan(tm
     plain = mpimg.imread(episode_plot.episode_figure(traj, cell, ROW, tmp_path / "a.png", plans=plans))
     broke = mpimg.imread(episode_plot.episode_figure(traj, cell, row, tmp_path / "b.png", plans=plans))
     assert broke.shape[0] > plain.shape[0]  # one more road panel
+
+
+def test_plain_mpcdc_panels_draw_no_level_it_does_not_keep():
+    """Issue 51: plain MPC-DC keeps h >= 0 only; its panels showed the cell's ε as if it kept it."""
+    from mcverify.model import kept_level
+    from mcverify.reporting.episode_figures import barrier_panel
+    from mcverify.reporting.figure_common import subplots
+
+    assert kept_level("mpcdc", 0.4) is None and kept_level("mpcdc_eps", 0.4) == kept_level("vlcbf", 0.4) == 0.4
+    traj = synthetic.trajectory(opposing=False)
+    labels = {}
+    for controller in ("vlcbf", "mpcdc"):
+        _, ax = subplots(figsize=(6.0, 3.0))
+        barrier_panel(ax, traj, kept_level(controller, 0.4))
+        labels[controller] = [line.get_label() for line in ax.lines]
+    assert "level ε = 0.4" in labels["vlcbf"]
+    assert not any("level ε =" in label for label in labels["mpcdc"])
+
+
+def test_a_late_unsafe_moment_is_labelled_to_its_left_and_the_legend_sits_beside_the_panel(tmp_path):
+    """Issue 51: the label of a late first unsafe moment ran under the h_ef panel's legend."""
+    from mcverify.reporting.episode_figures import mark_event
+    from mcverify.reporting.figure_common import subplots
+    from mcverify.reporting.unsafe_event import first_unsafe_event
+
+    traj = synthetic.trajectory(opposing=False)
+    traj["h_front"] = traj["h_front"] - 1.5 * np.exp(-((traj["t_s"] - 7.2) / 0.3) ** 2)
+    event = first_unsafe_event(traj)
+    assert event is not None and event.t_s > 6.0
+    _, ax = subplots(figsize=(6.0, 3.0))
+    ax.plot(traj["t_s"], traj["h_front"])
+    mark_event(ax, event)
+    assert ax.texts[-1].get_ha() == "right"  # runs leftwards, into the panel
+    _, early = subplots(figsize=(6.0, 3.0))
+    early.plot(traj["t_s"], traj["h_front"])
+    mark_event(early, dataclasses.replace(event, t_s=1.0))
+    assert early.texts[-1].get_ha() == "left"
+    path = episode_plot.episode_figure(traj, _cell(), {**ROW, "safe": False}, tmp_path / "late.png")
+    assert mpimg.imread(path).shape[1] == 1200
