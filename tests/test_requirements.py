@@ -75,5 +75,6 @@ def test_every_stop_mask_agrees_with_the_sign_of_its_robustness(case):
 def test_an_unknown_name_is_refused_with_the_known_ones():
     with pytest.raises(ValueError, match="unknown requirement 'nope'; known: collision_front, "):
         requirements.requirement("nope")
-    assert requirements.requirement_help().endswith("theorem5_certified, safe or stl:<formula> (STL over the stored signals)")
+    assert requirements.requirement_help().endswith(
+        "theorem5_certified, safe or stl:<formula> (STL over the stored signals)")
     assert all(f"{name} (target {target})" in requirements.score_help() for name, target in SCORES.items())

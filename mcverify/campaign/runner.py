@@ -344,9 +344,8 @@ def resume(
             f"cannot resume {run_dir} with chunk size {chunk_size}: it was planned with {planned} "
             "(leave --chunk-size out)"
         )
-    if manifest.get(schedule_file.MANIFEST_KEY) and episode_fn is executors.simulate:
-        episode_fn = functools.partial(executors.simulate_scheduled,
-                                       str(run_dir / manifest[schedule_file.MANIFEST_KEY]))
+    if manifest.get(schedule_file.MANIFEST_KEY):
+        episode_fn = _reading_schedules(episode_fn, run_dir / manifest[schedule_file.MANIFEST_KEY])
     executor = executor or executors.LocalExecutor()
     with executor:
         kernels = _prepare_kernels(rebuilt, episode_fn)
@@ -445,8 +444,16 @@ def _keep_schedules(campaign: Campaign, run_dir: Path, schedules: Mapping[int, E
     folder = run_dir / schedule_file.SCHEDULES
     for episode_id, schedule in sorted(schedules.items()):
         schedule_file.write_schedule(schedule_file.schedule_path(folder, episode_id), schedule)
+    return _reading_schedules(episode_fn, folder)
+
+
+def _reading_schedules(episode_fn: EpisodeFn, folder: Path) -> EpisodeFn:
+    """The episode function of a run with stored error schedules: the real one reads them from ``folder``; a
+    test's stand-in marked ``reads_schedules = True`` gets the folder as its first argument; others are kept."""
     if episode_fn is executors.simulate:
         return functools.partial(executors.simulate_scheduled, str(folder))
+    if getattr(episode_fn, "reads_schedules", False):
+        return functools.partial(episode_fn, str(folder))
     return episode_fn
 
 

@@ -20,6 +20,22 @@
     [falsify.nominal]             # optional: a field's nominal distribution inside its bounds
     "scenario.front_speed_mps" = { mean = 6.94, std = 0.5 }   # normal truncated to the bounds
 
+    [falsify.adversary]           # optional: search the perception error itself (issue 49)
+    kind = "gap_bands"            # "gap_bands", "windows", "bang_bang" or "full" (every step)
+    channels = ["front_y"]        # searched channels of front_x, front_y, front_v, opp_x, opp_v (default all)
+    front_share = 1.0             # veh_f's share of its noise bounds handed to the adversary (default 1)
+    opp_share = 1.0               # veh_o's (default 1)
+    edges_m = [2.0, 3.0, 15.0]    # gap_bands: outer footprint gaps (m) of the bands alongside, jump, approach
+    # windows: centres_s = [6.0, 8.0], half_width_s = 1.0, max_steps = 10;  bang_bang: segments = 8
+
+With ``[falsify.adversary]`` every candidate's perception error is an error schedule
+(:mod:`mcverify.sim.schedule`) from the parametrisation's theta (:mod:`mcverify.falsify.parametrisations`),
+mapped from its own coordinates of the unit cube (theta = 2u - 1), after the coordinates of the
+``[falsify.bounds]`` fields, which may then be empty (the scenario fixed) or not (searched alongside).
+Nothing is random: each candidate is one deterministic episode, whose schedule is kept in its
+generation's run folder for ``mcverify replay``. ``random`` over ``kind = "full"`` is the uniform random
+schedule baseline, over ``kind = "bang_bang"`` the random bang-bang baseline.
+
 Without a ``[falsify.nominal]`` entry a field is uniform on its bounds. A search works on the unit
 cube; a coordinate u maps to its field through the inverse CDF of the field's nominal distribution
 (:meth:`SearchSpace.values`), so ``random`` draws from the nominal distribution, the other methods
@@ -65,11 +81,17 @@ from mcverify.campaign.validate import _short
 from mcverify.errors import CampaignError
 from mcverify.requirements import GUIDE_NAMES, REQUIREMENT_NAMES, STL_PREFIX, is_stl
 
-__all__ = ["MAX_POPULATION", "REQUIREMENT_NAMES", "SearchSpace", "check_single_target", "read_search_space",
-           "split_element"]
+__all__ = ["ADVERSARY_KINDS", "MAX_POPULATION", "REQUIREMENT_NAMES", "AdversarySpec", "SearchSpace",
+           "check_single_target", "read_adversary", "read_search_space", "split_element"]
 
 _KEYS = {"requirement", "population", "stop_at_first", "stop_episodes", "common_noise", "guide", "bounds", "nominal",
-         "extremes"}
+         "extremes", "adversary"}
+#: The parametrisations ``[falsify.adversary] kind`` names, and the keys each takes besides the common ones.
+ADVERSARY_KINDS: dict[str, tuple[str, ...]] = {
+    "gap_bands": ("edges_m",), "windows": ("centres_s", "half_width_s", "max_steps"), "bang_bang": ("segments",),
+    "full": (),
+}
+_ADVERSARY_COMMON = ("kind", "channels", "front_share", "opp_share")
 MAX_POPULATION = 1024
 _ELEMENT = re.compile(r"(.+)\[(\d+)\]")
 
@@ -88,6 +110,7 @@ class SearchSpace:
     common_noise: bool = False
     guide: str = ""  # "" : the requirement itself
     extremes: tuple[str, ...] = ()  # fields taken at their low or high bound only
+    adversary: AdversarySpec | None = None  # the searched perception error, None: the drawn noise
 
     @property
     def objective(self) -> str:
@@ -105,6 +128,7 @@ class SearchSpace:
 
     @property
     def dimension(self) -> int:
+        """Coordinates of the ``[falsify.bounds]`` fields (an adversary's theta comes after them)."""
         return len(self.bounds)
 
     def overrides(self, values: Mapping[str, float]) -> dict[str, Any]:
@@ -147,6 +171,79 @@ class SearchSpace:
             return f"{name} in [{lo:g}, {hi:g}]"
 
         return ", ".join(one(n, lo, hi) for n, lo, hi in self.bounds)
+
+
+@dataclass(frozen=True)
+class AdversarySpec:
+    """A validated ``[falsify.adversary]`` table (module docstring): the parametrisation's kind and its
+    settings; the falsifier turns it into a parametrisation once the episode's control steps are known."""
+
+    kind: str
+    channels: tuple[str, ...] = ()  # () : every channel
+    front_share: float = 1.0
+    opp_share: float = 1.0
+    edges_m: tuple[float, ...] = (2.0, 3.0, 15.0)
+    centres_s: tuple[float, ...] = ()
+    half_width_s: float = 1.0
+    max_steps: int = 10
+    segments: int = 8
+
+    def describe(self) -> str:
+        extra = {"gap_bands": f"edges {list(self.edges_m)} m", "bang_bang": f"{self.segments} segments",
+                 "windows": f"centres {list(self.centres_s)} s +- {self.half_width_s:g} s, <= {self.max_steps} steps",
+                 "full": "every control step"}[self.kind]
+        return (f"adversary {self.kind} ({extra}) on {', '.join(self.channels)}, shares front {self.front_share:g}, "
+                f"opposing {self.opp_share:g}")
+
+
+def read_adversary(table: Any, here: str) -> AdversarySpec:
+    """Validate ``[falsify.adversary]``; every problem one :class:`CampaignError` line."""
+    from mcverify.sim.schedule import CHANNELS  # noqa: PLC0415 - JAX only for a campaign with an adversary
+
+    at = f"{here}.adversary"
+    if not isinstance(table, Mapping):
+        raise CampaignError(f"{at}: must be a table (kind = {' | '.join(ADVERSARY_KINDS)}, ...)")
+    kind = table.get("kind")
+    if kind not in ADVERSARY_KINDS:
+        raise CampaignError(f"{at}.kind: expected one of {', '.join(ADVERSARY_KINDS)}, got {_short(kind)}")
+    for key in table:
+        if key not in (*_ADVERSARY_COMMON, *ADVERSARY_KINDS[kind]):
+            raise CampaignError(f"{at}: unknown key {_short(key)} for kind {kind!r} (known: "
+                                f"{', '.join((*_ADVERSARY_COMMON, *ADVERSARY_KINDS[kind]))})")
+    channels = table.get("channels", list(CHANNELS))
+    if (not isinstance(channels, list) or not channels or any(c not in CHANNELS for c in channels)
+            or len(set(channels)) != len(channels)):
+        raise CampaignError(f"{at}.channels: expected distinct names among {', '.join(CHANNELS)}, "
+                            f"got {_short(channels)}")
+    out: dict[str, Any] = {"channels": tuple(channels)}
+    for key in ("front_share", "opp_share", "half_width_s"):
+        if key in table:
+            v = table[key]
+            lo_ok = (lambda x: 0.0 <= x <= 1.0) if key.endswith("share") else (lambda x: x > 0.0)
+            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or not lo_ok(v):
+                want = "a number in [0, 1]" if key.endswith("share") else "a positive number (s)"
+                raise CampaignError(f"{at}.{key}: expected {want}, got {_short(v)}")
+            out[key] = float(v)
+    for key in ("max_steps", "segments"):
+        if key in table:
+            v = table[key]
+            if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 100_000:
+                raise CampaignError(f"{at}.{key}: expected a positive integer, got {_short(v)}")
+            out[key] = v
+    for key, size in (("edges_m", 3), ("centres_s", None)):
+        if key in table:
+            v = table[key]
+            if (not isinstance(v, list) or not v or (size is not None and len(v) != size)
+                    or any(isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x) or x < 0
+                           for x in v)):
+                raise CampaignError(f"{at}.{key}: expected {size or 'one or more'} non-negative numbers, "
+                                    f"got {_short(v)}")
+            if key == "edges_m" and any(b < a for a, b in zip(v, v[1:], strict=False)):
+                raise CampaignError(f"{at}.edges_m: the band edges must not decrease, got {_short(v)}")
+            out[key] = tuple(float(x) for x in v)
+    if kind == "windows" and "centres_s" not in out:
+        raise CampaignError(f"{at}: kind \"windows\" needs centres_s = [t, ...] (s; one window around each)")
+    return AdversarySpec(kind, **out)
 
 
 _STANDARD_NORMAL = statistics.NormalDist()
@@ -196,9 +293,14 @@ def read_search_space(table: Any, where: str, known_fields: Mapping[str, type]) 
     for key, flag in (("stop_at_first", stop), ("stop_episodes", stop_episodes), ("common_noise", common_noise)):
         if not isinstance(flag, bool):
             raise CampaignError(f"{here}.{key}: must be true or false, got {_short(flag)}")
-    bounds = table.get("bounds")
-    if not isinstance(bounds, Mapping) or not bounds:
-        raise CampaignError(f"{here}: needs a non-empty [falsify.bounds] table of 'section.field' = [low, high]")
+    adversary = read_adversary(table["adversary"], here) if "adversary" in table else None
+    bounds = table.get("bounds", {} if adversary is not None else None)
+    if not isinstance(bounds, Mapping) or (not bounds and adversary is None):
+        raise CampaignError(f"{here}: needs a non-empty [falsify.bounds] table of 'section.field' = [low, high] "
+                            "(or a [falsify.adversary] table)")
+    if adversary is not None and common_noise:
+        raise CampaignError(f"{here}: common_noise = true fixes the drawn noise; with [falsify.adversary] nothing "
+                            "is drawn (remove one)")
     out = []
     elements: dict[str, list[int]] = {}
     for name, pair in bounds.items():
@@ -206,6 +308,9 @@ def read_search_space(table: Any, where: str, known_fields: Mapping[str, type]) 
         field, index = split_element(str(name))
         if field not in known_fields:
             raise CampaignError(f"{here}.bounds: unknown model field {_short(name)}")
+        if adversary is not None and field.startswith("noise.") and field != "noise.scale":
+            raise CampaignError(f"{here}.bounds: {_short(name)} shapes the drawn noise, which [falsify.adversary] "
+                                "replaces (search the error through the adversary)")
         kind = known_fields[field]
         if index is not None and kind is not tuple:
             raise CampaignError(f"{at}: [i] selects an element of a list field; {field} is {kind.__name__}")
@@ -230,7 +335,7 @@ def read_search_space(table: Any, where: str, known_fields: Mapping[str, type]) 
     extremes = _read_extremes(table.get("extremes", []), here, [name for name, _, _ in out],
                               [name for name, _, _ in nominal])
     return SearchSpace(requirement, population, stop, tuple(out), stop_episodes, nominal, common_noise,
-                       "" if guide == requirement else guide, extremes)
+                       "" if guide == requirement else guide, extremes, adversary)
 
 
 def _read_extremes(names: Any, here: str, searched: list[str], with_nominal: list[str]) -> tuple[str, ...]:

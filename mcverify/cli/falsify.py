@@ -65,7 +65,9 @@ def _dry_run(config: Any, campaign: Any, workers: int | None) -> str:
     return "\n".join([
         f"falsify {config.source}: {config.method}, budget {config.budget} episodes, requirement "
         f"{config.requirement}, seed {config.seed}",
-        f"search space: {len(space.bounds)} field(s): {', '.join(b[0] for b in space.bounds)}",
+        f"search space: {len(space.bounds)} field(s): {', '.join(b[0] for b in space.bounds)}"
+        + ("" if space.adversary is None else
+           f"; {space.adversary.describe()}, {search.search_dimension(campaign, space)} coordinates in all"),
         f"estimated CPU: {cpu_range} at most; wall time on {n} worker(s): {wall_range} at most (a rough range from "
         "measured rates; "
         + ("the search stops after the generation of its first counterexample)" if space.stop_at_first
@@ -153,6 +155,7 @@ def command(args: Any) -> int:
     first = result.first_counterexample_text()
     found = (f"first counterexample {first}" if first else
              f"no counterexample in {result.episodes} episodes, minimum robustness {result.min_robustness:.4g}")
+    found += f"; cost {result.episode_equivalents():.3g} episode-equivalents"
     logging.getLogger("mcverify.falsify").info("report: %s (also report.html); %s", result.out_dir / "report.md", found)
     return 0
 

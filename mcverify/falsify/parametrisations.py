@@ -17,6 +17,9 @@ cross-entropy) over theta:
 * :class:`FullSequence`: theta in [-1, 1]^d, the whole per-step sequence (sequential search, subset
   simulation after :func:`~mcverify.sim.schedule.units_from_normals`).
 
+:func:`parametrisation` builds the one a campaign's ``[falsify.adversary]`` table names
+(:class:`~mcverify.campaign.search_space.AdversarySpec`) for its episode's control steps.
+
 Box parametrisations clip theta to [-1, 1] (a search that steps outside the box stays valid); a theta
 of the wrong length or with a NaN is a ``ValueError``. Channels not chosen stay 0 (exact). Baselines:
 :func:`random_uniform` and :func:`random_bang_bang`, deterministic from a seed.
@@ -30,7 +33,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mcverify.sim.schedule import BANDS, CHANNELS, ErrorSchedule, GapBandSchedule
+from mcverify.campaign.search_space import AdversarySpec
+from mcverify.model import Simulation
+from mcverify.sim.schedule import BANDS, CHANNELS, ErrorSchedule, GapBandSchedule, control_steps
 
 #: veh_f's footprint gap (m) below which the far noise becomes the near one in the paper's model; the
 #: bands' default edges: alongside within it, jump up to the noise tilt's split (3 m), approach up to 15 m.
@@ -178,3 +183,28 @@ def random_bang_bang(steps: int, segments: int, seed: int, channels: tuple[str, 
     """The bang-bang baseline: a fair random sign per segment and channel, from ``numpy`` with ``seed``."""
     theta = np.random.default_rng(seed).choice([-1.0, 1.0], size=segments * len(channels))
     return BangBang(steps, segments, channels, front_share, opp_share).schedule(theta)
+
+
+#: A parametrisation of the perception error: ``dimension`` and ``schedule(theta)``.
+Parametrisation = GapBands | Windows | BangBang | FullSequence
+
+
+def parametrisation(spec: AdversarySpec, sim: Simulation) -> Parametrisation:
+    """The parametrisation ``spec`` names, for episodes of ``sim`` (its control steps and period)."""
+    steps = control_steps(sim)
+    common = {"channels": spec.channels or CHANNELS, "front_share": spec.front_share, "opp_share": spec.opp_share}
+    if spec.kind == "gap_bands":
+        return GapBands(edges_m=tuple(spec.edges_m), **common)  # type: ignore[arg-type]
+    if spec.kind == "windows":
+        return Windows.around(steps, spec.centres_s, spec.half_width_s, sim.control_period_s,
+                              max_steps=spec.max_steps, **common)
+    if spec.kind == "bang_bang":
+        return BangBang(steps, spec.segments, **common)
+    if spec.kind == "full":
+        return FullSequence(steps, **common)
+    raise ValueError(f"unknown adversary kind {spec.kind!r}")
+
+
+def theta_of_unit(u: object) -> np.ndarray:
+    """A search's unit-cube coordinates to theta in [-1, 1] (``2 u - 1``; for :class:`BangBang`, u >= 1/2 is +1)."""
+    return 2.0 * np.asarray(u, dtype=float) - 1.0

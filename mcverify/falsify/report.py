@@ -46,6 +46,11 @@ class SearchResult(Protocol):
     @property
     def first_counterexample(self) -> int | None: ...
     def first_counterexample_text(self) -> str | None: ...
+    @property
+    def control_steps(self) -> int: ...
+    @property
+    def full_episode_steps(self) -> int: ...
+    def episode_equivalents(self, upto: int | None = None) -> float: ...
 
 REPORT = "report.md"
 HTML = "report.html"
@@ -132,7 +137,9 @@ def _label_symlog_axis(ax: Any, most: int = 9) -> None:
 def facts(result: SearchResult, records: Sequence[Mapping[str, Any]]) -> list[tuple[str, str]]:
     req = reqs.requirement(result.config.requirement)
     first = result.first_counterexample_text()
-    space = result.space.describe()
+    space = result.space.describe() or "(no scenario field: the target's scenario fixed)"
+    if getattr(result.space, "adversary", None) is not None:
+        space += f"; {result.space.adversary.describe()}"
     generations = len({e.generation for e in result.evaluations})
     return [
         ("campaign", f"`{result.config.source}`"),
@@ -142,11 +149,21 @@ def facts(result: SearchResult, records: Sequence[Mapping[str, Any]]) -> list[tu
         ("search space", space),
         ("effort", f"{result.episodes} of {result.config.budget} episodes in {generations} generation(s)"
                    + _why_stopped(result)),
+        ("cost", _cost(result)),
         ("minimum robustness reached", fmt_num(result.min_robustness, 4, signed=True)),
         ("first counterexample", first if first else
          f"none found within {result.episodes} episodes"),
         ("counterexamples", f"{len(records)} (see `counterexamples.parquet`)"),
     ] + _guide_facts(result) + _noise_facts(result)
+
+
+def _cost(result: SearchResult) -> str:
+    """Control steps simulated, as episode-equivalents (whole episodes of the target), to the end and to the
+    first counterexample."""
+    first = result.first_counterexample
+    to_first = "" if first is None else f"; {result.episode_equivalents(first):.3g} to the first counterexample"
+    return (f"{result.control_steps} control steps = {result.episode_equivalents():.3g} episode-equivalents "
+            f"({result.full_episode_steps} control steps each){to_first}")
 
 
 def _why_stopped(result: SearchResult) -> str:

@@ -41,9 +41,12 @@ from mcverify.campaign import executors, runner
 from mcverify.campaign.executors import EpisodeFn, Executor
 from mcverify.campaign.search_space import SearchSpace, check_single_target, split_element
 from mcverify.campaign.spec import Campaign, apply_overrides, campaign_from_dict
+from mcverify.episode import schedule_file
 from mcverify.errors import CampaignError, RunError
 from mcverify.falsify import methods
+from mcverify.falsify.parametrisations import Parametrisation, parametrisation, theta_of_unit
 from mcverify.falsify.splitting import Candidate, NoiseSplitting
+from mcverify.sim.schedule import ErrorInput, control_steps
 
 CONFIG = "falsify.json"
 GENERATIONS = "generations"
@@ -90,6 +93,7 @@ class Evaluation:
     branch_after_step: int = -1  # splitting: the control step after which its own noise starts (-1: fresh)
     move: str = "fresh"  # splitting: how it came from its parent ("fresh", "noise" or "scenario")
     guide: float = math.nan  # the value the method was told ([falsify] guide; NaN: none, it was told the robustness)
+    control_steps: int = 0  # control steps its episode simulated (settling included): its cost
 
 
 @dataclass(frozen=True)
@@ -98,10 +102,21 @@ class SearchResult:
     config: SearchConfig
     space: SearchSpace
     evaluations: tuple[Evaluation, ...]
+    full_episode_steps: int = 0  # control steps of a whole episode of the target (the unit of the cost)
 
     @property
     def episodes(self) -> int:
         return len(self.evaluations)
+
+    @property
+    def control_steps(self) -> int:
+        """Control steps simulated by the whole search (episodes that stopped early cost less)."""
+        return sum(e.control_steps for e in self.evaluations)
+
+    def episode_equivalents(self, upto: int | None = None) -> float:
+        """Control steps simulated by the first ``upto`` evaluations (all: None) over those of a whole episode."""
+        steps = sum(e.control_steps for e in self.evaluations[:upto])
+        return steps / self.full_episode_steps if self.full_episode_steps else math.nan
 
     @property
     def min_robustness(self) -> float:
@@ -170,6 +185,8 @@ def check(config: SearchConfig) -> SearchSpace:
     campaign, space = target(config)
     check_bounds(config, campaign, space)
     methods.searcher(config.method, 1, 2, 0)  # a bad method name (or a missing optional package) fails here
+    if space.adversary is not None:
+        check_adversary(config, campaign, space)
     if config.method == "splitting" and space.common_noise:
         raise RunError("--method splitting draws fresh noise for its branches; [falsify] common_noise = true "
                        "is for the other methods")
@@ -184,6 +201,21 @@ def check(config: SearchConfig) -> SearchSpace:
         raise RunError(f"--method splitting branches on a per-step robustness; requirement {config.requirement!r} "
                        f"has none (choose one of {', '.join(reqs.STEPWISE)})")
     return space
+
+
+def check_adversary(config: SearchConfig, campaign: Campaign, space: SearchSpace) -> None:
+    """A searched perception error needs noise bounds to search in and a method that searches the cube."""
+    if config.method == "splitting":
+        raise RunError("--method splitting branches the drawn noise; with [falsify.adversary] the error is searched "
+                       "(choose cma, cross-entropy, random or bo)")
+    if campaign.cells[0].params.noise.kind == "none":
+        raise RunError(f"{config.source}: noise.kind = \"none\" gives the adversary no bounds to search in "
+                       "([falsify.adversary] scales its units by the noise bounds)")
+    try:
+        adversary = adversary_of(campaign, space)
+        adversary.schedule(np.zeros(adversary.dimension))
+    except ValueError as exc:
+        raise RunError(f"{config.source} [falsify.adversary]: {exc}") from None
 
 
 def check_bounds(config: SearchConfig, campaign: Campaign, space: SearchSpace) -> None:
@@ -258,11 +290,34 @@ def _search(
         shared.release()
 
 
+def adversary_of(campaign: Campaign, space: SearchSpace) -> Parametrisation | None:
+    """The parametrisation of the searched perception error (``[falsify.adversary]``), None without one."""
+    return None if space.adversary is None else parametrisation(space.adversary, campaign.cells[0].params.sim)
+
+
+def search_dimension(campaign: Campaign, space: SearchSpace) -> int:
+    """Coordinates of the unit cube searched: the ``[falsify.bounds]`` fields, then the adversary's theta."""
+    adversary = adversary_of(campaign, space)
+    return space.dimension + (0 if adversary is None else adversary.dimension)
+
+
+def _schedules(adversary: Parametrisation | None, space: SearchSpace, campaign: Campaign,
+               candidates: list[Candidate]) -> dict[int, ErrorInput] | None:
+    """Each candidate cell's error schedule by global episode id (cell k is candidate k), None without an
+    adversary."""
+    if adversary is None:
+        return None
+    return {cell.episode_offset: adversary.schedule(theta_of_unit(c.point[space.dimension:]))
+            for cell, c in zip(campaign.cells, candidates, strict=False)}
+
+
 def _generations(config: SearchConfig, out_dir: Path, make_executor: Callable[[], Executor], episode_fn: EpisodeFn,
                  progress: Callable[[str], None] | None, stop_after_generations: int | None,
                  bar: bool = False) -> SearchResult:
     campaign, space = target(config)
-    search = methods.searcher(config.method, space.dimension, space.population, config.seed, campaign.seed)
+    adversary = adversary_of(campaign, space)
+    search = methods.searcher(config.method, search_dimension(campaign, space), space.population, config.seed,
+                              campaign.seed)
     evaluations: list[Evaluation] = []
     ran = 0
     generation = 0
@@ -270,19 +325,20 @@ def _generations(config: SearchConfig, out_dir: Path, make_executor: Callable[[]
     while len(evaluations) < config.budget:
         candidates = _ask(search, common_seed)
         n = min(len(candidates), config.budget - len(evaluations))
-        values = [space.values(list(c.point)) for c in candidates[:n]]
+        values = [space.values(list(c.point[:space.dimension])) for c in candidates[:n]]
         gen_campaign = generation_campaign(
             config, [space.overrides(v) | c.noise_overrides() for v, c in zip(values, candidates, strict=False)],
             generation, space.stop_episodes)
+        schedules = _schedules(adversary, space, gen_campaign, candidates[:n])
         gen_dir = out_dir / GENERATIONS / f"g{generation:03d}"
         finished = _finished(gen_dir)
         if not finished:
             if stop_after_generations is not None and ran >= stop_after_generations:
                 raise RunError(f"search stopped after {ran} generation(s) (test hook); resume {out_dir}")
-            _run_generation(gen_campaign, gen_dir, make_executor, episode_fn, bar)
+            _run_generation(gen_campaign, gen_dir, make_executor, episode_fn, bar, schedules)
             ran += 1
         else:
-            _check_same(gen_dir, gen_campaign)
+            _check_same(gen_dir, gen_campaign, schedules)
         rows = {int(r["cell_index"]): r for r in store.read_episodes(gen_dir).to_pylist()}
         robs = np.array([_robustness(gen_dir, rows[k], config.requirement) for k in range(n)])
         periods_s = [cell.params.sim.control_period_s for cell in gen_campaign.cells]
@@ -290,7 +346,8 @@ def _generations(config: SearchConfig, out_dir: Path, make_executor: Callable[[]
                   if space.guide else None)
         evaluations += [Evaluation(generation, k, candidates[k].point, values[k], rows[k], float(robs[k]),
                                    candidates[k].parent, candidates[k].branch_after_step, candidates[k].move,
-                                   math.nan if guides is None else float(guides[k]))
+                                   math.nan if guides is None else float(guides[k]),
+                                   simulated_steps(rows[k], periods_s[k]))
                         for k in range(n)]
         if progress is not None:
             best = np.nanmin(robs) if np.isfinite(robs).any() else math.nan
@@ -305,7 +362,7 @@ def _generations(config: SearchConfig, out_dir: Path, make_executor: Callable[[]
             break
     if ran == 0 and progress is not None:
         progress("nothing left to run: every generation of this search is stored; its report is rebuilt from them")
-    result = SearchResult(out_dir, config, space, tuple(evaluations))
+    result = SearchResult(out_dir, config, space, tuple(evaluations), control_steps(campaign.cells[0].params.sim))
     write_outputs(result)
     mark_finished(out_dir)
     return result
@@ -323,6 +380,14 @@ def is_finished(out_dir: Path) -> bool:
     """Whether the search in ``out_dir`` is complete (a search from before the record reads as not)."""
     path = Path(out_dir) / CONFIG
     return path.is_file() and bool(store.read_json(path).get("finished_utc"))
+
+
+def simulated_steps(row: dict[str, Any], control_period_s: float) -> int:
+    """Control steps an episode simulated, settling included (its end time over the control period); 0 for an
+    episode that could not be simulated."""
+    ends = [float(row.get(k, math.nan)) for k in ("settle_end_s", "end_time_s")]
+    ends = [t for t in ends if math.isfinite(t)]
+    return int(round(max(ends) / control_period_s)) if ends and not rb.is_error_row(row) else 0
 
 
 def _ask(search: methods.Searcher | NoiseSplitting, common_seed: int = -1) -> list[Candidate]:
@@ -393,23 +458,32 @@ def _finished(gen_dir: Path) -> bool:
     return manifest.is_file() and bool(store.read_json(manifest).get("finished_utc"))
 
 
-def _check_same(gen_dir: Path, campaign: Campaign) -> None:
+def _check_same(gen_dir: Path, campaign: Campaign, schedules: dict[int, ErrorInput] | None = None) -> None:
     recorded = store.read_json(gen_dir / store.MANIFEST)["cells"]
     diff = runner.first_difference(recorded, runner.campaign_record(campaign)["cells"])
+    if not diff and schedules is not None:
+        folder = gen_dir / schedule_file.SCHEDULES
+        diff = next((f"episode {e}'s error schedule" for e, s in sorted(schedules.items())
+                     if not _same_schedule(schedule_file.read_schedule(schedule_file.schedule_path(folder, e)), s)),
+                    "")
     if diff:
         raise RunError(f"{gen_dir}: the search asks other candidates than this generation ran ({diff}); "
                        "was the folder made by other code or edited?")
 
 
+def _same_schedule(a: ErrorInput, b: ErrorInput) -> bool:
+    return type(a) is type(b) and all(np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(a, b, strict=True))
+
+
 def _run_generation(campaign: Campaign, gen_dir: Path, make_executor: Callable[[], Executor],
-                    episode_fn: EpisodeFn, bar: bool = False) -> None:
-    if (gen_dir / store.MANIFEST).is_file():
+                    episode_fn: EpisodeFn, bar: bool = False, schedules: dict[int, ErrorInput] | None = None) -> None:
+    if (gen_dir / store.MANIFEST).is_file():  # its schedules, if any, are in the folder already
         runner.resume(gen_dir, executor=make_executor(), progress=bar, campaign=campaign, episode_fn=episode_fn)
         return
     if gen_dir.exists():  # killed before its manifest was written: nothing of it is usable
         shutil.rmtree(gen_dir)
     gen_dir.parent.mkdir(parents=True, exist_ok=True)
-    runner.run(campaign, gen_dir, executor=make_executor(), progress=bar, episode_fn=episode_fn)
+    runner.run(campaign, gen_dir, executor=make_executor(), progress=bar, episode_fn=episode_fn, schedules=schedules)
 
 
 # -------------------------------------------------------------------------------------- outputs
@@ -434,6 +508,11 @@ def search_table(result: SearchResult) -> pa.Table:
     cols["parent_episode_id"] = [int(ev[e.parent - 1].row["episode_id"]) if e.parent else -1 for e in ev]
     cols["branch_after_step"] = [e.branch_after_step for e in ev]  # splitting: where its last noise branch starts
     cols["move"] = [e.move for e in ev]  # splitting: fresh, noise (branch) or scenario (step)
+    if result.space.adversary is not None:  # the error's theta in [-1, 1] (the schedule is in the generation folder)
+        cols["adversary_theta"] = [[float(x) for x in theta_of_unit(e.point[result.space.dimension:])] for e in ev]
+    cols["control_steps"] = [e.control_steps for e in ev]
+    cols["episode_equivalents"] = (list(np.cumsum([e.control_steps for e in ev]) / result.full_episode_steps)
+                                   if result.full_episode_steps else [math.nan] * len(ev))
     cols["robustness"] = [e.robustness for e in ev]
     if result.space.guide:  # what the method was told instead of the robustness
         cols["guide"] = [e.guide for e in ev]

@@ -105,7 +105,8 @@ def rate_vs_axis(
     """One panel per ``(metric, title)``: the probability against ``x_values`` (one per cell) on a log
     scale, one line per group label (``groups``, one per cell). A cell with events is a point k/n with
     its two-sided interval as a bar; a cell without any is drawn as what it is, a bound: ▼ at its
-    one-sided upper bound (``upper_one_sided``, named by ``bound``) with a dotted line down to the axis (the probability is somewhere below).
+    one-sided upper bound (``upper_one_sided``, named by ``bound``) with a dotted line down to the axis
+    (the probability is somewhere below).
     A log scale because the curve's interest is where it falls off: 0.3 and 0.003 must both read."""
     fig, axes = subplots(1, len(metrics), figsize=inches(6 * len(metrics), 4.2), squeeze=False)
     xs, gs = np.asarray(x_values, dtype=float), list(groups)

@@ -131,3 +131,26 @@ def ladder(cell, episode_ids, seed, common_random_numbers, record):
         solved = (~unsolved).astype(np.float64)
         _margin_episode(out, r, e, h, dt, e in record, q1_solved=solved, q2_solved=solved)
     return out
+
+
+def scheduled(schedules_dir, cell, episode_ids, seed, common_random_numbers, record):
+    """Rows whose margin is a deterministic function of each episode's stored error schedule (and veh_f's
+    speed): veh_f measured far (front_x > 0) and away from the ego (front_y > 0) lowers it. The runner
+    passes the run's schedule folder first (``reads_schedules``)."""
+    from pathlib import Path  # noqa: PLC0415
+
+    from mcverify.episode.schedule_file import read_schedule, schedule_path  # noqa: PLC0415
+
+    out = synthetic_episodes.episodes(cell, episode_ids, seed, common_random_numbers, record)
+    v = cell.params.scenario.front_speed_mps
+    for r in out.rows:
+        units = np.asarray(read_schedule(schedule_path(Path(schedules_dir), int(r["episode_id"]))).units)
+        min_h = 0.35 + 0.05 * abs(v - 7.0) - 0.2 * units[:, 0].mean() - 0.2 * units[:, 1].mean()
+        r.update({"min_h_front": float(min_h), "collision_front": False, "ellipse_violation": bool(min_h < 0),
+                  "min_gap_front_m": 1.0, "safe": bool(min_h >= 0), "opposing_kind": "none",
+                  "first_unsafe_s": 3.0 if min_h < 0 else math.nan,
+                  "first_unsafe_cause": "planned" if min_h < 0 else ""})
+    return out
+
+
+scheduled.reads_schedules = True

@@ -1,0 +1,276 @@
+"""Sequential search over the per-step perception error: a beam search that branches from episode snapshots.
+
+Adaptive-stress-testing style (issue 49): the adversary acts only in a window of control steps
+``[first, last)`` (e.g. around the lane entry and the decision), cut into segments of
+``segment_steps``. The episode runs once, exactly measured, up to the window and is snapshotted
+(:mod:`mcverify.episode.snapshot`). At each depth every frontier node gets ``branching`` children, each
+a draw of the next segment's units (bang-bang signs or uniform values per chosen channel, from a
+generator keyed by (seed, depth, parent rank, child)); a child restores its parent's snapshot and
+simulates only its own segment, so a node costs its own control steps. The ``width`` children with the
+lowest running score (:data:`SCORES`) form the next frontier; the others' snapshots are dropped as soon as
+they fall out, so at most ``2 width + 1`` snapshots are alive (the old frontier and the new). After the
+last segment every frontier node runs to the end of its episode with exact measurement, and its row's
+robustness of the requirement decides. The best node's whole schedule (zeros outside the window) is
+written into an ordinary run folder (:func:`mcverify.falsify.adversary.run_folder`), re-simulated from
+step 0, whose episode ``mcverify replay`` re-simulates bit for bit.
+
+Every cost is in control steps simulated. Resume: after each depth the frontier (units, end steps,
+scores) and the cost so far go to ``OUT/beam/depth-NNN.npz``; a resumed search re-simulates each stored
+frontier node from step 0 to rebuild its snapshot (counted apart, as ``rebuild_steps``), checks that the
+score comes out equal, and goes on, so it ends exactly where an uninterrupted search ends.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mcverify import store
+from mcverify.analysis import robustness as rb
+from mcverify.campaign import executors
+from mcverify.campaign.spec import Campaign
+from mcverify.episode.rollout import run_episodes
+from mcverify.episode.snapshot import Branching, EpisodeSnapshot
+from mcverify.errors import RunError
+from mcverify.sim.schedule import CHANNELS, ErrorSchedule, control_steps
+
+#: Running scores a beam can rank nodes by: ``h_front`` (the lowest h_ef so far, for ellipse and safe) and
+#: ``theorem5`` (the lowest graded Theorem 5 margin so far; +inf before any dual-planner step).
+SCORES: tuple[str, ...] = ("h_front", "theorem5")
+UNITS: tuple[str, ...] = ("bang_bang", "uniform")
+BEAM = "beam"
+FORMAT = 1
+
+
+@dataclass(frozen=True)
+class BeamSpec:
+    """What defines a beam search (module docstring); ``first_step``/``last_step`` bound the window
+    [first, last) in control steps."""
+
+    first_step: int
+    last_step: int
+    segment_steps: int
+    branching: int
+    width: int
+    requirement: str
+    channels: tuple[str, ...] = ("front_y",)
+    units: str = "bang_bang"
+    score: str = "h_front"
+    front_share: float = 1.0
+    opp_share: float = 1.0
+    seed: int = 0
+
+    def check(self, steps: int) -> None:
+        """ValueError (one line) for a spec that does not fit an episode of ``steps`` control steps."""
+        if not 0 <= self.first_step < self.last_step <= steps:
+            raise ValueError(f"beam window [{self.first_step}, {self.last_step}) must lie in [0, {steps}) steps")
+        if self.segment_steps < 1 or self.branching < 1 or self.width < 1:
+            raise ValueError("beam segment_steps, branching and width must be positive")
+        if self.units not in UNITS or self.score not in SCORES:
+            raise ValueError(f"beam units must be one of {UNITS} and score one of {SCORES}")
+        if not self.channels or any(c not in CHANNELS for c in self.channels):
+            raise ValueError(f"beam channels must be names among {', '.join(CHANNELS)}")
+
+    @property
+    def depths(self) -> int:
+        return math.ceil((self.last_step - self.first_step) / self.segment_steps)
+
+
+@dataclass
+class Node:
+    """A partial schedule: ``units`` (steps, 5), simulated to ``end_step`` (inclusive), with its running
+    ``score``; ``snapshot`` after end_step (None once dropped or when the episode already ended)."""
+
+    units: np.ndarray
+    end_step: int
+    score: float
+    snapshot: EpisodeSnapshot | None = None
+    row: dict[str, Any] | None = None  # the final row, once the episode has ended
+
+
+@dataclass
+class BeamResult:
+    """The finished search: the final frontier (rows and robustness), the best node, and its cost."""
+
+    spec: BeamSpec
+    frontier: list[Node]
+    robustness: list[float]
+    search_steps: int  # control steps the search simulated (prefix, segments, finishes)
+    rebuild_steps: int  # control steps a resume spent rebuilding snapshots
+    full_episode_steps: int
+    peak_snapshots: int
+    depth_log: list[dict[str, float]] = field(default_factory=list)
+
+    @property
+    def best(self) -> int:
+        return int(np.nanargmin(self.robustness))
+
+    @property
+    def min_robustness(self) -> float:
+        return float(np.nanmin(self.robustness))
+
+    @property
+    def episode_equivalents(self) -> float:
+        return self.search_steps / self.full_episode_steps
+
+
+class _Loop:
+    """One episode of a campaign's target cell run in pieces (seed = the campaign's, episode 0)."""
+
+    def __init__(self, campaign: Campaign, spec: BeamSpec) -> None:
+        self.cell, self.seed, self.spec = campaign.cells[0], campaign.seed, spec
+        self.steps = control_steps(self.cell.params.sim)
+        self.planner = executors.solver_for(self.cell.params)
+
+    def run(self, units: np.ndarray, start: EpisodeSnapshot | None, until: int | None) -> tuple[Node, int]:
+        """Simulate from ``start`` (None: step 0) to step ``until`` (inclusive; None: the episode's end) under
+        ``units``; the node and the control steps it cost."""
+        if until is None:
+            branching = Branching(start=start)
+        else:
+            branching = Branching(start=start, keep=lambda v: v.step == until, stop=lambda v: v.step == until)
+        schedule = ErrorSchedule.of(units, self.spec.front_share, self.spec.opp_share)
+        result = run_episodes(self.cell, [0], self.seed, self.planner, branching=branching, schedules=[schedule])
+        snap = None if until is None else branching.snapshots.get(until)
+        row = result.rows[0] if snap is None else None
+        end = until if snap is not None else branching.first_step() + branching.steps - 1
+        return Node(units, end, self._score(snap, row), snap, row), branching.steps
+
+    def _score(self, snap: EpisodeSnapshot | None, row: dict[str, Any] | None) -> float:
+        if self.spec.score == "h_front":
+            value = float(snap.trace.min_h_front) if snap is not None else float(row["min_h_front"])
+        else:
+            value = float(snap.state.theorem5_margin) if snap is not None else float(row["theorem5_margin"])
+        return math.inf if math.isnan(value) else value
+
+
+def _children(spec: BeamSpec, node: Node, depth: int, rank: int, cols: list[int]) -> list[np.ndarray]:
+    a = spec.first_step + depth * spec.segment_steps
+    b = min(a + spec.segment_steps, spec.last_step)
+    out = []
+    for j in range(spec.branching):
+        rng = np.random.default_rng([spec.seed, depth, rank, j])
+        shape = (b - a, len(cols))
+        seg = rng.choice([-1.0, 1.0], size=shape) if spec.units == "bang_bang" else rng.uniform(-1.0, 1.0, shape)
+        units = node.units.copy()
+        units[a:b, cols] = seg
+        out.append(units)
+    return out
+
+
+def search(campaign: Campaign, spec: BeamSpec, out_dir: Path, *, stop_after_depths: int | None = None,
+           progress: Callable[[str], None] | None = None) -> BeamResult:
+    """Run (or resume, from the depth files in ``out_dir``) the beam search of ``spec`` on ``campaign``'s
+    target; ``stop_after_depths``: raise RunError after that many new depths (a test's interruption)."""
+    loop = _Loop(campaign, spec)
+    try:
+        spec.check(loop.steps)
+    except ValueError as exc:
+        raise RunError(str(exc)) from None
+    folder = Path(out_dir) / BEAM
+    folder.mkdir(parents=True, exist_ok=True)
+    _check_config(folder, spec)
+    cols = [CHANNELS.index(c) for c in spec.channels]
+    depth, frontier, cost, rebuild, log = _restore(loop, folder, spec)
+    peak = len(frontier)
+    if depth == 0:
+        zeros = np.zeros((loop.steps, len(CHANNELS)))
+        if spec.first_step == 0:
+            root, cost = Node(zeros, -1, math.inf), 0
+        else:
+            root, cost = loop.run(zeros, None, spec.first_step - 1)
+        frontier = [root]
+    new = 0
+    while depth < spec.depths:
+        if stop_after_depths is not None and new >= stop_after_depths:
+            raise RunError(f"beam search stopped after {new} depth(s) (test hook); resume {out_dir}")
+        kept: list[tuple[float, int, Node]] = []
+        order = 0
+        last = min(spec.first_step + (depth + 1) * spec.segment_steps, spec.last_step) - 1
+        for rank, node in enumerate(frontier):
+            if node.row is not None:  # the episode already ended: carried as it is
+                kept.append((node.score, order, node))
+                order += 1
+                continue
+            for units in _children(spec, node, depth, rank, cols):
+                child, steps = loop.run(units, node.snapshot, last)
+                cost += steps
+                kept.append((child.score, order, child))
+                order += 1
+                kept.sort(key=lambda t: (t[0], t[1]))
+                for _, _, dropped in kept[spec.width:]:
+                    dropped.snapshot = None  # memory: only the frontier keeps its snapshot
+                kept = kept[:spec.width]
+                peak = max(peak, len(frontier) + len(kept) + 1)
+        frontier = [n for _, _, n in kept]
+        depth += 1
+        new += 1
+        log.append({"depth": depth, "best_score": frontier[0].score, "control_steps": cost})
+        _save(folder, depth, frontier, cost, log)
+        if progress is not None:
+            progress(f"beam depth {depth}/{spec.depths}: best {spec.score} {frontier[0].score:.4g}, "
+                     f"{cost} control steps")
+    for node in frontier:  # finish every frontier episode, exactly measured after the window
+        if node.row is None:
+            finished, steps = loop.run(node.units, node.snapshot, None)
+            node.row, node.snapshot = finished.row, None
+            cost += steps
+    robs = [rb.robustness(n.row, spec.requirement) for n in frontier]
+    return BeamResult(spec, frontier, robs, cost, rebuild, loop.steps, peak, log)
+
+
+def write_best(campaign: Campaign, result: BeamResult, run_dir: Path) -> Path:
+    """The best node's whole schedule as a one-episode run folder (re-simulated from step 0), which
+    ``mcverify replay RUN_DIR 0`` re-simulates bit for bit; returns the folder."""
+    from mcverify.falsify import adversary  # noqa: PLC0415 - the run layer only when writing
+
+    if sum(c.episodes for c in campaign.cells) != 1:
+        raise RunError("the beam's best schedule is written as one episode: give a one-episode target campaign")
+    best = result.frontier[result.best]
+    adversary.run_folder(campaign, {0: ErrorSchedule.of(best.units, result.spec.front_share, result.spec.opp_share)},
+                         Path(run_dir))
+    return Path(run_dir)
+
+
+def _check_config(folder: Path, spec: BeamSpec) -> None:
+    path = folder / "beam.json"
+    recorded = {**asdict(spec), "channels": list(spec.channels), "format": FORMAT}
+    if path.is_file():
+        if store.read_json(path) != recorded:
+            raise RunError(f"{folder}: holds a beam search of another specification; choose another folder")
+        return
+    store.write_json_atomic(path, recorded)
+
+
+def _save(folder: Path, depth: int, frontier: list[Node], cost: int, log: list[dict[str, float]]) -> None:
+    def write(tmp: Path) -> None:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, units=np.stack([n.units for n in frontier]), end_step=np.array([n.end_step for n in frontier]),
+                     score=np.array([n.score for n in frontier]), ended=np.array([n.row is not None for n in frontier]),
+                     cost=np.array(cost), log=np.array(json.dumps(log)))
+    store.atomic_write(folder / f"depth-{depth:03d}.npz", write)
+
+
+def _restore(loop: _Loop, folder: Path, spec: BeamSpec) -> tuple[int, list[Node], int, int, list[dict[str, float]]]:
+    """(depth, frontier with snapshots rebuilt, cost so far, rebuild cost, log) from the last depth file."""
+    files = sorted(folder.glob("depth-[0-9][0-9][0-9].npz"))
+    if not files:
+        return 0, [], 0, 0, []
+    with np.load(files[-1], allow_pickle=False) as data:
+        units, ends, scores, ended = data["units"], data["end_step"], data["score"], data["ended"]
+        cost, log = int(data["cost"]), json.loads(str(data["log"]))
+    frontier, rebuild = [], 0
+    for u, end, score, done in zip(units, ends, scores, ended, strict=True):
+        node, steps = loop.run(u, None, None if done else int(end))
+        rebuild += steps
+        if node.score != score:
+            raise RunError(f"{files[-1]}: a frontier node re-simulated to score {node.score!r}, stored {score!r}; "
+                           "the folder was made by other code")
+        frontier.append(node)
+    return int(files[-1].stem.split("-")[1]), frontier, cost, rebuild, log
