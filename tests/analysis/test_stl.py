@@ -74,7 +74,8 @@ def _falsify(*args: str) -> subprocess.CompletedProcess:
 
 @pytest.mark.parametrize(("requirement", "message"), [
     ("stl:always (speed >= 0)", "--requirement: STL formula 'always (speed >= 0)': unknown signal 'speed'"),
-    ("stl:always (h_ef >=", "--requirement: STL formula 'always (h_ef >=': RTAMT Exception"),
+    pytest.param("stl:always (h_ef >=", "--requirement: STL formula 'always (h_ef >=': RTAMT Exception",
+                 marks=pytest.mark.slow),  # a subprocess each (7 s); the parser's errors are tested above
 ])
 def test_the_command_line_refuses_a_bad_formula_in_one_line(requirement, message):
     out = _falsify("campaigns/falsify_vlcbf_eps03_paper_noise.toml", "--budget", "2", "--dry-run",
@@ -83,6 +84,7 @@ def test_the_command_line_refuses_a_bad_formula_in_one_line(requirement, message
     assert message in out.stderr and len(out.stderr.strip().splitlines()) == 1, out.stderr
 
 
+@pytest.mark.slow  # about 15 s (subprocesses)
 def test_the_command_line_accepts_an_stl_requirement_unless_episodes_stop_at_violations(tmp_path):
     source = (REPO / "campaigns/falsify_vlcbf_eps03_paper_noise.toml").read_text(encoding="utf-8")
     assert "stop_episodes = true" in source

@@ -77,7 +77,9 @@ def test_the_adversary_replaces_the_drawn_noise():
         search.check(_config(raw=raw))
 
 
-@pytest.mark.parametrize("method", ["cma", "cross-entropy", "random"])
+# random in the default suite; cma and cross-entropy (10-20 s each on the closed loop) with -m slow
+@pytest.mark.parametrize("method", [pytest.param("cma", marks=pytest.mark.slow),
+                                    pytest.param("cross-entropy", marks=pytest.mark.slow), "random"])
 def test_a_schedule_search_is_deterministic_and_resumes_to_the_uninterrupted_result(tmp_path, method):
     whole = search.start(_config(method), tmp_path / "whole", **_kw())
     with pytest.raises(RunError, match="test hook"):
@@ -117,6 +119,7 @@ def test_random_over_bang_bang_and_full_are_the_random_baselines(tmp_path):
     assert np.array_equal(units[:, 1], 2 * np.array(ev.point) - 1) and np.ptp(units[:, 1]) > 1.0
 
 
+@pytest.mark.slow  # about 15 s; the one-line errors of the table itself are tested above in the default suite
 def test_cli_bad_adversary_exits_2_with_one_line(tmp_path):
     f = tmp_path / "bad.toml"
     f.write_text('[campaign]\nname = "b"\nseed = 1\nepisodes = 1\n[falsify.adversary]\nkind = "wiggle"\n')
@@ -136,6 +139,7 @@ REAL = {"campaign": {"name": "adv-real", "seed": 3, "episodes": 1},
                     "adversary": {"kind": "bang_bang", "segments": 2, "channels": ["front_x", "front_y"]}}}
 
 
+@pytest.mark.slow  # about 30 s; tests/falsify/test_adversary.py replays a run with schedules in the default suite
 def test_a_counterexample_found_with_a_schedule_replays_bit_for_bit(tmp_path):
     """The real closed loop (30 steps): a violating candidate of a schedule search re-simulates exactly from
     its generation folder (replay raises unless every metric agrees)."""
