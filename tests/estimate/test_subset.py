@@ -72,9 +72,8 @@ def test_runs_are_keyed_by_seed_and_run():
     assert not subset.run(SURROGATE, SMALL, seed=(1, 1), run=0).same_as(one)
 
 
-@pytest.mark.parametrize("move", subset.MOVES)
-def test_a_killed_run_resumed_from_its_checkpoint_equals_an_uninterrupted_one(tmp_path, move):
-    settings = subset.Settings(n=500, move=move)
+def test_a_killed_run_resumed_from_its_checkpoint_equals_an_uninterrupted_one(tmp_path):
+    settings = subset.Settings(n=500)
     whole = subset.run(SURROGATE, settings, seed=5, run=2)
     assert len(whole.stages) >= 3
     path = tmp_path / "run.npz"
@@ -143,7 +142,7 @@ def test_crude_steps_for_the_same_width():
     assert math.isnan(subset.crude_steps_for(0.0, 0.3, 100.0))
 
 
-@pytest.mark.parametrize("options", [{"move": "gibbs"}, {"p0": 0.7}, {"n": 15, "p0": 0.1}, {"n": 105, "p0": 0.1},
+@pytest.mark.parametrize("options", [{"p0": 0.7}, {"n": 15, "p0": 0.1}, {"n": 105, "p0": 0.1},
                                      {"target_acceptance": 1.5}, {"initial_scale": 0.0}])
 def test_bad_settings_are_refused(options):
     with pytest.raises(ValueError):
