@@ -65,7 +65,12 @@ class Problem(Protocol):
 
 @dataclass(frozen=True)
 class Settings:
-    """N samples per stage, conditional level p0, and the pCN moves' scale adaptation."""
+    """N samples per stage, conditional level p0, and the pCN moves' scale adaptation.
+
+    N must let every route to the event keep samples at every level: the chains do not cross between
+    routes, and a route that is rare at the intermediate levels but not in the event is lost by most
+    runs and kept, far over its share, by a few, which no interval over runs repairs (the surrogate's
+    study in docs/decisions.md)."""
 
     n: int = 1000
     p0: float = 0.1
