@@ -1,15 +1,17 @@
 """Coverage of subset simulation on the structure-matched surrogate with exact p (issue 50):
-``python -m benchmarks.surrogate_coverage [--reps R] [--runs K] [--n N] [--quick]``.
+``python -m benchmarks.surrogate_coverage [--reps R] [--runs K] [--n N] [--n-rare N] [--quick]``.
 
-For each clock of the surrogate (:mod:`mcverify.estimate.surrogate`: "time", the noise keyed to
-control steps as the closed loop draws it today, and "decision", keyed to the decision instant) and
-each p, ``reps`` independent repetitions, each the Student t interval of ``runs`` independent subset
-simulation runs of N samples per stage: coverage of the exact p, the mean's relative bias, the mean
-relative error, the mean relative half-width, control steps per repetition, crude Monte Carlo's steps
-for the same relative half-width at the exact p, and their ratio. Beside it: openturns' SubsetSampling
-at the same N and p0 (fewer repetitions: it is slower), and the routes of the failing samples against
-the exact route shares (where subset simulation loses a route, this says which). Writes only its own
-section of results/BENCHMARKS.md.
+For each clock of the surrogate (:mod:`mcverify.estimate.surrogate`: "time", the noise keyed to control
+steps as the closed loop draws it today, and "decision", keyed to the decision instant) and each p,
+``reps`` independent repetitions, each the Student t interval of ``runs`` independent subset simulation
+runs of N samples per stage (``--n`` at p = 1e-3 and 1e-4, ``--n-rare`` at 1e-6: the rarest cell needs
+more samples per stage to carry the routes that are rare at the intermediate levels, see
+docs/decisions.md): coverage of the exact p (with its Clopper-Pearson interval), the mean's relative
+bias, the mean relative error, the mean relative half-width, control steps per repetition, crude Monte
+Carlo's steps for the same relative half-width at the exact p, and their ratio. Beside it: openturns'
+SubsetSampling at the same N and p0 (fewer repetitions: it is slower), and the routes of the failing
+samples against the exact route shares (where subset simulation loses a route, this says which). Writes
+only its own section of results/BENCHMARKS.md.
 """
 
 from __future__ import annotations
@@ -42,6 +44,8 @@ class Row:
     runs: int
     n: int
     coverage: float
+    coverage_low: float  # 95 % Clopper-Pearson interval of the coverage over the repetitions
+    coverage_high: float
     bias: float  # mean of the repetitions' estimates over p, minus 1
     mean_relative_error: float  # mean |estimate - p| / p
     relative_halfwidth: float  # mean over repetitions of the upper half-width (high - estimate) over the exact p
@@ -58,13 +62,23 @@ def _row(method: str, clock: str, problem: Surrogate, estimates: list[subset.Est
          seconds: float) -> Row:
     p = problem.exact_p()
     values = np.array([e.estimate for e in estimates])
+    covered = int(sum(e.contains(p) for e in estimates))
+    low, high = _clopper_pearson(covered, len(estimates))
     # relative to the exact p, not to each estimate: a repetition that estimates 0 (extinct splitting runs)
     # would otherwise make the mean infinite; the upper half, since the low end is clipped at 0
     rel = float(np.nanmean([(e.high - e.estimate) / p for e in estimates]))
     steps = float(np.mean([e.steps for e in estimates]))
-    return Row(method, clock, p, len(estimates), runs, n, float(np.mean([e.contains(p) for e in estimates])),
+    return Row(method, clock, p, len(estimates), runs, n, covered / len(estimates), low, high,
                float(np.nanmean(values) / p - 1.0), float(np.nanmean(np.abs(values - p)) / p), rel, steps,
                subset.crude_steps_for(p, rel, problem.mean_steps()), seconds)
+
+
+def _clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
+    """Exact binomial interval of k successes in n trials."""
+    alpha = 1.0 - level
+    low = float(sps.beta.ppf(alpha / 2, k, n - k + 1)) if k > 0 else 0.0
+    high = float(sps.beta.ppf(1 - alpha / 2, k + 1, n - k)) if k < n else 1.0
+    return low, high
 
 
 def subset_row(clock: str, p: float, settings: subset.Settings, reps: int, runs: int) -> tuple[Row, np.ndarray]:
@@ -149,16 +163,17 @@ def render(rows: list[Row], routes: dict[tuple[str, float], np.ndarray], command
              f"{Surrogate().dimension} standard-normal inputs (2 scenario units, "
              f"{Surrogate().horizon_steps} per-step noise units), event decided at the decision instant by 1-3 draws "
              "over three routes (jump, sustained offset, away then towards: 40/35/25 % of p), robustness graded in "
-             f"units of the noise bound. Subset simulation: N = {settings.n} per stage, p0 = {settings.p0}, "
-             f"{settings.move} moves adapted towards acceptance {settings.target_acceptance}; each repetition is the "
+             f"units of the noise bound. Subset simulation: N per stage as in the table, p0 = {settings.p0}, "
+             f"pCN moves adapted towards acceptance {settings.target_acceptance}; each repetition is the "
              "95 % Student t interval of independent runs; rel. half-width r: the mean of (high - estimate) / p. "
              "Crude steps: z^2 (1 - p) / (p r^2) episodes of the surrogate's mean episode (the steps to the decision, "
              "its draws and the depth). Bias of mean: the mean of the repetitions' estimates over p, minus 1.", "",
-             "| method | clock | p | reps x runs | coverage | bias of mean | mean rel. error | rel. half-width "
-             "| control steps / rep | crude steps, same width | factor | CPU-s |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+             "| method | clock | p | reps x runs | N | coverage (95 % CI) | bias of mean | mean rel. error "
+             "| rel. half-width | control steps / rep | crude steps, same width | factor | CPU-s |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in rows:
-        lines.append(f"| {r.method} | {r.clock} | {r.p:.0e} | {r.reps} x {r.runs} | {r.coverage:.0%} | "
+        lines.append(f"| {r.method} | {r.clock} | {r.p:.0e} | {r.reps} x {r.runs} | {r.n} | {r.coverage:.0%} "
+                     f"({r.coverage_low:.0%}-{r.coverage_high:.0%}) | "
                      f"{r.bias:+.0%} | {r.mean_relative_error:.0%} | {r.relative_halfwidth:.0%} | {r.steps:.3g} | "
                      f"{r.crude_steps:.3g} | {r.factor:.3g}x | {r.seconds:.0f} |")
     lines += ["", "Routes of the failing samples of the last stage (all runs pooled) against each route's exact share "
@@ -181,16 +196,22 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--split-reps", type=int, default=30,
                         help="AMS splitting repetitions at p = 1e-4, time clock (default 30; 0: none)")
     parser.add_argument("--runs", type=int, default=10, help="subset simulation runs per interval (default 10)")
-    parser.add_argument("--n", type=int, default=500, help="samples per stage (default 500)")
+    parser.add_argument("--n", type=int, default=2000, help="samples per stage at p = 1e-3 and 1e-4 (default 2000)")
+    parser.add_argument("--n-rare", type=int, default=20000, help="samples per stage at p = 1e-6 (default 20000)")
+    parser.add_argument("--rare-reps", type=int, default=None,
+                        help="repetitions at p = 1e-6 under the decision clock (default: --reps)")
     parser.add_argument("--ot-reps", type=int, default=10, help="openturns repetitions at p = 1e-4 (default 10)")
     parser.add_argument("--quick", action="store_true", help="3 repetitions of 3 runs, no openturns (a smoke run)")
     section.add_output_options(parser)
     args = parser.parse_args(argv)
     if args.quick:
-        args.reps, args.runs, args.ot_reps, args.split_reps = 3, 3, 0, 0
+        args.reps, args.runs, args.ot_reps, args.split_reps, args.n, args.n_rare = 3, 3, 0, 0, 500, 500
     args.time_reps = args.reps if args.time_reps is None else args.time_reps
-    if min(args.reps, args.time_reps) < 1 or args.runs < 2 or args.n < 20 or min(args.ot_reps, args.split_reps) < 0:
-        raise UserError("need --reps and --time-reps >= 1, --runs >= 2, --n >= 20, --ot-reps and --split-reps >= 0")
+    args.rare_reps = args.reps if args.rare_reps is None or args.quick else args.rare_reps
+    if (min(args.reps, args.time_reps, args.rare_reps) < 1 or args.runs < 2 or min(args.n, args.n_rare) < 20
+            or min(args.ot_reps, args.split_reps) < 0):
+        raise UserError("need --reps, --time-reps and --rare-reps >= 1, --runs >= 2, --n and --n-rare >= 20, "
+                        "--ot-reps and --split-reps >= 0")
     return args
 
 
@@ -202,14 +223,15 @@ def _main(argv: list[str] | None) -> int:
     args = _parse(argv)
     try:
         settings = subset.Settings(n=args.n)
+        rare = subset.Settings(n=args.n_rare)
     except ValueError as err:
         raise UserError(str(err)) from None
     start = time.process_time()
     rows, routes = [], {}
     for clock in ("time", "decision"):
         for p in (1e-3, 1e-4, 1e-6):
-            reps = args.time_reps if clock == "time" else args.reps
-            row, counts = subset_row(clock, p, settings, reps, args.runs)
+            reps = args.time_reps if clock == "time" else args.rare_reps if p < 1e-5 else args.reps
+            row, counts = subset_row(clock, p, rare if p < 1e-5 else settings, reps, args.runs)
             rows.append(row)
             routes[(clock, p)] = counts
             print(f"{row.method} {clock} p={p:.0e}: coverage {row.coverage:.0%}, bias {row.bias:+.0%}, "
