@@ -57,7 +57,8 @@ def _add_rare_event_options(p: argparse.ArgumentParser) -> None:
                    help="splitting, subset: independent runs whose spread gives the interval (default 8; "
                         "fewer under-cover, docs/rare_events.md)")
     p.add_argument("--stage-samples", type=options.positive_int, default=None, metavar="N",
-                   help="subset: episodes per stage (default 500)")
+                   help="subset: episodes per stage (default 2000: fewer lose the rarer routes to the event, "
+                        "docs/decisions.md)")
     p.add_argument("--p0", type=options.open_unit, default=None,
                    help="subset: conditional level of each stage (default 0.1; N * p0 chains of 1 / p0 episodes)")
     p.add_argument("--cell", action="append", default=[], metavar="NAME",
@@ -106,7 +107,7 @@ _ESTIMATE_METHOD_OPTIONS: tuple[tuple[str, str, tuple[str, ...]], ...] = (
 _ESTIMATE_DEFAULTS: dict[str, object] = {
     "method": "mc", "target": "collision", "budget": 1000, "level": 0.95, "particles": 20, "replicates": 8,
     "samples": 400, "ce_samples": 100, "ce_iterations": 10, "elite_share": 0.1, "max_iterations": 2000,
-    "stage_samples": 500, "p0": 0.1,
+    "stage_samples": 2000, "p0": 0.1,
 }
 
 

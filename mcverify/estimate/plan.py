@@ -45,7 +45,7 @@ class EstimateOptions:
     max_iterations: int
     cells: tuple[str, ...]
     workers: int
-    stage_samples: int = 500
+    stage_samples: int = 2000
     p0: float = 0.1
 
 

@@ -51,7 +51,7 @@ class SubsetSpec:
     conditional level; runs: independent runs for the interval; level; max_stages per run."""
 
     target: str = "collision"
-    samples: int = 500
+    samples: int = 2000
     p0: float = 0.1
     runs: int = 8
     level: float = 0.95
