@@ -34,12 +34,17 @@ def rate_text(r: Mapping[str, Any]) -> str:
 
 
 def _group(cell: Mapping[str, Any]) -> str:
-    return ", ".join(f"{a} {v}" for a, v in cell["labels"].items() if a != "epsilon") or "all"
+    """The cell's labels but ε (their values alone where one axis is left, e.g. the noise level)."""
+    others = {a: v for a, v in cell["labels"].items() if a != "epsilon"}
+    if len(others) == 1:
+        return str(next(iter(others.values())))
+    return ", ".join(f"{a} {v}" for a, v in others.items()) or "all"
 
 
 def rows(cells: Sequence[Mapping[str, Any]]) -> list[list[str]]:
-    """One row per cell, by group then ε."""
-    ordered = sorted(cells, key=lambda c: (_group(c), float(c["epsilon"])))
+    """One row per cell, by group (in the campaign's order) then ε."""
+    order = {g: i for i, g in enumerate(dict.fromkeys(_group(c) for c in cells))}
+    ordered = sorted(cells, key=lambda c: (order[_group(c)], float(c["epsilon"])))
     return [[_group(c), f"{float(c['epsilon']):g}", *(rate_text(c["rates"][m]) for m, _ in EVENTS),
              str(c["outcomes"].get("went_back", 0))] for c in ordered]
 
@@ -84,7 +89,8 @@ def build(run_dir: Path, cmd: str) -> str:
     return "\n".join([
         "## P(collision) and P(ellipse violation) against ε (`python -m benchmarks.eps_curve`)", "",
         section.provenance_line(cmd), "",
-        f"Run: `mcverify run {camp['source']} --episodes {camp['episodes_per_cell']}` (campaign {camp['name']}, seed "
+        f"Run: `mcverify run {camp['source']} --episodes {camp['episodes_per_cell']}` (the file as the run recorded it; "
+        f"campaign {camp['name']}, seed "
         f"{camp['seed']}, common random numbers {camp['common_random_numbers']}) at commit "
         f"`{str(env.get('git_commit', 'unknown'))[:7]}`, {len(cells)} cells x {camp['episodes_per_cell']} episodes at "
         f"the paper's 50 Hz, wall {wall_h:.2f} h on {workers} local workers of a {env.get('cpu_count')}-core machine "
