@@ -89,8 +89,8 @@ def build(run_dir: Path, cmd: str) -> str:
     return "\n".join([
         "## P(collision) and P(ellipse violation) against ε (`python -m benchmarks.eps_curve`)", "",
         section.provenance_line(cmd), "",
-        f"Run: `mcverify run {camp['source']} --episodes {camp['episodes_per_cell']}` (the file as the run recorded it; "
-        f"campaign {camp['name']}, seed "
+        f"Run: `mcverify run {camp['source']} --episodes {camp['episodes_per_cell']}` (the file as the run "
+        f"recorded it; campaign {camp['name']}, seed "
         f"{camp['seed']}, common random numbers {camp['common_random_numbers']}) at commit "
         f"`{str(env.get('git_commit', 'unknown'))[:7]}`, {len(cells)} cells x {camp['episodes_per_cell']} episodes at "
         f"the paper's 50 Hz, wall {wall_h:.2f} h on {workers} local workers of a {env.get('cpu_count')}-core machine "
