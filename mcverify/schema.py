@@ -179,6 +179,10 @@ EPISODE_COLUMNS: tuple[Column, ...] = (
     _c("solves", _INT, "", "problems solved (attempted) in the episode"),
     _c("cold_retries", _INT, "", "failed warm IPOPT starts retried cold"),
     _c("presumed_infeasible_solves", _INT, "", "fast-path-only solves of a problem IPOPT certified infeasible"),
+    _c("q1_confirm_solves", _INT, "", "steps where a presumed Q1 failure met a solved Q2 while overtaking (a turn-back "
+       "the fast path alone would decide): Q1 solved in full (IPM, then IPOPT) before the decision"),
+    _c("q1_confirm_solved", _INT, "", "q1_confirm_solves that found a Q1 solution: the ego went on overtaking where "
+       "the presumed verdict would have turned it back"),
     _c("infeasibility_audits", _INT, "", "C certificates of infeasibility IPOPT re-checked as the scheduled auditor "
        "(mpc.infeasibility = phase1, or phase1_mpcdc for the MPC-DC baselines; 0 otherwise)"),
     _c("infeasibility_audit_disagreements", _INT, "", "infeasibility_audits where IPOPT solved the problem (its "

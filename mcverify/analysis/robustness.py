@@ -17,7 +17,7 @@ requirements, so :func:`min_robustness` over a set compares raw values):
 - ``h_eo`` (m): min h_eo while the ego borrowed the opposing lane with veh_o ahead; +inf if never.
 - ``theorem5`` (NLP row units): "Q1 or Q2 is solvable at every control step", graded: the row's
   ``theorem5_margin``, the lowest over the control steps of the larger signed room of the step's Q1
-  and Q2 solves (:func:`mcverify.control.planner.problem_margin`: the smallest barrier-row slack of a
+  and Q2 solves (:func:`mcverify.control.margins.problem_margin`: the smallest barrier-row slack of a
   solved plan, >= 0; minus the violation left at the point a failed solve returned, < 0), negative
   exactly when some step solved neither (per step: :func:`theorem5_step_margin`). A row without the
   margin (MPC-DC, or stored before it existed) falls back to -(steps with neither solved) if any,

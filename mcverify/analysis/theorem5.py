@@ -1,7 +1,7 @@
 """Theorem 5 ("Q1 or Q2 is solvable at every control step") as a signed margin per recorded sub-step.
 
-The planner's margin of one step is :func:`mcverify.control.planner.theorem5_margin`: the larger
-signed room of the step's Q1 and Q2 solves (:func:`mcverify.control.planner.problem_margin`, >= 0
+The planner's margin of one step is :func:`mcverify.control.margins.theorem5_margin`: the larger
+signed room of the step's Q1 and Q2 solves (:func:`mcverify.control.margins.problem_margin`, >= 0
 solved, < 0 failed), recorded per problem as ``q1_margin`` and ``q2_margin``. This module recomputes
 the step's margin from those two stored columns, for the analysis layer (which does not import the
 controller; tests/analysis check the two agree).

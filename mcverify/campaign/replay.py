@@ -36,6 +36,21 @@ class ReplayResult:
 
 
 def replay(run_dir: Path, episode_id: int, out_dir: Path | None = None) -> ReplayResult:
+    """Re-simulate one stored episode with this code and check it against the stored row
+    (:class:`ReplayMismatch` when a metric differs); its trajectory and plot go to ``out_dir``
+    (default ``RUN_DIR/replay``)."""
+    run_dir = Path(run_dir)
+    stored, cell, result = resimulate(run_dir, episode_id)
+    row = result.rows[0]
+    out_dir = Path(out_dir) if out_dir else run_dir / "replay"
+    recording = result.recordings[stored["cell_episode"]]
+    traj_path, plot_path = write_recording(recording, cell, row, out_dir, f"episode-{episode_id:06d}")
+    return checked(episode_id, stored, row, traj_path, plot_path)
+
+
+def resimulate(run_dir: Path, episode_id: int, record: bool = True):
+    """(stored row, cell, :class:`~mcverify.episode.rollout.ChunkResult`) of one stored episode
+    re-simulated with this code, nothing compared (the replay's and a re-measurement's common part)."""
     run_dir = Path(run_dir)
     manifest = store.read_json(run_dir / store.MANIFEST)
     campaign = campaign_from_manifest(manifest)  # first: a folder this code cannot rebuild says so at once
@@ -56,7 +71,7 @@ def replay(run_dir: Path, episode_id: int, out_dir: Path | None = None) -> Repla
             campaign.seed,
             executors.solver_for(cell.params),
             common_random_numbers=campaign.common_random_numbers,
-            record=True,
+            record=record,
             schedules=schedules,
         )
     except Exception as exc:  # noqa: BLE001 - the stored error row says what to expect
@@ -66,10 +81,7 @@ def replay(run_dir: Path, episode_id: int, out_dir: Path | None = None) -> Repla
             f"{run_dir}: episode {episode_id} ended in an error in the run "
             f"({stored.get(ERROR_COLUMN)}); the replay fails again: {type(exc).__name__}: {exc}"
         ) from exc
-    row = result.rows[0]
-    out_dir = Path(out_dir) if out_dir else run_dir / "replay"
-    traj_path, plot_path = write_recording(result.recordings[local], cell, row, out_dir, f"episode-{episode_id:06d}")
-    return checked(episode_id, stored, row, traj_path, plot_path)
+    return stored, cell, result
 
 
 def stored_schedules(run_dir: Path, manifest: dict, episode_id: int) -> list[ErrorInput] | None:

@@ -36,10 +36,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mcverify.control.decision import Mode, Source, TableOneInput, abandon_overtake, decide, table_one
+from mcverify.control.margins import both_certified_infeasible, neither_solved, theorem5_margin
 from mcverify.levels import Level
 from mcverify.model import ModelParams
 from mcverify.ocp.problem import OcpStructure
-from mcverify.solver.backends import MAX_VIOLATION
 from mcverify.solver.mpc import MpcSolution, MpcSolver, WarmStart
 from mcverify.solver.status import SolveOutcome, SolveRoute
 
@@ -80,6 +80,8 @@ class EpisodeState:
     q1_rescue_steps: int = 0
     cold_retries: int = 0
     presumed_infeasible_solves: int = 0
+    q1_confirm_solves: int = 0  # presumed Q1 failures that would have turned back, solved in full first
+    q1_confirm_solved: int = 0  # ... and solved there (the overtake goes on)
     infeasibility_audits: int = 0  # phase-1 certificates (the MPC-DC attempt plan) IPOPT re-checked
     infeasibility_audit_disagreements: int = 0  # ... and solved
     switched_to_q2_at_s: float = math.nan
@@ -137,56 +139,6 @@ class EpisodeState:
         self.both_unsolved_uncertified_steps += int(not certified)
         self.both_infeasible_run += 1
         self.both_infeasible_longest_run = max(self.both_infeasible_longest_run, self.both_infeasible_run)
-
-
-def neither_solved(q1: MpcSolution | None, q2: MpcSolution | None) -> bool:
-    """Theorem 5's failure at one dual-planner step: Q2 was solved and failed, and Q1 failed or was
-    not solved (``q2`` is None when Q1's success made it unnecessary, :attr:`Mpc.q2_solve`)."""
-    return (q1 is None or not q1.success) and q2 is not None and not q2.success
-
-
-def problem_margin(sol: MpcSolution) -> float:
-    """How much room one solve of Q1 or Q2 leaves, signed: >= 0 exactly when it was solved
-    (``sol.success``), < 0 exactly when it failed.
-
-    Solved: the smallest slack of its barrier rows over the horizon at the returned plan
-    (:attr:`MpcSolution.cbf_slack`, floored at 0: a solved plan may sit within the solver's tolerance
-    of a row). It never overstates the room: every feasible plan of a problem with little room has a
-    small slack, so a small value is necessary for being near infeasibility (not sufficient: a row
-    the optimum presses against has slack 0 however large the feasible set).
-    Failed: minus the largest constraint or bound violation of the point the solver returned
-    (:attr:`MpcSolution.max_violation`), at least :data:`~mcverify.solver.backends.MAX_VIOLATION` (a
-    solve that failed at a feasible point, e.g. out of iterations); -inf without a finite point
-    (exception, invalid input). For a certificate of infeasibility this point minimises the
-    violation locally (the restoration phase's l1 phase-1 problem), so the value is minus a local
-    phase-1 infeasibility measure, in the max norm; for other failures it is a proxy that only keeps
-    the sign. Units: those of the NLP's rows (the front CBF row 1/s, the opposing one m/s)."""
-    if sol.success:
-        slack = sol.cbf_slack
-        return max(slack, 0.0) if math.isfinite(slack) else (math.inf if slack == math.inf else 0.0)
-    violation = sol.max_violation
-    if not math.isfinite(violation):
-        return -math.inf
-    return -max(violation, MAX_VIOLATION)
-
-
-def theorem5_margin(q1: MpcSolution | None, q2: MpcSolution | None) -> float:
-    """Theorem 5 at one dual-planner step as a signed margin: negative exactly when
-    :func:`neither_solved` (Q2 solved and failed, and Q1 failed or not solved).
-
-    The larger :func:`problem_margin` of the problems solved this step; +inf when Q2 was not solved
-    and Q1 has no solution (no claim to check: only MPC-DC steps, which have no Q2)."""
-    if q2 is None and not (q1 is not None and q1.success):
-        return math.inf
-    return max(problem_margin(s) for s in (q1, q2) if s is not None)
-
-
-def both_certified_infeasible(q1: MpcSolution | None, q2: MpcSolution | None) -> bool:
-    """:func:`neither_solved` with both failures certificates of infeasibility (IPOPT's, or the
-    certificate the infeasibility policy accepts): a counter-example to Theorem 5 up to local
-    infeasibility."""
-    return (neither_solved(q1, q2) and q1 is not None and q1.status.certified_infeasible
-            and q2 is not None and q2.status.certified_infeasible)
 
 
 @dataclass(frozen=True)
@@ -282,11 +234,14 @@ class Planner:
             return self._step_mpcdc(state, t_s, ego, front_meas, opp_meas if detected else None, level, detected)
         solver = self.with_opp if detected else self.plain
         opp = opp_meas if detected else None
+        q1_start = state.warm.get((Q1, detected))
         q1 = self._solve(state, solver, ego, front_meas, Q1, level, opp) if state.mode is Mode.OVERTAKE else None
         unread = self._q2_unread(q1, detected)
         q2 = (None if unread and self.params.mpc.q2_solve == "when_needed" else
               self._solve(state, solver, ego, front_meas, Q2, level, opp,
                           fast_path_only=unread and self.params.mpc.q2_solve == "fast_when_unneeded"))
+        if self._switch_presumed(state, ego, front_meas, q1, q2):
+            q1 = self._confirm_q1(state, solver, ego, front_meas, level, opp, q1_start)
         if q1 is None and not q2.success:
             # Going back and Q2 failed: solve Q1 too, so that "both unsolved" (Theorem 5) is counted
             # exactly and the ego can follow a feasible plan instead of braking blindly.
@@ -337,6 +292,29 @@ class Planner:
         state.held = (applied.u_plan, applied.dt_plan, t_s)
         return applied.u_plan[0], StepRecord(source, mode, detected, q1, q2, row)
 
+    def _switch_presumed(self, state: EpisodeState, ego, front_meas, q1: MpcSolution | None,
+                         q2: MpcSolution | None) -> bool:
+        """Would this step turn back on a presumed Q1 failure? Overtaking, not yet committed, Q1 failed
+        on the fast path alone (the infeasibility memo: IPOPT was not asked) and Q2 has a plan to go
+        back with: the one situation in which Algorithm 1 or Table I (row 0) may abandon the overtake
+        for good on a verdict IPOPT never gave (docs/decisions.md, "The confirmation rule")."""
+        return (state.mode is Mode.OVERTAKE and q1 is not None and not q1.success
+                and q1.status.presumed_infeasible and q2 is not None and q2.success
+                and not self.committed(ego, front_meas))
+
+    def _confirm_q1(self, state: EpisodeState, solver, ego, front_meas, level, opp,
+                    start: WarmStart | None) -> MpcSolution:
+        """Q1 solved in full (the fast path, then IPOPT) from the warm start the presumed solve had:
+        the verdict that decides a switch. A confirmed solution ends the memo; a confirmed failure is
+        the memo's full attempt after a wait (its wait doubles)."""
+        key = (Q1, opp is not None)
+        if start is not None:
+            state.warm[key] = start
+        sol = self._solve(state, solver, ego, front_meas, Q1, level, opp, confirm=True)
+        state.q1_confirm_solves += 1
+        state.q1_confirm_solved += int(sol.success)
+        return sol
+
     def _q2_unread(self, q1: MpcSolution | None, detected: bool) -> bool:
         """Will this step's decision ignore Q2 (:attr:`Mpc.q2_solve`)? Overtaking with Q1 solved and no
         Table I to consult: Algorithm 1 then applies Q1 whatever Q2 says."""
@@ -379,11 +357,12 @@ class Planner:
         return self._no_plan(state, t_s, ego, front_meas, record)
 
     def _solve(self, state, solver, ego, front_meas, direction, level, opp, presume: bool = True,
-               fast_path_only: bool = False) -> MpcSolution:
+               fast_path_only: bool = False, confirm: bool = False) -> MpcSolution:
         """One problem, warm-started from its last solution; ``presume``: may a problem IPOPT certified
         infeasible get only the fast path for a while (the infeasibility memo)? ``fast_path_only``: an
         unread Q2 (:attr:`Mpc.q2_solve` = "fast_when_unneeded"): the fast path alone, and a failure
-        teaches the memo nothing (IPOPT was not asked)."""
+        teaches the memo nothing (IPOPT was not asked). ``confirm``: a full attempt whatever the memo
+        says (:meth:`_confirm_q1`); a solution ends the memo."""
         key = (direction, opp is not None)
         guess = None
         if opp is not None and key not in state.warm:
@@ -395,7 +374,7 @@ class Planner:
                 state.warm[(direction, False)] = plain.warm
             guess = solver.guess_from_plan(plain, opp)
         memo = state.infeasible.get(key) if presume else None
-        presumed = memo is not None and memo[0] + 1 < memo[1]
+        presumed = memo is not None and memo[0] + 1 < memo[1] and not confirm
         extra = {"fast_only": True} if presumed or fast_path_only else {}
         sol = solver.solve(ego, front_meas, direction, level, state.warm.get(key), opp_xv=opp, guess=guess, **extra)
         unread_failure = fast_path_only and not presumed and not sol.success
@@ -408,7 +387,7 @@ class Planner:
             state.warm.pop(key, None)  # never restart from a stale point
         if unread_failure:
             return sol  # the memo stays as it was: only a full attempt can certify or end it
-        memo = self._next_memo(memo, sol, presumed) if presume else None
+        memo = self._next_memo(memo, sol, presumed) if presume and not (confirm and sol.success) else None
         if memo is None:
             state.infeasible.pop(key, None)
         else:

@@ -8,7 +8,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from mcverify.cell import Cell
-from mcverify.control.planner import StepRecord, both_certified_infeasible, problem_margin
+from mcverify.control.margins import both_certified_infeasible, problem_margin
+from mcverify.control.planner import StepRecord
 from mcverify.episode.recording import EpisodeRecording
 from mcverify.sim.plant import Substep
 

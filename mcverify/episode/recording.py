@@ -19,7 +19,7 @@ unless noted:
   total time T, s; NaN unless solved), ``table_one_row`` (-1 not consulted), ``both_certified``
   (0/1: neither problem solved and both failures certificates of infeasibility, Theorem 5's
   certified counter-example; NaN without a decision), ``q1_margin``, ``q2_margin`` (each problem's
-  signed room, :func:`mcverify.control.planner.problem_margin`: >= 0 solved, < 0 failed; NaN not
+  signed room, :func:`mcverify.control.margins.problem_margin`: >= 0 solved, < 0 failed; NaN not
   solved or no decision; the step's Theorem 5 margin is computed from them by
   :func:`mcverify.analysis.robustness.theorem5_step_margin`);
 * the measurements: ``meas_front_x_m``, ``meas_front_y_m`` (m), ``meas_front_speed_mps`` (m/s),

@@ -168,6 +168,8 @@ def episode_row(
         "solves": len(st.iterations),
         "cold_retries": st.cold_retries,
         "presumed_infeasible_solves": st.presumed_infeasible_solves,
+        "q1_confirm_solves": st.q1_confirm_solves,
+        "q1_confirm_solved": st.q1_confirm_solved,
         "infeasibility_audits": st.infeasibility_audits,
         "infeasibility_audit_disagreements": st.infeasibility_audit_disagreements,
         "iterations_mean": float(iters.mean()),

@@ -146,9 +146,12 @@ def test_certified_ignores_budget_and_numerical_failures():
             st.q1_fail_other_steps) == (1, 0, 2, 2)
 
 
-def test_certified_accepts_a_presumed_infeasibility():
-    st, _ = _run([None, ITER, PRES], rule="certified")
-    assert st.mode is Mode.GO_BACK and st.went_back_q1_failure == "presumed_infeasible"
+def test_certified_counts_a_presumed_infeasibility_once_a_full_solve_confirms_it():
+    # the presumed failure at step 2 meets a solved Q2: Q1 is solved in full first (the confirmation
+    # rule, test_confirmation.py), and that full solve's certificate abandons
+    st, _ = _run([None, ITER, PRES, CERT_FB], rule="certified")
+    assert st.mode is Mode.GO_BACK and st.went_back_q1_failure == "certified_infeasible"
+    assert st.q1_confirm_solves == 1 and st.q1_fail_presumed_steps == 0
 
 
 def test_a_waiting_rule_abandons_when_there_is_no_q1_plan_to_hold():
@@ -183,7 +186,7 @@ def test_both_unsolved_steps_split_by_certificate_and_longest_run():
     assert st.both_infeasible_steps == 4
     assert st.both_certified_infeasible_steps == 2 and st.both_unsolved_uncertified_steps == 2
     # the per-step test the trajectory's `both_certified` column records agrees with the counts
-    from mcverify.control.planner import both_certified_infeasible, neither_solved  # noqa: PLC0415
+    from mcverify.control.margins import both_certified_infeasible, neither_solved  # noqa: PLC0415
     assert [both_certified_infeasible(r.q1, r.q2) for r in recs][:6] == [False, True, True, False, False, False]
     assert sum(neither_solved(r.q1, r.q2) for r in recs) == st.both_infeasible_steps
     assert st.both_infeasible_longest_run == 3

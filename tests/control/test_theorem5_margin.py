@@ -1,4 +1,4 @@
-"""Theorem 5 as a graded margin (mcverify.control.planner.problem_margin / theorem5_margin): negative
+"""Theorem 5 as a graded margin (mcverify.control.margins.problem_margin / theorem5_margin): negative
 exactly when neither Q1 nor Q2 is solved, on constructed solutions and on real solves, and the
 analysis layer's recomputation from the recorded columns agrees with the planner."""
 
@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from mcverify.analysis.theorem5 import theorem5_step_margin
-from mcverify.control.planner import EpisodeState, neither_solved, problem_margin, theorem5_margin
+from mcverify.control.margins import neither_solved, problem_margin, theorem5_margin
+from mcverify.control.planner import EpisodeState
 from mcverify.levels import Level
 from mcverify.model import ModelParams
 from mcverify.solver.backends import MAX_VIOLATION
