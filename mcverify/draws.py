@@ -92,6 +92,11 @@ DRAWS: tuple[Draw, ...] = (
     Draw("opp_spawn_delay_s", 3, "s", "how long after the ego's lane entry veh_o appears "
          "(opposing.spawn = lane_entry; NaN otherwise)", "opposing.spawn_delay_range_s", "opposing.spawn_delay_s",
          _at_lane_entry, lambda p: 0.0, sd_field="opposing.spawn_delay_sd_s"),
+    Draw("front_accel_onset_s", 4, "s", "when the front vehicle's acceleration starts, drawn for the episode",
+         "scenario.front_accel_onset_range_s", "scenario.front_accel_onset_s", lambda p: True, lambda p: 0.0),
+    Draw("front_accel_duration_s", 5, "s", "how long the front vehicle's acceleration lasts, drawn for the episode "
+         "(inf: until scenario.front_speed_max_mps)", "scenario.front_accel_duration_range_s",
+         "scenario.front_accel_duration_s", lambda p: True, lambda p: 0.0),
 )
 
 #: Every draw by name.

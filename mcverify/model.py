@@ -327,7 +327,8 @@ class Simulation:
 class Scenario:
     """Initial conditions (paper Sec. VI-B: ego at x = 10 m, 10 m/s; front vehicle at x = 64 m) and veh_f's
     acceleration, which never switches sign (the paper's assumption); a range draws it per episode from the
-    episode's key (the paper's Table III ranges (1,3], (3,5], (5,7])."""
+    episode's key (the paper's Table III ranges (1,3], (3,5], (5,7]), and so do the ranges of the burst's onset
+    and duration (values the paper leaves open)."""
 
     ego_x_m: float = 10.0
     """Ego's initial c.g. position. Paper: 10."""
@@ -344,9 +345,16 @@ class Scenario:
     Table III (1,3], (3,5], (5,7]."""
     front_accel_onset_s: float = 0.0
     """When veh_f starts accelerating. Valid: >= 0."""
+    front_accel_onset_range_s: tuple[float, ...] = ()
+    """(lo, hi): each episode draws when veh_f starts accelerating uniformly in (lo, hi]; replaces front_accel_onset_s
+    (ignored while a range is set). Valid: 0 <= lo < hi. The paper gives no onset for Table III."""
     front_accel_duration_s: float = math.inf
     """How long veh_f's acceleration lasts (inf: until front_speed_max_mps, so no overtake once it is faster than the
     ego can go). Valid: >= 0."""
+    front_accel_duration_range_s: tuple[float, ...] = ()
+    """(lo, hi): each episode draws how long veh_f's acceleration lasts uniformly in (lo, hi] (always > 0); replaces
+    front_accel_duration_s (ignored while a range is set). Valid: 0 <= lo < hi. The paper gives no duration for
+    Table III."""
     front_speed_max_mps: float = 30.0
     """veh_f's speed cap while it accelerates. Valid: >= 0."""
 

@@ -9,7 +9,7 @@ import pytest
 
 from mcverify.campaign.spec import campaign_from_dict
 from mcverify.draws import DRAW_NAMES, DRAWS, SCENARIO_STREAM, field_value
-from mcverify.episode.draws import sample_scenario
+from mcverify.episode.draws import episode_key, sample_scenario
 from mcverify.errors import CampaignError
 from mcverify.estimate import importance_run
 from mcverify.model import ModelParams
@@ -17,7 +17,8 @@ from mcverify.schema import COLUMN_NAMES, column
 
 LANE_ENTRY = {"opposing": {"kind": "human", "spawn": "lane_entry", "speed_range_mps": [10.0, 14.0],
                            "spawn_gap_range_m": [60.0, 90.0], "spawn_delay_range_s": [0.5, 2.0]},
-              "scenario": {"front_accel_range_mps2": [1.0, 3.0]}}
+              "scenario": {"front_accel_range_mps2": [1.0, 3.0], "front_accel_onset_range_s": [1.0, 4.0],
+                           "front_accel_duration_range_s": [0.5, 2.5]}}
 
 
 def _params(model):
@@ -57,10 +58,11 @@ def test_importance_sampling_reads_the_ranges_and_normals_of_the_registry():
     cell = type("C", (), {"params": p})()
     bounds = importance_run.scenario_bounds(cell)
     assert bounds == {"front_accel_mps2": (1.0, 3.0), "opp_speed_mps": (10.0, 14.0),
-                      "opp_spawn_gap_m": (60.0, 90.0), "opp_spawn_delay_s": (0.5, 2.0)}
+                      "opp_spawn_gap_m": (60.0, 90.0), "opp_spawn_delay_s": (0.5, 2.0),
+                      "front_accel_onset_s": (1.0, 4.0), "front_accel_duration_s": (0.5, 2.5)}
     nominal = importance_run.scenario_nominal(cell)
     assert nominal.mean[3] == 1.0 and nominal.sd[3] == 0.5  # the spawn delay: a truncated normal
-    assert all(math.isnan(m) for m in nominal.mean[:3])  # the others uniform
+    assert all(math.isnan(m) for i, m in enumerate(nominal.mean) if i != 3)  # the others uniform
 
 
 def test_the_schema_lists_the_draws_in_registry_order():
@@ -80,3 +82,50 @@ def test_validation_refuses_a_range_beyond_the_registry_bounds_in_one_line(draw)
         with pytest.raises(CampaignError, match=draw.range_field) as err:
             _params({**LANE_ENTRY, section: {**LANE_ENTRY[section], name: bad}})
         assert "\n" not in str(err.value)
+
+
+# ------------------------------------------------------------------ the burst's onset and duration
+
+TABLE3 = {"scenario": {"front_accel_range_mps2": [3.0, 5.0], "front_accel_onset_s": 3.5,
+                       "front_accel_duration_s": 1.5},
+          "opposing": {"kind": "autonomous", "x_m": 450.0, "speed_mps": 15.0}}
+DRAWN_BURST = {**TABLE3, "scenario": {**TABLE3["scenario"], "front_accel_onset_range_s": [1.0, 4.0],
+                                      "front_accel_duration_range_s": [0.5, 2.5]}}
+
+
+def test_a_drawn_burst_lies_in_its_ranges_is_keyed_and_varies_across_episodes():
+    p = _params(DRAWN_BURST)
+    draws = [sample_scenario(episode_key(2024, 1, e), p) for e in range(64)]
+    onsets = [d["front_accel_onset_s"] for d in draws]
+    durations = [d["front_accel_duration_s"] for d in draws]
+    assert all(1.0 < x <= 4.0 for x in onsets) and all(0.5 < x <= 2.5 for x in durations)
+    assert len(set(onsets)) == len(onsets) and len(set(durations)) == len(durations)
+    assert sample_scenario(episode_key(2024, 1, 17), p) == draws[17]  # the same (seed, cell, episode): the same
+    assert onsets[17] != sample_scenario(episode_key(2025, 1, 17), p)["front_accel_onset_s"]  # another seed
+
+
+def test_the_burst_draws_leave_every_other_draw_as_it_was():
+    """Adding the ranges changes no other draw (their streams are new), and without them the episode
+    keeps the fixed onset and duration: the campaigns of fixed bursts draw what they drew before."""
+    fixed, drawn = _params(TABLE3), _params(DRAWN_BURST)
+    for e in range(8):
+        key = episode_key(2024, 2, e)
+        before, after = sample_scenario(key, fixed), sample_scenario(key, drawn)
+        assert (before["front_accel_onset_s"], before["front_accel_duration_s"]) == (3.5, 1.5)
+        others = [n for n in DRAW_NAMES if n not in ("front_accel_onset_s", "front_accel_duration_s")]
+        assert [after[n] for n in others] == [before[n] for n in others]
+        unit = float(jax.random.uniform(jax.random.fold_in(key, SCENARIO_STREAM + 0), (), dtype=float))
+        assert before["front_accel_mps2"] == 5.0 - 2.0 * unit  # alpha_f from stream 0, bit for bit
+    default = sample_scenario(jax.random.PRNGKey(0), ModelParams())
+    assert default["front_accel_onset_s"] == 0.0 and default["front_accel_duration_s"] == math.inf
+
+
+@pytest.mark.parametrize(("field", "bad"), [
+    ("front_accel_onset_range_s", [4.0, 1.0]), ("front_accel_onset_range_s", [-1.0, 2.0]),
+    ("front_accel_onset_range_s", [1.0]), ("front_accel_duration_range_s", [0.0, 0.0]),
+    ("front_accel_duration_range_s", [1.0, math.inf]), ("front_accel_duration_range_s", [-0.5, 1.0]),
+])
+def test_a_bad_burst_range_is_refused_in_one_line_naming_the_field(field, bad):
+    with pytest.raises(CampaignError, match=f"scenario.{field}") as err:
+        _params({**TABLE3, "scenario": {**TABLE3["scenario"], field: bad}})
+    assert "\n" not in str(err.value)

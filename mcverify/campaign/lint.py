@@ -35,16 +35,39 @@ def warnings(campaign: Campaign) -> list[str]:
             f"{short[0].params.sim.max_time_s:g} s is shorter than the time the ego needs to reach veh_f "
             "at its speed limit"
         )
+    for fixed, drawn in _REPLACED_BY_RANGE:
+        ignored = [c for c in campaign.cells if _ignored(c, fixed, drawn)]
+        if ignored:
+            found.append(f"scenario.{fixed} is ignored in {_cells(ignored, campaign)}: scenario.{drawn} draws it per "
+                         "episode")
     return found
 
 
+#: Fixed scenario values that a range, once set, replaces (the range is drawn per episode).
+_REPLACED_BY_RANGE = (("front_accel_onset_s", "front_accel_onset_range_s"),
+                      ("front_accel_duration_s", "front_accel_duration_range_s"))
+
+
+def _ignored(cell: Cell, fixed: str, drawn: str) -> bool:
+    """The cell sets the fixed value away from its default, and a range that replaces it."""
+    s = cell.params.scenario
+    return bool(getattr(s, drawn)) and getattr(s, fixed) != getattr(type(s)(), fixed)
+
+
 def front_final_speed_mps(cell: Cell, accel_mps2: float) -> float:
-    """veh_f's speed once its acceleration burst is over (it never decelerates), m/s."""
+    """veh_f's speed once its acceleration burst is over (it never decelerates), m/s; with a drawn
+    duration, after the shortest burst of its range."""
     s = cell.params.scenario
     if accel_mps2 <= 0.0:
         return s.front_speed_mps
-    gained = accel_mps2 * s.front_accel_duration_s if math.isfinite(s.front_accel_duration_s) else math.inf
+    duration_s = _shortest_duration_s(cell)
+    gained = accel_mps2 * duration_s if math.isfinite(duration_s) else math.inf
     return max(s.front_speed_mps, min(s.front_speed_max_mps, s.front_speed_mps + gained))
+
+
+def _shortest_duration_s(cell: Cell) -> float:
+    s = cell.params.scenario
+    return min(s.front_accel_duration_range_s) if s.front_accel_duration_range_s else s.front_accel_duration_s
 
 
 def _lowest_accel(cell: Cell) -> float:
@@ -62,7 +85,9 @@ def _why(cell: Cell) -> str:
     a = _lowest_accel(cell)
     if a <= 0.0:
         return f"it drives at scenario.front_speed_mps = {s.front_speed_mps:g} m/s"
-    return (f"an acceleration of {a:g} m/s^2 or more for front_accel_duration_s = {s.front_accel_duration_s:g} s "
+    burst = (f"front_accel_duration_s = {s.front_accel_duration_s:g} s" if not s.front_accel_duration_range_s else
+             f"front_accel_duration_range_s's {_shortest_duration_s(cell):g} s or more")
+    return (f"an acceleration of {a:g} m/s^2 or more for {burst} "
             f"takes it to {front_final_speed_mps(cell, a):g} m/s")
 
 

@@ -248,8 +248,9 @@ def _start(cell: Cell, ids: list[int], seed: int, common_random_numbers: bool,
     samples = [sample_scenario(k, p) for k in keys]
     for b, e in enumerate(ids):
         samples[b].update((scenarios or {}).get(e, {}))
-    world = LaneGroups(initial_plant(p, [s["front_accel_mps2"] for s in samples],
-                                     [s["opp_speed_mps"] for s in samples]), keys, p, tilt=noise_tilt,
+    plant = initial_plant(p, [s["front_accel_mps2"] for s in samples], [s["opp_speed_mps"] for s in samples],
+                          [s["front_accel_onset_s"] for s in samples], [s["front_accel_duration_s"] for s in samples])
+    world = LaneGroups(plant, keys, p, tilt=noise_tilt,
                        schedules=None if schedules is None else list(schedules))
     h0 = world.trace().min_h_front.copy()
     states = [EpisodeState(e) for e in ids]

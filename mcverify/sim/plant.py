@@ -58,8 +58,6 @@ class PlantParams(NamedTuple):
     opp_lane_y_m: Array
     ellipse_a_m: Array
     ellipse_b_m: Array
-    front_onset_s: Array
-    front_duration_s: Array
     front_speed_max_mps: Array
     opp_kind: Array
     opp_accel_mps2: Array
@@ -91,8 +89,6 @@ def plant_params(p: ModelParams) -> PlantParams:
         opp_lane_y_m=f(road.opp_lane_y_m),
         ellipse_a_m=f(p.barrier.ellipse_a_m),
         ellipse_b_m=f(p.barrier.ellipse_b_m),
-        front_onset_s=f(p.scenario.front_accel_onset_s),
-        front_duration_s=f(p.scenario.front_accel_duration_s),
         front_speed_max_mps=f(p.scenario.front_speed_max_mps),
         opp_kind=jnp.asarray(_OPP_KINDS[o.kind], dtype=jnp.int32),
         opp_accel_mps2=f(o.accel_mps2),
@@ -116,7 +112,8 @@ class Plant(NamedTuple):
 
     ego: (4,) [x_m, y_m, psi_rad, speed_mps]; front: (2,) [x_m, speed_mps] on the ego lane centre;
     opp: (2,) [x_m, v_mps] on the opposing lane centre, v <= 0 (road frame);
-    front_accel_mps2: () this episode's alpha_f; t_s: () time since the episode started;
+    front_accel_mps2: () this episode's alpha_f; front_onset_s, front_duration_s: () when its burst starts and
+    how long it lasts (drawn per episode, :data:`mcverify.draws.DRAWS`); t_s: () time since the episode started;
     tilt_log_ratio: () the sum of log(tilted / nominal density) over the tilted steps so far (the
     episode's likelihood ratio follows from it, :func:`~mcverify.sim.tilt.episode_log_lr`); tilt_sums:
     (9,) the sums of the tilted units per (band, unit), row-major; tilt_counts: (3,) the tilted steps per
@@ -127,6 +124,8 @@ class Plant(NamedTuple):
     front: Array
     opp: Array
     front_accel_mps2: Array
+    front_onset_s: Array
+    front_duration_s: Array
     t_s: Array
     tilt_log_ratio: Array
     tilt_sums: Array
@@ -353,7 +352,7 @@ def advance(plant: Plant, trace: SafetyTrace, u: Array, active: Array, pp: Plant
         ego, front, opp, tr = carry
         t = plant.t_s + i * dt
         ego_n = vehicles.rk4_step(lambda x, uu: vehicles.ego_derivative(x, uu, pp.l_r_m), ego, u, dt)
-        a_f = agents.front_accel(t, plant.front_accel_mps2, pp.front_onset_s, pp.front_duration_s, front[1],
+        a_f = agents.front_accel(t, plant.front_accel_mps2, plant.front_onset_s, plant.front_duration_s, front[1],
                                  pp.front_speed_max_mps, dt)
         front_n = _double_integrator(front, a_f, dt)
         opp_n = _double_integrator(opp, alpha_o, dt)
@@ -412,9 +411,11 @@ def compiled_scheduled():
 
 
 def initial_plant(p: ModelParams, front_accels_mps2: Sequence[float],
-                  opp_speeds_mps: Sequence[float] | None = None) -> Plant:
+                  opp_speeds_mps: Sequence[float] | None = None, front_onsets_s: Sequence[float] | None = None,
+                  front_durations_s: Sequence[float] | None = None) -> Plant:
     """The campaign's start (paper Sec. VI-B) for episodes with these alpha_f (and veh_o speeds,
-    default ``opposing.speed_mps``), batched. veh_o is parked out of reach when there is none or
+    default ``opposing.speed_mps``; burst onsets and durations, default ``scenario.front_accel_onset_s`` and
+    ``scenario.front_accel_duration_s``), batched. veh_o is parked out of reach when there is none or
     when it appears later (``opposing.spawn = "lane_entry"``, :meth:`mcverify.sim.lanes.LaneGroups.place_opposing`)."""
     n = len(front_accels_mps2)
     s, o = p.scenario, p.opposing
@@ -425,8 +426,11 @@ def initial_plant(p: ModelParams, front_accels_mps2: Sequence[float],
     else:
         speeds = [o.speed_mps] * n if opp_speeds_mps is None else list(opp_speeds_mps)
         opp = jnp.array([[o.x_m, -v] for v in speeds], dtype=float)
-    return Plant(ego, front, opp, jnp.asarray(front_accels_mps2, dtype=float), jnp.zeros(n), jnp.zeros(n),
-                 jnp.zeros((n, 9)), jnp.zeros((n, 3)))
+    onsets = [s.front_accel_onset_s] * n if front_onsets_s is None else list(front_onsets_s)
+    durations = [s.front_accel_duration_s] * n if front_durations_s is None else list(front_durations_s)
+    per_episode = lambda v: jnp.asarray(v, dtype=float)  # noqa: E731
+    return Plant(ego, front, opp, per_episode(front_accels_mps2), per_episode(onsets), per_episode(durations),
+                 jnp.zeros(n), jnp.zeros(n), jnp.zeros((n, 9)), jnp.zeros((n, 3)))
 
 
 def footprint_top_y_m(ego: np.ndarray, p: ModelParams) -> np.ndarray:

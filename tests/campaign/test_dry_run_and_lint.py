@@ -35,6 +35,17 @@ def test_a_limited_burst_gives_no_warning_and_a_mixed_grid_names_its_cells():
     assert "'front_speed_kmh=72'" in warning and "'front_speed_kmh=25'" not in warning
 
 
+def test_a_drawn_burst_warns_by_its_shortest_duration_and_names_the_fixed_value_it_replaces():
+    raw = {**NO_OVERTAKE, "model": {"scenario": {"front_accel_duration_range_s": [7.0, 9.0]}}}
+    (warning,) = lint.warnings(campaign_from_dict(raw))  # 1 m/s^2 for 7 s takes veh_f past the ego's 19.4 m/s
+    assert warning.startswith("no episode can overtake") and "front_accel_duration_range_s's 7 s" in warning
+    raw["model"]["scenario"] = {"front_accel_duration_range_s": [1.0, 9.0], "front_accel_onset_s": 3.5,
+                                "front_accel_onset_range_s": [1.0, 4.0]}
+    (warning,) = lint.warnings(campaign_from_dict(raw))
+    assert warning == ("scenario.front_accel_onset_s is ignored in every cell: scenario.front_accel_onset_range_s "
+                       "draws it per episode")
+
+
 def test_a_time_limit_too_short_to_reach_vehf_warns():
     (warning,) = lint.warnings(load_campaign(REPO / "tests/fixtures/tiny.toml"))
     assert "ends as a timeout" in warning and "sim.max_time_s = 1 s" in warning

@@ -102,3 +102,23 @@ def test_human_opposing_vehicle_accelerates_to_its_limit_in_the_plant():
     t_reach = (params.opposing.speed_limit_mps - params.opposing.speed_mps) / params.opposing.accel_mps2
     first = np.argmax(speeds >= params.opposing.speed_limit_mps - 1e-9) * params.sim.control_period_s
     assert first == pytest.approx(t_reach, abs=2 * params.sim.control_period_s)
+
+
+def test_each_episode_accelerates_veh_f_from_its_own_onset_for_its_own_duration():
+    """The burst's onset and duration are per episode (drawn, :data:`mcverify.draws.DRAWS`): three
+    episodes of one batch, alpha_f = 2 m/s^2, veh_f gains alpha_f times the part of [0, t] its burst covers."""
+    p = ModelParams()
+    onsets, durations = [0.0, 0.101, 0.201], [np.inf, 0.2, 0.1]  # mid-sub-step edges: no rounding at t = onset
+    keys = jnp.stack([episode_key(5, 0, e) for e in range(3)])
+    world = lanes.LaneGroups(plant.initial_plant(p, [2.0] * 3, front_onsets_s=onsets, front_durations_s=durations),
+                             keys, p)
+    steps = round(0.5 / p.sim.control_period_s)
+    for _ in range(steps):
+        subs = world.substeps_of(world.advance(np.zeros((3, 2)), np.ones(3, dtype=bool)))
+    t_s = steps * p.sim.control_period_s
+    v0 = p.scenario.front_speed_mps
+    for b in range(3):
+        covered = max(0.0, min(t_s, onsets[b] + durations[b]) - onsets[b])
+        assert subs.front[b, -1, 1] == pytest.approx(v0 + 2.0 * covered, abs=1e-9)
+    default = plant.initial_plant(p, [2.0])
+    assert (float(default.front_onset_s[0]), float(default.front_duration_s[0])) == (0.0, np.inf)
