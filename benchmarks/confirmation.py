@@ -78,17 +78,19 @@ def _rate(k: int, n: int) -> str:
 
 def cell_rows(stored: Sequence[Mapping[str, Any]], after: Mapping[int, Mapping[str, Any]],
               cell_names: Sequence[str]) -> list[list[str]]:
-    """Per cell: episodes, presumed turn-backs, what they do now, collisions before and after."""
+    """Per cell: episodes, presumed turn-backs, what they do now, collisions before and after, and unsafe
+    episodes (a collision or h_ef < 0) after."""
     out = []
     for index, name in enumerate(cell_names):
         mine = [r for r in stored if int(r["cell_index"]) == index]
         moved = [after[int(r["episode_id"])] for r in mine if int(r["episode_id"]) in after]
         before_k = sum(_collided(r) for r in mine)
         now_k = sum(_collided(after.get(int(r["episode_id"]), r)) for r in mine)
+        unsafe_k = sum(not after.get(int(r["episode_id"]), r)["safe"] for r in mine)
         back_now = sum(m["outcome"] == "went_back" for m in moved)
         out.append([name, str(len(mine)), str(len(moved)), str(len(moved) - back_now), str(back_now),
                     str(sum(m["q1_confirm_solves"] for m in moved)), _rate(before_k, len(mine)),
-                    _rate(now_k, len(mine))])
+                    _rate(now_k, len(mine)), _rate(unsafe_k, len(mine))])
     return out
 
 
@@ -128,7 +130,7 @@ def build(run_dir: Path, cmd: str, workers: int, check_unchanged: int) -> str:
     wall_s = time.perf_counter() - t0
     after = {m["episode_id"]: m for m in moved}
     head = ["cell", "episodes", "turned back on a presumed verdict (run)", "now overtake", "now turn back",
-            "confirmation solves", "P(collision), the run", "P(collision), this code"]
+            "confirmation solves", "P(collision), the run", "P(collision), this code", "P(unsafe), this code"]
     body = cell_rows(stored, after, [c.name for c in campaign.cells])
     table = "\n".join(["| " + " | ".join(head) + " |", "|" + "---|" * len(head),
                        *("| " + " | ".join(r) + " |" for r in body)])

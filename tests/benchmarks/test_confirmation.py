@@ -25,9 +25,10 @@ def test_only_turn_backs_on_a_presumed_verdict_are_re_simulated():
 def test_the_table_counts_before_and_after_per_cell():
     rows = confirmation.cell_rows(STORED, AFTER, ["a", "b"])
     # cell a: 3 episodes, 1 re-simulated, it overtakes now, 2 confirmations, collisions 1 -> 0
-    assert rows[0] == ["a", "3", "1", "1", "0", "2", "1/3 = 0.33 [0.0084, 0.91]", "0/3 (≤ 0.63)"]
+    assert rows[0] == ["a", "3", "1", "1", "0", "2", "1/3 = 0.33 [0.0084, 0.91]", "0/3 (≤ 0.63)", "0/3 (≤ 0.63)"]
     # cell b: the re-simulated episode still turns back (on a full verdict) and now collides
-    assert rows[1][:6] == ["b", "2", "1", "0", "1", "1"] and rows[1][6].startswith("0/2") and rows[1][7].startswith("1/2")
+    assert rows[1][:6] == ["b", "2", "1", "0", "1", "1"] and rows[1][6].startswith("0/2")
+    assert rows[1][7].startswith("1/2") and rows[1][8].startswith("1/2")
 
 
 def test_audits_are_set_beside_the_re_simulated_episodes():
