@@ -334,10 +334,20 @@ RETIRED_FIELDS: dict[str, Any] = {
 }
 
 
+#: Model fields added since runs were first recorded, with the value that does what the code before them did
+#: (a drawn burst onset or duration: not drawn). A recorded run that lacks one of them ran exactly that, so it
+#: is rebuilt with it; any other missing field is refused (:func:`params_from_record`).
+INTRODUCED_FIELDS: dict[str, Any] = {
+    "scenario.front_accel_onset_range_s": (),
+    "scenario.front_accel_duration_range_s": (),
+}
+
+
 def params_from_record(record: Any, where: str) -> ModelParams:
     """The :class:`ModelParams` a run recorded (``dataclasses.asdict`` of them, as in its manifest), exactly: every
-    field of today's model must be there (none is filled in from today's defaults), and a field the model no
-    longer has is accepted only at the value now built in (:data:`RETIRED_FIELDS`). Anything else is a
+    field of today's model must be there (none is filled in from today's defaults) but those added since with a value
+    that does what the code before them did (:data:`INTRODUCED_FIELDS`), and a field the model no longer has is
+    accepted only at the value now built in (:data:`RETIRED_FIELDS`). Anything else is a
     :class:`CampaignError` naming the field."""
     if not isinstance(record, dict):
         raise CampaignError(f"{where}: no recorded model parameters (made by an older version)")
@@ -349,6 +359,9 @@ def params_from_record(record: Any, where: str) -> ModelParams:
         cls = sec.default_factory
         values = {}
         for f in dataclasses.fields(cls):
+            if f.name not in given and f"{sec.name}.{f.name}" in INTRODUCED_FIELDS:
+                values[f.name] = INTRODUCED_FIELDS[f"{sec.name}.{f.name}"]
+                continue
             if f.name not in given:
                 raise CampaignError(f"{where}: the recorded parameters lack {sec.name}.{f.name}, which this code "
                                     "needs (made by an older version); rerun the campaign")

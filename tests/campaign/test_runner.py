@@ -413,6 +413,16 @@ def test_a_recorded_retired_field_at_its_built_in_value_is_accepted():
         c.params for c in campaign_from_dict(manifest["campaign"]["raw"]).cells]
 
 
+def test_a_run_made_before_a_field_was_introduced_is_rebuilt_with_what_it_ran():
+    manifest = _manifest()
+    for cell in manifest["cells"]:
+        for name in ("front_accel_onset_range_s", "front_accel_duration_range_s"):
+            del cell["params"]["scenario"][name]
+    assert [c.params for c in runner.campaign_from_manifest(manifest).cells] == [
+        c.params for c in campaign_from_dict(manifest["campaign"]["raw"]).cells]
+    assert {c.params.scenario.front_accel_onset_range_s for c in runner.campaign_from_manifest(manifest).cells} == {()}
+
+
 @pytest.mark.parametrize(("change", "match"), [
     (lambda mpc: mpc.update(ipm_central_attempt="all"),
      r"cell 'all': the run set mpc.ipm_central_attempt = 'all', an option since deleted \(only 'mpcdc' remains\)"),
