@@ -29,7 +29,7 @@ def test_bench_trials_and_section(tmp_path):
     assert again == trials
     text = bench.markdown(trials, budget=8, command="python -m benchmarks.falsify t.toml")
     begin, _ = section.markers("falsify")
-    assert text.count("| t | ") == 2 and text.startswith(begin)
+    assert text.count("| t | ") == 4 and text.startswith(begin)  # the table and the per-trial table
     assert "Command: `python -m benchmarks.falsify t.toml`; commit" in text
     md = tmp_path / "B.md"
     md.write_text("# Benchmarks\n\nintro\n")
