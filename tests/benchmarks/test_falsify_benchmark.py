@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import pytest
 
 from benchmarks import falsify as bench
@@ -25,11 +27,17 @@ def test_bench_trials_and_section(tmp_path):
     trials = bench.run_trials([f], ["cma", "random"], 2, 8, 0, tmp_path / "b", **_kw())
     assert [(t.method, t.seed) for t in trials] == [("cma", 0), ("cma", 1), ("random", 0), ("random", 1)]
     assert all(t.first_counterexample is None or t.first_counterexample <= t.episodes <= 8 for t in trials)
+    for t in trials:  # costs from the search's own cost column; counterexamples as replay takes them
+        assert 0 < t.episode_equivalents <= t.episodes
+        assert (t.first_episode_equivalents is None) == (t.first_counterexample is None) == (not t.counterexamples)
+        if t.first_counterexample is not None:
+            assert 0 < t.first_episode_equivalents <= t.episode_equivalents
+            assert all((cx.run_dir / "manifest.json").is_file() for cx in t.counterexamples)
     again = bench.run_trials([f], ["cma", "random"], 2, 8, 0, tmp_path / "b", **_kw())  # re-read, not re-run
     assert again == trials
     text = bench.markdown(trials, budget=8, command="python -m benchmarks.falsify t.toml")
     begin, _ = section.markers("falsify")
-    assert text.count("| t | ") == 2 and text.startswith(begin)
+    assert text.count("| t | ") == 4 and text.startswith(begin)  # the table and the per-trial table
     assert "Command: `python -m benchmarks.falsify t.toml`; commit" in text
     md = tmp_path / "B.md"
     md.write_text("# Benchmarks\n\nintro\n")
@@ -87,3 +95,111 @@ def test_every_target_is_checked_before_the_first_trial(tmp_path, capsys):
     assert code == 2 and len(err) == 1 and err[0].startswith("benchmarks.falsify: error: ")
     assert "plain.toml: no [falsify] table" in err[0]
     assert not (tmp_path / "b").exists(), "nothing ran: the bad target was found first"
+
+
+def _cost_trial(method: str, seed: int, first_eq: float | None, lowest: float, spent_eq: float = 10.0):
+    first = None if first_eq is None else max(1, round(first_eq))
+    return bench.Trial("t", method, seed, 12, first, lowest, (), spent_eq, first_eq)
+
+
+def test_episode_equivalent_statistics_of_constructed_trials():
+    """Mean and median episode-equivalents to the first counterexample over the successful trials, the
+    median over all trials with a failure beyond the budget, and the totals."""
+    group = [_cost_trial("cma", 0, 2.5, -1.0), _cost_trial("cma", 1, None, 0.25), _cost_trial("cma", 2, 4.0, -2.0),
+             _cost_trial("cma", 3, 1.5, -1.0)]
+    s = bench.summarise(group)
+    assert (s.trials, s.successes) == (4, 3)
+    assert s.low == pytest.approx(0.194, abs=1e-3) and s.high == pytest.approx(0.994, abs=1e-3)  # Clopper-Pearson
+    assert s.mean_eq == pytest.approx(8.0 / 3.0) and s.median_eq == 2.5
+    assert s.median_eq_all == 3.25  # (2.5 + 4.0) / 2, the failure counting as beyond the budget
+    assert s.median_episodes == 2 and s.episodes_spent == 48 and s.eq_spent == 40.0
+    assert s.eq_to_first == (2.5, None, 4.0, 1.5) and s.lowest == (-1.0, 0.25, -2.0, -1.0)
+    mostly_failed = [_cost_trial("random", k, None, 0.5) for k in range(3)] + [_cost_trial("random", 3, 7.0, -1.0)]
+    r = bench.summarise(mostly_failed)
+    assert r.median_eq_all == math.inf and r.mean_eq == r.median_eq == 7.0
+    none = bench.summarise([_cost_trial("random", 0, None, 0.5)])
+    assert none.mean_eq is None and none.median_eq is None and none.median_episodes is None
+    text = bench.markdown(group + mostly_failed, budget=12, command="c")
+    assert "| t | cma | 4 | 3 | 0.75 [0.19, 0.99] | 2.67 | 2.5 | 3.25 | 2 | -2 | 48 | 40 |" in text
+    assert "| t | random | 4 | 1 | 0.25 [0.01, 0.81] | 7 | 7 | beyond the budget | 7 |" in text
+    assert "| t | cma | 2.5, –, 4, 1.5 | -1, 0.25, -2, -1 |" in text
+
+
+def test_lowest_robustness_keeps_the_sign_of_tiny_negatives():
+    assert [bench.compact(x) for x in (-0.0048, 1.7e-06, -1e-09, -0.0004999, 0.0, 1.0, None)] == [
+        "-0.0048", "1.7e-06", "-1e-09", "-0.0005", "0", "1", "–"]
+    trials = [bench.Trial("t", "cma", k, 5, None, x, ()) for k, x in enumerate((-3e-12, 4.2e-05, -0.0048))]
+    assert "| t | cma | –, –, – | -3e-12, 4.2e-05, -0.0048 |" in bench.markdown(trials, budget=5, command="c")
+
+
+def test_guided_targets_list_each_trials_lowest_guide():
+    trials = [bench.Trial("t", "cma", k, 5, None, 1.0, (), 5.0, None, "theorem5", g)
+              for k, g in enumerate((-0.0031, 0.12))]
+    text = bench.markdown(trials, budget=5, command="c")
+    assert "| target | method | ep-eq to 1st | lowest robustness | lowest guide |" in text
+    assert "| t | cma | –, – | 1, 1 | theorem5: -0.0031, 0.12 |" in text
+
+
+def _synthetic_run(monkeypatch, trials):
+    monkeypatch.setattr(bench, "run_trials", lambda *a, **k: trials)
+    monkeypatch.setattr(bench, "draw_curves", lambda *a, **k: [])
+
+
+def test_section_option_writes_its_own_section(tmp_path, monkeypatch, capsys):
+    f = tmp_path / "t.toml"
+    f.write_text(CAMPAIGN)
+    page = tmp_path / "B.md"
+    page.write_text("# Benchmarks\n\n" + section.wrap("falsify", "the default targets' table"))
+    _synthetic_run(monkeypatch, [_cost_trial("cma", 0, 2.5, -1.0)])
+    argv = [str(f), "--methods", "cma", "--section", "falsify_adversary", "--write", str(page)]
+    assert bench.main(argv) == 0
+    assert bench.main(argv) == 0  # rewritten in place, not appended
+    text = page.read_text()
+    begin, end = bench.markers("falsify_adversary")
+    assert text.count(begin) == 1 and text.count(end) == 1 and "the default targets' table" in text
+    assert "generated by python -m benchmarks.falsify --section falsify_adversary" in begin
+    assert "--section falsify_adversary" in text.split(begin)[1]  # the command that made it
+    assert "Counterexamples not replayed" in text
+    assert "written: " in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("name", "fragment"), [
+    ("Falsify-Adv", "--section 'Falsify-Adv': lower-case letters and _ only"),
+    ("", "--section '': lower-case letters and _ only"),
+    ("rare", "--section rare: that is the section of python -m benchmarks.rare"),
+])
+def test_a_bad_section_name_is_one_line(tmp_path, monkeypatch, capsys, name, fragment):
+    f = tmp_path / "t.toml"
+    f.write_text(CAMPAIGN)
+    monkeypatch.setattr(bench, "run_trials", lambda *a, **k: pytest.fail("nothing may run"))
+    assert bench.main([str(f), "--section", name, "--write", str(tmp_path / "B.md")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("benchmarks.falsify: error: ") and fragment in err[0]
+    assert not (tmp_path / "B.md").exists()
+
+
+def test_replay_names_the_counterexamples_that_do_not_reproduce(tmp_path, monkeypatch):
+    from mcverify.campaign import replay
+
+    good, bad = bench.Counterexample(tmp_path / "generations" / "g000", 3), bench.Counterexample(tmp_path / "g001", 0)
+    calls = []
+
+    def fake_replay(run_dir, episode_id, out_dir=None):
+        calls.append((run_dir, episode_id, out_dir))
+        if run_dir == bad.run_dir:
+            raise replay.ReplayMismatch(f"episode {episode_id} does not reproduce: robustness: stored 1 vs replayed 2")
+
+    monkeypatch.setattr(replay, "replay", fake_replay)
+    trials = [bench.Trial("t", "cma", 0, 1, 1, -1.0, (), 1.0, 1.0, counterexamples=(good,)),
+              bench.Trial("t", "random", 4, 2, 2, -1.0, (), 2.0, 2.0, counterexamples=(bad,)),
+              bench.Trial("t", "random", 5, 2, None, 1.0, ())]
+    checks = bench.replay_counterexamples(trials)
+    assert [(c.counterexample, bool(c.problem)) for c in checks] == [(good, False), (bad, True)]
+    assert calls[0] == (good.run_dir, 3, tmp_path / "replay" / "g000")  # beside the generations
+    sentence = bench.replay_sentence(checks)
+    assert sentence.startswith("Replay: 1 of 2 counterexamples replay bit for bit; these do not: t random seed 4")
+    assert "stored 1 vs replayed 2" in sentence
+    assert bench.replay_sentence(checks[:1]) == ("Replay: 1 of 1 counterexamples replay bit for bit "
+                                                "(`mcverify replay`).")
+    assert "no counterexample was found" in bench.replay_sentence([])
+    assert "Replay: 1 of 2" in bench.markdown(trials, budget=2, command="c", replays=checks)
