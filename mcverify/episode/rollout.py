@@ -36,7 +36,8 @@ import numpy as np
 from mcverify.cell import Cell
 from mcverify.control import lane_keeping
 from mcverify.control.decision import Source
-from mcverify.control.planner import EpisodeState, Planner, StepRecord
+from mcverify.control.episode_state import EpisodeState
+from mcverify.control.planner import Planner, StepRecord
 from mcverify.episode import stop
 from mcverify.episode.draws import SCENARIO_STREAM, episode_key, noise_branches, sample_scenario, truncated_normal
 from mcverify.episode.recorder import Recorder

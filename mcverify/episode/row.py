@@ -19,7 +19,7 @@ from mcverify.schema import ERROR_COLUMN, ERROR_OUTCOME, IDENTITY_COLUMNS
 
 if TYPE_CHECKING:  # types only: this module is imported by the executors, which must stay light
     from mcverify.cell import Cell
-    from mcverify.control.planner import EpisodeState
+    from mcverify.control.episode_state import EpisodeState
     from mcverify.sim.plant import SafetyTrace
 
 Row = dict[str, Any]

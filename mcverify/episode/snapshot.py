@@ -2,7 +2,7 @@
 
 A snapshot (:class:`EpisodeSnapshot`) holds everything the closed loop carries from one control step
 to the next for one episode: the plant state and its running safety trace, the noise root key in
-use, the host-side planner memory (:class:`~mcverify.control.planner.EpisodeState`: mode, warm
+use, the host-side planner memory (:class:`~mcverify.control.episode_state.EpisodeState`: mode, warm
 starts, the held plan, the infeasibility memo, counters), the lane-entry time of the spawn rule, the
 last applied input, the settling memory and end state, and the step counter. Restoring it with the
 same key and continuing gives exactly the uninterrupted episode (tests/episode/test_snapshot.py).
@@ -26,7 +26,7 @@ from typing import Any, NamedTuple
 import jax
 import numpy as np
 
-from mcverify.control.planner import EpisodeState
+from mcverify.control.episode_state import EpisodeState
 from mcverify.sim.lanes import LaneGroups
 from mcverify.sim.plant import Plant, SafetyTrace
 

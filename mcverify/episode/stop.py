@@ -13,7 +13,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from mcverify.control.planner import EpisodeState
+from mcverify.control.episode_state import EpisodeState
 from mcverify.requirements import REQUIREMENTS, StopInputs
 from mcverify.schema import STOPPED_OUTCOME  # noqa: F401 - re-exported; declared once, in the schema
 from mcverify.sim.plant import SafetyTrace

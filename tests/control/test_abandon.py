@@ -10,7 +10,8 @@ import pytest
 
 from mcverify.campaign.validate import validate_params
 from mcverify.control.decision import Mode, Source, abandon_overtake, decide
-from mcverify.control.planner import EpisodeState, Planner, failure_kind
+from mcverify.control.episode_state import EpisodeState, failure_kind
+from mcverify.control.planner import Planner
 from mcverify.errors import CampaignError
 from mcverify.model import ModelParams
 from mcverify.solver.mpc import MpcSolution

@@ -9,7 +9,8 @@ import dataclasses
 import numpy as np
 
 from mcverify.control.decision import Mode, Source
-from mcverify.control.planner import EpisodeState, Planner
+from mcverify.control.episode_state import EpisodeState
+from mcverify.control.planner import Planner
 from mcverify.model import ModelParams
 from tests.control.test_abandon import CERT_FB, PRES, _solution
 

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from mcverify.control.decision import Mode
-from mcverify.control.planner import EpisodeState, Planner, ego_in_own_lane, fallback_input, held_input
+from mcverify.control.episode_state import EpisodeState
+from mcverify.control.planner import Planner, ego_in_own_lane, fallback_input, held_input
 from mcverify.levels import Level
 from mcverify.model import ModelParams
 from mcverify.solver.status import SolveRoute, SolveStatus

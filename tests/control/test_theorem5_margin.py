@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from mcverify.analysis.theorem5 import theorem5_step_margin
+from mcverify.control.episode_state import EpisodeState
 from mcverify.control.margins import neither_solved, problem_margin, theorem5_margin
-from mcverify.control.planner import EpisodeState
 from mcverify.levels import Level
 from mcverify.model import ModelParams
 from mcverify.solver.backends import MAX_VIOLATION

@@ -16,7 +16,7 @@ import pytest
 from test_backends import EGO, LEVEL, P_IPM
 
 from mcverify.campaign import spec as campaign
-from mcverify.control.planner import EpisodeState
+from mcverify.control.episode_state import EpisodeState
 from mcverify.solver import backends
 from mcverify.solver.attempts import MPCDC_PLAN
 from mcverify.solver.mpc import MpcSolver
