@@ -26,21 +26,14 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from mcverify import store
-from mcverify.analysis.cells import json_ready
 from mcverify.campaign import executors
 from mcverify.campaign.executors import Executor
 from mcverify.campaign.spec import Campaign
 from mcverify.cell import Cell
-from mcverify.errors import RunError
-from mcverify.estimate import folder, splitting
+from mcverify.estimate import folder, replicates, splitting
 from mcverify.estimate.closed_loop import ClosedLoopProcess
 from mcverify.estimate.folder import num
 from mcverify.requirements import SCORES
-from mcverify.schema import ERROR_COLUMN, ERROR_OUTCOME
-
-#: The folder of the finished AMS runs, one JSON file each (:func:`run_file`).
-RUNS = "runs"
 
 #: Fewer AMS runs than this get a warning: on the closed-loop validation cell (200 runs of 20
 #: particles with h_ef_run against 3,848 crude episodes) the 95 % t interval covered p in 43 of 50
@@ -84,14 +77,28 @@ def run(campaign: Campaign, spec: SplittingSpec, out: Path, *, progress=print,
     """Estimate every cell of ``campaign`` (or those named in ``cells``) into the new folder ``out``;
     returns the report path. executor: where the AMS runs go (default: this process, one at a time)."""
     folder.create(out, campaign, {"method": "splitting", **asdict(spec)}, cells)
-    return _cells(campaign, spec, Path(out), {}, progress, cells, executor)
+    return replicates.run_cells(campaign, _replicated(campaign, spec, Path(out)), Path(out), {}, progress, cells,
+                                executor)
 
 
 def resume(out: Path, campaign: Campaign, *, progress=print, executor: Executor | None = None) -> Path:
     """Finish an interrupted splitting estimate: the cells already in ``estimate.json`` are kept."""
     manifest, done = folder.load(out, "splitting")
     spec = SplittingSpec(**{k: v for k, v in manifest["estimate"].items() if k != "method"})
-    return _cells(campaign, spec, Path(out), done, progress, manifest.get("only_cells"), executor)
+    return replicates.run_cells(campaign, _replicated(campaign, spec, Path(out)), Path(out), done, progress,
+                                manifest.get("only_cells"), executor)
+
+
+def _replicated(campaign: Campaign, spec: SplittingSpec, out: Path) -> replicates.Replicated:
+    def done_text(row: dict[str, Any]) -> str:
+        run = row["run"]
+        return f"{_fate(run)}, {run['iterations']} iterations, {row['steps']} control steps, {row['cpu_s']:.0f} CPU-s"
+
+    return replicates.Replicated(
+        label="AMS run", count=spec.replicates, unit=functools.partial(replicate_unit, spec=asdict(spec)),
+        announce=lambda cell: f"cell {cell.name}: {spec.replicates} AMS runs of {spec.particles} particles",
+        done_text=done_text, cell_result=functools.partial(_cell_from_rows, spec=spec),
+        write=lambda results: _write(out, spec, campaign, results))
 
 
 @dataclass
@@ -120,36 +127,6 @@ def replicate_unit(cell: Cell, episode_ids: tuple[int, ...], seed: int, common_r
                          "steps": process.steps, "fresh_steps": list(process.fresh_steps)}])
 
 
-def run_file(out: Path, cell_index: int, replicate: int) -> Path:
-    """Where a finished AMS run of a cell is kept (``runs/cellNNN_runNNN.json``)."""
-    return Path(out) / RUNS / f"cell{cell_index:03d}_run{replicate:03d}.json"
-
-
-def _save_run(out: Path, cell: Cell, row: dict[str, Any]) -> None:
-    """Keep one finished AMS run (atomically: a reader never sees half a file), before it is reported."""
-    replicate = int(row["cell_episode"])
-    store.write_json_atomic(run_file(out, cell.index, replicate),
-                            json_ready({"cell_index": cell.index, "cell": cell.name, **row}))
-
-
-def _load_runs(out: Path, cell: Cell, replicates: int) -> dict[int, dict[str, Any]]:
-    """The finished AMS runs of ``cell`` kept in ``out`` (replicate -> row), as :func:`replicate_unit`
-    returned them (a capped run's estimate NaN again)."""
-    got = {}
-    for r in range(replicates):
-        path = run_file(out, cell.index, r)
-        if not path.is_file():
-            continue
-        row = store.read_json(path)
-        if row.get("cell_index") != cell.index or row.get("cell") != cell.name or row.get("cell_episode") != r:
-            raise RunError(f"{path} is not AMS run {r} of cell {cell.name}; move it away to run it again")
-        run = row["run"]
-        if run.get("estimate") is None:
-            run["estimate"] = math.nan
-        got[r] = {k: v for k, v in row.items() if k not in ("cell_index", "cell")}
-    return got
-
-
 def _fate(run: dict[str, Any]) -> str:
     if run["extinct"]:
         return "extinct"
@@ -158,41 +135,14 @@ def _fate(run: dict[str, Any]) -> str:
     return f"estimate {run['estimate']:.3g}"
 
 
-def _cells(campaign: Campaign, spec: SplittingSpec, out: Path, done: dict[int, dict], progress,
-           only: list[str] | None = None, executor: Executor | None = None) -> Path:
-    results = dict(done)
-    unit = functools.partial(replicate_unit, spec=asdict(spec))
-    with executor or executors.SerialExecutor() as ex:
-        for cell in campaign.cells:
-            if cell.index in results or (only and cell.name not in only):
-                continue
-            got = _load_runs(out, cell, spec.replicates)
-            kept = f" ({len(got)} finished before, kept)" if got else ""
-            progress(f"cell {cell.name}: {spec.replicates} AMS runs of {spec.particles} particles{kept}")
-
-            def on_done(chunk: store.Chunk, output, cell=cell, got=got) -> None:
-                row = output.rows[0]
-                if row.get("outcome") == ERROR_OUTCOME:
-                    raise RunError(f"AMS run {chunk.episode_ids[0]} of {cell.name} failed: {row.get(ERROR_COLUMN)}")
-                _save_run(out, cell, row)
-                got[chunk.episode_ids[0]] = row
-                run = row["run"]
-                progress(f"  AMS run {chunk.episode_ids[0] + 1} done ({len(got)} of {spec.replicates}): "
-                         f"{_fate(run)}, {run['iterations']} iterations, {row['steps']} control steps, "
-                         f"{row['cpu_s']:.0f} CPU-s")
-
-            chunks = [store.Chunk(cell.index, (r,)) for r in range(spec.replicates) if r not in got]
-            if chunks:
-                executors.execute(campaign, chunks, on_done, executor=ex, episode_fn=unit)
-            rows = [got[r] for r in range(spec.replicates)]
-            runs = [splitting.AMSRun(**{**row["run"], "killed": tuple(row["run"]["killed"])}) for row in rows]
-            cost = _Cost(sum(r["cpu_s"] for r in rows), sum(r["steps"] for r in rows),
-                         [s for r in rows for s in r["fresh_steps"]])
-            results[cell.index] = cell_result(cell.index, cell.name, spec, splitting.from_runs(runs, spec.level),
-                                              runs, cost)
-            _write(out, spec, campaign, results)
-    folder.finish(out)
-    return _write(out, spec, campaign, results)  # after finish, so that the report says the estimate is complete
+def _cell_from_rows(cell: Cell, rows: list[dict[str, Any]], spec: SplittingSpec) -> dict[str, Any]:
+    # a kept run's NaN estimate comes back from JSON as None
+    runs = [splitting.AMSRun(**{**row["run"], "killed": tuple(row["run"]["killed"]),
+                                "estimate": math.nan if row["run"]["estimate"] is None else row["run"]["estimate"]})
+            for row in rows]
+    cost = _Cost(sum(r["cpu_s"] for r in rows), sum(r["steps"] for r in rows),
+                 [s for r in rows for s in r["fresh_steps"]])
+    return cell_result(cell.index, cell.name, spec, splitting.from_runs(runs, spec.level), runs, cost)
 
 
 @dataclass

@@ -29,20 +29,15 @@ from typing import Any
 import numpy as np
 
 from mcverify import store
-from mcverify.analysis.cells import json_ready
 from mcverify.campaign import executors
 from mcverify.campaign.executors import Executor
 from mcverify.campaign.spec import Campaign
 from mcverify.cell import Cell
 from mcverify.errors import RunError
-from mcverify.estimate import folder, subset
+from mcverify.estimate import folder, replicates, subset
 from mcverify.estimate.folder import num
 from mcverify.estimate.input_vector import ClosedLoopProblem, check_law
 from mcverify.requirements import TARGETS
-from mcverify.schema import ERROR_COLUMN, ERROR_OUTCOME
-
-#: The folder of the runs' checkpoints, records and failing inputs.
-RUNS = "runs"
 
 
 @dataclass(frozen=True)
@@ -78,7 +73,8 @@ def run(campaign: Campaign, spec: SubsetSpec, out: Path, *, progress=print,
         if not cells or cell.name in cells:
             check_law(cell)
     folder.create(out, campaign, {"method": "subset", **asdict(spec)}, cells)
-    return _cells(campaign, spec, Path(out), {}, progress, cells, executor)
+    return replicates.run_cells(campaign, _replicated(campaign, spec, Path(out)), Path(out), {}, progress, cells,
+                                executor)
 
 
 def resume(out: Path, campaign: Campaign, *, progress=print, executor: Executor | None = None) -> Path:
@@ -86,11 +82,27 @@ def resume(out: Path, campaign: Campaign, *, progress=print, executor: Executor 
     continued from their last stage."""
     manifest, done = folder.load(out, "subset")
     spec = SubsetSpec(**{k: v for k, v in manifest["estimate"].items() if k != "method"})
-    return _cells(campaign, spec, Path(out), done, progress, manifest.get("only_cells"), executor)
+    return replicates.run_cells(campaign, _replicated(campaign, spec, Path(out)), Path(out), done, progress,
+                                manifest.get("only_cells"), executor)
+
+
+def _replicated(campaign: Campaign, spec: SubsetSpec, out: Path) -> replicates.Replicated:
+    def done_text(row: dict[str, Any]) -> str:
+        r = row["run"]
+        return (f"estimate {num(r['estimate'])}, {len(r['stages'])} stages, {r['steps']} control steps, "
+                f"{row['cpu_s']:.0f} CPU-s")
+
+    return replicates.Replicated(
+        label="subset run", count=spec.runs, unit=functools.partial(run_unit, spec=asdict(spec), out=str(out)),
+        announce=lambda cell: f"cell {cell.name}: {spec.runs} subset simulation runs of {spec.samples} episodes "
+                              "per stage",
+        done_text=done_text, cell_result=functools.partial(cell_result, spec=spec),
+        write=lambda results: _write(out, spec, campaign, results))
 
 
 def run_stem(out: Path, cell_index: int, run_id: int) -> Path:
-    return Path(out) / RUNS / f"cell{cell_index:03d}_run{run_id:03d}"
+    """A run's files without their suffix: ``.json`` (its record), ``.npz`` (its checkpoint)."""
+    return replicates.run_path(out, cell_index, run_id).with_suffix("")
 
 
 @dataclass
@@ -156,53 +168,7 @@ def failing_inputs(out: Path, cell_index: int, run_id: int) -> tuple[np.ndarray,
         return data["x"].copy(), data["g"].copy()
 
 
-def _load_runs(out: Path, cell: Cell, runs: int) -> dict[int, dict[str, Any]]:
-    got = {}
-    for r in range(runs):
-        path = run_stem(out, cell.index, r).with_suffix(".json")
-        if path.is_file():
-            row = store.read_json(path)
-            if row.get("cell_index") != cell.index or row.get("cell_episode") != r:
-                raise RunError(f"{path} is not run {r} of cell {cell.name}; move it away to run it again")
-            got[r] = {k: v for k, v in row.items() if k not in ("cell_index", "cell")}
-    return got
-
-
-def _cells(campaign: Campaign, spec: SubsetSpec, out: Path, done: dict[int, dict], progress,
-           only: list[str] | None = None, executor: Executor | None = None) -> Path:
-    results = dict(done)
-    unit = functools.partial(run_unit, spec=asdict(spec), out=str(out))
-    with executor or executors.SerialExecutor() as ex:
-        for cell in campaign.cells:
-            if cell.index in results or (only and cell.name not in only):
-                continue
-            got = _load_runs(out, cell, spec.runs)
-            kept = f" ({len(got)} finished before, kept)" if got else ""
-            progress(f"cell {cell.name}: {spec.runs} subset simulation runs of {spec.samples} episodes per stage{kept}")
-
-            def on_done(chunk: store.Chunk, output, cell=cell, got=got) -> None:
-                row = output.rows[0]
-                if row.get("outcome") == ERROR_OUTCOME:
-                    raise RunError(f"subset run {chunk.episode_ids[0]} of {cell.name} failed: {row.get(ERROR_COLUMN)}")
-                store.write_json_atomic(run_stem(out, cell.index, chunk.episode_ids[0]).with_suffix(".json"),
-                                        json_ready({"cell_index": cell.index, "cell": cell.name, **row}))
-                got[chunk.episode_ids[0]] = row
-                r = row["run"]
-                progress(f"  run {chunk.episode_ids[0]} done ({len(got)} of {spec.runs}): estimate "
-                         f"{num(r['estimate'])}, {len(r['stages'])} stages, {r['steps']} control steps, "
-                         f"{row['cpu_s']:.0f} CPU-s")
-
-            chunks = [store.Chunk(cell.index, (r,)) for r in range(spec.runs) if r not in got]
-            if chunks:
-                executors.execute(campaign, chunks, on_done, executor=ex, episode_fn=unit)
-            rows = [got[r] for r in range(spec.runs)]
-            results[cell.index] = cell_result(cell, spec, rows)
-            _write(out, spec, campaign, results)
-    folder.finish(out)
-    return _write(out, spec, campaign, results)
-
-
-def cell_result(cell: Cell, spec: SubsetSpec, rows: list[dict[str, Any]]) -> dict[str, Any]:
+def cell_result(cell: Cell, rows: list[dict[str, Any]], spec: SubsetSpec) -> dict[str, Any]:
     """A cell's estimate from its runs' records: the t interval, the within-run CoV, the cost, crude
     Monte Carlo's steps for the same width, and where each failing sample is kept (for replay)."""
     runs = [as_run(r["run"]) for r in rows]

@@ -12,7 +12,7 @@ import pytest
 import mcverify
 from mcverify.campaign.spec import load_campaign
 from mcverify.cli import main
-from mcverify.estimate import splitting_run
+from mcverify.estimate import replicates, splitting_run
 
 FIXTURE = Path(__file__).resolve().parents[1] / "fixtures" / "tiny.toml"
 
@@ -80,18 +80,18 @@ def test_an_interrupted_splitting_estimate_keeps_its_finished_runs(tmp_path: Pat
         pass
 
     def stop_after_the_first_run(msg: str) -> None:
-        if "AMS run 1 done" in msg:
+        if "AMS run 0 done" in msg:
             raise Stop
 
     out = tmp_path / "stopped"
     with pytest.raises(Stop):
         splitting_run.run(campaign, spec, out, progress=stop_after_the_first_run, cells=cells)
-    assert sorted(p.name for p in (out / splitting_run.RUNS).iterdir()) == ["cell001_run000.json"]
+    assert sorted(p.name for p in (out / replicates.RUNS).iterdir()) == ["cell001_run000.json"]
     assert not (out / "estimate.json").exists() and not mcverify.open_run(out).finished
     lines: list[str] = []
     splitting_run.resume(out, campaign, progress=lines.append)
-    assert not any("AMS run 1 done" in line for line in lines), lines  # kept, not run again
-    assert any("1 finished before, kept" in line for line in lines) and any("AMS run 2 done" in line for line in lines)
+    assert not any("AMS run 0 done" in line for line in lines), lines  # kept, not run again
+    assert any("1 finished before, kept" in line for line in lines) and any("AMS run 1 done" in line for line in lines)
     assert mcverify.open_run(out).finished
 
     def without_cpu(path: Path) -> dict:
