@@ -9,7 +9,7 @@ its replicates are in; the folder is finished once every cell is.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -50,6 +50,22 @@ class Replicated:
     """A cell's result from its replicates' rows, in replicate order."""
     write: Callable[[dict[int, dict]], Path]
     """Writes the folder's estimate and report from the results so far; returns the report path."""
+
+
+def columns(out: Path, cells: int, failing_key: str, failing_name: str,
+            extra: Sequence[folder.Column] = ()) -> list[folder.Column]:
+    """The report's table of a replicated estimator: one row per cell (``cells``: how many the campaign has,
+    for --cell); ``extra`` after the half-width; the last column replays the first of ``failing_key``."""
+    return [
+        ("cell", lambda c: c["cell"]), ("estimate", lambda c: folder.estimate_text(c["estimate"])),
+        ("interval", lambda c: folder.interval_text(c["low"], c["high"])),
+        ("rel. half-width", lambda c: folder.num(c["relative_halfwidth"], ".2f")), *extra,
+        ("control steps", lambda c: str(c["steps"])), ("CPU (s)", lambda c: folder.num(c["cpu_s"], ".0f")),
+        ("crude MC steps, same width", lambda c: folder.num(c["crude_steps_same_width"])),
+        ("ratio", lambda c: folder.num(c["steps_ratio_vs_crude"], ".2f")),
+        ("warnings", lambda c: "; ".join(c["warnings"]) or "-"),
+        (f"replay a {failing_name}", lambda c: folder.replay_text(out, c, c.get(failing_key), 0, cells)),
+    ]
 
 
 def load(out: Path, cell: Cell, method: Replicated) -> dict[int, dict[str, Any]]:

@@ -32,7 +32,6 @@ from mcverify.campaign.spec import Campaign
 from mcverify.cell import Cell
 from mcverify.estimate import folder, replicates, splitting
 from mcverify.estimate.closed_loop import ClosedLoopProcess
-from mcverify.estimate.folder import num
 from mcverify.requirements import SCORES
 
 #: Fewer AMS runs than this get a warning: on the closed-loop validation cell (200 runs of 20
@@ -180,16 +179,7 @@ def cell_result(index: int, name: str, spec: SplittingSpec, est: splitting.Split
 
 def columns(out: Path, cells: int) -> list[folder.Column]:
     """The report's table: one row per cell (``cells``: how many the campaign has, for --cell)."""
-    return [
-        ("cell", lambda c: c["cell"]), ("estimate", lambda c: folder.estimate_text(c["estimate"])),
-        ("interval", lambda c: folder.interval_text(c["low"], c["high"])),
-        ("rel. half-width", lambda c: num(c["relative_halfwidth"], ".2f")),
-        ("control steps", lambda c: str(c["steps"])), ("CPU (s)", lambda c: num(c["cpu_s"], ".0f")),
-        ("crude MC steps, same width", lambda c: num(c["crude_steps_same_width"])),
-        ("ratio", lambda c: num(c["steps_ratio_vs_crude"], ".2f")),
-        ("warnings", lambda c: "; ".join(c["warnings"]) or "-"),
-        ("replay a failing particle", lambda c: folder.replay_text(out, c, c.get("failing_particles"), 0, cells)),
-    ]
+    return replicates.columns(out, cells, "failing_particles", "failing particle")
 
 
 def _write(out: Path, spec: SplittingSpec, campaign: Campaign, results: dict[int, dict]) -> Path:

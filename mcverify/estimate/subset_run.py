@@ -185,17 +185,8 @@ def cell_result(cell: Cell, rows: list[dict[str, Any]], spec: SubsetSpec) -> dic
 
 
 def columns(out: Path, cells: int) -> list[folder.Column]:
-    return [
-        ("cell", lambda c: c["cell"]), ("estimate", lambda c: folder.estimate_text(c["estimate"])),
-        ("interval", lambda c: folder.interval_text(c["low"], c["high"])),
-        ("rel. half-width", lambda c: num(c["relative_halfwidth"], ".2f")),
-        ("within-run CoV of the mean", lambda c: num(c["within_run_cov"], ".2f")),
-        ("control steps", lambda c: str(c["steps"])), ("CPU (s)", lambda c: num(c["cpu_s"], ".0f")),
-        ("crude MC steps, same width", lambda c: num(c["crude_steps_same_width"])),
-        ("ratio", lambda c: num(c["steps_ratio_vs_crude"], ".2f")),
-        ("warnings", lambda c: "; ".join(c["warnings"]) or "-"),
-        ("replay a failing sample", lambda c: folder.replay_text(out, c, c.get("failing_samples"), 0, cells)),
-    ]
+    return replicates.columns(out, cells, "failing_samples", "failing sample",
+                              [("within-run CoV of the mean", lambda c: num(c["within_run_cov"], ".2f"))])
 
 
 def _write(out: Path, spec: SubsetSpec, campaign: Campaign, results: dict[int, dict]) -> Path:
