@@ -326,6 +326,9 @@ def _not_a_run(folder: Path) -> str:
         return (f"it is an `estimate --method {method}` folder, which stores its estimate (estimate.json, "
                 "report.md), not episodes; replay, compare and export work on run folders and on "
                 "`estimate --method mc` folders")
+    if (folder / "falsify.json").is_file() and (folder / "beam").is_dir():
+        return (f"it is a beam search, whose best episode is its run folder best/ (`mcverify replay {folder}/best 0`); "
+                f"`mcverify report {folder}` rebuilds its report")
     if (folder / "falsify.json").is_file():
         return (f"it is a falsification search, whose episodes are in its generation folders (e.g. "
                 f"`mcverify replay {folder}/generations/g000 0`); `mcverify report {folder}` rebuilds its report")

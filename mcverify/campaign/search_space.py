@@ -28,6 +28,12 @@
     edges_m = [2.0, 3.0, 15.0]    # gap_bands: outer footprint gaps (m) of the bands alongside, jump, approach
     # windows: centres_s = [6.0, 8.0], half_width_s = 1.0, max_steps = 10;  bang_bang: segments = 8
 
+    [falsify.beam]                # optional: a sequential (beam) search over the per-step error, for
+    window_s = [4.0, 5.6]         # --method beam only (mcverify.campaign.beam_table)
+    segment_s = 0.2
+    branching = 4
+    width = 4
+
 With ``[falsify.adversary]`` every candidate's perception error is an error schedule
 (:mod:`mcverify.sim.schedule`) from the parametrisation's theta (:mod:`mcverify.falsify.parametrisations`),
 mapped from its own coordinates of the unit cube (theta = 2u - 1), after the coordinates of the
@@ -77,6 +83,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from mcverify.analysis import stl
+from mcverify.campaign.beam_table import BeamTable, read_beam
 from mcverify.campaign.validate import _short
 from mcverify.errors import CampaignError
 from mcverify.requirements import GUIDE_NAMES, REQUIREMENT_NAMES, STL_PREFIX, is_stl
@@ -85,7 +92,7 @@ __all__ = ["ADVERSARY_KINDS", "MAX_POPULATION", "REQUIREMENT_NAMES", "AdversaryS
            "check_single_target", "read_adversary", "read_search_space", "split_element"]
 
 _KEYS = {"requirement", "population", "stop_at_first", "stop_episodes", "common_noise", "guide", "bounds", "nominal",
-         "extremes", "adversary"}
+         "extremes", "adversary", "beam"}
 #: The parametrisations ``[falsify.adversary] kind`` names, and the keys each takes besides the common ones.
 ADVERSARY_KINDS: dict[str, tuple[str, ...]] = {
     "gap_bands": ("edges_m",), "windows": ("centres_s", "half_width_s", "max_steps"), "bang_bang": ("segments",),
@@ -111,6 +118,7 @@ class SearchSpace:
     guide: str = ""  # "" : the requirement itself
     extremes: tuple[str, ...] = ()  # fields taken at their low or high bound only
     adversary: AdversarySpec | None = None  # the searched perception error, None: the drawn noise
+    beam: BeamTable | None = None  # the ``[falsify.beam]`` table (--method beam only), None: none
 
     @property
     def objective(self) -> str:
@@ -294,10 +302,11 @@ def read_search_space(table: Any, where: str, known_fields: Mapping[str, type]) 
         if not isinstance(flag, bool):
             raise CampaignError(f"{here}.{key}: must be true or false, got {_short(flag)}")
     adversary = read_adversary(table["adversary"], here) if "adversary" in table else None
-    bounds = table.get("bounds", {} if adversary is not None else None)
-    if not isinstance(bounds, Mapping) or (not bounds and adversary is None):
+    beam = read_beam(table["beam"], here) if "beam" in table else None
+    bounds = table.get("bounds", {} if adversary is not None or beam is not None else None)
+    if not isinstance(bounds, Mapping) or (not bounds and adversary is None and beam is None):
         raise CampaignError(f"{here}: needs a non-empty [falsify.bounds] table of 'section.field' = [low, high] "
-                            "(or a [falsify.adversary] table)")
+                            "(or a [falsify.adversary] or [falsify.beam] table)")
     if adversary is not None and common_noise:
         raise CampaignError(f"{here}: common_noise = true fixes the drawn noise; with [falsify.adversary] nothing "
                             "is drawn (remove one)")
@@ -335,7 +344,7 @@ def read_search_space(table: Any, where: str, known_fields: Mapping[str, type]) 
     extremes = _read_extremes(table.get("extremes", []), here, [name for name, _, _ in out],
                               [name for name, _, _ in nominal])
     return SearchSpace(requirement, population, stop, tuple(out), stop_episodes, nominal, common_noise,
-                       "" if guide == requirement else guide, extremes, adversary)
+                       "" if guide == requirement else guide, extremes, adversary, beam)
 
 
 def _read_extremes(names: Any, here: str, searched: list[str], with_nominal: list[str]) -> tuple[str, ...]:

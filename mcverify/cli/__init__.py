@@ -76,6 +76,13 @@ def _what_is_kept(command: str, run_dir: Path) -> str:
             return "finished AMS runs are kept"
         if method == "importance":
             return "finished cells and the finished batches of the cell in progress are kept"
+    if command == "falsify":
+        try:
+            method = json.loads((run_dir / "falsify.json").read_text()).get("method")
+        except (OSError, ValueError, AttributeError):
+            method = None
+        if method == "beam":
+            return "finished depths are kept"
     return "finished chunks are kept"
 
 

@@ -84,8 +84,12 @@ def _rebuild_own_report(args, kind: str) -> int:
 
     if kind == "falsify":
         from mcverify.campaign import executors
-        from mcverify.falsify import search
+        from mcverify.falsify import beam_folder, search
 
+        if beam_folder.is_beam_folder(args.run_dir):
+            path = beam_folder.write_report(args.run_dir, beam_folder.read_summary(args.run_dir))
+            print(f"report: {path}")
+            return 0
         path = search.resume(args.run_dir, make_executor=executors.SerialExecutor, episode_fn=run_nothing).out_dir
         path = path / "report.md"
     else:

@@ -18,6 +18,10 @@ Every cost is in control steps simulated. Resume: after each depth the frontier 
 scores) and the cost so far go to ``OUT/beam/depth-NNN.npz``; a resumed search re-simulates each stored
 frontier node from step 0 to rebuild its snapshot (counted apart, as ``rebuild_steps``), checks that the
 score comes out equal, and goes on, so it ends exactly where an uninterrupted search ends.
+
+The command line, ``mcverify falsify CAMPAIGN --method beam``, reads the spec from the campaign's
+``[falsify.beam]`` table (:mod:`mcverify.campaign.beam_table`, times in seconds: :func:`spec_of`) and writes
+the folder, the best run and the report (:mod:`mcverify.falsify.beam_folder`).
 """
 
 from __future__ import annotations
@@ -34,16 +38,16 @@ import numpy as np
 from mcverify import store
 from mcverify.analysis import robustness as rb
 from mcverify.campaign import executors
+from mcverify.campaign.beam_table import SCORES, UNITS, BeamTable
 from mcverify.campaign.spec import Campaign
 from mcverify.episode.rollout import run_episodes
 from mcverify.episode.snapshot import Branching, EpisodeSnapshot
 from mcverify.errors import RunError
+from mcverify.model import Simulation
 from mcverify.sim.schedule import CHANNELS, ErrorSchedule, control_steps
 
-#: Running scores a beam can rank nodes by: ``h_front`` (the lowest h_ef so far, for ellipse and safe) and
-#: ``theorem5`` (the lowest graded Theorem 5 margin so far; +inf before any dual-planner step).
-SCORES: tuple[str, ...] = ("h_front", "theorem5")
-UNITS: tuple[str, ...] = ("bang_bang", "uniform")
+__all__ = ["BEAM", "SCORES", "UNITS", "BeamResult", "BeamSpec", "search", "spec_of", "write_best"]
+
 BEAM = "beam"
 FORMAT = 1
 
@@ -80,6 +84,52 @@ class BeamSpec:
     @property
     def depths(self) -> int:
         return math.ceil((self.last_step - self.first_step) / self.segment_steps)
+
+    def children_per_depth(self) -> list[int]:
+        """Children simulated at each depth when no episode ends inside the window (an ended node is carried
+        without children, so these are upper bounds): 1 root, then ``branching`` per frontier node."""
+        out, frontier = [], 1
+        for _ in range(self.depths):
+            out.append(frontier * self.branching)
+            frontier = min(self.width, out[-1])
+        return out
+
+    def segment_lengths(self) -> list[int]:
+        """Control steps of each depth's segment (the last one may be shorter)."""
+        starts = range(self.first_step, self.last_step, self.segment_steps)
+        return [min(a + self.segment_steps, self.last_step) - a for a in starts]
+
+    def cost_bound(self, steps: int) -> int:
+        """Most control steps the search can simulate on an episode of ``steps`` control steps: the prefix up to
+        the window, every child's segment, and every final frontier node run to the time limit (episodes
+        that end earlier, at the goal or inside the window, cost less). A resume's rebuilding is apart."""
+        children = self.children_per_depth()
+        segments = sum(n * k for n, k in zip(children, self.segment_lengths(), strict=True))
+        return self.first_step + segments + min(self.width, children[-1]) * (steps - self.last_step)
+
+
+def spec_of(table: BeamTable, requirement: str, seed: int, sim: Simulation) -> BeamSpec:
+    """The spec of a ``[falsify.beam]`` table on an episode of ``sim``: times rounded to the nearest control
+    step; ValueError (one line) for a window outside the episode or a segment shorter than half a step."""
+    period_s = sim.control_period_s
+
+    def step(t_s: float) -> int:
+        return int(math.floor(t_s / period_s + 0.5))
+
+    a, b = table.window_s
+    if b > sim.max_time_s + 1e-9:
+        raise ValueError(f"[falsify.beam] window_s = [{a:g}, {b:g}] s must lie in the episode, [0, "
+                         f"{sim.max_time_s:g}] s (sim.max_time_s)")
+    if step(b) <= step(a):
+        raise ValueError(f"[falsify.beam] window_s = [{a:g}, {b:g}] s holds no control step of "
+                         f"{period_s:g} s")
+    if step(table.segment_s) < 1:
+        raise ValueError(f"[falsify.beam] segment_s = {table.segment_s:g} s rounds to no control step "
+                         f"({period_s:g} s each)")
+    spec = BeamSpec(step(a), min(step(b), control_steps(sim)), step(table.segment_s), table.branching, table.width,
+                    requirement, table.channels, table.units, table.score, table.front_share, table.opp_share, seed)
+    spec.check(control_steps(sim))
+    return spec
 
 
 @dataclass

@@ -183,6 +183,9 @@ def check(config: SearchConfig) -> SearchSpace:
     RunError line: the campaign and its ``[falsify]`` table, every bound against its field's limits,
     the method and the method's demands on the table."""
     campaign, space = target(config)
+    if not space.bounds and space.adversary is None:
+        raise RunError(f"{config.source}: its [falsify] table searches with [falsify.beam] only (--method beam); "
+                       f"--method {config.method} needs [falsify.bounds] or [falsify.adversary]")
     check_bounds(config, campaign, space)
     methods.searcher(config.method, 1, 2, 0)  # a bad method name (or a missing optional package) fails here
     if space.adversary is not None:

@@ -1,0 +1,278 @@
+"""A beam search (:mod:`mcverify.falsify.beam`) as a falsification folder: what ``mcverify falsify --method
+beam`` checks, writes, resumes and reports.
+
+Layout of a beam folder ``OUT``::
+
+    OUT/falsify.json        what defines the search (campaign content, method "beam", budget, seed,
+                            requirement); ``finished_utc`` once complete
+    OUT/beam/beam.json      the beam's specification; OUT/beam/depth-NNN.npz the frontier after each depth
+    OUT/beam/result.json    the finished search (depth log, final frontier, costs): what report.md is written from
+    OUT/best/               the best schedule re-simulated from step 0, a one-episode run folder
+                            (``mcverify replay OUT/best 0``)
+    OUT/report.md
+
+The campaign is one scenario (``[campaign] episodes = 1``, no grid, no axes) whose ``[falsify]`` table holds
+only ``requirement`` and ``[falsify.beam]`` (:mod:`mcverify.campaign.beam_table`): the beam searches the
+per-step error of that scenario, so searched scenario fields (``[falsify.bounds]``) and the other methods'
+settings are refused rather than ignored.
+
+The budget: ``--budget N`` is in episode-equivalents (control steps over a whole episode's, the unit every
+method's cost is stated in) and is a ceiling that the spec's cost bound (:meth:`BeamSpec.cost_bound`) must not
+exceed. The beam is deterministic and its cost is bounded before it runs, so a spec that could overspend is
+refused up front rather than cut short inside a depth (which would leave no frontier to judge). The control
+steps a resume spends rebuilding snapshots are stated apart and do not count against it.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+from mcverify import store
+from mcverify.analysis import robustness as rb
+from mcverify.campaign.spec import Campaign
+from mcverify.errors import RunError
+from mcverify.falsify import beam, search
+from mcverify.falsify.beam import BeamResult, BeamSpec
+from mcverify.falsify.search import SearchConfig
+from mcverify.sim.schedule import control_steps
+
+BEST = "best"
+RESULT = "result.json"
+#: The keys of ``[falsify]`` a beam campaign may have.
+BEAM_KEYS = ("requirement", "beam")
+
+
+def target(config: SearchConfig) -> tuple[Campaign, BeamSpec]:
+    """The one-episode campaign and the beam's spec; every mistake one RunError or CampaignError line."""
+    campaign, space = search.target(config)
+    where = config.source
+    if space.beam is None:
+        raise RunError(f"{where}: --method beam needs a [falsify.beam] table (window_s, segment_s, branching, width; "
+                       "docs/falsification.md)")
+    other = [k for k in config.raw["falsify"] if k not in BEAM_KEYS]
+    if other:
+        raise RunError(f"{where} [falsify]: --method beam searches the per-step error of the file's one scenario and "
+                       f"takes only requirement and [falsify.beam]; remove {', '.join(other)}")
+    episodes = sum(c.episodes for c in campaign.cells)
+    if episodes != 1:
+        raise RunError(f"{where}: [campaign] episodes = {episodes}; the beam searches one episode (set episodes = 1)")
+    params = campaign.cells[0].params
+    if params.noise.kind == "none":
+        raise RunError(f"{where}: noise.kind = \"none\" gives the beam no bounds to act in (its units scale the "
+                       "noise bounds)")
+    if rb.needs_trajectory(config.requirement):
+        raise RunError(f"requirement {config.requirement!r}: the beam ranks its final frontier by the episodes' rows; "
+                       "an STL requirement is evaluated on stored trajectories (choose a named requirement)")
+    try:
+        spec = beam.spec_of(space.beam, config.requirement, config.seed, params.sim)
+    except ValueError as exc:
+        raise RunError(f"{where} {exc}") from None
+    return campaign, spec
+
+
+def check(config: SearchConfig) -> tuple[Campaign, BeamSpec]:
+    """:func:`target`, and the budget (episode-equivalents) against the spec's cost bound."""
+    campaign, spec = target(config)
+    steps = control_steps(campaign.cells[0].params.sim)
+    bound = spec.cost_bound(steps)
+    if bound > config.budget * steps:
+        raise RunError(f"--budget {config.budget}: this beam may spend up to {bound / steps:.3g} episode-equivalents "
+                       f"({bound} control steps of {steps} per episode); give --budget {math.ceil(bound / steps)} or "
+                       "narrow the beam (see --dry-run)")
+    return campaign, spec
+
+
+def describe(config: SearchConfig) -> str:
+    """``falsify --method beam --dry-run``: the beam's depths, children per depth and cost bound."""
+    from mcverify.campaign import cost  # noqa: PLC0415 - the kernel count only for a dry run
+
+    campaign, spec = check(config)
+    sim = campaign.cells[0].params.sim
+    steps = control_steps(sim)
+    bound = spec.cost_bound(steps)
+    return "\n".join([
+        f"falsify {config.source}: beam, budget {config.budget} episode-equivalents, requirement "
+        f"{config.requirement}, seed {config.seed}",
+        *_spec_lines(spec, sim.control_period_s, steps),
+        f"cost bound: {bound} control steps = {bound / steps:.3g} episode-equivalents (the prefix to the window, every "
+        "child's segment, the final frontier run to the time limit; episodes that end sooner cost less); the nodes "
+        "run one after another in this process",
+        cost.kernels_to_build(campaign.cells).text(),
+    ])
+
+
+def _spec_lines(spec: BeamSpec, period_s: float, steps: int) -> list[str]:
+    children = spec.children_per_depth()
+    return [
+        f"window: control steps [{spec.first_step}, {spec.last_step}) = [{spec.first_step * period_s:g}, "
+        f"{spec.last_step * period_s:g}) s of {steps} ({period_s:g} s each), segments of {spec.segment_steps} steps: "
+        f"{spec.depths} depth(s)",
+        f"children per depth (at most): {', '.join(map(str, children))} ({sum(children)} in all); branching "
+        f"{spec.branching}, width {spec.width}; snapshots alive at most {2 * spec.width + 1}",
+        f"units: {spec.units} on {', '.join(spec.channels)}, shares front {spec.front_share:g}, opposing "
+        f"{spec.opp_share:g}; nodes ranked by the running {spec.score}",
+    ]
+
+
+# ------------------------------------------------------------------------------------------- running
+
+
+def start(config: SearchConfig, out_dir: Path, *, progress: Callable[[str], None] | None = None,
+          stop_after_depths: int | None = None) -> BeamSummary:
+    """A new beam search into the new (or empty) folder ``out_dir``; ``stop_after_depths``: a test's interruption."""
+    out_dir = Path(out_dir)
+    campaign, spec = check(config)
+    search.check_new_folder(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    store.write_json_atomic(out_dir / search.CONFIG, config.to_json())
+    return _run(config, campaign, spec, out_dir, progress, stop_after_depths)
+
+
+def is_beam_folder(out_dir: Path) -> bool:
+    """Whether ``out_dir`` holds a beam search (its ``falsify.json`` names the method)."""
+    path = Path(out_dir) / search.CONFIG
+    return path.is_file() and store.read_json(path).get("method") == beam.BEAM
+
+
+def stored_depths(out_dir: Path) -> int:
+    return len(list((Path(out_dir) / beam.BEAM).glob("depth-[0-9][0-9][0-9].npz")))
+
+
+def resume(out_dir: Path, *, progress: Callable[[str], None] | None = None,
+           stop_after_depths: int | None = None) -> BeamSummary:
+    """Finish the beam search in ``out_dir`` from its last depth file (to where an uninterrupted one ends)."""
+    out_dir = Path(out_dir)
+    config = SearchConfig.from_json(store.read_json(out_dir / search.CONFIG))
+    campaign, spec = check(config)
+    return _run(config, campaign, spec, out_dir, progress, stop_after_depths)
+
+
+def _run(config: SearchConfig, campaign: Campaign, spec: BeamSpec, out_dir: Path,
+         progress: Callable[[str], None] | None, stop_after_depths: int | None) -> BeamSummary:
+    result = beam.search(campaign, spec, out_dir, stop_after_depths=stop_after_depths, progress=progress)
+    best_dir = out_dir / BEST
+    if best_dir.exists():  # a write cut short before the search was marked finished: re-simulate it whole
+        shutil.rmtree(best_dir)
+    if progress is not None:
+        progress(f"best of the final frontier re-simulated from step 0 into {best_dir}")
+    beam.write_best(campaign, result, best_dir)
+    row = store.read_episodes(best_dir).to_pylist()[0]
+    replayed = rb.robustness(row, spec.requirement)
+    if not _same(replayed, result.min_robustness):
+        raise RunError(f"{best_dir}: the best schedule re-simulated from step 0 has robustness {replayed!r}, the "
+                       f"beam's node {result.min_robustness!r}; the snapshots did not continue the episode exactly")
+    summary = BeamSummary.of(config, campaign, result)
+    store.write_json_atomic(out_dir / beam.BEAM / RESULT, summary.to_json())
+    write_report(out_dir, summary)
+    search.mark_finished(out_dir)
+    return summary
+
+
+def _same(a: float, b: float) -> bool:
+    return a == b or (math.isnan(a) and math.isnan(b))
+
+
+# ------------------------------------------------------------------------------------------- outputs
+
+
+@dataclass(frozen=True)
+class FrontierNode:
+    """A node of the final frontier: its requirement's robustness, running score and episode outcome."""
+
+    robustness: float
+    score: float
+    outcome: str
+    steps: int
+
+
+@dataclass(frozen=True)
+class BeamSummary:
+    """A finished beam search as ``OUT/beam/result.json`` keeps it (what the report is written from)."""
+
+    source: str
+    requirement: str
+    seed: int
+    budget: int
+    spec: BeamSpec
+    control_period_s: float
+    full_episode_steps: int
+    depth_log: tuple[tuple[int, float, int], ...]  # (depth, best score, control steps so far)
+    frontier: tuple[FrontierNode, ...]
+    best: int
+    search_steps: int
+    rebuild_steps: int
+    peak_snapshots: int
+
+    @classmethod
+    def of(cls, config: SearchConfig, campaign: Campaign, result: BeamResult) -> BeamSummary:
+        nodes = tuple(FrontierNode(float(r), float(n.score), str(n.row["outcome"]), int(n.row["steps"]))
+                      for n, r in zip(result.frontier, result.robustness, strict=True))
+        log = tuple((int(d["depth"]), float(d["best_score"]), int(d["control_steps"])) for d in result.depth_log)
+        return cls(config.source, config.requirement, config.seed, config.budget, result.spec,
+                   campaign.cells[0].params.sim.control_period_s, result.full_episode_steps, log, nodes, result.best,
+                   result.search_steps, result.rebuild_steps, result.peak_snapshots)
+
+    @property
+    def best_robustness(self) -> float:
+        return self.frontier[self.best].robustness
+
+    @property
+    def episode_equivalents(self) -> float:
+        return self.search_steps / self.full_episode_steps
+
+    def to_json(self) -> dict[str, Any]:
+        data = asdict(self)
+        data["spec"]["channels"] = list(self.spec.channels)
+        return data
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> BeamSummary:
+        spec = BeamSpec(**{**data["spec"], "channels": tuple(data["spec"]["channels"])})
+        return cls(**{**data, "spec": spec, "depth_log": tuple(tuple(d) for d in data["depth_log"]),
+                      "frontier": tuple(FrontierNode(**n) for n in data["frontier"])})
+
+
+def read_summary(out_dir: Path) -> BeamSummary:
+    return BeamSummary.from_json(store.read_json(Path(out_dir) / beam.BEAM / RESULT))
+
+
+def verdict(summary: BeamSummary, out_dir: Path) -> str:
+    """One line: counterexample or not, the cost, and the replay command."""
+    r = summary.best_robustness
+    found = (f"counterexample: robustness {r:.4g} of {summary.requirement}" if r < 0.0 else
+             f"no counterexample: lowest robustness {r:.4g} of {summary.requirement}")
+    return (f"{found}; cost {summary.search_steps} control steps = {summary.episode_equivalents:.3g} "
+            f"episode-equivalents; `mcverify replay {Path(out_dir) / BEST} 0`")
+
+
+def write_report(out_dir: Path, summary: BeamSummary) -> Path:
+    """``OUT/report.md`` from the summary (``mcverify report OUT`` rewrites it from result.json)."""
+    s, out_dir = summary, Path(out_dir)
+    steps, found = s.full_episode_steps, verdict(s, out_dir)
+    lines = [f"# Beam search: {s.source}", "",
+             f"Requirement `{s.requirement}`, seed {s.seed}, budget {s.budget} episode-equivalents "
+             f"(cost bound {s.spec.cost_bound(steps)} control steps). {found[0].upper()}{found[1:]}.", "",
+             "## Specification", "", *[f"- {line}" for line in _spec_lines(s.spec, s.control_period_s, steps)], "",
+             "## Depths", "", f"| depth | best running {s.spec.score} | control steps so far |", "|---:|---:|---:|",
+             *[f"| {d} | {score:.4g} | {cost} |" for d, score, cost in s.depth_log], "",
+             "## Final frontier", "", f"| rank | robustness ({s.requirement}) | running {s.spec.score} at the window's "
+             "end | outcome | control steps |", "|---:|---:|---:|---|---:|",
+             *[f"| {i}{' (best)' if i == s.best else ''} | {n.robustness:.4g} | {n.score:.4g} | {n.outcome} | "
+               f"{n.steps} |" for i, n in enumerate(s.frontier)], "",
+             "## Cost", "",
+             f"- search: {s.search_steps} control steps = {s.episode_equivalents:.3g} episode-equivalents "
+             f"({steps} control steps per episode)",
+             f"- rebuilding snapshots after a resume: {s.rebuild_steps} control steps (not counted above)",
+             f"- snapshots alive at most: {s.peak_snapshots} (in the search's last process; bound "
+             f"{2 * s.spec.width + 1})", "",
+             "## Replay", "",
+             f"The best node's whole schedule (zeros outside the window) re-simulated from step 0 is "
+             f"`{out_dir / BEST}`, one episode; `mcverify replay {out_dir / BEST} 0` re-simulates it bit for bit.", ""]
+    path = out_dir / "report.md"
+    store.atomic_write(path, lambda tmp: Path(tmp).write_text("\n".join(lines), encoding="utf-8"))
+    return path
