@@ -10,5 +10,6 @@ Each writes only its own generated section of ``results/BENCHMARKS.md`` (:mod:`b
 - :mod:`benchmarks.plant`: the JAX side alone per batch size, on CPU and GPU;
 - :mod:`benchmarks.validation`: the rare-event estimators against a crude Monte Carlo reference;
 - :mod:`benchmarks.worker_scaling`: episodes per wall-minute against the number of worker processes;
-- :mod:`benchmarks.surrogate_coverage`: the rare-event estimators' coverage on a surrogate with exact p.
+- :mod:`benchmarks.surrogate_coverage`: the rare-event estimators' coverage on a surrogate with exact p;
+- :mod:`benchmarks.worst_case`: the lowest robustness (or first counterexample) per search method against ε.
 """

@@ -69,6 +69,17 @@ class Trial:
     counterexamples: tuple[Counterexample, ...] = ()
 
 
+class PlannedTrial(NamedTuple):
+    """One checked search of :func:`plan_trials`, not yet run: its target, method, trial number, search
+    and folder (``out_dir/<target>/<method>/trial-NN``)."""
+
+    target: str
+    method: str
+    number: int
+    config: search.SearchConfig
+    where: Path
+
+
 def run_trials(
     targets: Sequence[Path], methods_: Sequence[str], trials: int, budget: int, seed: int, out_dir: Path,
     settings: Sequence[str] = (), progress: Callable[[str], None] | None = None, **search_kw: Any,
@@ -76,6 +87,14 @@ def run_trials(
     """Every (target, method, trial) search; a finished trial folder is re-read, an unfinished one
     resumed, so a killed benchmark continues where it stopped. Every search is checked (and every
     stored trial folder matched against its search) before the first one runs."""
+    planned = plan_trials(targets, methods_, trials, budget, seed, out_dir, settings)
+    return run_planned(planned, progress, **search_kw)
+
+
+def plan_trials(targets: Sequence[Path], methods_: Sequence[str], trials: int, budget: int, seed: int,
+                out_dir: Path, settings: Sequence[str] = ()) -> list[PlannedTrial]:
+    """The searches of :func:`run_trials`, each checked (and its stored trial folder, if any, matched
+    against it) without running any: a bad target or a foreign folder is one RunError line."""
     planned = []
     for path in targets:
         campaign = load_campaign(path, settings=settings)
@@ -92,7 +111,13 @@ def run_trials(
                 where = out_dir / campaign.name / method / f"trial-{t:02d}"
                 if (where / search.CONFIG).is_file():
                     _check_same_trial(where, config)
-                planned.append((campaign.name, method, t, config, where))
+                planned.append(PlannedTrial(campaign.name, method, t, config, where))
+    return planned
+
+
+def run_planned(planned: Sequence[PlannedTrial], progress: Callable[[str], None] | None = None,
+                **search_kw: Any) -> list[Trial]:
+    """Run (or re-read, or resume) the searches of :func:`plan_trials`, in order."""
     out: list[Trial] = []
     for name, method, t, config, where in planned:
         if (where / search.CONFIG).is_file():
@@ -254,7 +279,8 @@ def compact(x: float | None) -> str:
     return "–" if x is None else f"{x:.2g}"
 
 
-def _cost(x: float | None) -> str:
+def cost_text(x: float | None) -> str:
+    """A cost in episode-equivalents: three significant digits, ``beyond the budget`` for ``inf``, ``–`` for None."""
     if x is None:
         return "–"
     return "beyond the budget" if math.isinf(x) else f"{x:.3g}"
@@ -326,7 +352,7 @@ def markdown(trials: Sequence[Trial], *, budget: int, command: str, name: str = 
     for (target, method), s in summaries.items():
         med = "–" if s.median_episodes is None else f"{s.median_episodes:g}"
         lines.append(f"| {target} | {method} | {s.trials} | {s.successes} | {s.rate:.2f} [{s.low:.2f}, {s.high:.2f}] "
-                     f"| {_cost(s.mean_eq)} | {_cost(s.median_eq)} | {_cost(s.median_eq_all)} | {med} | "
+                     f"| {cost_text(s.mean_eq)} | {cost_text(s.median_eq)} | {cost_text(s.median_eq_all)} | {med} | "
                      f"{s.min_robustness:.4g} | {s.episodes_spent} | {s.eq_spent:.4g} |")
     lines += ["", "Per trial, in seed order from the first seed (– : no counterexample): ep-eq to the first "
               "counterexample and the lowest robustness reached"
@@ -335,7 +361,7 @@ def markdown(trials: Sequence[Trial], *, budget: int, command: str, name: str = 
               "|---|---|---|---|" + ("---|" if guided else "")]
     for (target, method), s in summaries.items():
         guide = groups[(target, method)][0].guide
-        lines.append(f"| {target} | {method} | {', '.join(_cost(x) for x in s.eq_to_first)} | "
+        lines.append(f"| {target} | {method} | {', '.join(cost_text(x) for x in s.eq_to_first)} | "
                      f"{', '.join(compact(x) for x in s.lowest)} |"
                      + (f" {guide or 'none'}: {', '.join(compact(x) for x in s.lowest_guide)} |" if guided else ""))
     lines += ["", replay_sentence(replays), "",
@@ -383,6 +409,16 @@ DEFAULT_TARGETS = (
 ALL_METHODS = methods.METHODS
 
 
+def chosen_methods(text: str) -> list[str]:
+    """The methods of ``--methods`` (comma-separated), each a known one; otherwise one RunError line."""
+    chosen = [m.strip() for m in text.split(",") if m.strip()]
+    bad = [m for m in chosen if m not in methods.METHODS]
+    if bad or not chosen:
+        raise RunError(f"--methods: unknown {', '.join(bad) or '(none given)'}; "
+                       f"choose from {', '.join(methods.METHODS)}")
+    return chosen
+
+
 def _parser() -> argparse.ArgumentParser:
     p = section.parser("falsify", "Success rate and median episodes to the first counterexample per search method "
                                   "and target.")
@@ -414,11 +450,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         args = _parser().parse_args(argv)
         name = check_section_name(args.section)
-        chosen = [m.strip() for m in args.methods.split(",") if m.strip()]
-        bad = [m for m in chosen if m not in methods.METHODS]
-        if bad or not chosen:
-            raise RunError(f"--methods: unknown {', '.join(bad) or '(none given)'}; "
-                           f"choose from {', '.join(methods.METHODS)}")
+        chosen = chosen_methods(args.methods)
         targets = args.targets or [Path(t) for t in DEFAULT_TARGETS]
         for t in targets:
             if not Path(t).is_file():

@@ -208,10 +208,10 @@ def test_the_robustness_plot_labels_its_axis_in_plain_numbers(tmp_path):
     _, ax = plt.subplots()
     ax.set_yscale("symlog", linthresh=0.05)
     ax.set_ylim(-0.055, 0.002)
-    report._label_symlog_axis(ax)
+    report.label_symlog_axis(ax)
     assert [t.get_text() for t in ax.get_yticklabels()] == ["-0.05", "-0.02", "-0.01", "0"]
     ax.set_ylim(-2.0, 80.0)
-    report._label_symlog_axis(ax)
+    report.label_symlog_axis(ax)
     labels = [t.get_text() for t in ax.get_yticklabels()]
     assert len(labels) <= 9 and "0" in labels and "-1" in labels and "10" in labels
     plt.close("all")

@@ -82,7 +82,7 @@ def robustness_curves(curves: Mapping[str, Sequence[float]], path: Path, require
         ax.step(x, np.fmin.accumulate(np.where(np.isnan(y), np.inf, y)), where="post", color=colour, label=label)
     ax.axhline(0.0, color="k", lw=0.8, ls="--")
     ax.set_yscale("symlog", linthresh=0.05)
-    _label_symlog_axis(ax)
+    label_symlog_axis(ax)
     if episodes is not None:
         _replay_id_axis(ax, list(next(iter(curves.values()), [])), list(episodes))
     else:
@@ -119,7 +119,7 @@ def _replay_id_axis(ax: Any, values: Sequence[float], episodes: Sequence[tuple[i
                     fontsize=7, color="C3")
 
 
-def _label_symlog_axis(ax: Any, most: int = 9) -> None:
+def label_symlog_axis(ax: Any, most: int = 9) -> None:
     """Plain-number ticks at 0 and +-1, 2, 5 x 10^k inside the axis's range (matplotlib's symlog labels
     only whole decades, so a search whose robustness stays within -0.06..0.5 showed a single label).
     Thinned to 1 and 5 x 10^k, then to 10^k, while there are more than ``most``."""
