@@ -59,7 +59,7 @@ PRESENTATION_PARTS = (
     "__init__.py", "api.py", "errors.py", "fields.py", "provenance.py", "store.py",
     "analysis", "cli", "reporting",
     # falsify chooses candidates but simulates nothing itself; a resumed search re-checks that the
-    # candidates it asks equal those its generation folders recorded (falsify.search._check_same).
+    # candidates it asks equal those its generation folders recorded (falsify.generation_folder.check_same).
     "falsify",
 )
 #: Source files that enter the hash.

@@ -72,7 +72,7 @@ def _dry_run(config: Any, campaign: Any, workers: int | None) -> str:
     """``falsify --dry-run``: what the search is and what its budget would cost (the run dry run's
     per-episode CPU model, every episode run to its end: stopping at a violation only saves)."""
     from mcverify.campaign import cost, executors  # noqa: PLC0415
-    from mcverify.falsify import search  # noqa: PLC0415
+    from mcverify.falsify import ask_tell, search  # noqa: PLC0415
 
     space = search.check(config)
     low, high = cost.cell_seconds(campaign.cells[0])
@@ -84,7 +84,7 @@ def _dry_run(config: Any, campaign: Any, workers: int | None) -> str:
         f"{config.requirement}, seed {config.seed}",
         f"search space: {len(space.bounds)} field(s): {', '.join(b[0] for b in space.bounds)}"
         + ("" if space.adversary is None else
-           f"; {space.adversary.describe()}, {search.search_dimension(campaign, space)} coordinates in all"),
+           f"; {space.adversary.describe()}, {ask_tell.search_dimension(campaign, space)} coordinates in all"),
         f"estimated CPU: {cpu_range} at most; wall time on {n} worker(s): {wall_range} at most (a rough range from "
         "measured rates; "
         + ("the search stops after the generation of its first counterexample)" if space.stop_at_first

@@ -15,6 +15,11 @@ episode is a row ``mcverify replay OUT/generations/gNNN EPISODE_ID`` re-simulate
 killed search resumes (``resume``): the searcher is rebuilt from its seed and told the stored
 robustness of every finished generation, which gives exactly the points the uninterrupted search
 asked, then the unfinished generation is resumed chunk by chunk and the search goes on.
+
+This module holds what defines a search (:class:`SearchConfig`, checked by :func:`check`), its loop
+(:func:`start`, :func:`resume`) and its outputs; one generation's run folder is
+:mod:`~mcverify.falsify.generation_folder`, the method's side (the cube, ask and tell)
+:mod:`~mcverify.falsify.ask_tell`, and what a candidate scored :mod:`~mcverify.falsify.candidate_scores`.
 """
 
 from __future__ import annotations
@@ -22,7 +27,6 @@ from __future__ import annotations
 import copy
 import hashlib
 import math
-import shutil
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,17 +40,14 @@ from mcverify import provenance, store
 from mcverify import requirements as reqs
 from mcverify.analysis import counterexamples as cx
 from mcverify.analysis import failure_regions
-from mcverify.analysis import robustness as rb
 from mcverify.campaign import executors, runner
 from mcverify.campaign.executors import EpisodeFn, Executor
 from mcverify.campaign.search_space import SearchSpace, check_single_target, split_element
 from mcverify.campaign.spec import Campaign, apply_overrides, campaign_from_dict
-from mcverify.episode import schedule_file
 from mcverify.errors import CampaignError, RunError
-from mcverify.falsify import methods
-from mcverify.falsify.parametrisations import Parametrisation, parametrisation, theta_of_unit
-from mcverify.falsify.splitting import Candidate, NoiseSplitting
-from mcverify.sim.schedule import ErrorInput, control_steps
+from mcverify.falsify import ask_tell, candidate_scores, generation_folder, methods
+from mcverify.falsify.parametrisations import theta_of_unit
+from mcverify.sim.schedule import control_steps
 
 CONFIG = "falsify.json"
 GENERATIONS = "generations"
@@ -215,7 +216,7 @@ def check_adversary(config: SearchConfig, campaign: Campaign, space: SearchSpace
         raise RunError(f"{config.source}: noise.kind = \"none\" gives the adversary no bounds to search in "
                        "([falsify.adversary] scales its units by the noise bounds)")
     try:
-        adversary = adversary_of(campaign, space)
+        adversary = ask_tell.adversary_of(campaign, space)
         adversary.schedule(np.zeros(adversary.dimension))
     except ValueError as exc:
         raise RunError(f"{config.source} [falsify.adversary]: {exc}") from None
@@ -256,7 +257,7 @@ def start(config: SearchConfig, out_dir: Path, **kw: Any) -> SearchResult:
 
 def stored_generations(out_dir: Path) -> int:
     """How many generations of the search in ``out_dir`` are finished on disk (what a resume re-reads)."""
-    return sum(_finished(g) for g in sorted((Path(out_dir) / GENERATIONS).glob("g[0-9][0-9][0-9]")))
+    return sum(generation_folder.is_finished(g) for g in sorted((Path(out_dir) / GENERATIONS).glob("g[0-9][0-9][0-9]")))
 
 
 def resume(out_dir: Path, **kw: Any) -> SearchResult:
@@ -293,73 +294,52 @@ def _search(
         shared.release()
 
 
-def adversary_of(campaign: Campaign, space: SearchSpace) -> Parametrisation | None:
-    """The parametrisation of the searched perception error (``[falsify.adversary]``), None without one."""
-    return None if space.adversary is None else parametrisation(space.adversary, campaign.cells[0].params.sim)
-
-
-def search_dimension(campaign: Campaign, space: SearchSpace) -> int:
-    """Coordinates of the unit cube searched: the ``[falsify.bounds]`` fields, then the adversary's theta."""
-    adversary = adversary_of(campaign, space)
-    return space.dimension + (0 if adversary is None else adversary.dimension)
-
-
-def _schedules(adversary: Parametrisation | None, space: SearchSpace, campaign: Campaign,
-               candidates: list[Candidate]) -> dict[int, ErrorInput] | None:
-    """Each candidate cell's error schedule by global episode id (cell k is candidate k), None without an
-    adversary."""
-    if adversary is None:
-        return None
-    return {cell.episode_offset: adversary.schedule(theta_of_unit(c.point[space.dimension:]))
-            for cell, c in zip(campaign.cells, candidates, strict=False)}
-
-
 def _generations(config: SearchConfig, out_dir: Path, make_executor: Callable[[], Executor], episode_fn: EpisodeFn,
                  progress: Callable[[str], None] | None, stop_after_generations: int | None,
                  bar: bool = False) -> SearchResult:
     campaign, space = target(config)
-    adversary = adversary_of(campaign, space)
-    search = methods.searcher(config.method, search_dimension(campaign, space), space.population, config.seed,
+    adversary = ask_tell.adversary_of(campaign, space)
+    search = methods.searcher(config.method, ask_tell.search_dimension(campaign, space), space.population, config.seed,
                               campaign.seed)
     evaluations: list[Evaluation] = []
     ran = 0
     generation = 0
-    common_seed = noise_seed(campaign.seed, config.seed) if space.common_noise else -1
+    common_seed = ask_tell.noise_seed(campaign.seed, config.seed) if space.common_noise else -1
     while len(evaluations) < config.budget:
-        candidates = _ask(search, common_seed)
+        candidates = ask_tell.ask(search, common_seed)
         n = min(len(candidates), config.budget - len(evaluations))
         values = [space.values(list(c.point[:space.dimension])) for c in candidates[:n]]
         gen_campaign = generation_campaign(
             config, [space.overrides(v) | c.noise_overrides() for v, c in zip(values, candidates, strict=False)],
             generation, space.stop_episodes)
-        schedules = _schedules(adversary, space, gen_campaign, candidates[:n])
+        schedules = ask_tell.schedules(adversary, space, gen_campaign, candidates[:n])
         gen_dir = out_dir / GENERATIONS / f"g{generation:03d}"
-        finished = _finished(gen_dir)
+        finished = generation_folder.is_finished(gen_dir)
         if not finished:
             if stop_after_generations is not None and ran >= stop_after_generations:
                 raise RunError(f"search stopped after {ran} generation(s) (test hook); resume {out_dir}")
-            _run_generation(gen_campaign, gen_dir, make_executor, episode_fn, bar, schedules)
+            generation_folder.run(gen_campaign, gen_dir, make_executor, episode_fn, bar, schedules)
             ran += 1
         else:
-            _check_same(gen_dir, gen_campaign, schedules)
+            generation_folder.check_same(gen_dir, gen_campaign, schedules)
         rows = {int(r["cell_index"]): r for r in store.read_episodes(gen_dir).to_pylist()}
-        robs = np.array([_robustness(gen_dir, rows[k], config.requirement) for k in range(n)])
+        robs = np.array([candidate_scores.robustness(gen_dir, rows[k], config.requirement) for k in range(n)])
         periods_s = [cell.params.sim.control_period_s for cell in gen_campaign.cells]
-        guides = (np.array([_guide(gen_dir, rows[k], space.guide, periods_s[k]) for k in range(n)])
-                  if space.guide else None)
+        guides = (np.array([candidate_scores.guide_value(gen_dir, rows[k], space.guide, periods_s[k])
+                            for k in range(n)]) if space.guide else None)
         evaluations += [Evaluation(generation, k, candidates[k].point, values[k], rows[k], float(robs[k]),
                                    candidates[k].parent, candidates[k].branch_after_step, candidates[k].move,
                                    math.nan if guides is None else float(guides[k]),
-                                   simulated_steps(rows[k], periods_s[k]))
+                                   candidate_scores.simulated_steps(rows[k], periods_s[k]))
                         for k in range(n)]
         if progress is not None:
             best = np.nanmin(robs) if np.isfinite(robs).any() else math.nan
-            told = "" if guides is None else f", best {space.guide} {_lowest(guides):.4g}"
+            told = "" if guides is None else f", best {space.guide} {candidate_scores.lowest(guides):.4g}"
             progress(f"generation {generation}: {n} episodes, best robustness {best:.4g}{told}, "
                      f"{len(evaluations)}/{config.budget} episodes")
         if n == len(candidates):
-            _tell(search, candidates, robs if guides is None else guides, gen_dir, [rows[k] for k in range(n)],
-                  space.guide or config.requirement, periods_s)
+            ask_tell.tell(search, candidates, robs if guides is None else guides, gen_dir,
+                          [rows[k] for k in range(n)], space.guide or config.requirement, periods_s)
         generation += 1
         if space.stop_at_first and (robs < 0.0).any():
             break
@@ -383,110 +363,6 @@ def is_finished(out_dir: Path) -> bool:
     """Whether the search in ``out_dir`` is complete (a search from before the record reads as not)."""
     path = Path(out_dir) / CONFIG
     return path.is_file() and bool(store.read_json(path).get("finished_utc"))
-
-
-def simulated_steps(row: dict[str, Any], control_period_s: float) -> int:
-    """Control steps an episode simulated, settling included (its end time over the control period); 0 for an
-    episode that could not be simulated."""
-    ends = [float(row.get(k, math.nan)) for k in ("settle_end_s", "end_time_s")]
-    ends = [t for t in ends if math.isfinite(t)]
-    return int(round(max(ends) / control_period_s)) if ends and not rb.is_error_row(row) else 0
-
-
-def _ask(search: methods.Searcher | NoiseSplitting, common_seed: int = -1) -> list[Candidate]:
-    if isinstance(search, NoiseSplitting):
-        return search.ask()
-    return [Candidate(tuple(float(x) for x in p), common_seed) for p in search.ask()]
-
-
-def noise_seed(campaign_seed: int, search_seed: int) -> int:
-    """``noise.key_seed`` of every candidate of a ``common_noise`` search: one noise realisation per
-    (campaign seed, search seed), so independent trials see independent noise."""
-    digest = hashlib.sha256(f"common-noise:{campaign_seed}:{search_seed}".encode()).digest()
-    return int.from_bytes(digest[:8], "big") % 2**31
-
-
-def _tell(search: methods.Searcher | NoiseSplitting, candidates: list[Candidate], robs: np.ndarray, gen_dir: Path,
-          rows: list[dict[str, Any]], steered_by: str, periods_s: list[float]) -> None:
-    """Tell the method its candidates' values ``robs``; splitting is told the running values of
-    ``steered_by`` (the requirement, or its ``@run`` guide) per control step instead."""
-    if not isinstance(search, NoiseSplitting):
-        search.tell(np.array([c.point for c in candidates]), robs)
-        return
-    search.tell(candidates, [_running(gen_dir, row, steered_by, dt) for row, dt in zip(rows, periods_s, strict=True)])
-
-
-def _running(gen_dir: Path, row: dict[str, Any], name: str, control_period_s: float) -> np.ndarray:
-    """A candidate's running robustness (of a requirement or an ``@run`` guide) per control step, from
-    its stored trajectory (empty for an episode that could not be simulated: it is never a survivor)."""
-    if rb.is_error_row(row):
-        return np.zeros(0)
-    trajectory = _trajectory(gen_dir, row, "--method splitting branches on each candidate's stored trajectory")
-    return rb.running_robustness(trajectory, name, control_period_s, epsilon=float(row["epsilon"]),
-                                 h0=float(row["h0_front"]))
-
-
-def _trajectory(gen_dir: Path, row: dict[str, Any], why: str) -> dict[str, np.ndarray]:
-    """The stored trajectory of a candidate's episode; RunError naming ``why`` it is needed if missing."""
-    trajectory = store.read_trajectory(gen_dir, int(row["episode_id"]))
-    if trajectory is None:
-        raise RunError(f"{store.trajectory_path(gen_dir, int(row['episode_id']))} is missing: {why}")
-    return trajectory
-
-
-def _robustness(gen_dir: Path, row: dict[str, Any], requirement: str) -> float:
-    """The requirement's robustness for one candidate (an STL requirement reads its stored trajectory)."""
-    if not rb.needs_trajectory(requirement) or rb.is_error_row(row):
-        return rb.robustness(row, requirement)
-    return rb.robustness(row, requirement, _trajectory(gen_dir, row, f"requirement {requirement!r} is evaluated on "
-                                                                     "each candidate's stored trajectory"))
-
-
-def _guide(gen_dir: Path, row: dict[str, Any], guide: str, control_period_s: float) -> float:
-    """The guide's value for one candidate (``@go_back`` and ``@run`` guides read its stored trajectory)."""
-    if not guide.endswith((reqs.GO_BACK_SUFFIX, reqs.RUN_SUFFIX)) or rb.is_error_row(row):
-        return rb.guide_value(row, None, guide)
-    return rb.guide_value(row, _trajectory(gen_dir, row, f"[falsify] guide = {guide!r} reads each candidate's "
-                                                         "stored trajectory"), guide,
-                          control_period_s=control_period_s)
-
-
-def _lowest(values: np.ndarray) -> float:
-    finite = values[~np.isnan(values)]
-    return float(finite.min()) if finite.size else math.nan
-
-
-def _finished(gen_dir: Path) -> bool:
-    manifest = gen_dir / store.MANIFEST
-    return manifest.is_file() and bool(store.read_json(manifest).get("finished_utc"))
-
-
-def _check_same(gen_dir: Path, campaign: Campaign, schedules: dict[int, ErrorInput] | None = None) -> None:
-    recorded = store.read_json(gen_dir / store.MANIFEST)["cells"]
-    diff = runner.first_difference(recorded, runner.campaign_record(campaign)["cells"])
-    if not diff and schedules is not None:
-        folder = gen_dir / schedule_file.SCHEDULES
-        diff = next((f"episode {e}'s error schedule" for e, s in sorted(schedules.items())
-                     if not _same_schedule(schedule_file.read_schedule(schedule_file.schedule_path(folder, e)), s)),
-                    "")
-    if diff:
-        raise RunError(f"{gen_dir}: the search asks other candidates than this generation ran ({diff}); "
-                       "was the folder made by other code or edited?")
-
-
-def _same_schedule(a: ErrorInput, b: ErrorInput) -> bool:
-    return type(a) is type(b) and all(np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(a, b, strict=True))
-
-
-def _run_generation(campaign: Campaign, gen_dir: Path, make_executor: Callable[[], Executor],
-                    episode_fn: EpisodeFn, bar: bool = False, schedules: dict[int, ErrorInput] | None = None) -> None:
-    if (gen_dir / store.MANIFEST).is_file():  # its schedules, if any, are in the folder already
-        runner.resume(gen_dir, executor=make_executor(), progress=bar, campaign=campaign, episode_fn=episode_fn)
-        return
-    if gen_dir.exists():  # killed before its manifest was written: nothing of it is usable
-        shutil.rmtree(gen_dir)
-    gen_dir.parent.mkdir(parents=True, exist_ok=True)
-    runner.run(campaign, gen_dir, executor=make_executor(), progress=bar, episode_fn=episode_fn, schedules=schedules)
 
 
 # -------------------------------------------------------------------------------------- outputs

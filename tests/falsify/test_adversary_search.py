@@ -16,7 +16,7 @@ from mcverify.campaign.replay import replay
 from mcverify.campaign.spec import campaign_from_dict
 from mcverify.episode.schedule_file import SCHEDULES, read_schedule, schedule_path
 from mcverify.errors import CampaignError, RunError
-from mcverify.falsify import search
+from mcverify.falsify import ask_tell, search
 from mcverify.falsify.parametrisations import BangBang, FullSequence, parametrisation
 from tests.falsify import fake_episodes
 
@@ -112,7 +112,7 @@ def test_random_over_bang_bang_and_full_are_the_random_baselines(tmp_path):
     raw = _with(kind="full", channels=["front_y"])
     raw["falsify"]["bounds"] = {}
     res = search.start(_config("random", budget=8, raw=raw), tmp_path / "full", **_kw())
-    assert search.search_dimension(*search.target(_config(raw=raw))) == FullSequence(20, ("front_y",)).dimension
+    assert ask_tell.search_dimension(*search.target(_config(raw=raw))) == FullSequence(20, ("front_y",)).dimension
     ev = res.evaluations[3]
     units = read_schedule(schedule_path(tmp_path / "full" / search.GENERATIONS / "g000" / SCHEDULES,
                                         int(ev.row["episode_id"]))).units

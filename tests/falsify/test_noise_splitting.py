@@ -11,7 +11,7 @@ import pytest
 from mcverify.analysis import robustness as rb
 from mcverify.campaign import executors
 from mcverify.errors import RunError
-from mcverify.falsify import search
+from mcverify.falsify import ask_tell, search
 from mcverify.falsify.splitting import Candidate, NoiseSplitting, first_step_below
 from tests.falsify import fake_episodes
 
@@ -176,7 +176,7 @@ def test_common_noise_gives_every_candidate_of_a_search_the_same_noise(tmp_path)
     a = search.start(_common(3), tmp_path / "a", **_kw())
     search.start(_common(4), tmp_path / "b", **_kw())
     (seed_a,), (seed_b,) = _key_seeds(tmp_path / "a"), _key_seeds(tmp_path / "b")
-    assert seed_a == search.noise_seed(RAW["campaign"]["seed"], 3) and seed_a != seed_b
+    assert seed_a == ask_tell.noise_seed(RAW["campaign"]["seed"], 3) and seed_a != seed_b
     # the robustness is a deterministic function of the searched value: the walk's noise is common
     for ev in a.evaluations:
         cell = search.generation_campaign(a.config, [{**ev.values, "noise.key_seed": seed_a}], 0).cells[0]
