@@ -97,13 +97,13 @@ def run(campaign: Campaign | PathLike, out: PathLike | None = None, *, episodes:
     ``<results>/<name>-<timestamp>`` folder, where ``<results>`` is ``$MCVERIFY_RESULTS`` or else
     ``results`` under the current directory (as ``mcverify run`` without ``--out``).
     """
-    from mcverify.campaign import executors, runner
+    from mcverify.campaign import executors, run_folders, runner
 
     if not hasattr(campaign, "cells"):
         campaign = load_campaign(campaign, episodes=episodes, seed=seed, settings=settings)
     elif episodes is not None or seed is not None or settings:
         raise RunError("episodes, seed and settings apply to a campaign file; set them on the Campaign instead")
-    run_dir = Path(out) if out is not None else runner.default_run_dir(campaign)
+    run_dir = Path(out) if out is not None else run_folders.default_run_dir(campaign)
     runner.run(campaign, run_dir, executor=executors.make_executor(executor, workers=workers, address=address),
                chunk_size=chunk_size or runner.DEFAULT_CHUNK_SIZE, progress=progress)
     return Run(run_dir)

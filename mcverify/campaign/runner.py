@@ -14,10 +14,7 @@ import dataclasses
 import functools
 import json
 import logging
-import os
-import re
 from collections.abc import Callable, Mapping
-from datetime import datetime
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -40,56 +37,6 @@ log = logging.getLogger(__name__)
 
 #: Episodes per chunk when the command line does not say.
 DEFAULT_CHUNK_SIZE = 8
-
-
-#: Environment variable naming the folder new runs go to when neither --out nor --run-dir is given.
-ENV_RESULTS_DIR = "MCVERIFY_RESULTS"
-#: Longest run-folder name taken from a campaign name (characters, before the timestamp).
-MAX_FOLDER_NAME = 80
-_UNSAFE_CHARS = re.compile(r"[^A-Za-z0-9._=,+-]+")
-
-
-def default_results_dir() -> Path:
-    """Where new run folders go by default: ``$MCVERIFY_RESULTS`` if set, else ``results`` under the
-    current working directory."""
-    env = os.environ.get(ENV_RESULTS_DIR, "").strip()
-    return Path(env) if env else Path("results")
-
-
-def folder_name(name: str) -> str:
-    """A campaign name made safe as one folder name: every run of characters other than letters,
-    digits and ``. _ = , + -`` (path separators included) becomes ``_``, leading dots and
-    underscores are dropped (no ``..``, no hidden folder), and the result is at most
-    :data:`MAX_FOLDER_NAME` characters (``campaign`` if nothing is left)."""
-    slug = _UNSAFE_CHARS.sub("_", name).lstrip("._")[:MAX_FOLDER_NAME].rstrip("._")
-    return slug or "campaign"
-
-
-def default_run_dir(campaign: Campaign, results_dir: Path | None = None) -> Path:
-    """A new folder ``results_dir/<name>-<timestamp>`` that does not exist yet (``-2``, ``-3``, ...
-    are appended when runs start within the same second, or a failed try left its folder).
-
-    ``results_dir`` defaults to :func:`default_results_dir`; the campaign name goes through
-    :func:`folder_name`, so the folder is always a direct child of ``results_dir``."""
-    results_dir = Path(results_dir) if results_dir is not None else default_results_dir()
-    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-    base = results_dir / f"{folder_name(campaign.name)}-{stamp}"
-    path, n = base, 1
-    while path.exists():
-        n += 1
-        path = base.with_name(f"{base.name}-{n}")
-    if path.parent != results_dir:  # cannot happen with folder_name; a guard, not a feature
-        raise RunError(f"campaign name {campaign.name!r} does not give a folder inside {results_dir}")
-    return path
-
-
-def new_folder(out: Path | None, run_dir: Path | None, fresh: Callable[[Path | None], Path]) -> Path:
-    """The one rule of ``--out`` and ``--run-dir`` for every command that makes a new folder (run,
-    estimate, falsify): ``run_dir`` (``--run-dir``) is the folder itself; otherwise ``fresh(out)``
-    makes a new folder under the parent ``out`` (``--out``; None: :func:`default_results_dir`)."""
-    if out is not None and run_dir is not None:
-        raise RunError("give --out (a parent folder for new runs) or --run-dir (the run folder), not both")
-    return Path(run_dir) if run_dir is not None else fresh(out)
 
 
 # ---------------------------------------------------------------------------------- manifest
@@ -227,6 +174,21 @@ class Stopper(Protocol):
     def skip(self, chunk: store.Chunk) -> bool: ...
 
 
+@dataclasses.dataclass(frozen=True)
+class _Execution:
+    """How a run's chunks are executed and reported, the same for a new run and a resumed one: the
+    executor (already entered), the episode function (reading the folder's error schedules, if any), and
+    the settings and hooks of :func:`run` (see there)."""
+
+    executor: Executor
+    episode_fn: EpisodeFn
+    progress: bool
+    record_first: bool
+    on_chunk: Callable[[store.ChunkRecord], None] | None
+    on_start: Callable[[int, int], None] | None
+    stopper: Stopper | None
+
+
 def run(
     campaign: Campaign,
     run_dir: Path,
@@ -273,10 +235,9 @@ def run(
             manifest = {**manifest_for(campaign, chunk_size, kernels), **(manifest_extra or {})}
             manifest["sessions"].append(_session(executor, resumed=False))
             store.write_json_atomic(run_dir / store.MANIFEST, manifest)
-            return _execute(
-                campaign, run_dir, chunk_size, executor, progress, episode_fn, record_first, on_chunk, on_start,
-                stopper,
-            )
+            return _execute(campaign, run_dir, chunk_size, _Execution(
+                executor=executor, episode_fn=episode_fn, progress=progress, record_first=record_first,
+                on_chunk=on_chunk, on_start=on_start, stopper=stopper))
 
 
 def resume(
@@ -354,24 +315,13 @@ def resume(
         with store.run_lock(run_dir):
             manifest["sessions"] = [*manifest.get("sessions", []), _session(executor, resumed=True)]
             store.write_json_atomic(run_dir / store.MANIFEST, manifest)
-            return _execute(
-                rebuilt, run_dir, planned, executor, progress, episode_fn, record_first, on_chunk, on_start,
-                stopper,
-            )
+            return _execute(rebuilt, run_dir, planned, _Execution(
+                executor=executor, episode_fn=episode_fn, progress=progress, record_first=record_first,
+                on_chunk=on_chunk, on_start=on_start, stopper=stopper))
 
 
-def _execute(
-    campaign: Campaign,
-    run_dir: Path,
-    chunk_size: int,
-    executor: Executor,
-    progress: bool,
-    episode_fn: EpisodeFn,
-    record_first: bool,
-    on_chunk: Callable[[store.ChunkRecord], None] | None,
-    on_start: Callable[[int, int], None] | None = None,
-    stopper: Stopper | None = None,
-) -> Path:
+def _execute(campaign: Campaign, run_dir: Path, chunk_size: int, how: _Execution) -> Path:
+    stopper = how.stopper
     chunks = store.plan_chunks([c.episodes for c in campaign.cells], chunk_size)
     done = store.done_chunks(run_dir, chunks)
     if stopper is not None:  # resume from the stored rows, in plan order
@@ -380,25 +330,25 @@ def _execute(
                 table = store.read_chunk(run_dir, c)
                 stopper.observe(c, table.to_pylist() if table is not None else [])
     todo = [c for c in chunks if c.name not in done]
-    if on_start is not None:
-        on_start(len(chunks), len(done))
+    if how.on_start is not None:
+        how.on_start(len(chunks), len(done))
     if todo:  # after every check: an error stays one line
         for warning in lint.warnings(campaign):
             log.warning("warning: %s", warning)
     done_episodes = sum(len(c.episode_ids) for c in chunks if c.name in done)
-    record = [(c.index, 0) for c in campaign.cells if c.episodes > 0] if record_first else []
-    if todo and executors.simulates(episode_fn) and not executor.warm:
+    record = [(c.index, 0) for c in campaign.cells if c.episodes > 0] if how.record_first else []
+    if todo and executors.simulates(how.episode_fn) and not how.executor.warm:
         bar_note = (f"; then the bar moves as episodes finish (chunks of up to {chunk_size} run together; with Ray, "
-                    "as whole chunks finish)" if progress else "")
+                    "as whole chunks finish)" if how.progress else "")
         log.info("starting %s: each worker imports JAX and CasADi, loads the solver and compiles the plant once "
                  "(tens of seconds) before its first chunk%s",
-                 ", ".join(f"{k} {v}" for k, v in executor.describe().items() if v is not None), bar_note)
+                 ", ".join(f"{k} {v}" for k, v in how.executor.describe().items() if v is not None), bar_note)
     bar = tqdm(
         total=campaign.total_episodes,
         initial=done_episodes,
         unit="ep",
         desc=campaign.name,
-        disable=not progress,
+        disable=not how.progress,
         dynamic_ncols=True,
     )
     tally = ProgressTally(bar, _unsafe_in(run_dir, [c for c in chunks if c.name in done]))
@@ -411,13 +361,13 @@ def _execute(
         rec = store.write_chunk(run_dir, chunk, output.rows, attempts=output.attempts)
         store.append_record(run_dir, rec)
         tally.chunk(chunk, output.rows, rec.errors)
-        if on_chunk is not None:
-            on_chunk(rec)
+        if how.on_chunk is not None:
+            how.on_chunk(rec)
         if stopper is not None:
             stopper.observe(chunk, output.rows)
 
     with bar:
-        executors.execute(campaign, todo, on_done, executor=executor, episode_fn=episode_fn, record=record,
+        executors.execute(campaign, todo, on_done, executor=how.executor, episode_fn=how.episode_fn, record=record,
                           skip=stopper.skip if stopper is not None else None, on_episode=tally.episode)
     if stopper is not None:  # the chunks of decided cells never ran: merge those that did
         ran = store.done_chunks(run_dir, chunks)

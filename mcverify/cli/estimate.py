@@ -133,7 +133,7 @@ def _check_estimate_options(args, method: str) -> None:
 
 
 def command(args) -> int:
-    from mcverify.campaign import executors, runner
+    from mcverify.campaign import executors, run_folders, runner
     from mcverify.errors import RunError
     from mcverify.estimate import mc
 
@@ -162,7 +162,7 @@ def command(args) -> int:
     else:
         spec = _estimate_spec(args, "mc")
         campaign = _estimate_campaign(args, "mc")
-        out = args.run_dir = run.new_folder(args, lambda parent: runner.default_run_dir(campaign, parent))
+        out = args.run_dir = run.new_folder(args, lambda parent: run_folders.default_run_dir(campaign, parent))
         _log.info("%s", runner.describe(campaign))
         _log.info("estimate folder: %s", out)
         path = mc.run(campaign, spec, out, executor=executor,
@@ -265,7 +265,7 @@ def _folder_method(run_dir: Path) -> str | None:
 
 
 def _in_process(args, method: str) -> int:
-    from mcverify.campaign import runner
+    from mcverify.campaign import run_folders, runner
     from mcverify.campaign.spec import campaign_from_dict
     from mcverify.errors import RunError
     from mcverify.estimate import importance_run, splitting_run, subset_run
@@ -292,7 +292,7 @@ def _in_process(args, method: str) -> int:
     else:
         spec = _estimate_spec(args, method)
         campaign = _estimate_campaign(args, method)  # checked before any folder is made
-        out = args.run_dir = run.new_folder(args, lambda parent: runner.default_run_dir(campaign, parent))
+        out = args.run_dir = run.new_folder(args, lambda parent: run_folders.default_run_dir(campaign, parent))
         log(runner.describe(campaign, episodes=False))  # the estimator chooses how many episodes
         log(f"estimate folder: {out}")
         path = module.run(campaign, spec, out, progress=log, cells=args.cell or None, **_executor_for(args, method))

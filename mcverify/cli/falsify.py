@@ -189,9 +189,9 @@ def _new_config(args: Any) -> tuple[Any, Any]:
 
 
 def _new_out(args: Any, name: str, method: str) -> Path:
-    from mcverify.campaign import runner  # noqa: PLC0415
+    from mcverify.campaign import run_folders  # noqa: PLC0415
 
-    return runner.new_folder(args.out, args.new_run_dir, lambda parent: _default_out(name, method, parent))
+    return run_folders.new_folder(args.out, args.new_run_dir, lambda parent: _default_out(name, method, parent))
 
 
 def _serial_only(args: Any) -> None:
@@ -230,11 +230,11 @@ def _default_out(name: str, method: str, parent: Path | None) -> Path:
     ./results, when None), like ``mcverify run``'s run folders."""
     from datetime import datetime  # noqa: PLC0415
 
-    from mcverify.campaign import runner  # noqa: PLC0415
+    from mcverify.campaign import run_folders  # noqa: PLC0415
 
-    parent = Path(parent) if parent is not None else runner.default_results_dir()
+    parent = Path(parent) if parent is not None else run_folders.default_results_dir()
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-    base = parent / runner.folder_name(f"falsify-{name}-{method}-{stamp}")
+    base = parent / run_folders.folder_name(f"falsify-{name}-{method}-{stamp}")
     path, n = base, 1
     while path.exists():
         n += 1

@@ -28,7 +28,7 @@ def add(sub, parents: list[argparse.ArgumentParser]) -> None:
 
 
 def command(args) -> int:
-    from mcverify.campaign import executors, runner
+    from mcverify.campaign import executors, run_folders, runner
     from mcverify.errors import RunError
 
     if args.address is not None and args.executor != "ray":
@@ -47,7 +47,7 @@ def command(args) -> int:
         campaign = load_campaign(args.campaign, episodes=args.episodes, seed=args.seed, settings=args.settings)
         if args.dry_run:
             return _dry_run(args, campaign)
-        out = args.run_dir = new_folder(args, lambda parent: runner.default_run_dir(campaign, parent))
+        out = args.run_dir = new_folder(args, lambda parent: run_folders.default_run_dir(campaign, parent))
         executor = executors.make_executor(args.executor, workers=args.workers, address=args.address)
 
         def starting(planned: int, done: int) -> None:  # after every check: errors stay one line
@@ -108,7 +108,7 @@ def _dry_run(args, campaign) -> int:
 
 
 def new_folder(args, fresh) -> Path:
-    """The folder of a new run or estimate (:func:`mcverify.campaign.runner.new_folder`)."""
-    from mcverify.campaign import runner
+    """The folder of a new run or estimate (:func:`mcverify.campaign.run_folders.new_folder`)."""
+    from mcverify.campaign import run_folders
 
-    return runner.new_folder(args.out, args.new_run_dir, fresh)
+    return run_folders.new_folder(args.out, args.new_run_dir, fresh)

@@ -10,7 +10,7 @@ import pytest
 import synthetic_episodes as synth
 
 from mcverify import cli, store
-from mcverify.campaign import executors, runner
+from mcverify.campaign import executors, run_folders, runner
 from mcverify.campaign.spec import campaign_from_dict, load_campaign
 from mcverify.errors import CampaignError
 
@@ -24,18 +24,18 @@ TRAVERSALS = ["../../../etc/evil", "..", ".", "/etc/passwd", "a/b", "a\\..\\b", 
 def test_a_campaign_name_never_leaves_the_results_folder(tmp_path: Path, name: str):
     results = tmp_path / "results"
     camp = campaign_from_dict({"campaign": {"name": name, "seed": 1, "episodes": 1}})
-    path = runner.default_run_dir(camp, results)
+    path = run_folders.default_run_dir(camp, results)
     assert path.parent == results
     assert path.resolve().parent == results.resolve()
     assert not path.name.startswith(".") and "/" not in path.name and "\\" not in path.name and "\x00" not in path.name
-    assert len(runner.folder_name(name)) <= runner.MAX_FOLDER_NAME
+    assert len(run_folders.folder_name(name)) <= run_folders.MAX_FOLDER_NAME
 
 
 def test_folder_names_keep_ordinary_names():
-    assert runner.folder_name("table2") == "table2"
-    assert runner.folder_name("eps_sweep-v1.2") == "eps_sweep-v1.2"
-    assert runner.folder_name("../../../etc/evil") == "etc_evil"
-    assert runner.folder_name("..") == "campaign"
+    assert run_folders.folder_name("table2") == "table2"
+    assert run_folders.folder_name("eps_sweep-v1.2") == "eps_sweep-v1.2"
+    assert run_folders.folder_name("../../../etc/evil") == "etc_evil"
+    assert run_folders.folder_name("..") == "campaign"
 
 
 def test_a_traversal_name_runs_inside_out(tmp_path: Path, monkeypatch):
@@ -53,11 +53,11 @@ def test_a_traversal_name_runs_inside_out(tmp_path: Path, monkeypatch):
 
 
 def test_results_folder_from_the_environment(tmp_path: Path, monkeypatch):
-    monkeypatch.setenv(runner.ENV_RESULTS_DIR, str(tmp_path / "elsewhere"))
+    monkeypatch.setenv(run_folders.ENV_RESULTS_DIR, str(tmp_path / "elsewhere"))
     camp = campaign_from_dict({"campaign": {"name": "x", "seed": 1, "episodes": 1}})
-    assert runner.default_run_dir(camp).parent == tmp_path / "elsewhere"
-    monkeypatch.delenv(runner.ENV_RESULTS_DIR)
-    assert runner.default_run_dir(camp).parent == Path("results")
+    assert run_folders.default_run_dir(camp).parent == tmp_path / "elsewhere"
+    monkeypatch.delenv(run_folders.ENV_RESULTS_DIR)
+    assert run_folders.default_run_dir(camp).parent == Path("results")
 
 
 def test_out_and_run_dir_together_are_refused(tmp_path: Path, capsys):

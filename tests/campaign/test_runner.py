@@ -30,7 +30,7 @@ import pytest
 import synthetic_episodes as synth
 
 from mcverify import provenance, schema, store
-from mcverify.campaign import executors, runner
+from mcverify.campaign import executors, run_folders, runner
 from mcverify.campaign.spec import campaign_from_dict, load_campaign
 from mcverify.errors import CampaignError, RunError
 from mcverify.levels import Level
@@ -380,9 +380,9 @@ def test_memory_stays_flat_over_40000_episodes(tmp_path: Path):
 def test_default_run_folders_never_collide(tmp_path: Path) -> None:
     """A second run in the same second, or after a failed try that left its folder, gets a new one."""
     camp = campaign_from_dict({"campaign": {"name": "same", "seed": 1, "episodes": 1}})
-    first = runner.default_run_dir(camp, tmp_path)
+    first = run_folders.default_run_dir(camp, tmp_path)
     first.mkdir()
-    second = runner.default_run_dir(camp, tmp_path)
+    second = run_folders.default_run_dir(camp, tmp_path)
     assert second != first and not second.exists() and second.name.startswith(first.name)
 
 
