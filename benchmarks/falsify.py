@@ -31,7 +31,7 @@ from typing import Any, NamedTuple
 import tomllib
 
 from benchmarks import section
-from mcverify import store
+from mcverify import files, store
 from mcverify.analysis import stats
 from mcverify.campaign.spec import apply_settings, load_campaign
 from mcverify.cli.options import nonneg_int, positive_int
@@ -396,7 +396,7 @@ def write_section(path: Path, text: str, name: str = NAME) -> None:
     begin, end = markers(name)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    store.replace_section(path, text, begin, end)
+    files.replace_section(path, text, begin, end)
 
 
 DEFAULT_TARGETS = (

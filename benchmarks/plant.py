@@ -32,7 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from benchmarks import section
-from mcverify import provenance, sim, store  # noqa: F401 - configures JAX (float64, CPU ISA) before any array exists
+from mcverify import files, provenance, sim  # noqa: F401 - configures JAX (float64, CPU ISA) before any array exists
 from mcverify.campaign.spec import load_campaign
 from mcverify.cell import Cell
 from mcverify.cli.options import int_list, positive_int
@@ -270,7 +270,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise UserError(f"--platforms {args.platforms}: none of these JAX backends is on this machine; nothing "
                             f"was measured and {args.write} was left as it was")
         if args.json:
-            store.atomic_write_bytes(args.json, json.dumps(results, indent=1).encode())
+            files.atomic_write_bytes(args.json, json.dumps(results, indent=1).encode())
         text = markdown(included + results, section.command("plant", argv))
         section.publish("plant", text, args)
         return 0

@@ -12,7 +12,7 @@ import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from mcverify import provenance, store
+from mcverify import files, provenance
 from mcverify.errors import UserError
 
 #: The page every benchmark writes its section into (relative to the working directory).
@@ -53,7 +53,7 @@ def write(name: str, text: str, path: Path = BENCHMARKS_MD) -> None:
     begin, end = markers(name)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    store.replace_section(path, text, begin, end)
+    files.replace_section(path, text, begin, end)
 
 
 class _Parser(argparse.ArgumentParser):

@@ -44,7 +44,7 @@ import pyarrow as pa
 
 from benchmarks import section
 from benchmarks.validation_report import figure, markdown
-from mcverify import provenance, store
+from mcverify import files, provenance, store
 from mcverify.analysis.columns import Columns, floats
 from mcverify.analysis.estimates import ordered_prefix, target_events
 from mcverify.analysis.intervals import proportion_interval
@@ -424,7 +424,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         res = run(args.reference, splitting_pools=args.splitting, importance_dirs=args.importance,
                   groups=args.group, sequential=args.sequential)
         if args.json:
-            store.write_json_atomic(args.json, res)
+            files.write_json_atomic(args.json, res)
         if args.figure:
             print(f"figure: {figure(res, args.figure)}", file=sys.stderr)
         section.publish("validation", markdown(res, section.command("validation", argv)), args)

@@ -56,7 +56,7 @@ NOT_RESULTS = {
 }
 #: Parts that only read, present or measure stored rows; editing them never refuses a resume.
 PRESENTATION_PARTS = (
-    "__init__.py", "api.py", "errors.py", "fields.py", "provenance.py", "store.py",
+    "__init__.py", "api.py", "errors.py", "fields.py", "files.py", "provenance.py", "store.py",
     "analysis", "cli", "reporting",
     # falsify chooses candidates but simulates nothing itself; a resumed search re-checks that the
     # candidates it asks equal those its generation folders recorded (falsify.generation_folder.check_same).

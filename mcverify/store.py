@@ -28,11 +28,10 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
-import hashlib
 import json
 import os
 import tempfile
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -42,6 +41,7 @@ import pyarrow.parquet as pq
 
 from mcverify import schema
 from mcverify.errors import RunError
+from mcverify.files import FILE_MODE, atomic_parquet, ends_with_newline, named, sha256_file
 from mcverify.provenance import now_utc
 from mcverify.schema import ERROR_COLUMN, ERROR_OUTCOME
 
@@ -56,17 +56,6 @@ LOCK = ".lock"
 AUDITS = "audits.json"
 #: Version of the run-folder layout; a resume refuses another one.
 FORMAT = 2
-
-
-
-def _file_mode() -> int:
-    """0o666 less the process umask: what ``open`` would give (``mkstemp`` makes files 0o600)."""
-    mask = os.umask(0)
-    os.umask(mask)
-    return 0o666 & ~mask
-
-
-_FILE_MODE = _file_mode()
 
 
 # ------------------------------------------------------------------------------------ chunks
@@ -130,7 +119,7 @@ def write_chunk(run_dir: Path, chunk: Chunk, rows: list[dict], *, attempts: int 
     table = _table_from_rows(rows)
     path = chunk_path(run_dir, chunk)
     path.parent.mkdir(parents=True, exist_ok=True)
-    digest = _atomic_parquet(table, path)
+    digest = atomic_parquet(table, path)
     return ChunkRecord(
         chunk=chunk.name,
         cell_index=chunk.cell_index,
@@ -168,7 +157,7 @@ def verify_chunk(run_dir: Path, chunk: Chunk, record: ChunkRecord | None) -> boo
         return False
     path = chunk_path(run_dir, chunk)
     try:
-        digest = _sha256_file(path)
+        digest = sha256_file(path)
     except OSError:
         return False
     return digest == record.sha256 and read_chunk(run_dir, chunk, ["cell_index", "cell_episode"]) is not None
@@ -183,7 +172,7 @@ def append_record(run_dir: Path, record: ChunkRecord) -> None:
     line = (json.dumps(asdict(record), sort_keys=True) + "\n").encode()
     fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
     try:
-        if os.fstat(fd).st_size and not _ends_with_newline(path):
+        if os.fstat(fd).st_size and not ends_with_newline(path):
             line = b"\n" + line  # a torn last line from a killed writer stays a line of its own
         os.write(fd, line)
     finally:
@@ -248,7 +237,7 @@ def merge_chunks(run_dir: Path, chunks: Sequence[Chunk], overrides: Mapping[int,
     os.close(fd)
     rows = 0
     try:
-        os.chmod(tmp, _FILE_MODE)
+        os.chmod(tmp, FILE_MODE)
         with pq.ParquetWriter(tmp, table_schema) as writer:
             pending: list[pa.Table] = []
             held = 0
@@ -271,7 +260,7 @@ def merge_chunks(run_dir: Path, chunks: Sequence[Chunk], overrides: Mapping[int,
         os.replace(tmp, run_dir / EPISODES)
     except OSError as err:
         if err.filename is None:  # pyarrow says "No space left on device" without naming the file
-            raise _named(err, run_dir / EPISODES) from err
+            raise named(err, run_dir / EPISODES) from err
         raise
     finally:
         if os.path.exists(tmp):
@@ -383,7 +372,7 @@ def write_trajectory(run_dir: Path, episode_id: int, columns: Mapping[str, Any],
     sub-step) atomically to ``trajectories/episode-NNNNNN<suffix>.parquet``."""
     path = trajectory_path(run_dir, episode_id, suffix)
     path.parent.mkdir(parents=True, exist_ok=True)
-    _atomic_parquet(pa.table(dict(columns)), path)
+    atomic_parquet(pa.table(dict(columns)), path)
     return path
 
 
@@ -397,10 +386,6 @@ def read_trajectory(run_dir: Path, episode_id: int) -> dict[str, Any] | None:
 
 
 # ---------------------------------------------------------------------------------- manifest
-
-
-def write_json_atomic(path: Path, data: Any) -> None:
-    atomic_write_bytes(Path(path), (json.dumps(data, indent=2, sort_keys=False, default=json_default) + "\n").encode())
 
 
 def read_json(path: Path) -> Any:
@@ -458,85 +443,3 @@ def run_lock(run_dir: Path) -> Iterator[None]:
     finally:
         fh.close()
 
-
-# ----------------------------------------------------------------------------------- helpers
-
-
-def _sha256_file(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
-def _ends_with_newline(path: Path) -> bool:
-    with open(path, "rb") as fh:
-        fh.seek(-1, os.SEEK_END)
-        return fh.read(1) == b"\n"
-
-
-def _atomic_parquet(table: pa.Table, path: Path) -> str:
-    """Write ``table`` to ``path`` atomically (:func:`atomic_write`); returns the file's SHA-256."""
-    digest: list[str] = []
-
-    def write(tmp: str) -> None:
-        pq.write_table(table, tmp)
-        digest.append(_sha256_file(Path(tmp)))
-
-    atomic_write(path, write)
-    return digest[0]
-
-
-def atomic_write(path: Path, write: Callable[[str], None]) -> None:
-    """Write ``path`` through ``write(temporary_name)`` in the same folder, then rename: a reader
-    never sees half a file, and a killed writer leaves no file under the final name."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        os.chmod(tmp, _FILE_MODE)
-        write(tmp)
-        os.replace(tmp, path)
-    except OSError as err:
-        if err.filename is None:  # pyarrow says "No space left on device" without naming the file
-            raise _named(err, path) from err
-        raise
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-
-
-def _named(err: OSError, path: Path) -> OSError:
-    """``err`` naming the file it was writing: the one line the user sees must say which file
-    could not be written."""
-    return OSError(err.errno, err.strerror or str(err), str(path))
-
-
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    atomic_write(path, lambda tmp: Path(tmp).write_bytes(data))
-
-
-def replace_section(path: Path, section: str, begin: str, end: str) -> None:
-    """Replace the generated section of a Markdown file that starts with the line ``begin`` and ends
-    with ``end`` (``section`` carries both markers), or append it; the rest of the file is kept.
-    Used by the benchmarks that write into results/BENCHMARKS.md."""
-    path = Path(path)
-    text = path.read_text(encoding="utf-8") if path.is_file() else "# Benchmarks\n\n"
-    if begin in text and end in text:
-        head, rest = text.split(begin, 1)
-        text = head + section.rstrip("\n") + rest.split(end, 1)[1]
-    else:
-        text = text.rstrip("\n") + "\n\n" + section
-    atomic_write(path, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
-
-
-def json_default(obj: Any) -> Any:
-    if hasattr(obj, "item"):
-        return obj.item()
-    if isinstance(obj, tuple | set):
-        return list(obj)
-    if isinstance(obj, Path):
-        return str(obj)
-    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")

@@ -14,7 +14,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from mcverify import schema, store
+from mcverify import files, schema, store
 from mcverify.campaign import runner
 from mcverify.campaign.spec import campaign_from_dict
 from mcverify.cell import Cell
@@ -177,7 +177,7 @@ def make_run(
     camp = campaign_from_dict(raw, seed=seed)
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
-    store.write_json_atomic(run_dir / store.MANIFEST, runner.manifest_for(camp, 8, {}))
+    files.write_json_atomic(run_dir / store.MANIFEST, runner.manifest_for(camp, 8, {}))
     rows = []
     for cell in camp.cells:
         rows += episode_rows(cell, camp.seed, probs(cell), opposing=opposing, crn=camp.common_random_numbers)

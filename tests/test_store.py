@@ -8,7 +8,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from mcverify import schema, store
+from mcverify import files, schema, store
 from mcverify.errors import RunError
 
 
@@ -54,7 +54,7 @@ def test_chunk_file_with_other_episodes_is_not_done(tmp_path: Path):
     assert store.read_chunk(tmp_path, a) is None
     assert not store.verify_chunk(tmp_path, a, rec_a)
     # Even a ledger record that matches the file's bytes does not make wrong episodes right.
-    forged = store.ChunkRecord(**{**rec_a.__dict__, "sha256": store._sha256_file(store.chunk_path(tmp_path, a))})
+    forged = store.ChunkRecord(**{**rec_a.__dict__, "sha256": files.sha256_file(store.chunk_path(tmp_path, a))})
     assert not store.verify_chunk(tmp_path, a, forged)
 
 
@@ -160,7 +160,7 @@ def test_trajectory_and_json_are_written_atomically(tmp_path: Path):
     path = store.write_trajectory(tmp_path, 12, {"t_s": [0.0, 0.1], "x_m": [1.0, 2.0]})
     assert path.name == "episode-000012.parquet"
     assert pq.read_table(path).num_rows == 2
-    store.write_json_atomic(tmp_path / "a.json", {"k": (1, 2)})
+    files.write_json_atomic(tmp_path / "a.json", {"k": (1, 2)})
     assert json.loads((tmp_path / "a.json").read_text()) == {"k": [1, 2]}
     assert not [p for p in tmp_path.rglob("*.tmp")]
 
@@ -169,8 +169,8 @@ def test_replace_section_appends_then_replaces_keeping_the_rest(tmp_path):
     md = tmp_path / "BENCHMARKS.md"
     md.write_text("# Benchmarks\n\nhand-written row\n", encoding="utf-8")
     begin, end = "<!-- x:begin -->", "<!-- x:end -->"
-    store.replace_section(md, f"{begin}\nfirst\n{end}\n", begin, end)
-    store.replace_section(md, f"{begin}\nsecond\n{end}\n", begin, end)
+    files.replace_section(md, f"{begin}\nfirst\n{end}\n", begin, end)
+    files.replace_section(md, f"{begin}\nsecond\n{end}\n", begin, end)
     text = md.read_text(encoding="utf-8")
     assert text.count(begin) == 1 and "second" in text and "first" not in text
     assert text.startswith("# Benchmarks\n\nhand-written row\n")

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from enum import Enum
 from pathlib import Path
 
-from mcverify import store
+from mcverify import files, store
 from mcverify.campaign import executors
 from mcverify.campaign.replay import stored_schedules, write_recording
 from mcverify.campaign.runner import campaign_from_manifest
@@ -64,7 +64,7 @@ def record(run_dir: Path, result: AuditResult) -> None:
         "outcome": result.stored["outcome"], "safe": bool(result.stored["safe"]),
         "reference_outcome": result.reference["outcome"], "reference_safe": bool(result.reference["safe"]),
     }
-    store.write_json_atomic(path, dict(sorted(audits.items(), key=lambda kv: int(kv[0]))))
+    files.write_json_atomic(path, dict(sorted(audits.items(), key=lambda kv: int(kv[0]))))
 
 
 def recorded(run_dir: Path) -> dict[str, dict]:

@@ -20,7 +20,7 @@ from typing import Any, Protocol
 
 from tqdm.auto import tqdm
 
-from mcverify import provenance, store
+from mcverify import files, provenance, store
 from mcverify.campaign import executors, lint
 from mcverify.campaign.executors import ChunkOutput, EpisodeFn, Executor
 from mcverify.campaign.progress import ProgressTally
@@ -67,7 +67,7 @@ def campaign_record(campaign: Campaign) -> dict[str, Any]:
             for c in campaign.cells
         ],
     }
-    return json.loads(json.dumps(record, default=store.json_default))
+    return json.loads(json.dumps(record, default=files.json_default))
 
 
 def manifest_for(campaign: Campaign, chunk_size: int, kernels: dict[str, str]) -> dict[str, Any]:
@@ -234,7 +234,7 @@ def run(
                 manifest_extra = {**(manifest_extra or {}), schedule_file.MANIFEST_KEY: schedule_file.SCHEDULES}
             manifest = {**manifest_for(campaign, chunk_size, kernels), **(manifest_extra or {})}
             manifest["sessions"].append(_session(executor, resumed=False))
-            store.write_json_atomic(run_dir / store.MANIFEST, manifest)
+            files.write_json_atomic(run_dir / store.MANIFEST, manifest)
             return _execute(campaign, run_dir, chunk_size, _Execution(
                 executor=executor, episode_fn=episode_fn, progress=progress, record_first=record_first,
                 on_chunk=on_chunk, on_start=on_start, stopper=stopper))
@@ -314,7 +314,7 @@ def resume(
             raise RunError(f"cannot resume {run_dir}: the solver kernels differ from the run's (compiler or CasADi)")
         with store.run_lock(run_dir):
             manifest["sessions"] = [*manifest.get("sessions", []), _session(executor, resumed=True)]
-            store.write_json_atomic(run_dir / store.MANIFEST, manifest)
+            files.write_json_atomic(run_dir / store.MANIFEST, manifest)
             return _execute(rebuilt, run_dir, planned, _Execution(
                 executor=executor, episode_fn=episode_fn, progress=progress, record_first=record_first,
                 on_chunk=on_chunk, on_start=on_start, stopper=stopper))
@@ -378,7 +378,7 @@ def _execute(campaign: Campaign, run_dir: Path, chunk_size: int, how: _Execution
     path = run_report.write(run_dir)
     manifest = store.read_json(run_dir / store.MANIFEST)
     manifest["finished_utc"] = provenance.now_utc()
-    store.write_json_atomic(run_dir / store.MANIFEST, manifest)
+    files.write_json_atomic(run_dir / store.MANIFEST, manifest)
     return path
 
 

@@ -19,7 +19,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from mcverify import provenance, store
+from mcverify import files, provenance, store
 from mcverify.analysis import summary
 from mcverify.analysis.cells import json_ready
 from mcverify.campaign import runner
@@ -73,7 +73,7 @@ def create(out: Path, campaign: Campaign, spec: dict[str, Any], cells: Sequence[
                              "source": str(campaign.source)},
                 "cells": record["cells"], "estimate": spec, "only_cells": list(cells) if cells else None,
                 "code": provenance.code_version(), "environment": provenance.environment_info()}
-    store.write_json_atomic(out / store.MANIFEST, manifest)
+    files.write_json_atomic(out / store.MANIFEST, manifest)
 
 
 def load(out: Path, method: str) -> tuple[dict[str, Any], dict[int, dict[str, Any]]]:
@@ -96,7 +96,7 @@ def finish(out: Path) -> None:
     manifest = store.read_json(out / store.MANIFEST)
     if not manifest.get("finished_utc"):
         manifest["finished_utc"] = provenance.now_utc()
-        store.write_json_atomic(out / store.MANIFEST, manifest)
+        files.write_json_atomic(out / store.MANIFEST, manifest)
 
 
 def write(out: Path, title: str, intro: str, spec: dict[str, Any], results: dict[int, dict[str, Any]],
@@ -106,10 +106,10 @@ def write(out: Path, title: str, intro: str, spec: dict[str, Any], results: dict
     against the campaign's sweep axis are drawn here); returns the ``report.md`` path."""
     out = Path(out)
     cells = [json_ready(results[i]) for i in sorted(results)]
-    store.write_json_atomic(out / ESTIMATE, {"spec": json_ready(spec), "cells": cells})
+    files.write_json_atomic(out / ESTIMATE, {"spec": json_ready(spec), "cells": cells})
     write_cells_table(out / CELLS, spec, cells)
     manifest = store.read_json(out / store.MANIFEST)
-    store.write_json_atomic(out / SUMMARY, summary_record(manifest, spec, intro, cells))
+    files.write_json_atomic(out / SUMMARY, summary_record(manifest, spec, intro, cells))
     sweep = estimate_report.estimate_figure(out, manifest["cells"], cells, method=str(spec["method"]),
                                             target=str(spec["target"]), level=float(spec["level"]))
     shown = [*figures, *([sweep] if sweep else [])]
@@ -118,13 +118,13 @@ def write(out: Path, title: str, intro: str, spec: dict[str, Any], results: dict
                   [f"Interval: {kind}." for kind in dict.fromkeys(str(c["interval"]) for c in cells
                                                                   if c.get("interval"))],
                   align="l" * len(columns))
-    store.atomic_write(out / REPORT, lambda tmp: Path(tmp).write_text(
+    files.atomic_write(out / REPORT, lambda tmp: Path(tmp).write_text(
         estimate_report.markdown(title, intro, table, shown), encoding="utf-8"))
     facts = [("campaign", f"{manifest['campaign']['name']} ({manifest['campaign'].get('source', '')})"),
              ("estimator", intro), ("cells estimated", f"{len(cells)} of {len(expected_cells(manifest))}"),
              ("code", f"mcverify source {str(manifest.get('code', {}).get('source_sha256', ''))[:12]}"),
              ("finished", manifest.get("finished_utc") or "not yet: `mcverify estimate --resume " + str(out) + "`")]
-    store.atomic_write(out / HTML, lambda tmp: Path(tmp).write_text(
+    files.atomic_write(out / HTML, lambda tmp: Path(tmp).write_text(
         estimate_report.html_page(out, title, facts, table, shown), encoding="utf-8"))
     return out / REPORT
 
@@ -169,7 +169,7 @@ def write_cells_table(path: Path, spec: dict[str, Any], cells: Sequence[dict[str
             for c in cells]
     keys = list(dict.fromkeys(k for r in rows for k in r))
     table = pa.table({k: [r.get(k) for r in rows] for k in keys}) if rows else pa.table({})
-    store.atomic_write(path, lambda tmp: pq.write_table(table, tmp))
+    files.atomic_write(path, lambda tmp: pq.write_table(table, tmp))
 
 
 def replay_text(out: Path, result: dict[str, Any], failing: Sequence[Any] | None, first: int, cells: int) -> str:

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from mcverify import store
+from mcverify import files
 from mcverify.estimate import importance
 from mcverify.estimate.folder import num
 from mcverify.sim import tilt as tilt_mod
@@ -64,7 +64,7 @@ def write_samples(out: Path, cell_index: int, names: Sequence[str], rows: Sequen
     for key in SAMPLE_COLUMNS:
         if any(key in r for r in rows):
             table[key] = [r.get(key) for r in rows]
-    store.atomic_write(samples_file(out, cell_index), lambda tmp: pq.write_table(pa.table(table), tmp))
+    files.atomic_write(samples_file(out, cell_index), lambda tmp: pq.write_table(pa.table(table), tmp))
 
 
 def tilt_text(tilt: NoiseTilt) -> str:

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from mcverify import store
+from mcverify import files, store
 from mcverify.analysis.cells import json_ready
 from mcverify.campaign import executors
 from mcverify.campaign.executors import EpisodeFn, Executor
@@ -106,7 +106,7 @@ def _cell(campaign: Campaign, method: Replicated, out: Path, cell: Cell, progres
         row = output.rows[0]
         if row.get("outcome") == ERROR_OUTCOME:
             raise RunError(f"{method.label} {replicate} of {cell.name} failed: {row.get(ERROR_COLUMN)}")
-        store.write_json_atomic(run_path(out, cell.index, replicate),
+        files.write_json_atomic(run_path(out, cell.index, replicate),
                                 json_ready({"cell_index": cell.index, "cell": cell.name, **row}))
         got[replicate] = row
         progress(f"  {method.label} {replicate} done ({len(got)} of {method.count}): {method.done_text(row)}")

@@ -47,7 +47,7 @@ from typing import Any, Protocol
 import numpy as np
 from scipy import stats as sps
 
-from mcverify import store
+from mcverify import files
 
 
 class Problem(Protocol):
@@ -222,7 +222,7 @@ def _save(path: Path, fingerprint: str, state: _State) -> None:
         with open(tmp, "wb") as f:
             np.savez(f, x=state.x, g=state.g, scale=np.array([state.scale]), meta=np.array(meta))
 
-    store.atomic_write(path, write)
+    files.atomic_write(path, write)
 
 
 def _load(path: Path, fingerprint: str) -> _State:

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from mcverify import store
+from mcverify import files
 from mcverify.campaign import executors
 from mcverify.campaign.executors import Executor
 from mcverify.campaign.spec import Campaign
@@ -132,7 +132,7 @@ def run_unit(cell: Cell, episode_ids: tuple[int, ...], seed: int, common_random_
     result = subset.run(problem, sp.settings(), seed=run_key(seed, cell, common_random_numbers), run=run_id,
                         checkpoint=stem.with_suffix(".npz"))
     failing = stem.parent / f"{stem.name}-failing.npz"
-    store.atomic_write(failing, lambda tmp: _save_failing(tmp, result))
+    files.atomic_write(failing, lambda tmp: _save_failing(tmp, result))
     first = result.stages[0]
     return _UnitResult([{"cell_episode": run_id, "outcome": "subset", "run": _run_record(result),
                          "cpu_s": time.process_time() - start,

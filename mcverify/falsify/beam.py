@@ -43,6 +43,7 @@ from mcverify.campaign.spec import Campaign
 from mcverify.episode.rollout import run_episodes
 from mcverify.episode.snapshot import Branching, EpisodeSnapshot
 from mcverify.errors import RunError
+from mcverify.files import atomic_write, write_json_atomic
 from mcverify.model import Simulation
 from mcverify.sim.schedule import CHANNELS, ErrorSchedule, control_steps
 
@@ -295,7 +296,7 @@ def _check_config(folder: Path, spec: BeamSpec) -> None:
         if store.read_json(path) != recorded:
             raise RunError(f"{folder}: holds a beam search of another specification; choose another folder")
         return
-    store.write_json_atomic(path, recorded)
+    write_json_atomic(path, recorded)
 
 
 def _save(folder: Path, depth: int, frontier: list[Node], cost: int, log: list[dict[str, float]]) -> None:
@@ -304,7 +305,7 @@ def _save(folder: Path, depth: int, frontier: list[Node], cost: int, log: list[d
             np.savez(fh, units=np.stack([n.units for n in frontier]), end_step=np.array([n.end_step for n in frontier]),
                      score=np.array([n.score for n in frontier]), ended=np.array([n.row is not None for n in frontier]),
                      cost=np.array(cost), log=np.array(json.dumps(log)))
-    store.atomic_write(folder / f"depth-{depth:03d}.npz", write)
+    atomic_write(folder / f"depth-{depth:03d}.npz", write)
 
 
 def _restore(loop: _Loop, folder: Path, spec: BeamSpec) -> tuple[int, list[Node], int, int, list[dict[str, float]]]:

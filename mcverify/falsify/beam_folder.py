@@ -32,7 +32,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from mcverify import store
+from mcverify import files, store
 from mcverify.analysis import robustness as rb
 from mcverify.campaign.spec import Campaign
 from mcverify.errors import RunError
@@ -129,7 +129,7 @@ def start(config: SearchConfig, out_dir: Path, *, progress: Callable[[str], None
     campaign, spec = check(config)
     search.check_new_folder(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    store.write_json_atomic(out_dir / search.CONFIG, config.to_json())
+    files.write_json_atomic(out_dir / search.CONFIG, config.to_json())
     return _run(config, campaign, spec, out_dir, progress, stop_after_depths)
 
 
@@ -167,7 +167,7 @@ def _run(config: SearchConfig, campaign: Campaign, spec: BeamSpec, out_dir: Path
         raise RunError(f"{best_dir}: the best schedule re-simulated from step 0 has robustness {replayed!r}, the "
                        f"beam's node {result.min_robustness!r}; the snapshots did not continue the episode exactly")
     summary = BeamSummary.of(config, campaign, result)
-    store.write_json_atomic(out_dir / beam.BEAM / RESULT, summary.to_json())
+    files.write_json_atomic(out_dir / beam.BEAM / RESULT, summary.to_json())
     write_report(out_dir, summary)
     search.mark_finished(out_dir)
     return summary
@@ -274,5 +274,5 @@ def write_report(out_dir: Path, summary: BeamSummary) -> Path:
              f"The best node's whole schedule (zeros outside the window) re-simulated from step 0 is "
              f"`{out_dir / BEST}`, one episode; `mcverify replay {out_dir / BEST} 0` re-simulates it bit for bit.", ""]
     path = out_dir / "report.md"
-    store.atomic_write(path, lambda tmp: Path(tmp).write_text("\n".join(lines), encoding="utf-8"))
+    files.atomic_write(path, lambda tmp: Path(tmp).write_text("\n".join(lines), encoding="utf-8"))
     return path

@@ -18,8 +18,8 @@ from typing import Any, Protocol
 import numpy as np
 from matplotlib.ticker import MaxNLocator
 
+from mcverify import files, store
 from mcverify import requirements as reqs
-from mcverify import store
 from mcverify.reporting import counterexample_report
 from mcverify.reporting import html as report_html
 from mcverify.reporting.figure_common import subplots
@@ -237,10 +237,10 @@ def write(result: SearchResult, records: Sequence[Mapping[str, Any]]) -> Path:
     elif records:
         lines += ["No counterexample could be drawn (no stored trajectory).", ""]
     text = "\n".join(lines)
-    store.atomic_write(out / REPORT, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
+    files.atomic_write(out / REPORT, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
     page = report_html.render(out, fact_list, tables, _html_figures(result, drawn),
                               _definitions(result.config.requirement), title=title)
-    store.atomic_write(out / HTML, lambda tmp: Path(tmp).write_text(page, encoding="utf-8"))
+    files.atomic_write(out / HTML, lambda tmp: Path(tmp).write_text(page, encoding="utf-8"))
     return out / REPORT
 
 

@@ -36,7 +36,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from mcverify import provenance, store
+from mcverify import files, provenance, store
 from mcverify import requirements as reqs
 from mcverify.analysis import counterexamples as cx
 from mcverify.analysis import failure_regions
@@ -251,7 +251,7 @@ def start(config: SearchConfig, out_dir: Path, **kw: Any) -> SearchResult:
     check(config)  # validates before anything is written
     check_new_folder(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    store.write_json_atomic(out_dir / CONFIG, config.to_json())
+    files.write_json_atomic(out_dir / CONFIG, config.to_json())
     return _search(config, out_dir, **kw)
 
 
@@ -356,7 +356,7 @@ def mark_finished(out_dir: Path) -> None:
     does), once its outputs are written; kept as it is when a finished search is read again."""
     data = store.read_json(Path(out_dir) / CONFIG)
     if not data.get("finished_utc"):
-        store.write_json_atomic(Path(out_dir) / CONFIG, {**data, "finished_utc": provenance.now_utc()})
+        files.write_json_atomic(Path(out_dir) / CONFIG, {**data, "finished_utc": provenance.now_utc()})
 
 
 def is_finished(out_dir: Path) -> bool:
@@ -423,7 +423,7 @@ def counterexample_records(result: SearchResult) -> list[dict[str, Any]]:
 def write_outputs(result: SearchResult) -> None:
     from mcverify.falsify import report  # noqa: PLC0415 - matplotlib only when writing
 
-    store.atomic_write(result.out_dir / SEARCH, lambda tmp: pq.write_table(search_table(result), tmp))
+    files.atomic_write(result.out_dir / SEARCH, lambda tmp: pq.write_table(search_table(result), tmp))
     records = counterexample_records(result)
-    store.atomic_write(result.out_dir / COUNTEREXAMPLES, lambda tmp: pq.write_table(cx.to_arrow(records), tmp))
+    files.atomic_write(result.out_dir / COUNTEREXAMPLES, lambda tmp: pq.write_table(cx.to_arrow(records), tmp))
     report.write(result, records)

@@ -16,7 +16,7 @@ import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
 from mcverify.errors import RunError
-from mcverify.store import atomic_write
+from mcverify.files import atomic_write
 
 #: The tables a run folder keeps, in the order they are exported.
 TABLES: tuple[str, ...] = ("episodes", "cells", "counterexamples")

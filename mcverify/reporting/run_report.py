@@ -31,7 +31,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from mcverify import store
+from mcverify import files, store
 from mcverify.analysis import counterexamples, estimates, stats, summary
 from mcverify.analysis.cells import cells_table, json_ready
 from mcverify.analysis.columns import Columns, floats
@@ -155,7 +155,7 @@ def write(
         figs = [*figs, *counterexample_report.figures(run_dir, cx_records, manifest)]
     _write_parquet(run_dir / counterexample_report.FILE, counterexamples.to_arrow(cx_records))
 
-    store.write_json_atomic(run_dir / SUMMARY, json_ready(summ))
+    files.write_json_atomic(run_dir / SUMMARY, json_ready(summ))
     _write_parquet(run_dir / CELLS, cells_table(summ))
     tdir = run_dir / TABLES_DIR
     tdir.mkdir(exist_ok=True)
@@ -436,8 +436,8 @@ def render_markdown(
 
 
 def _write_text(path: Path, text: str) -> None:
-    store.atomic_write(path, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
+    files.atomic_write(path, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
 
 
 def _write_parquet(path: Path, table: pa.Table) -> None:
-    store.atomic_write(path, lambda tmp: pq.write_table(table, tmp))
+    files.atomic_write(path, lambda tmp: pq.write_table(table, tmp))

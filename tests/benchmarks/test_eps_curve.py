@@ -8,7 +8,7 @@ import json
 import synthetic
 
 from benchmarks import eps_curve
-from mcverify import api, store
+from mcverify import api, files, store
 
 
 def _run(tmp_path):
@@ -19,7 +19,7 @@ def _run(tmp_path):
     manifest = store.read_json(run / store.MANIFEST)
     manifest.update(sessions=[{"started_utc": "2026-01-01T10:00:00+00:00", "workers": 2}],
                     finished_utc="2026-01-01T11:30:00+00:00", environment={"git_commit": "abcdef0123", "cpu_count": 2})
-    store.write_json_atomic(run / store.MANIFEST, manifest)
+    files.write_json_atomic(run / store.MANIFEST, manifest)
     return run
 
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from benchmarks import validation, validation_report
-from mcverify import store
+from mcverify import files, store
 from mcverify.errors import RunError
 from mcverify.estimate import splitting
 from mcverify.estimate.folder import ESTIMATE
@@ -21,7 +21,7 @@ CAMPAIGN = "toy"
 def _manifest(out: Path, method: str, seed: int, target: str = "ellipse", params: dict | None = None) -> None:
     out.mkdir(parents=True)
     cell = {"index": 0, "name": "all", "params": params or {"barrier": {"epsilon": 0.1}, "noise": {"scale": 2.0}}}
-    store.write_json_atomic(out / store.MANIFEST, {
+    files.write_json_atomic(out / store.MANIFEST, {
         "campaign": {"name": CAMPAIGN, "seed": seed}, "cells": [cell],
         "estimate": {"method": method, "target": target}})
 
@@ -43,7 +43,7 @@ def _splitting(out: Path, seed: int, runs: list[float], target: str = "ellipse",
               params: dict | None = None) -> None:
     # as the estimator writes it: the target is per cell
     _manifest(out, "splitting", seed=seed, target=None, params=params)
-    store.write_json_atomic(out / ESTIMATE, {"spec": {"particles": 4, "score": score}, "cells": [
+    files.write_json_atomic(out / ESTIMATE, {"spec": {"particles": 4, "score": score}, "cells": [
         {"cell": "all", "target": target, "runs": runs, "steps": 100 * len(runs), "cpu_s": 5.0 * len(runs)}]})
 
 
@@ -179,7 +179,7 @@ def test_cli_sequential_rows_use_the_reference_episodes(tmp_path, capsys):
 def _importance(out: Path, seed: int, estimate: float, low: float, high: float, anytime_lower: float,
                 failures: int, ess: float) -> None:
     _manifest(out, "importance", seed=seed)
-    store.write_json_atomic(out / ESTIMATE, {"spec": {"method": "importance"}, "cells": [
+    files.write_json_atomic(out / ESTIMATE, {"spec": {"method": "importance"}, "cells": [
         {"cell": "all", "target": "ellipse", "estimate": estimate, "low": low, "high": high, "steps": 300,
          "cpu_s": 7.0, "anytime_lower": anytime_lower, "failures": failures, "ess": ess,
          "warnings": ["few failing samples"] if failures < 10 else []}]})

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from benchmarks import worker_scaling as ws
-from mcverify import store
+from mcverify import files
 from mcverify.campaign.spec import load_campaign
 from mcverify.errors import UserError
 
@@ -25,8 +25,8 @@ def test_the_section_states_command_commit_machine_and_one_line_per_worker_count
     assert "| 4 | 8 | 60.0 | 8.00 | 2.00x | 50% | DIFFERENT |" in text
     page = tmp_path / "BENCHMARKS.md"
     page.write_text("# Benchmarks\n\nkept\n")
-    store.replace_section(page, text, ws.BEGIN, ws.END)
-    store.replace_section(page, text.replace("120.0", "121.0"), ws.BEGIN, ws.END)  # rewritten, not appended
+    files.replace_section(page, text, ws.BEGIN, ws.END)
+    files.replace_section(page, text.replace("120.0", "121.0"), ws.BEGIN, ws.END)  # rewritten, not appended
     assert page.read_text().count(ws.BEGIN) == 1 and "121.0" in page.read_text() and "kept" in page.read_text()
 
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import synthetic_episodes as synth
 
-from mcverify import cli, store
+from mcverify import cli, files, store
 from mcverify.campaign import executors, run_folders, runner
 from mcverify.campaign.spec import campaign_from_dict, load_campaign
 from mcverify.errors import CampaignError
@@ -102,12 +102,12 @@ def test_a_full_disk_names_the_file(tmp_path: Path, capsys, monkeypatch):
         raise OSError("No space left on device")  # as pyarrow raises it: no errno, no file name
 
     with pytest.raises(OSError) as info:
-        store.atomic_write(target, full)
+        files.atomic_write(target, full)
     assert info.value.filename == str(target)
     assert not target.exists() and list(target.parent.iterdir()) == []
 
     def report(args):
-        store.atomic_write(target, lambda tmp: (_ for _ in ()).throw(OSError(errno.ENOSPC, "No space left on device")))
+        files.atomic_write(target, lambda tmp: (_ for _ in ()).throw(OSError(errno.ENOSPC, "No space left on device")))
 
     monkeypatch.setattr(cli, "_cmd_report", report)
     assert cli.main(["report", str(tmp_path / "run")]) == 2

@@ -29,7 +29,7 @@ import pyarrow.parquet as pq
 import pytest
 import synthetic_episodes as synth
 
-from mcverify import provenance, schema, store
+from mcverify import files, provenance, schema, store
 from mcverify.campaign import executors, run_folders, runner
 from mcverify.campaign.spec import campaign_from_dict, load_campaign
 from mcverify.errors import CampaignError, RunError
@@ -293,12 +293,12 @@ def test_resume_refusals_are_one_line(tmp_path: Path, monkeypatch):
     monkeypatch.undo()
     manifest = json.loads((run_dir / store.MANIFEST).read_text())
     manifest["cells"][1]["params"]["sim"]["max_time_s"] = 99.0
-    store.write_json_atomic(run_dir / store.MANIFEST, manifest)
+    files.write_json_atomic(run_dir / store.MANIFEST, manifest)
     expected = r"expands differently .*cells\[1\]\.params\.sim\.max_time_s: 99.0 -> 25.0"
     with pytest.raises(RunError, match=expected):
         resume(run_dir)
     manifest["format"] = 1
-    store.write_json_atomic(run_dir / store.MANIFEST, manifest)
+    files.write_json_atomic(run_dir / store.MANIFEST, manifest)
     with pytest.raises(RunError, match="manifest has format 1"):
         resume(run_dir)
     for message in ("run folder not found", "not an mcverify run folder"):
@@ -448,7 +448,7 @@ def test_replaying_a_folder_that_names_a_deleted_option_is_one_line_and_exit_2(t
     manifest = _manifest()
     for cell in manifest["cells"]:
         cell["params"]["mpc"]["kkt_factorization"] = "ldlt"
-    store.write_json_atomic(run_dir / store.MANIFEST, manifest)
+    files.write_json_atomic(run_dir / store.MANIFEST, manifest)
     assert cli.main(["replay", str(run_dir), "0"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "mpc.kkt_factorization = 'ldlt', an option since deleted" in err[0], err
