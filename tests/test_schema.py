@@ -12,6 +12,7 @@ import pytest
 
 from mcverify import schema
 from mcverify.analysis import summary
+from mcverify.analysis.metrics import VALUE_METRICS
 from mcverify.campaign.spec import campaign_from_dict
 from mcverify.episode.recording import EpisodeRecording
 from mcverify.episode.row import error_row, identity
@@ -56,7 +57,7 @@ def test_schema_helpers():
 
 def test_every_column_the_summary_reads_is_declared():
     assert summary.summarised_columns() <= set(schema.COLUMN_NAMES)
-    for m in summary.VALUE_METRICS:
+    for m in VALUE_METRICS:
         assert m.unit.replace("²", "^2") == schema.column(m.name).unit, m.name
 
 

@@ -15,14 +15,13 @@ import pyarrow as pa
 
 from mcverify import schema
 from mcverify.analysis import stats
+from mcverify.analysis.metrics import RATE_NAMES, VALUE_NAMES
 from mcverify.analysis.summary import (
     CATEGORY_COLUMNS,
     JSON_COUNT_COLUMNS,
     OUTCOMES,
     QUANTILES,
-    RATE_NAMES,
     THEOREM_CHECKS,
-    VALUE_NAMES,
 )
 
 

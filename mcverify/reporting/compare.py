@@ -35,6 +35,7 @@ import pyarrow as pa
 from mcverify import store
 from mcverify.analysis import stats, summary
 from mcverify.analysis.cells import json_ready
+from mcverify.analysis.metrics import METRICS
 from mcverify.errors import RunError
 from mcverify.reporting.tables import DASH, Section, Table, fmt_num, fmt_p, is_missing, to_latex, to_markdown
 
@@ -306,7 +307,7 @@ def tables(result: Mapping[str, Any]) -> list[Table]:
             if not r:
                 continue
             rows.append([
-                summary.METRICS[name].label, f"{r['k_a']}/{r['n_a']}", f"{r['k_b']}/{r['n_b']}",
+                METRICS[name].label, f"{r['k_a']}/{r['n_a']}", f"{r['k_b']}/{r['n_b']}",
                 f"{fmt_num(r['diff'], 3, signed=True)} [{fmt_num(r['low'], 3, signed=True)}, "
                 f"{fmt_num(r['high'], 3, signed=True)}]",
                 fmt_p(r["p_value"]),
@@ -337,7 +338,7 @@ def tables(result: Mapping[str, Any]) -> list[Table]:
             else:
                 diff = (f"{fmt_num(d['diff'], signed=True)} [{fmt_num(d['low'], signed=True)}, "
                         f"{fmt_num(d['high'], signed=True)}]")
-            rows.append([summary.METRICS[name].label, fmt_num(d["min_a"]), fmt_num(d["min_b"]), fmt_num(d["mean_a"]),
+            rows.append([METRICS[name].label, fmt_num(d["min_a"]), fmt_num(d["min_b"]), fmt_num(d["mean_a"]),
                          fmt_num(d["mean_b"]), diff,
                          f"{d['n_a']} pairs" if d["paired"] else f"{d['n_a']} / {d['n_b']}"])
     if rows:

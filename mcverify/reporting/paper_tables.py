@@ -34,7 +34,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from mcverify.analysis import stats, summary
+from mcverify.analysis import stats
+from mcverify.analysis.metrics import METRICS
 from mcverify.reporting.tables import (
     DASH,
     Section,
@@ -105,7 +106,7 @@ def lookup(cell: Mapping[str, Any], quantity: str) -> Any:
         return v["quantiles"].get(stat, math.nan) if stat.startswith("q") else v.get(stat, math.nan)
     if column in cell["rates"]:
         return cell["rates"][column].get(stat)
-    if column in summary.METRICS:
+    if column in METRICS:
         return None
     raise KeyError(f"unknown reference quantity {quantity!r}")
 
@@ -296,7 +297,7 @@ def _axes_in_order(label_dicts: Sequence[Mapping[str, str]] | Any) -> list[str]:
 
 def _auto_label(quantity: str) -> str:
     column, stat = quantity.rsplit(".", 1)
-    metric = summary.METRICS.get(column)
+    metric = METRICS.get(column)
     name = metric.label if metric else column
     unit = f" ({metric.unit})" if metric and metric.unit and stat not in ("k", "rate") else ""
     return f"{name} {_STAT_WORDS.get(stat, stat)}{unit}"

@@ -20,6 +20,7 @@ import numpy as np
 import pyarrow as pa
 
 from mcverify.analysis import summary
+from mcverify.analysis.metrics import METRICS
 from mcverify.model import kept_level
 from mcverify.reporting import cell_figures, episode_figures, figure_common
 from mcverify.reporting.paper_tables import pretty_label
@@ -136,7 +137,7 @@ def write_figures(
     if x_axis:
         others = [a for a in axes if a != x_axis]
         groups = [", ".join(pretty_label(a, c["labels"].get(a, "")) for a in others) for c in cells]
-        metrics = [(m, summary.METRICS[m].label) for m in ("collision", "ellipse_violation", "invariance_breach")
+        metrics = [(m, METRICS[m].label) for m in ("collision", "ellipse_violation", "invariance_breach")
                    if any(m in c["rates"] for c in cells)]
         x_label = {"epsilon": "level ε of the VL-CBF", "lambda0": "λ₀"}.get(x_axis, x_axis)
         draw(f"rate-vs-{x_axis}", f"Probabilities against {x_label}",
@@ -165,7 +166,7 @@ def write_figures(
         a, b = list(axes)
         row_axis, col_axis = (a, b) if len(axes[a]) >= len(axes[b]) else (b, a)
         for metric, better in (("safe", True), ("overtook", True)):
-            label = summary.METRICS[metric].label
+            label = METRICS[metric].label
             draw(f"heatmap-{metric}", f"{label.capitalize()} rate per {row_axis} × {col_axis}",
                  f"Colour: {label} rate; each square: k/n and the two-sided {level:.0%} "
                  f"{method_name(summ['interval_method'])} interval (≥ l or ≤ u: {bound_name(summ['interval_method'])} "

@@ -35,6 +35,7 @@ from mcverify import files, store
 from mcverify.analysis import counterexamples, estimates, stats, summary
 from mcverify.analysis.cells import cells_table, json_ready
 from mcverify.analysis.columns import Columns, floats
+from mcverify.analysis.metrics import METRICS, RATE_METRICS, RATE_NAMES, VALUE_METRICS
 from mcverify.analysis.sequential import CONFIDENCE_SEQUENCE
 from mcverify.errors import RunError
 from mcverify.reporting import counterexample_report, figure_common, html, paper_tables, run_figures
@@ -262,7 +263,7 @@ def estimate_table(est: Mapping[str, Any]) -> Table:
 def outcome_table(summ: Mapping[str, Any]) -> Table:
     """Rates per cell: safe, collisions, ellipse violation, invariance breach, outcomes, errors."""
     cells = summ["cells"]
-    has = {m: any(m in c["rates"] for c in cells) for m in summary.RATE_NAMES}
+    has = {m: any(m in c["rates"] for c in cells) for m in RATE_NAMES}
     names = ["safe"]
     if has["collision_opp"]:
         names += ["collision_front", "collision_opp"]
@@ -271,7 +272,7 @@ def outcome_table(summ: Mapping[str, Any]) -> Table:
     names += ["ellipse_violation", "invariance_breach", "opp_invariance_breach", "overtook", "went_back", "timeout"]
     names = [n for n in names if has.get(n)]
     errors = any(c["rates"]["error"]["k"] for c in cells)
-    columns = ["cell", "episodes", *(summary.METRICS[n].label for n in names)] + (["errors"] if errors else [])
+    columns = ["cell", "episodes", *(METRICS[n].label for n in names)] + (["errors"] if errors else [])
     rows = []
     for c in cells:
         row = [c["cell"], str(c["valid"])] + [fmt_rate(c["rates"].get(n)) for n in names]
@@ -303,7 +304,7 @@ def pivot_tables(summ: Mapping[str, Any]) -> list[Table]:
                 cell = by_labels.get((r, col))
                 row.append(fmt_rate(cell["rates"].get(metric)) if cell else DASH)
             rows.append(row)
-        label = summary.METRICS[metric].label
+        label = METRICS[metric].label
         out.append(Table(f"pivot-{metric}", f"{label.capitalize()} rate per {row_axis} and {col_axis}",
                          [f"{row_axis} \\ {col_axis}", *(paper_tables.pretty_label(col_axis, x) for x in axes[col_axis])],
                          rows, [rate_note(summ)]))
@@ -398,7 +399,7 @@ def facts(manifest: Mapping[str, Any], summ: Mapping[str, Any]) -> list[tuple[st
 def definitions(summ: Mapping[str, Any]) -> list[tuple[str, str]]:
     """(term, definition) for every metric the report shows, and the theorem checks."""
     shown = {m for c in summ["cells"] for m in c["rates"]} | {m for c in summ["cells"] for m in c["values"]}
-    out = [(m.label, m.definition) for m in summary.RATE_METRICS + summary.VALUE_METRICS if m.name in shown]
+    out = [(m.label, m.definition) for m in RATE_METRICS + VALUE_METRICS if m.name in shown]
     out += [
         ("Thm 2 (invariance)", "an invariance breach contradicts Theorem 2 (h ≥ ε is forward invariant under the "
                                "VL-CBF); with perception noise and sampling it can happen, which is what is measured"),
