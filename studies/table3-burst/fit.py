@@ -1,6 +1,7 @@
 """Choose Table III's burst ranges from the exploration run (issue 51.5).
 
-Usage: python studies/table3-burst/fit.py RUN_DIR [RUN_DIR ...]
+Usage: python studies/table3-burst/fit.py [--onset-from S] RUN_DIR [RUN_DIR ...]
+(--onset-from: fit only the episodes whose burst started at S seconds or later)
 
 Fits P(overtook) = logistic(b0 + b1 * log(alpha_f * duration) + b2 * onset) by maximum likelihood
 on the runs' episodes (alpha_f * duration is the speed veh_f gains in the burst, the quantity that
@@ -13,6 +14,7 @@ best candidates.
 from __future__ import annotations
 
 import itertools
+import math
 import sys
 from pathlib import Path
 
@@ -59,8 +61,9 @@ def _score(counts) -> float:
     return sum((c - k) ** 2 / max(k, 1.0) for c, k in zip(counts, PAPER_OVERTAKES, strict=True))
 
 
-def main(run_dirs: list[str]) -> None:
+def main(run_dirs: list[str], onset_from_s: float = -math.inf) -> None:
     frames = [Run(Path(d)).episodes(as_pandas=True) for d in run_dirs]
+    frames = [f[f["sample_front_accel_onset_s"] >= onset_from_s] for f in frames]
     alpha = np.concatenate([f["sample_front_accel_mps2"].to_numpy() for f in frames])
     onset = np.concatenate([f["sample_front_accel_onset_s"].to_numpy() for f in frames])
     duration = np.concatenate([f["sample_front_accel_duration_s"].to_numpy() for f in frames])
@@ -76,8 +79,8 @@ def main(run_dirs: list[str]) -> None:
     rng = np.random.default_rng(0)
     candidates = []
     for onset_range in ((3.5, 3.5), (3.0, 4.0), (3.5, 4.5), (2.5, 4.5)):
-        for d_lo in np.arange(1.0, 2.01, 0.25):
-            for d_hi in np.arange(d_lo + 0.25, 3.01, 0.25):
+        for d_lo in np.arange(1.0, 2.51, 0.25):
+            for d_hi in np.arange(d_lo + 0.25, 3.51, 0.25):
                 counts = expected_overtakes(beta, onset_range, (d_lo, d_hi), rng)
                 candidates.append((_score(counts), onset_range, (d_lo, d_hi), counts))
     candidates.sort(key=lambda c: c[0])
@@ -88,4 +91,8 @@ def main(run_dirs: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    args = sys.argv[1:]
+    if args[:1] == ["--onset-from"]:
+        main(args[2:], float(args[1]))
+    else:
+        main(args)
