@@ -1,7 +1,8 @@
 """Choose Table III's burst ranges from the exploration run (issue 51.5).
 
-Usage: python studies/table3-burst/fit.py [--onset-from S] RUN_DIR [RUN_DIR ...]
-(--onset-from: fit only the episodes whose burst started at S seconds or later)
+Usage: python studies/table3-burst/fit.py [--onset-from S] [--check RUN_DIR] RUN_DIR [RUN_DIR ...]
+(--onset-from: fit only the episodes whose burst started at S seconds or later; --check: also print, per
+cell of that run, the overtakes the fit expects given the run's own draws, beside those observed)
 
 Fits P(overtook) = logistic(b0 + b1 * log(alpha_f * duration) + b2 * onset) by maximum likelihood
 on the runs' episodes (alpha_f * duration is the speed veh_f gains in the burst, the quantity that
@@ -13,9 +14,9 @@ best candidates.
 
 from __future__ import annotations
 
+import argparse
 import itertools
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -61,7 +62,18 @@ def _score(counts) -> float:
     return sum((c - k) ** 2 / max(k, 1.0) for c, k in zip(counts, PAPER_OVERTAKES, strict=True))
 
 
-def main(run_dirs: list[str], onset_from_s: float = -math.inf) -> None:
+def _check(beta: np.ndarray, run_dir: str) -> None:
+    frame = Run(Path(run_dir)).episodes(as_pandas=True)
+    print(f"{run_dir}: overtakes observed, and expected by the fit given each episode's draws (+- binomial sd)")
+    for cell, g in frame.groupby("cell", sort=False):
+        gain = g["sample_front_accel_mps2"].to_numpy() * g["sample_front_accel_duration_s"].to_numpy()
+        p = 1.0 / (1.0 + np.exp(-_features(gain, g["sample_front_accel_onset_s"].to_numpy()) @ beta))
+        alpha = g["sample_front_accel_mps2"].mean()
+        print(f"  {cell}: {int(g['overtook'].sum())}/{len(g)} observed, {p.sum():.1f} +- "
+              f"{np.sqrt((p * (1 - p)).sum()):.1f} expected; mean alpha_f drawn {alpha:.2f}")
+
+
+def main(run_dirs: list[str], onset_from_s: float = -math.inf, check_dir: str | None = None) -> None:
     frames = [Run(Path(d)).episodes(as_pandas=True) for d in run_dirs]
     frames = [f[f["sample_front_accel_onset_s"] >= onset_from_s] for f in frames]
     alpha = np.concatenate([f["sample_front_accel_mps2"].to_numpy() for f in frames])
@@ -83,6 +95,8 @@ def main(run_dirs: list[str], onset_from_s: float = -math.inf) -> None:
             for d_hi in np.arange(d_lo + 0.25, 3.51, 0.25):
                 counts = expected_overtakes(beta, onset_range, (d_lo, d_hi), rng)
                 candidates.append((_score(counts), onset_range, (d_lo, d_hi), counts))
+    if check_dir is not None:
+        _check(beta, check_dir)
     candidates.sort(key=lambda c: c[0])
     print("best (onset range s, duration range s): expected overtakes per range (paper 29/11/0)")
     for score, onset_range, duration_range, counts in candidates[:10]:
@@ -91,8 +105,9 @@ def main(run_dirs: list[str], onset_from_s: float = -math.inf) -> None:
 
 
 if __name__ == "__main__":
-    args = sys.argv[1:]
-    if args[:1] == ["--onset-from"]:
-        main(args[2:], float(args[1]))
-    else:
-        main(args)
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--onset-from", type=float, default=-math.inf)
+    parser.add_argument("--check")
+    parser.add_argument("runs", nargs="+")
+    args = parser.parse_args()
+    main(args.runs, args.onset_from, args.check)
