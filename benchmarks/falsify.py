@@ -12,6 +12,14 @@ With ``--replay`` every counterexample found is re-simulated and checked bit for
 (:func:`replay_counterexamples`). Written as a generated section of ``results/BENCHMARKS.md``, named by
 ``--section`` (so the adversary targets keep a section apart from the default targets'); the search
 folders stay under ``out_dir``.
+
+``beam`` (:mod:`mcverify.falsify.beam`) is a method of targets with a ``[falsify.beam]`` table: trial t is
+the beam search of seed ``seed + t`` (its children draws), run in ``trial-NN`` as ``mcverify falsify
+--method beam`` runs it (:mod:`mcverify.falsify.beam_folder`), with ``budget`` read as its ceiling in
+episode-equivalents. It simulates segments from snapshots, not episodes one by one, so its costs are in
+episode-equivalents only, and its counterexample (the best final-frontier episode, when its robustness is
+negative) comes after the whole search. Per method the table also gives the peak resident memory of the
+trials (:mod:`benchmarks.memory`).
 """
 
 from __future__ import annotations
@@ -24,21 +32,23 @@ import re
 import statistics
 import sys
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, NamedTuple
 
 import tomllib
 
-from benchmarks import section
+from benchmarks import memory, section
 from mcverify import files, store
 from mcverify.analysis import stats
 from mcverify.campaign.spec import apply_settings, load_campaign
 from mcverify.cli.options import nonneg_int, positive_int
 from mcverify.errors import RunError, UserError
-from mcverify.falsify import methods, search
+from mcverify.falsify import beam, beam_folder, methods, search
 
 NAME = "falsify"
+#: Each trial folder's peak resident memory (:mod:`benchmarks.memory`), written when the trial ran.
+PEAK_RSS = "bench-peak-rss.json"
 BEGIN_MARK, END_MARK = section.markers(NAME)
 #: What ``--section`` accepts: the name goes into the section's markers.
 SECTION_NAME = re.compile(r"[a-z_]+")
@@ -49,6 +59,12 @@ class Counterexample(NamedTuple):
 
     run_dir: Path
     episode_id: int
+
+    def replay_dir(self) -> Path:
+        """Where ``--replay`` writes its trajectory: ``TRIAL/replay/<folder>``, beside the trial's generations
+        (``TRIAL/generations/gNNN``) or its best beam episode (``TRIAL/best``)."""
+        trial = self.run_dir.parent.parent if self.run_dir.parent.name == search.GENERATIONS else self.run_dir.parent
+        return trial / "replay" / self.run_dir.name
 
 
 @dataclass(frozen=True)
@@ -67,6 +83,13 @@ class Trial:
     guide: str = ""  # the target's [falsify] guide ("": none, the method was told the robustness)
     min_guide: float = math.nan
     counterexamples: tuple[Counterexample, ...] = ()
+    #: False for a beam trial: it simulates segments from snapshots, not episodes one by one, so ``episodes``
+    #: is 0 and ``first_counterexample`` 0 when it found one; its costs are the episode-equivalents.
+    counts_episodes: bool = True
+    #: The largest resident set size of the process tree while the trial ran, MB (None: not measured).
+    peak_rss_mb: float | None = None
+    #: A beam trial's most snapshots alive at once (None: not a beam).
+    peak_snapshots: int | None = None
 
 
 class PlannedTrial(NamedTuple):
@@ -102,12 +125,9 @@ def plan_trials(targets: Sequence[Path], methods_: Sequence[str], trials: int, b
         if "falsify" not in raw:
             raise RunError(f"{path}: no [falsify] table (bounds of the search space); see docs/falsification.md "
                            "or campaigns/falsify_*.toml")
-        raw["falsify"] = {**raw["falsify"], "stop_at_first": True}
         for method in methods_:
             for t in range(trials):
-                config = search.SearchConfig(copy.deepcopy(raw), str(path), method, budget, seed + t,
-                                             campaign.falsify.requirement)
-                search.check(config)
+                config = _trial_config(raw, path, method, budget, seed + t, campaign.falsify.requirement)
                 where = out_dir / campaign.name / method / f"trial-{t:02d}"
                 if (where / search.CONFIG).is_file():
                     _check_same_trial(where, config)
@@ -115,23 +135,89 @@ def plan_trials(targets: Sequence[Path], methods_: Sequence[str], trials: int, b
     return planned
 
 
+def _trial_config(raw: dict[str, Any], path: Path, method: str, budget: int, seed: int,
+                  requirement: str) -> search.SearchConfig:
+    """One trial's search, checked as ``mcverify falsify --method METHOD`` checks it (one RunError line): a
+    searcher stops at its first counterexample; the beam takes the table as it is (it refuses other keys) and
+    ``budget`` as its ceiling in episode-equivalents."""
+    if method == beam.BEAM:
+        config = search.SearchConfig(copy.deepcopy(raw), str(path), method, budget, seed, requirement)
+        beam_folder.check(config)
+        return config
+    stopping = {**raw, "falsify": {**raw["falsify"], "stop_at_first": True}}
+    config = search.SearchConfig(copy.deepcopy(stopping), str(path), method, budget, seed, requirement)
+    search.check(config)
+    return config
+
+
 def run_planned(planned: Sequence[PlannedTrial], progress: Callable[[str], None] | None = None,
                 **search_kw: Any) -> list[Trial]:
-    """Run (or re-read, or resume) the searches of :func:`plan_trials`, in order."""
+    """Run (or re-read, or resume) the searches of :func:`plan_trials`, in order. A trial that runs (or is
+    resumed) is measured for its peak resident memory, kept in its folder; a re-read one reports what was
+    kept (none if it finished before that was recorded)."""
     out: list[Trial] = []
     for name, method, t, config, where in planned:
-        if (where / search.CONFIG).is_file():
-            res = search.resume(where, **search_kw)
+        finished = _finished(where)
+        with memory.PeakRss() as peak:
+            if method == beam.BEAM:
+                trial = beam_trial(name, _run_beam(config, where, finished), where)
+            else:
+                res = search.resume(where, **search_kw) if (where / search.CONFIG).is_file() else \
+                    search.start(config, where, **search_kw)
+                trial = trial_of(name, res)
+        if finished:
+            peak_mb = _stored_peak(where)
         else:
-            res = search.start(config, where, **search_kw)
-        trial = trial_of(name, res)
+            peak_mb = peak.peak_mb
+            files.write_json_atomic(where / PEAK_RSS, {"peak_rss_mb": peak_mb, "interval_s": peak.interval_s})
+        trial = replace(trial, peak_rss_mb=peak_mb)
         out.append(trial)
         if progress is not None:
-            progress(f"{name} {method} trial {t}: "
-                     + (f"counterexample after {res.first_counterexample} episodes "
-                        f"({trial.first_episode_equivalents:.3g} episode-equivalents)" if res.first_counterexample
-                        else f"none in {res.episodes}, min robustness {res.min_robustness:.4g}"))
+            progress(f"{name} {method} trial {t}: " + _found_text(trial))
     return out
+
+
+def _found_text(trial: Trial) -> str:
+    if trial.first_counterexample is None:
+        spent = f"{trial.episodes}" if trial.counts_episodes else f"{trial.episode_equivalents:.3g} episode-equivalents"
+        return f"none in {spent}, min robustness {trial.min_robustness:.4g}"
+    eq = f"{trial.first_episode_equivalents:.3g} episode-equivalents"
+    if not trial.counts_episodes:
+        return f"counterexample after {eq}, robustness {trial.min_robustness:.4g}"
+    return f"counterexample after {trial.first_counterexample} episodes ({eq})"
+
+
+def _finished(where: Path) -> bool:
+    path = where / search.CONFIG
+    return path.is_file() and bool(store.read_json(path).get("finished_utc"))
+
+
+def _stored_peak(where: Path) -> float | None:
+    path = where / PEAK_RSS
+    return store.read_json(path).get("peak_rss_mb") if path.is_file() else None
+
+
+def _run_beam(config: search.SearchConfig, where: Path, finished: bool) -> beam_folder.BeamSummary:
+    """A beam trial's summary: re-read when finished, resumed from its last depth file, or started."""
+    if finished:
+        return beam_folder.read_summary(where)
+    if (where / search.CONFIG).is_file():
+        return beam_folder.resume(where)
+    return beam_folder.start(config, where)
+
+
+def beam_trial(target: str, summary: beam_folder.BeamSummary, where: Path) -> Trial:
+    """A finished beam search as one trial. Its counterexample is its best final-frontier episode when that
+    violates the requirement, known only once the whole search has run, so the episode-equivalents to it are
+    the search's; that episode is ``where/best`` episode 0 (what ``mcverify replay`` takes)."""
+    low = summary.best_robustness
+    found = low < 0.0
+    eq = summary.episode_equivalents
+    scores = [n.score for n in summary.frontier if not math.isinf(n.score)]
+    return Trial(target, beam.BEAM, summary.seed, 0, 0 if found else None, low, (), eq, eq if found else None,
+                 summary.spec.score, min(scores) if scores else math.nan,
+                 (Counterexample(where / beam_folder.BEST, 0),) if found else (), counts_episodes=False,
+                 peak_snapshots=summary.peak_snapshots)
 
 
 def trial_of(target: str, res: search.SearchResult) -> Trial:
@@ -167,9 +253,11 @@ def draw_curves(trials: Sequence[Trial], out_dir: Path) -> list[Path]:
     paths = []
     for target in dict.fromkeys(t.target for t in trials):
         firsts = {}
-        for t in trials:
-            if t.target == target and t.method not in firsts:
+        for t in trials:  # a beam trial has no curve: it does not evaluate episodes one by one
+            if t.target == target and t.method not in firsts and t.curve:
                 firsts[t.method] = t.curve
+        if not firsts:
+            continue
         path = out_dir / target / "robustness.png"
         path.parent.mkdir(parents=True, exist_ok=True)
         report.robustness_curves({f"{m} (seed {min(t.seed for t in trials)})": c for m, c in firsts.items()}, path,
@@ -216,6 +304,9 @@ def goal_verdict(trials: Sequence[Trial], target: str, budget: int) -> str:
     for method, group in by_method.items():
         if method == "random":
             continue
+        if not all(t.counts_episodes for t in group):
+            verdicts.append(f"{method} not judged (its costs are in episode-equivalents, not episodes)")
+            continue
         hits = sum(t.first_counterexample is not None for t in group)
         med = median_to_first(group)
         med_text = "beyond the budget" if math.isinf(med) else f"{med:g}"
@@ -246,11 +337,13 @@ class MethodSummary(NamedTuple):
     median_eq: float | None
     median_eq_all: float
     min_robustness: float
-    episodes_spent: int
+    episodes_spent: int | None  # None: a beam's, which does not count episodes
     eq_spent: float
     lowest: tuple[float, ...]  # each trial's lowest robustness, in trial order
     lowest_guide: tuple[float, ...]  # each trial's lowest guide value (NaN: no guide)
     eq_to_first: tuple[float | None, ...]  # each trial's episode-equivalents to its first counterexample
+    peak_rss_mb: float | None = None  # the largest over the measured trials (None: none measured)
+    rss_measured: int = 0  # trials with a measured peak
 
 
 def summarise(group: Sequence[Trial]) -> MethodSummary:
@@ -258,13 +351,24 @@ def summarise(group: Sequence[Trial]) -> MethodSummary:
     hits = [t for t in group if t.first_counterexample is not None]
     rate = stats.rate_summary(len(hits), len(group), 0.95, "clopper-pearson")
     eqs = [t.first_episode_equivalents for t in hits if t.first_episode_equivalents is not None]
+    counted = all(t.counts_episodes for t in group)
+    peaks = [t.peak_rss_mb for t in group if t.peak_rss_mb is not None]
     return MethodSummary(
         len(group), len(hits), rate["rate"], rate["low"], rate["high"],
-        statistics.median(t.first_counterexample for t in hits) if hits else None,
+        statistics.median(t.first_counterexample for t in hits) if hits and counted else None,
         statistics.fmean(eqs) if eqs else None, statistics.median(eqs) if eqs else None,
-        median_eq_to_first(group), min(t.min_robustness for t in group), sum(t.episodes for t in group),
+        median_eq_to_first(group), min(t.min_robustness for t in group),
+        sum(t.episodes for t in group) if counted else None,
         sum(t.episode_equivalents for t in group), tuple(t.min_robustness for t in group),
-        tuple(t.min_guide for t in group), tuple(t.first_episode_equivalents for t in group))
+        tuple(t.min_guide for t in group), tuple(t.first_episode_equivalents for t in group),
+        max(peaks) if peaks else None, len(peaks))
+
+
+def peak_text(s: MethodSummary) -> str:
+    """The peak RSS cell: MB, with the share of trials measured when not all were; ``–`` for none."""
+    if s.peak_rss_mb is None:
+        return "–"
+    return f"{s.peak_rss_mb:.0f}" + ("" if s.rss_measured == s.trials else f" ({s.rss_measured} of {s.trials} trials)")
 
 
 def median_eq_to_first(group: Sequence[Trial]) -> float:
@@ -304,7 +408,7 @@ def replay_counterexamples(trials: Sequence[Trial], progress: Callable[[str], No
     for trial in trials:
         for cx in trial.counterexamples:
             try:
-                replay.replay(cx.run_dir, cx.episode_id, out_dir=cx.run_dir.parent.parent / "replay" / cx.run_dir.name)
+                replay.replay(cx.run_dir, cx.episode_id, out_dir=cx.replay_dir())
                 problem = ""
             except (replay.ReplayMismatch, UserError) as err:
                 problem = str(err)
@@ -329,6 +433,25 @@ def replay_sentence(checks: Sequence[ReplayCheck] | None) -> str:
             f"these do not: {named}.")
 
 
+#: What the peak RSS column is (:mod:`benchmarks.memory`).
+PEAK_RSS_TEXT = (
+    "Peak RSS: the largest summed resident set size of the benchmark process and its worker processes, sampled "
+    f"every {memory.INTERVAL_S:g} s while the method's trials ran (largest over its trials; a re-read trial "
+    "reports the value kept when it ran, a resumed one that of the run that finished it). It includes the "
+    "interpreter, JAX, CasADi and whatever earlier trials left loaded in the benchmark process, so it is the "
+    "footprint of running the search, not the search's data alone; a peak shorter than the interval can be missed.")
+#: What the section says when beam trials ran.
+BEAM_TEXT = (
+    "Beam (`--method beam`, a beam search over the per-step error of one scenario): the same budget, {budget}, "
+    "read as a ceiling in episode-equivalents on the beam's cost bound (a beam that could exceed it is refused "
+    "before it runs). It simulates segments from snapshots rather than episodes one by one, so its episode "
+    "columns read –; its counterexample is the best final-frontier episode when its robustness is negative, "
+    "known only after the whole search, so its ep-eq to the first counterexample is the search's whole cost; "
+    "it is `TRIAL/best` episode 0 (`mcverify replay`). Its lowest guide is the lowest running score "
+    "(`[falsify.beam] score`) of its final frontier at the window's end. The seed of trial t, seed + t, keys its "
+    "children draws (the scenario and its seed are the campaign's).")
+
+
 def markdown(trials: Sequence[Trial], *, budget: int, command: str, name: str = NAME,
              replays: Sequence[ReplayCheck] | None = None) -> str:
     begin, end = markers(name)
@@ -336,6 +459,7 @@ def markdown(trials: Sequence[Trial], *, budget: int, command: str, name: str = 
     groups = {key: [t for t in trials if (t.target, t.method) == key] for key in keys}
     summaries = {key: summarise(group) for key, group in groups.items()}
     guided = any(t.guide for t in trials)
+    beamed = any(not t.counts_episodes for t in trials)
     lines = [begin, "", "## Falsification benchmark", "",
              section.provenance_line(command), "",
              "Each trial is a search with its own seed (search and noise), budget "
@@ -344,16 +468,17 @@ def markdown(trials: Sequence[Trial], *, budget: int, command: str, name: str = 
              "episode-equivalents (ep-eq: control steps simulated up to and including the counterexample's "
              "episode over a whole episode's; an episode that stops early costs less); mean and median over "
              "the successful trials, and the median over all trials with a failed trial counted as beyond "
-             "the budget.", "",
+             "the budget. " + PEAK_RSS_TEXT, *([""] + [BEAM_TEXT.format(budget=budget)] if beamed else []), "",
              "| target | method | trials | successes | success rate (95% CI) | mean ep-eq to 1st | "
              "median ep-eq to 1st | median ep-eq to 1st, all trials | median episodes to 1st | "
-             "min robustness | episodes spent | ep-eq spent |",
-             "|---|---|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|"]
+             "min robustness | episodes spent | ep-eq spent | peak RSS (MB) |",
+             "|---|---|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for (target, method), s in summaries.items():
         med = "–" if s.median_episodes is None else f"{s.median_episodes:g}"
+        spent = "–" if s.episodes_spent is None else f"{s.episodes_spent}"
         lines.append(f"| {target} | {method} | {s.trials} | {s.successes} | {s.rate:.2f} [{s.low:.2f}, {s.high:.2f}] "
                      f"| {cost_text(s.mean_eq)} | {cost_text(s.median_eq)} | {cost_text(s.median_eq_all)} | {med} | "
-                     f"{s.min_robustness:.4g} | {s.episodes_spent} | {s.eq_spent:.4g} |")
+                     f"{s.min_robustness:.4g} | {spent} | {s.eq_spent:.4g} | {peak_text(s)} |")
     lines += ["", "Per trial, in seed order from the first seed (– : no counterexample): ep-eq to the first "
               "counterexample and the lowest robustness reached"
               + (" and the lowest value of the guide the search was steered by" if guided else "") + ":", "",
@@ -364,6 +489,10 @@ def markdown(trials: Sequence[Trial], *, budget: int, command: str, name: str = 
         lines.append(f"| {target} | {method} | {', '.join(cost_text(x) for x in s.eq_to_first)} | "
                      f"{', '.join(compact(x) for x in s.lowest)} |"
                      + (f" {guide or 'none'}: {', '.join(compact(x) for x in s.lowest_guide)} |" if guided else ""))
+    if beamed:
+        lines += ["", "Beam trials, snapshots alive at most per trial (the bound is 2 width + 1):", ""]
+        lines += [f"- {target} {method}: {', '.join(str(t.peak_snapshots) for t in group)}"
+                  for (target, method), group in groups.items() if not group[0].counts_episodes]
     lines += ["", replay_sentence(replays), "",
               "Issue 16's goal, per target (medians over all trials, a failed trial counting as beyond the "
               "budget):", ""]
@@ -406,16 +535,17 @@ DEFAULT_TARGETS = (
     "campaigns/falsify_theorem5_certified_opposing.toml",
     "campaigns/falsify_vlcbf_eps03_paper_noise.toml",
 )
-ALL_METHODS = methods.METHODS
+#: The population searchers, then the beam (targets with a [falsify.beam] table only).
+ALL_METHODS = (*methods.METHODS, beam.BEAM)
 
 
 def chosen_methods(text: str) -> list[str]:
     """The methods of ``--methods`` (comma-separated), each a known one; otherwise one RunError line."""
     chosen = [m.strip() for m in text.split(",") if m.strip()]
-    bad = [m for m in chosen if m not in methods.METHODS]
+    bad = [m for m in chosen if m not in ALL_METHODS]
     if bad or not chosen:
         raise RunError(f"--methods: unknown {', '.join(bad) or '(none given)'}; "
-                       f"choose from {', '.join(methods.METHODS)}")
+                       f"choose from {', '.join(ALL_METHODS)}")
     return chosen
 
 
@@ -426,9 +556,13 @@ def _parser() -> argparse.ArgumentParser:
                    help="campaign files with [falsify] (default: the five benchmark targets falsify_mpcdc_table4b, "
                    "falsify_vlcbf_eps0_noise2, falsify_theorem5_opposing, falsify_theorem5_certified_opposing, "
                    "falsify_vlcbf_eps03_paper_noise in campaigns/)")
-    p.add_argument("--methods", default="cma,cross-entropy,random", help="comma-separated methods")
+    p.add_argument("--methods", default="cma,cross-entropy,random",
+                   help="comma-separated methods; beam only on targets with a [falsify.beam] table (which the "
+                   "others refuse)")
     p.add_argument("--trials", type=positive_int, default=10, help="independent trials per method and target")
-    p.add_argument("--budget", type=positive_int, default=100, help="episodes per trial")
+    p.add_argument("--budget", type=positive_int, default=100,
+                   help="episodes per trial; for beam the same number in episode-equivalents, a ceiling on its cost "
+                   "bound")
     p.add_argument("--seed", type=nonneg_int, default=0, help="seed of the first trial (then seed+1, ...)")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", dest="settings",
                    help="override a model parameter of every target (repeatable)")
