@@ -62,9 +62,17 @@ def _audit(args, method: str | None) -> int:
     from mcverify.campaign.audit import audit, record
     from mcverify.errors import RunError
 
-    if method or args.cell is not None:
-        raise RunError("--backend audits an episode of a run folder (a search's generation folder is one), not "
-                       "an estimate folder's draw or particle")
+    if method:
+        from mcverify.estimate import audit as estimate_audit
+
+        checked = estimate_audit.audit(args.run_dir, args.episode_id, args.out, args.cell)
+        print(checked.describe())
+        print(f"trajectories: {checked.stored.trajectory_path}, {checked.reference.trajectory_path}")
+        print(f"plots: {checked.stored.plot_path}, {checked.reference.plot_path}")
+        return 0
+    if args.cell is not None:
+        raise RunError("--cell names the cell of an estimate folder's draw, particle or sample; a run folder's "
+                       "episode id needs none")
     res = audit(args.run_dir, args.episode_id, args.out)
     record(args.run_dir, res)
     print(res.describe())

@@ -43,6 +43,7 @@ import pyarrow.parquet as pq
 
 from mcverify import store
 from mcverify.campaign import executors
+from mcverify.campaign.audit import REFERENCE_BACKEND, reference_cell
 from mcverify.campaign.replay import ReplayMismatch, ReplayResult, checked, write_recording
 from mcverify.campaign.runner import campaign_from_manifest
 from mcverify.campaign.spec import apply_overrides
@@ -81,15 +82,16 @@ def _reading(est_dir: Path):
 
 
 def replay_draw(est_dir: Path, episode_id: int, out_dir: Path | None = None,
-                cell_name: str | None = None) -> ReplayResult:
+                cell_name: str | None = None, *, reference: bool = False) -> ReplayResult:
     """Re-simulate final draw ``episode_id`` of cell ``cell_name`` (may be left out when one cell is
     estimated) and check it, its weight recomputed from the fitted proposal as well; the trajectory
-    and plot go to ``out_dir`` (default ESTIMATE_DIR/replay)."""
+    and plot go to ``out_dir`` (default ESTIMATE_DIR/replay). ``reference``: with the reference solver
+    instead (:func:`mcverify.campaign.audit.reference_cell`), nothing checked: the audit's other side."""
     est_dir = Path(est_dir)
     manifest, campaign, result = _open(est_dir, cell_name)
     with _reading(est_dir):
         stored = _stored_draw(est_dir, result, episode_id)
-        cell = campaign.cells[result["cell_index"]]
+        cell = _solver_of(campaign.cells[result["cell_index"]], reference)
         scenario = {name: float(stored[f"sample_{name}"]) for name in result["parameters"]}
         tilt = result.get("noise_tilt")
         noise_tilt = None if tilt is None else NoiseTilt.from_dict(tilt)
@@ -97,15 +99,26 @@ def replay_draw(est_dir: Path, episode_id: int, out_dir: Path | None = None,
     replayed = run_episodes(cell, [episode_id], campaign.seed, executors.solver_for(cell.params),
                             scenarios={episode_id: scenario}, record=True, noise_tilt=noise_tilt)
     row = replayed.rows[0]
-    stem = f"cell{result['cell_index']:03d}-episode-{episode_id:06d}"
+    stem = f"cell{result['cell_index']:03d}-episode-{episode_id:06d}" + _suffix(reference)
     traj, plot = write_recording(replayed.recordings[episode_id], cell, row,
                                  Path(out_dir) if out_dir else est_dir / "replay", stem)
+    if reference:
+        return ReplayResult(episode_id, traj, plot, row, ())
     # the weight is no simulated value but the estimate's factor: recomputed from the proposal (the same
     # operations as the estimator's, so bit for bit) with the replayed noise ratio
     theta = np.array([[scenario[n] for n in result["parameters"]]], dtype=float)
     row = {**row, "weight": float(np.exp(log_weigh(theta) + (row.get("noise_log_lr") or 0.0))[0])}
     # the folder keeps a few of a row's values: the others are not "newer than the run"
     return dataclasses.replace(checked(episode_id, stored, row, traj, plot), not_stored=())
+
+
+def _solver_of(cell, reference: bool):
+    """``cell`` as estimated, or with the reference solver for an audit."""
+    return reference_cell(cell) if reference else cell
+
+
+def _suffix(reference: bool) -> str:
+    return f"-{REFERENCE_BACKEND}" if reference else ""
 
 
 def _log_weights_of(cell, result: dict[str, Any], alpha: float):
@@ -157,9 +170,10 @@ def _stored_draw(est_dir: Path, result: dict[str, Any], episode_id: int) -> dict
 
 
 def replay_particle(est_dir: Path, k: int, out_dir: Path | None = None,
-                    cell_name: str | None = None) -> ReplayResult:
+                    cell_name: str | None = None, *, reference: bool = False) -> ReplayResult:
     """Re-simulate failing particle ``k`` of a splitting estimate's cell and check its running score;
-    the trajectory and plot go to ``out_dir`` (default ESTIMATE_DIR/replay)."""
+    the trajectory and plot go to ``out_dir`` (default ESTIMATE_DIR/replay). ``reference``: as
+    :func:`replay_draw`'s."""
     est_dir = Path(est_dir)
     manifest, campaign, result = _open(est_dir, cell_name)
     with _reading(est_dir):
@@ -167,7 +181,8 @@ def replay_particle(est_dir: Path, k: int, out_dir: Path | None = None,
         lineage = {"noise.branch_after_steps": particle["branch_after_steps"],
                    "noise.branch_ids": particle["branch_ids"]}
         cell = campaign.cells[result["cell_index"]]
-        cell = dataclasses.replace(cell, params=apply_overrides(cell.params, lineage, f"particle {k}"))
+        cell = _solver_of(dataclasses.replace(cell, params=apply_overrides(cell.params, lineage, f"particle {k}")),
+                          reference)
         score = manifest["estimate"]["score"]
     planner = executors.solver_for(cell.params)
     episode, end = particle["episode_id"], particle["end_step"]
@@ -175,10 +190,10 @@ def replay_particle(est_dir: Path, k: int, out_dir: Path | None = None,
     replayed = run_episodes(cell, [episode], campaign.seed, planner, branching=watch, record=True)
     reached = max((score_of(v, score) for v in watch.views if v.step <= end), default=float("-inf"))
     row = replayed.rows[0]
-    stem = f"cell{result['cell_index']:03d}-particle-{k:04d}"
+    stem = f"cell{result['cell_index']:03d}-particle-{k:04d}" + _suffix(reference)
     traj, plot = write_recording(replayed.recordings[episode], cell, row,
                                  Path(out_dir) if out_dir else est_dir / "replay", stem)
-    if np.float64(reached).tobytes() != np.float64(particle["score"]).tobytes():
+    if not reference and np.float64(reached).tobytes() != np.float64(particle["score"]).tobytes():
         raise ReplayMismatch(f"particle {k} does not reproduce: its running {score} score after step {end} was "
                              f"{particle['score']!r}, replayed {reached!r}")
     return ReplayResult(k, traj, plot, row, ())
@@ -205,9 +220,11 @@ def _failing_particle(est_dir: Path, result: dict[str, Any], k: int) -> dict[str
     return p
 
 
-def replay_sample(est_dir: Path, k: int, out_dir: Path | None = None, cell_name: str | None = None) -> ReplayResult:
+def replay_sample(est_dir: Path, k: int, out_dir: Path | None = None, cell_name: str | None = None, *,
+                  reference: bool = False) -> ReplayResult:
     """Re-simulate failing sample ``k`` of a subset simulation estimate's cell and check its robustness;
-    the trajectory and plot go to ``out_dir`` (default ESTIMATE_DIR/replay)."""
+    the trajectory and plot go to ``out_dir`` (default ESTIMATE_DIR/replay). ``reference``: as
+    :func:`replay_draw`'s."""
     from mcverify.estimate import subset_run  # noqa: PLC0415 - only for subset folders
 
     est_dir = Path(est_dir)
@@ -221,16 +238,16 @@ def replay_sample(est_dir: Path, k: int, out_dir: Path | None = None, cell_name:
                            f"{len(samples) - 1}), not {k}")
         run_id, j = int(samples[k]["run"]), int(samples[k]["sample"])
         x, g = subset_run.failing_inputs(est_dir, result["cell_index"], run_id)
-        cell = campaign.cells[result["cell_index"]]
+        cell = _solver_of(campaign.cells[result["cell_index"]], reference)
         target = manifest["estimate"]["target"]
     problem = subset_run.problem_for(cell, campaign.seed, target)
     replayed = problem.simulate(x[j:j + 1], record=True)
     row = replayed.rows[0]
-    stem = f"cell{result['cell_index']:03d}-sample-{k:04d}"
+    stem = f"cell{result['cell_index']:03d}-sample-{k:04d}" + _suffix(reference)
     traj, plot = write_recording(replayed.recordings[0], cell, row, Path(out_dir) if out_dir else est_dir / "replay",
                                  stem)
     got = problem.performance(row)
-    if np.float64(got).tobytes() != np.float64(g[j]).tobytes():
+    if not reference and np.float64(got).tobytes() != np.float64(g[j]).tobytes():
         raise ReplayMismatch(f"failing sample {k} does not reproduce: its {target} robustness was {float(g[j])!r}, "
                              f"replayed {got!r}")
     return ReplayResult(k, traj, plot, row, ())

@@ -321,6 +321,12 @@ def test_a_final_draw_replays_bit_for_bit_with_the_fitted_noise_tilt(tmp_path: P
     said = capsys.readouterr().out
     assert "episode 13 reproduced exactly (the values its estimate folder keeps)" in said
     assert (out / "replay" / "cell000-episode-000013.parquet").is_file()
+    # the audit: the draw replayed exactly, then on the same inputs with IPOPT at every step
+    assert main(["replay", str(out), "13", "--backend", "ipopt"]) == 0
+    said = capsys.readouterr().out
+    assert said.startswith("final draw 13: ") and "the reference solver ipopt: " in said
+    assert ("confirmed by the reference solver" in said) != ("solver-dependent" in said)
+    assert (out / "replay" / "cell000-episode-000013-ipopt.parquet").is_file()
     assert main(["replay", str(out), "3"]) == 2  # a cross-entropy episode: not kept
     assert capsys.readouterr().err.strip() == (f"mcverify: error: {out}: episode 3 of cell all is not a kept final "
                                                "draw; the final draws are episodes 8 to 15 (the cross-entropy "

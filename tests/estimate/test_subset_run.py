@@ -116,5 +116,8 @@ def test_a_failing_closed_loop_sample_replays_bit_for_bit(tmp_path, capsys):
     capsys.readouterr()
     assert main(["replay", str(out), "3", "--cell", cell]) == 0
     assert "failing sample 3 reproduced exactly" in capsys.readouterr().out
+    assert main(["replay", str(out), "3", "--cell", cell, "--backend", "ipopt"]) == 0
+    said = capsys.readouterr().out
+    assert said.startswith("failing sample 3: ") and "invariance: event" in said
     assert main(["replay", str(out), "20", "--cell", cell]) == 2
     assert "has 20 failing samples (0 to 19), not 20" in capsys.readouterr().err
