@@ -15,6 +15,7 @@ from enum import Enum
 from pathlib import Path
 
 from mcverify import files, store
+from mcverify.analysis.robustness import robustness
 from mcverify.campaign import executors
 from mcverify.campaign.replay import stored_schedules, write_recording
 from mcverify.campaign.runner import campaign_from_manifest
@@ -42,12 +43,19 @@ class AuditResult:
     reference: dict | None  # the reference solver's row (None for a run made with it)
     trajectory_path: Path | None
     plot_path: Path | None
+    requirement: str = "safe"  # what the verdict compares: whether this requirement is violated
 
     def describe(self) -> str:
         """One line: both outcomes and the verdict."""
         ran = f"{self.stored['outcome']}, safe={self.stored['safe']}"
         if self.reference is None:
             return f"episode {self.episode_id} ({ran}): {self.verdict.value}; nothing to audit"
+        if self.requirement != "safe":
+            ran += f", {self.requirement} {'violated' if violated(self.stored, self.requirement) else 'holds'}"
+            ref = (f"{self.reference['outcome']}, safe={self.reference['safe']}, {self.requirement} "
+                   f"{'violated' if violated(self.reference, self.requirement) else 'holds'}")
+            return (f"episode {self.episode_id}: {self.verdict.value} (the run: {ran}; "
+                    f"the reference solver {REFERENCE_BACKEND}: {ref})")
         ref = f"{self.reference['outcome']}, safe={self.reference['safe']}"
         return (f"episode {self.episode_id}: {self.verdict.value} (the run: {ran}; "
                 f"the reference solver {REFERENCE_BACKEND}: {ref})")
@@ -63,6 +71,9 @@ def record(run_dir: Path, result: AuditResult) -> None:
         "verdict": result.verdict.value, "backend": REFERENCE_BACKEND,
         "outcome": result.stored["outcome"], "safe": bool(result.stored["safe"]),
         "reference_outcome": result.reference["outcome"], "reference_safe": bool(result.reference["safe"]),
+        **({} if result.requirement == "safe" else {
+            "requirement": result.requirement,
+            "reference_violated": violated(result.reference, result.requirement)}),
     }
     files.write_json_atomic(path, dict(sorted(audits.items(), key=lambda kv: int(kv[0]))))
 
@@ -95,9 +106,15 @@ def reference_cell(cell: Cell) -> Cell:
     return dataclasses.replace(cell, params=dataclasses.replace(cell.params, mpc=mpc))
 
 
-def audit(run_dir: Path, episode_id: int, out_dir: Path | None = None) -> AuditResult:
-    """Re-simulate ``episode_id`` of ``run_dir`` with the reference solver and compare the verdicts;
-    its trajectory and plot go to ``out_dir`` (default ``RUN_DIR/replay``) as ``episode-NNNNNN-ipopt``."""
+def violated(row: dict, requirement: str) -> bool:
+    """Whether ``row`` violates the named ``requirement`` (robustness < 0)."""
+    return bool(robustness(row, requirement) < 0)
+
+
+def audit(run_dir: Path, episode_id: int, out_dir: Path | None = None, requirement: str = "safe") -> AuditResult:
+    """Re-simulate ``episode_id`` of ``run_dir`` with the reference solver and compare the verdicts (whether
+    ``requirement``, a named one, is violated: ``safe`` for a run's counterexamples, a search's own for its
+    own); its trajectory and plot go to ``out_dir`` (default ``RUN_DIR/replay``) as ``episode-NNNNNN-ipopt``."""
     run_dir = Path(run_dir)
     manifest = store.read_json(run_dir / store.MANIFEST)
     campaign = campaign_from_manifest(manifest)
@@ -118,6 +135,6 @@ def audit(run_dir: Path, episode_id: int, out_dir: Path | None = None) -> AuditR
     out = Path(out_dir) if out_dir else run_dir / "replay"
     traj, plot = write_recording(result.recordings[local], ref_cell, row, out,
                                  f"episode-{episode_id:06d}-{REFERENCE_BACKEND}")
-    same = bool(row["safe"]) == bool(stored["safe"])
+    same = violated(row, requirement) == violated(stored, requirement)
     verdict = AuditVerdict.CONFIRMED if same else AuditVerdict.SOLVER_DEPENDENT
-    return AuditResult(episode_id, verdict, stored, row, traj, plot)
+    return AuditResult(episode_id, verdict, stored, row, traj, plot, requirement)

@@ -69,8 +69,13 @@ def _rebuild_own_report(args, kind: str) -> int:
     results, running nothing (what ``--resume`` of such a folder did before the one ``--resume`` rule)."""
     from mcverify.errors import RunError
 
-    given = [opt for opt, value in (("--level", args.level), ("--method", args.method), ("--audit", args.audit),
-                                    ("--format", args.formats)) if value]
+    given = [opt for opt, value in (("--level", args.level), ("--method", args.method),
+                                    ("--audit", args.audit and kind != "falsify"), ("--format", args.formats))
+             if value]
+    if args.audit and kind != "falsify":
+        raise RunError(f"--audit is for run, crude Monte Carlo estimate and search folders; {args.run_dir} is a "
+                       f"{kind} estimate folder: `mcverify replay {args.run_dir} K --backend ipopt` audits its "
+                       "counterexample K")
     if given:
         raise RunError(f"{given[0]} is for run and crude Monte Carlo estimate folders; {args.run_dir} is a "
                        f"{kind} folder")
@@ -87,9 +92,14 @@ def _rebuild_own_report(args, kind: str) -> int:
         from mcverify.falsify import beam_folder, search
 
         if beam_folder.is_beam_folder(args.run_dir):
+            if args.audit:
+                raise RunError(f"--audit: a beam search's counterexample is the run folder {args.run_dir}/best; "
+                               f"`mcverify report {args.run_dir}/best --audit` audits it")
             path = beam_folder.write_report(args.run_dir, beam_folder.read_summary(args.run_dir))
             print(f"report: {path}")
             return 0
+        if args.audit:
+            _audit_search(Path(args.run_dir))
         path = search.resume(args.run_dir, make_executor=executors.SerialExecutor, episode_fn=run_nothing).out_dir
         path = path / "report.md"
     else:
@@ -107,3 +117,22 @@ def _rebuild_own_report(args, kind: str) -> int:
         path = module.resume(args.run_dir, campaign, progress=lambda msg: None)
     print(f"report: {path} (also report.html)")
     return 0
+
+
+def _audit_search(out_dir: Path) -> None:
+    """Audit every counterexample of a finished search not audited yet (kept in its generation folders)."""
+    import sys
+
+    import pyarrow.parquet as pq
+
+    from mcverify import store
+    from mcverify.analysis.robustness import needs_trajectory
+    from mcverify.errors import RunError
+    from mcverify.falsify import audit, search
+
+    requirement = search.SearchConfig.from_json(store.read_json(out_dir / search.CONFIG)).requirement
+    if needs_trajectory(requirement):
+        raise RunError(f"--audit judges a named requirement; {out_dir} searched the STL requirement {requirement!r} "
+                       "(`mcverify replay GEN_DIR E --backend ipopt` audits an episode's safety)")
+    records = pq.read_table(out_dir / search.COUNTEREXAMPLES).to_pylist()
+    audit.audit_all(out_dir, records, requirement, progress=lambda msg: print(msg, file=sys.stderr))

@@ -22,6 +22,14 @@ from mcverify.episode import schedule_file
 from mcverify.errors import RunError
 from mcverify.sim.schedule import ErrorInput
 
+#: The folder of a search's generations, one run folder each (``gNNN``).
+GENERATIONS = "generations"
+
+
+def path(out_dir: Path, generation: int) -> Path:
+    """Generation ``generation``'s run folder in the search folder ``out_dir``."""
+    return Path(out_dir) / GENERATIONS / f"g{int(generation):03d}"
+
 
 def is_finished(gen_dir: Path) -> bool:
     """Whether the generation's run is complete (its manifest records ``finished_utc``)."""

@@ -20,6 +20,7 @@ from matplotlib.ticker import MaxNLocator
 
 from mcverify import files, store
 from mcverify import requirements as reqs
+from mcverify.falsify import audit
 from mcverify.reporting import counterexample_report
 from mcverify.reporting import html as report_html
 from mcverify.reporting.figure_common import subplots
@@ -219,7 +220,8 @@ def write(result: SearchResult, records: Sequence[Mapping[str, Any]]) -> Path:
                       out / FIGURES / "robustness.png", result.config.requirement,
                       [(e.generation, int(e.row["episode_id"])) for e in result.evaluations])
     fact_list = facts(result, records)
-    tables = [counterexample_report.table(records, result.config.requirement, result.episodes)]
+    tables = [counterexample_report.table(records, result.config.requirement, result.episodes,
+                                          audits=audit.kept(out, records), run_dir=str(out), audit_key=audit.key)]
     if records:
         tables.append(counterexample_report.regions_table(records))
     drawn = _draw_worst(out, records)

@@ -46,11 +46,11 @@ from mcverify.campaign.search_space import SearchSpace, check_single_target, spl
 from mcverify.campaign.spec import Campaign, apply_overrides, campaign_from_dict
 from mcverify.errors import CampaignError, RunError
 from mcverify.falsify import ask_tell, candidate_scores, generation_folder, methods
+from mcverify.falsify.generation_folder import GENERATIONS
 from mcverify.falsify.parametrisations import theta_of_unit
 from mcverify.sim.schedule import control_steps
 
 CONFIG = "falsify.json"
-GENERATIONS = "generations"
 SEARCH = "search.parquet"
 COUNTEREXAMPLES = "counterexamples.parquet"
 FORMAT = 1

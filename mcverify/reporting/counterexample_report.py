@@ -9,7 +9,7 @@ trajectory is stored (``trajectories/`` or ``replay/``; ``mcverify replay`` stor
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -51,9 +51,11 @@ def _shown_parameters(records: Sequence[Mapping[str, Any]]) -> list[str]:
 
 
 def table(records: Sequence[Mapping[str, Any]], requirement: str, total_episodes: int, *,
-          audits: Mapping[str, Mapping[str, Any]] | None = None, run_dir: str = "RUN_DIR") -> Table:
+          audits: Mapping[str, Mapping[str, Any]] | None = None, run_dir: str = "RUN_DIR",
+          audit_key: Callable[[Mapping[str, Any]], str] = lambda r: str(r["episode_id"])) -> Table:
     """The counterexample table: one row per violating episode, worst first. With ``audits`` (a run's
-    ``audits.json``) a column says what the reference solver made of each episode."""
+    ``audits.json``, or a search's gathered from its generation folders, keyed by ``audit_key`` of a
+    record) a column says what the reference solver made of each episode."""
     params = _shown_parameters(records)
     columns = ["episode", "cell", *[p.removeprefix("param:") for p in params], "robustness", "first violation (s)",
                "cause", "min gap veh_f (m)", "min h_ef", "min gap veh_o, any time (m)", "min h_eo (m)", "replay"]
@@ -66,14 +68,15 @@ def table(records: Sequence[Mapping[str, Any]], requirement: str, total_episodes
                r["failure_mode"], fmt_num(r.get("min_gap_front_m"), 2), fmt_num(r.get("min_h_front"), 3),
                fmt_num(r.get("min_gap_opp_any_m"), 2), fmt_num(r.get("min_h_opp"), 2), r["replay"]]
         if audits is not None:
-            row.insert(-1, _audit_text(audits.get(str(r["episode_id"]))))
+            row.insert(-1, _audit_text(audits.get(audit_key(r))))
         rows.append(row)
     notes = [f"Episodes violating `{requirement}` (robustness < 0), worst first: {len(records)} of "
              f"{total_episodes}; all of them, with the robustness of every requirement, in `{FILE}`."]
     if audits is not None:
         notes.append("Reference solver: the same episode (same noise and draws) re-simulated with IPOPT solving "
-                     "every problem at every step; \"confirmed\": it is unsafe there too (the controller's "
-                     "counterexample), \"solver-dependent\": it is safe there (the fast solver's path decided it); "
+                     "every problem at every step; \"confirmed\": it is unsafe there too, or for a search it "
+                     "violates the search's requirement there too (the controller's counterexample), "
+                     "\"solver-dependent\": not there (the fast solver's path decided it); "
                      f"\"not audited\": `mcverify report {run_dir} --audit` audits the rest.")
     if len(records) > MAX_ROWS:
         notes.append(f"Only the worst {MAX_ROWS} are listed here.")
@@ -120,7 +123,10 @@ def _audit_text(entry: Mapping[str, Any] | None) -> str:
         return "not audited"
     if entry["verdict"] == "confirmed by the reference solver":
         return f"confirmed ({entry['reference_outcome']})"
-    verdict = "safe" if entry["reference_safe"] else "unsafe"
+    if "requirement" in entry:  # a search's audit, on its own requirement
+        verdict = f"{entry['requirement']} {'violated' if entry['reference_violated'] else 'holds'}"
+    else:
+        verdict = "safe" if entry["reference_safe"] else "unsafe"
     return f"solver-dependent ({entry['backend']}: {entry['reference_outcome']}, {verdict})"
 
 
