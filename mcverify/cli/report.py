@@ -106,14 +106,14 @@ def _rebuild_own_report(args, kind: str) -> int:
         from mcverify import store
         from mcverify.campaign import runner
         from mcverify.campaign.spec import campaign_from_dict
-        from mcverify.estimate import importance_run, splitting_run
+        from mcverify.estimate import importance_run, splitting_run, subset_run
 
         manifest = store.read_manifest(args.run_dir)
         camp = manifest["campaign"]
         campaign = runner.with_recorded_params(
             campaign_from_dict(camp["raw"], source=camp["source"], seed=camp["seed"]), manifest.get("cells", []),
             str(args.run_dir))
-        module = splitting_run if kind == "splitting" else importance_run
+        module = {"splitting": splitting_run, "subset": subset_run, "importance": importance_run}[kind]
         path = module.resume(args.run_dir, campaign, progress=lambda msg: None)
     print(f"report: {path} (also report.html)")
     return 0

@@ -62,6 +62,8 @@ def test_subset_folder_holds_the_estimate_its_interval_and_cost(tmp_path, surrog
     assert np.array_equal(surrogate.performance(x), g)  # the kept inputs give back their robustness
     report = (out / "report.md").read_text()
     assert "Subset simulation over the whole input vector" in report and "| front_speed_kmh=36 |" in report
+    assert main(["report", str(out)]) == 0  # rebuilt from the stored runs, running nothing
+    assert (out / "report.md").read_text() == report
 
 
 def test_an_interrupted_subset_estimate_resumes_to_the_uninterrupted_one(tmp_path, surrogate):
