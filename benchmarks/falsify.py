@@ -18,8 +18,11 @@ the beam search of seed ``seed + t`` (its children draws), run in ``trial-NN`` a
 --method beam`` runs it (:mod:`mcverify.falsify.beam_folder`), with ``budget`` read as its ceiling in
 episode-equivalents. It simulates segments from snapshots, not episodes one by one, so its costs are in
 episode-equivalents only, and its counterexample (the best final-frontier episode, when its robustness is
-negative) comes after the whole search. Per method the table also gives the peak resident memory of the
-trials (:mod:`benchmarks.memory`).
+negative) comes after the whole search. ``random-schedules`` is its baseline at equal cost: the same table with
+``branching = 1``, so the root's ``width`` children (keyed as the beam's root children, hence paired with the
+beam's trial of the same seed) each run one random schedule through the window, with no selection, and restart
+under the same budget. Per method the table also gives the peak resident memory of the trials
+(:mod:`benchmarks.memory`).
 """
 
 from __future__ import annotations
@@ -47,6 +50,10 @@ from mcverify.errors import RunError, UserError
 from mcverify.falsify import beam, beam_folder, methods, search
 
 NAME = "falsify"
+#: The beam's baseline: its table with ``branching = 1`` (module docstring).
+RANDOM_SCHEDULES = "random-schedules"
+#: The methods run as beam folders.
+BEAM_METHODS = (beam.BEAM, RANDOM_SCHEDULES)
 #: Each trial folder's peak resident memory (:mod:`benchmarks.memory`), written when the trial ran.
 PEAK_RSS = "bench-peak-rss.json"
 BEGIN_MARK, END_MARK = section.markers(NAME)
@@ -140,8 +147,11 @@ def _trial_config(raw: dict[str, Any], path: Path, method: str, budget: int, see
     """One trial's search, checked as ``mcverify falsify --method METHOD`` checks it (one RunError line): a
     searcher stops at its first counterexample; the beam takes the table as it is (it refuses other keys) and
     ``budget`` as its ceiling in episode-equivalents."""
-    if method == beam.BEAM:
-        config = search.SearchConfig(copy.deepcopy(raw), str(path), method, budget, seed, requirement)
+    if method in BEAM_METHODS:
+        table = copy.deepcopy(raw)
+        if method == RANDOM_SCHEDULES and isinstance(table.get("falsify", {}).get("beam"), dict):
+            table["falsify"]["beam"]["branching"] = 1
+        config = search.SearchConfig(table, str(path), beam.BEAM, budget, seed, requirement)
         beam_folder.check(config)
         return config
     stopping = {**raw, "falsify": {**raw["falsify"], "stop_at_first": True}}
@@ -159,8 +169,8 @@ def run_planned(planned: Sequence[PlannedTrial], progress: Callable[[str], None]
     for name, method, t, config, where in planned:
         finished = _finished(where)
         with memory.PeakRss() as peak:
-            if method == beam.BEAM:
-                trial = beam_trial(name, _run_beam(config, where, finished), where)
+            if method in BEAM_METHODS:
+                trial = beam_trial(name, _run_beam(config, where, finished), where, method)
             else:
                 res = search.resume(where, **search_kw) if (where / search.CONFIG).is_file() else \
                     search.start(config, where, **search_kw)
@@ -206,15 +216,15 @@ def _run_beam(config: search.SearchConfig, where: Path, finished: bool) -> beam_
     return beam_folder.start(config, where)
 
 
-def beam_trial(target: str, summary: beam_folder.BeamSummary, where: Path) -> Trial:
+def beam_trial(target: str, summary: beam_folder.BeamSummary, where: Path, method: str = beam.BEAM) -> Trial:
     """A finished beam search as one trial. Its counterexample is its best final-frontier episode when that
     violates the requirement, known only once the whole search has run, so the episode-equivalents to it are
     the search's; that episode is ``where/best`` episode 0 (what ``mcverify replay`` takes)."""
     low = summary.best_robustness
     found = low < 0.0
     eq = summary.episode_equivalents
-    scores = [n.score for n in summary.frontier if not math.isinf(n.score)]
-    return Trial(target, beam.BEAM, summary.seed, 0, 0 if found else None, low, (), eq, eq if found else None,
+    scores = [n.score for r in summary.restarts for n in r.frontier if not math.isinf(n.score)]
+    return Trial(target, method, summary.seed, 0, 0 if found else None, low, (), eq, eq if found else None,
                  summary.spec.score, min(scores) if scores else math.nan,
                  (Counterexample(where / beam_folder.BEST, 0),) if found else (), counts_episodes=False,
                  peak_snapshots=summary.peak_snapshots)
@@ -279,6 +289,27 @@ def median_to_first(group: Sequence[Trial]) -> float:
     """Median episodes to the first counterexample over *all* trials, a failed trial counting as
     beyond its budget (``inf``): the median exceeds the budget when half or more of the trials failed."""
     return statistics.median(math.inf if t.first_counterexample is None else t.first_counterexample for t in group)
+
+
+def paired_sentence(trials: Sequence[Trial], target: str, method: str, baseline: str) -> str:
+    """On ``target``, ``method`` against ``baseline`` trial by trial on the seeds both ran: the falsified counts,
+    the medians of ep-eq to the first counterexample over all trials (a failure beyond the budget), and in how
+    many pairs ``method`` reached the lower robustness, with the exact two-sided sign test (ties dropped);
+    "" when either did not run on ``target``."""
+    a = {t.seed: t for t in trials if t.target == target and t.method == method}
+    b = {t.seed: t for t in trials if t.target == target and t.method == baseline}
+    seeds = sorted(set(a) & set(b))
+    if not seeds:
+        return ""
+    lower = sum(a[k].min_robustness < b[k].min_robustness for k in seeds)
+    higher = sum(a[k].min_robustness > b[k].min_robustness for k in seeds)
+    hits = [sum(g[k].first_counterexample is not None for k in seeds) for g in (a, b)]
+    meds = [cost_text(statistics.median(math.inf if g[k].first_episode_equivalents is None
+                                        else g[k].first_episode_equivalents for k in seeds)) for g in (a, b)]
+    return (f"{target}, {len(seeds)} paired seeds: {method} falsified {hits[0]}, {baseline} {hits[1]}; median ep-eq "
+            f"to the first counterexample (all trials) {meds[0]} against {meds[1]}; {method}'s lowest robustness "
+            f"below {baseline}'s in {lower} of {len(seeds)} pairs, above in {higher} (exact sign test p = "
+            f"{stats.mcnemar_exact_pvalue(lower, higher):.3g})")
 
 
 def goal_verdict(trials: Sequence[Trial], target: str, budget: int) -> str:
@@ -449,7 +480,11 @@ BEAM_TEXT = (
     "known only after the whole search, so its ep-eq to the first counterexample is the search's whole cost; "
     "it is `TRIAL/best` episode 0 (`mcverify replay`). Its lowest guide is the lowest running score "
     "(`[falsify.beam] score`) of its final frontier at the window's end. The seed of trial t, seed + t, keys its "
-    "children draws (the scenario and its seed are the campaign's).")
+    "children draws (the scenario and its seed are the campaign's). Without a counterexample a beam restarts with "
+    "new draws while the budget left covers another beam's cost bound, so its cost counts every restart. "
+    "random-schedules is its baseline at equal cost: the same table with branching = 1, i.e. the root's width "
+    "children (keyed as the beam's, so a trial is paired with the beam's trial of the same seed) each run one "
+    "random schedule through the window, with no selection, restarting under the same budget.")
 
 
 def markdown(trials: Sequence[Trial], *, budget: int, command: str, name: str = NAME,
@@ -497,6 +532,10 @@ def markdown(trials: Sequence[Trial], *, budget: int, command: str, name: str = 
               "Issue 16's goal, per target (medians over all trials, a failed trial counting as beyond the "
               "budget):", ""]
     lines += [f"- {goal_verdict(trials, target, budget)}" for target in dict.fromkeys(t.target for t in trials)]
+    paired = [line for target in dict.fromkeys(t.target for t in trials)
+              if (line := paired_sentence(trials, target, beam.BEAM, RANDOM_SCHEDULES))]
+    if paired:
+        lines += ["", "The beam against its random-schedule baseline on paired seeds:", "", *[f"- {p}" for p in paired]]
     lines += ["", end, ""]
     return "\n".join(lines)
 
@@ -536,7 +575,7 @@ DEFAULT_TARGETS = (
     "campaigns/falsify_vlcbf_eps03_paper_noise.toml",
 )
 #: The population searchers, then the beam (targets with a [falsify.beam] table only).
-ALL_METHODS = (*methods.METHODS, beam.BEAM)
+ALL_METHODS = (*methods.METHODS, *BEAM_METHODS)
 
 
 def chosen_methods(text: str) -> list[str]:

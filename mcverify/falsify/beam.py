@@ -5,8 +5,10 @@ Adaptive-stress-testing style (issue 49): the adversary acts only in a window of
 ``segment_steps``. The episode runs once, exactly measured, up to the window and is snapshotted
 (:mod:`mcverify.episode.snapshot`). At each depth every frontier node gets ``branching`` children, each
 a draw of the next segment's units (bang-bang signs or uniform values per chosen channel, from a
-generator keyed by (seed, depth, parent rank, child)); a child restores its parent's snapshot and
-simulates only its own segment, so a node costs its own control steps. The ``width`` children with the
+generator keyed by (seed, restart, depth, parent rank, child)); a child restores its parent's snapshot and
+simulates only its own segment, so a node costs its own control steps. The root has ``max(branching, width)``
+children so that the first frontier is full: with ``branching = 1`` the beam is ``width`` independent random
+schedules sharing the prefix (the random-schedule baseline at the beam's cost). The ``width`` children with the
 lowest running score (:data:`SCORES`) form the next frontier; the others' snapshots are dropped as soon as
 they fall out, so at most ``2 width + 1`` snapshots are alive (the old frontier and the new). After the
 last segment every frontier node runs to the end of its episode with exact measurement, and its row's
@@ -15,7 +17,7 @@ written into an ordinary run folder (:func:`mcverify.falsify.adversary.run_folde
 step 0, whose episode ``mcverify replay`` re-simulates bit for bit.
 
 Every cost is in control steps simulated. Resume: after each depth the frontier (units, end steps,
-scores) and the cost so far go to ``OUT/beam/depth-NNN.npz``; a resumed search re-simulates each stored
+scores) and the cost so far go to ``FOLDER/depth-NNN.npz``; a resumed search re-simulates each stored
 frontier node from step 0 to rebuild its snapshot (counted apart, as ``rebuild_steps``), checks that the
 score comes out equal, and goes on, so it ends exactly where an uninterrupted search ends.
 
@@ -70,6 +72,7 @@ class BeamSpec:
     front_share: float = 1.0
     opp_share: float = 1.0
     seed: int = 0
+    restart: int = 0  # a new draw of every child under the same seed (mcverify.falsify.beam_folder's restarts)
 
     def check(self, steps: int) -> None:
         """ValueError (one line) for a spec that does not fit an episode of ``steps`` control steps."""
@@ -88,12 +91,17 @@ class BeamSpec:
 
     def children_per_depth(self) -> list[int]:
         """Children simulated at each depth when no episode ends inside the window (an ended node is carried
-        without children, so these are upper bounds): 1 root, then ``branching`` per frontier node."""
-        out, frontier = [], 1
-        for _ in range(self.depths):
-            out.append(frontier * self.branching)
-            frontier = min(self.width, out[-1])
+        without children, so these are upper bounds): the root's :attr:`root_children`, then ``branching`` per
+        frontier node."""
+        out = [self.root_children]
+        for _ in range(1, self.depths):
+            out.append(min(self.width, out[-1]) * self.branching)
         return out
+
+    @property
+    def root_children(self) -> int:
+        """The root fills the first frontier: ``max(branching, width)`` children."""
+        return max(self.branching, self.width)
 
     def segment_lengths(self) -> list[int]:
         """Control steps of each depth's segment (the last one may be shorter)."""
@@ -205,8 +213,8 @@ def _children(spec: BeamSpec, node: Node, depth: int, rank: int, cols: list[int]
     a = spec.first_step + depth * spec.segment_steps
     b = min(a + spec.segment_steps, spec.last_step)
     out = []
-    for j in range(spec.branching):
-        rng = np.random.default_rng([spec.seed, depth, rank, j])
+    for j in range(spec.root_children if depth == 0 else spec.branching):
+        rng = np.random.default_rng([spec.seed, spec.restart, depth, rank, j])
         shape = (b - a, len(cols))
         seg = rng.choice([-1.0, 1.0], size=shape) if spec.units == "bang_bang" else rng.uniform(-1.0, 1.0, shape)
         units = node.units.copy()
@@ -215,16 +223,16 @@ def _children(spec: BeamSpec, node: Node, depth: int, rank: int, cols: list[int]
     return out
 
 
-def search(campaign: Campaign, spec: BeamSpec, out_dir: Path, *, stop_after_depths: int | None = None,
+def search(campaign: Campaign, spec: BeamSpec, folder: Path, *, stop_after_depths: int | None = None,
            progress: Callable[[str], None] | None = None) -> BeamResult:
-    """Run (or resume, from the depth files in ``out_dir``) the beam search of ``spec`` on ``campaign``'s
+    """Run (or resume, from the depth files in ``folder``) the beam search of ``spec`` on ``campaign``'s
     target; ``stop_after_depths``: raise RunError after that many new depths (a test's interruption)."""
     loop = _Loop(campaign, spec)
     try:
         spec.check(loop.steps)
     except ValueError as exc:
         raise RunError(str(exc)) from None
-    folder = Path(out_dir) / BEAM
+    folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     _check_config(folder, spec)
     cols = [CHANNELS.index(c) for c in spec.channels]
@@ -240,7 +248,7 @@ def search(campaign: Campaign, spec: BeamSpec, out_dir: Path, *, stop_after_dept
     new = 0
     while depth < spec.depths:
         if stop_after_depths is not None and new >= stop_after_depths:
-            raise RunError(f"beam search stopped after {new} depth(s) (test hook); resume {out_dir}")
+            raise RunError(f"beam search stopped after {new} depth(s) (test hook); resume {folder}")
         kept: list[tuple[float, int, Node]] = []
         order = 0
         last = min(spec.first_step + (depth + 1) * spec.segment_steps, spec.last_step) - 1
@@ -276,16 +284,15 @@ def search(campaign: Campaign, spec: BeamSpec, out_dir: Path, *, stop_after_dept
     return BeamResult(spec, frontier, robs, cost, rebuild, loop.steps, peak, log)
 
 
-def write_best(campaign: Campaign, result: BeamResult, run_dir: Path) -> Path:
-    """The best node's whole schedule as a one-episode run folder (re-simulated from step 0), which
-    ``mcverify replay RUN_DIR 0`` re-simulates bit for bit; returns the folder."""
+def write_best(campaign: Campaign, units: np.ndarray, spec: BeamSpec, run_dir: Path) -> Path:
+    """A node's whole schedule ``units`` (a frontier node's, e.g. the best: ``result.frontier[result.best].units``)
+    as a one-episode run folder (re-simulated from step 0), which ``mcverify replay RUN_DIR 0`` re-simulates bit
+    for bit; returns the folder."""
     from mcverify.falsify import adversary  # noqa: PLC0415 - the run layer only when writing
 
     if sum(c.episodes for c in campaign.cells) != 1:
         raise RunError("the beam's best schedule is written as one episode: give a one-episode target campaign")
-    best = result.frontier[result.best]
-    adversary.run_folder(campaign, {0: ErrorSchedule.of(best.units, result.spec.front_share, result.spec.opp_share)},
-                         Path(run_dir))
+    adversary.run_folder(campaign, {0: ErrorSchedule.of(units, spec.front_share, spec.opp_share)}, Path(run_dir))
     return Path(run_dir)
 
 

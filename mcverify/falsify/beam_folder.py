@@ -5,9 +5,11 @@ Layout of a beam folder ``OUT``::
 
     OUT/falsify.json        what defines the search (campaign content, method "beam", budget, seed,
                             requirement); ``finished_utc`` once complete
-    OUT/beam/beam.json      the beam's specification; OUT/beam/depth-NNN.npz the frontier after each depth
-    OUT/beam/result.json    the finished search (depth log, final frontier, costs): what report.md is written from
-    OUT/best/               the best schedule re-simulated from step 0, a one-episode run folder
+    OUT/beam/restart-RR/    restart RR: beam.json (its specification), depth-NNN.npz (the frontier after each
+                            depth), restart.json (its depth log, final frontier and cost, once finished) and
+                            best.npz (its best node's schedule)
+    OUT/beam/result.json    the finished search (every restart): what report.md is written from
+    OUT/best/               the chosen schedule re-simulated from step 0, a one-episode run folder
                             (``mcverify replay OUT/best 0``)
     OUT/report.md
 
@@ -17,20 +19,27 @@ per-step error of that scenario, so searched scenario fields (``[falsify.bounds]
 settings are refused rather than ignored.
 
 The budget: ``--budget N`` is in episode-equivalents (control steps over a whole episode's, the unit every
-method's cost is stated in) and is a ceiling that the spec's cost bound (:meth:`BeamSpec.cost_bound`) must not
-exceed. The beam is deterministic and its cost is bounded before it runs, so a spec that could overspend is
-refused up front rather than cut short inside a depth (which would leave no frontier to judge). The control
-steps a resume spends rebuilding snapshots are stated apart and do not count against it.
+method's cost is stated in) and is a ceiling. The beam's cost is bounded before it runs
+(:meth:`BeamSpec.cost_bound`), so a spec whose one beam could exceed the budget is refused up front rather than
+cut short inside a depth (which would leave no frontier to judge). Restarts: while no counterexample is found
+and the budget left covers another beam's bound, the beam restarts under the same seed with a new draw of every
+child (``BeamSpec.restart``; restart r's children are keyed by (seed, r, ...)). A beam's success is a draw of
+its children, so restarts turn a beam that succeeds at rate q into a search that fails only at (1 - q)^restarts.
+The chosen restart is the first with a counterexample, else the one with the lowest robustness. The control
+steps a resume spends rebuilding snapshots are stated apart and do not count against the budget.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import shutil
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from mcverify import files, store
 from mcverify.analysis import robustness as rb
@@ -43,6 +52,7 @@ from mcverify.sim.schedule import control_steps
 
 BEST = "best"
 RESULT = "result.json"
+RESTART = "restart.json"
 #: The keys of ``[falsify]`` a beam campaign may have.
 BEAM_KEYS = ("requirement", "beam")
 
@@ -99,9 +109,11 @@ def describe(config: SearchConfig) -> str:
         f"falsify {config.source}: beam, budget {config.budget} episode-equivalents, requirement "
         f"{config.requirement}, seed {config.seed}",
         *_spec_lines(spec, sim.control_period_s, steps),
-        f"cost bound: {bound} control steps = {bound / steps:.3g} episode-equivalents (the prefix to the window, every "
-        "child's segment, the final frontier run to the time limit; episodes that end sooner cost less); the nodes "
-        "run one after another in this process",
+        f"cost bound: {bound} control steps = {bound / steps:.3g} episode-equivalents per beam (the prefix to the "
+        "window, every child's segment, the final frontier run to the time limit; episodes that end sooner cost "
+        "less); the nodes run one after another in this process",
+        f"restarts: at least {config.budget * steps // bound} beam(s) fit the budget; without a counterexample the "
+        "beam restarts with new draws while the budget left covers another beam's bound",
         cost.kernels_to_build(campaign.cells).text(),
     ])
 
@@ -140,7 +152,8 @@ def is_beam_folder(out_dir: Path) -> bool:
 
 
 def stored_depths(out_dir: Path) -> int:
-    return len(list((Path(out_dir) / beam.BEAM).glob("depth-[0-9][0-9][0-9].npz")))
+    """Depth files stored over every restart."""
+    return len(list((Path(out_dir) / beam.BEAM).glob("restart-[0-9][0-9]/depth-[0-9][0-9][0-9].npz")))
 
 
 def resume(out_dir: Path, *, progress: Callable[[str], None] | None = None,
@@ -154,22 +167,56 @@ def resume(out_dir: Path, *, progress: Callable[[str], None] | None = None,
 
 def _run(config: SearchConfig, campaign: Campaign, spec: BeamSpec, out_dir: Path,
          progress: Callable[[str], None] | None, stop_after_depths: int | None) -> BeamSummary:
-    result = beam.search(campaign, spec, out_dir, stop_after_depths=stop_after_depths, progress=progress)
+    steps = control_steps(campaign.cells[0].params.sim)
+    budget, bound = config.budget * steps, spec.cost_bound(steps)
+    restarts: list[RestartSummary] = []
+    while not restarts or (restarts[-1].best_robustness >= 0.0 and _spent(restarts) + bound <= budget):
+        restarts.append(_restart(campaign, dataclasses.replace(spec, restart=len(restarts)), out_dir, progress,
+                                 stop_after_depths))
+    summary = BeamSummary.of(config, campaign, spec, tuple(restarts))
     best_dir = out_dir / BEST
     if best_dir.exists():  # a write cut short before the search was marked finished: re-simulate it whole
         shutil.rmtree(best_dir)
     if progress is not None:
-        progress(f"best of the final frontier re-simulated from step 0 into {best_dir}")
-    beam.write_best(campaign, result, best_dir)
+        progress(f"best schedule (restart {summary.chosen}) re-simulated from step 0 into {best_dir}")
+    with np.load(_restart_dir(out_dir, summary.chosen) / "best.npz", allow_pickle=False) as data:
+        beam.write_best(campaign, data["units"], spec, best_dir)
     row = store.read_episodes(best_dir).to_pylist()[0]
     replayed = rb.robustness(row, spec.requirement)
-    if not _same(replayed, result.min_robustness):
+    if not _same(replayed, summary.best_robustness):
         raise RunError(f"{best_dir}: the best schedule re-simulated from step 0 has robustness {replayed!r}, the "
-                       f"beam's node {result.min_robustness!r}; the snapshots did not continue the episode exactly")
-    summary = BeamSummary.of(config, campaign, result)
+                       f"beam's node {summary.best_robustness!r}; the snapshots did not continue the episode exactly")
     files.write_json_atomic(out_dir / beam.BEAM / RESULT, summary.to_json())
     write_report(out_dir, summary)
     search.mark_finished(out_dir)
+    return summary
+
+
+def _restart_dir(out_dir: Path, restart: int) -> Path:
+    return Path(out_dir) / beam.BEAM / f"restart-{restart:02d}"
+
+
+def _spent(restarts: list[RestartSummary]) -> int:
+    return sum(r.search_steps for r in restarts)
+
+
+def _restart(campaign: Campaign, spec: BeamSpec, out_dir: Path, progress: Callable[[str], None] | None,
+             stop_after_depths: int | None) -> RestartSummary:
+    """Restart ``spec.restart``: re-read when finished, else run (or resumed from its depth files) and kept."""
+    folder = _restart_dir(out_dir, spec.restart)
+    if (folder / RESTART).is_file():
+        return RestartSummary.from_json(store.read_json(folder / RESTART))
+    if progress is not None and spec.restart:
+        progress(f"beam restart {spec.restart}: no counterexample yet, new draws of every child")
+    result = beam.search(campaign, spec, folder, stop_after_depths=stop_after_depths, progress=progress)
+
+    def write(tmp: Path) -> None:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, units=result.frontier[result.best].units)
+
+    files.atomic_write(folder / "best.npz", write)
+    summary = RestartSummary.of(result)
+    files.write_json_atomic(folder / RESTART, summary.to_json())
     return summary
 
 
@@ -191,16 +238,10 @@ class FrontierNode:
 
 
 @dataclass(frozen=True)
-class BeamSummary:
-    """A finished beam search as ``OUT/beam/result.json`` keeps it (what the report is written from)."""
+class RestartSummary:
+    """One finished beam (one restart): its depth log, final frontier, best node and costs."""
 
-    source: str
-    requirement: str
-    seed: int
-    budget: int
-    spec: BeamSpec
-    control_period_s: float
-    full_episode_steps: int
+    restart: int
     depth_log: tuple[tuple[int, float, int], ...]  # (depth, best score, control steps so far)
     frontier: tuple[FrontierNode, ...]
     best: int
@@ -209,17 +250,75 @@ class BeamSummary:
     peak_snapshots: int
 
     @classmethod
-    def of(cls, config: SearchConfig, campaign: Campaign, result: BeamResult) -> BeamSummary:
+    def of(cls, result: BeamResult) -> RestartSummary:
         nodes = tuple(FrontierNode(float(r), float(n.score), str(n.row["outcome"]), int(n.row["steps"]))
                       for n, r in zip(result.frontier, result.robustness, strict=True))
         log = tuple((int(d["depth"]), float(d["best_score"]), int(d["control_steps"])) for d in result.depth_log)
-        return cls(config.source, config.requirement, config.seed, config.budget, result.spec,
-                   campaign.cells[0].params.sim.control_period_s, result.full_episode_steps, log, nodes, result.best,
-                   result.search_steps, result.rebuild_steps, result.peak_snapshots)
+        return cls(result.spec.restart, log, nodes, result.best, result.search_steps, result.rebuild_steps,
+                   result.peak_snapshots)
 
     @property
     def best_robustness(self) -> float:
         return self.frontier[self.best].robustness
+
+    def to_json(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> RestartSummary:
+        return cls(**{**data, "depth_log": tuple(tuple(d) for d in data["depth_log"]),
+                      "frontier": tuple(FrontierNode(**n) for n in data["frontier"])})
+
+
+@dataclass(frozen=True)
+class BeamSummary:
+    """A finished beam search as ``OUT/beam/result.json`` keeps it (what the report is written from)."""
+
+    source: str
+    requirement: str
+    seed: int
+    budget: int
+    spec: BeamSpec  # restart 0's; restart r differs only in ``restart``
+    control_period_s: float
+    full_episode_steps: int
+    restarts: tuple[RestartSummary, ...]
+
+    @classmethod
+    def of(cls, config: SearchConfig, campaign: Campaign, spec: BeamSpec,
+           restarts: tuple[RestartSummary, ...]) -> BeamSummary:
+        return cls(config.source, config.requirement, config.seed, config.budget, spec,
+                   campaign.cells[0].params.sim.control_period_s, control_steps(campaign.cells[0].params.sim),
+                   restarts)
+
+    @property
+    def chosen(self) -> int:
+        """The first restart with a counterexample, else the one with the lowest robustness."""
+        robs = [r.best_robustness for r in self.restarts]
+        hits = [i for i, x in enumerate(robs) if x < 0.0]
+        if hits:
+            return hits[0]
+        return 0 if all(math.isnan(x) for x in robs) else int(np.nanargmin(robs))
+
+    @property
+    def best_robustness(self) -> float:
+        return self.restarts[self.chosen].best_robustness
+
+    @property
+    def frontier(self) -> tuple[FrontierNode, ...]:
+        """The chosen restart's final frontier."""
+        return self.restarts[self.chosen].frontier
+
+    @property
+    def search_steps(self) -> int:
+        return sum(r.search_steps for r in self.restarts)
+
+    @property
+    def rebuild_steps(self) -> int:
+        return sum(r.rebuild_steps for r in self.restarts)
+
+    @property
+    def peak_snapshots(self) -> int:
+        return max(r.peak_snapshots for r in self.restarts)
 
     @property
     def episode_equivalents(self) -> float:
@@ -233,8 +332,8 @@ class BeamSummary:
     @classmethod
     def from_json(cls, data: dict[str, Any]) -> BeamSummary:
         spec = BeamSpec(**{**data["spec"], "channels": tuple(data["spec"]["channels"])})
-        return cls(**{**data, "spec": spec, "depth_log": tuple(tuple(d) for d in data["depth_log"]),
-                      "frontier": tuple(FrontierNode(**n) for n in data["frontier"])})
+        return cls(**{**data, "spec": spec,
+                      "restarts": tuple(RestartSummary.from_json(r) for r in data["restarts"])})
 
 
 def read_summary(out_dir: Path) -> BeamSummary:
@@ -253,25 +352,31 @@ def verdict(summary: BeamSummary, out_dir: Path) -> str:
 def write_report(out_dir: Path, summary: BeamSummary) -> Path:
     """``OUT/report.md`` from the summary (``mcverify report OUT`` rewrites it from result.json)."""
     s, out_dir = summary, Path(out_dir)
-    steps, found = s.full_episode_steps, verdict(s, out_dir)
+    steps, found, chosen = s.full_episode_steps, verdict(s, out_dir), s.restarts[s.chosen]
     lines = [f"# Beam search: {s.source}", "",
              f"Requirement `{s.requirement}`, seed {s.seed}, budget {s.budget} episode-equivalents "
-             f"(cost bound {s.spec.cost_bound(steps)} control steps). {found[0].upper()}{found[1:]}.", "",
+             f"(cost bound {s.spec.cost_bound(steps)} control steps per beam). {found[0].upper()}{found[1:]}.", "",
              "## Specification", "", *[f"- {line}" for line in _spec_lines(s.spec, s.control_period_s, steps)], "",
-             "## Depths", "", f"| depth | best running {s.spec.score} | control steps so far |", "|---:|---:|---:|",
-             *[f"| {d} | {score:.4g} | {cost} |" for d, score, cost in s.depth_log], "",
-             "## Final frontier", "", f"| rank | robustness ({s.requirement}) | running {s.spec.score} at the window's "
-             "end | outcome | control steps |", "|---:|---:|---:|---|---:|",
-             *[f"| {i}{' (best)' if i == s.best else ''} | {n.robustness:.4g} | {n.score:.4g} | {n.outcome} | "
-               f"{n.steps} |" for i, n in enumerate(s.frontier)], "",
+             "## Restarts", "",
+             "Without a counterexample the beam restarts with new draws of every child while the budget left covers "
+             "another beam's bound; the chosen restart is the first with a counterexample, else the lowest.", "",
+             f"| restart | lowest robustness ({s.requirement}) | control steps |", "|---:|---:|---:|",
+             *[f"| {r.restart}{' (chosen)' if r.restart == s.chosen else ''} | {r.best_robustness:.4g} | "
+               f"{r.search_steps} |" for r in s.restarts], "",
+             f"## Depths of restart {s.chosen}", "", f"| depth | best running {s.spec.score} | control steps so far |",
+             "|---:|---:|---:|", *[f"| {d} | {score:.4g} | {cost} |" for d, score, cost in chosen.depth_log], "",
+             f"## Final frontier of restart {s.chosen}", "", f"| rank | robustness ({s.requirement}) | running "
+             f"{s.spec.score} at the window's end | outcome | control steps |", "|---:|---:|---:|---|---:|",
+             *[f"| {i}{' (best)' if i == chosen.best else ''} | {n.robustness:.4g} | {n.score:.4g} | {n.outcome} | "
+               f"{n.steps} |" for i, n in enumerate(chosen.frontier)], "",
              "## Cost", "",
              f"- search: {s.search_steps} control steps = {s.episode_equivalents:.3g} episode-equivalents "
-             f"({steps} control steps per episode)",
+             f"({steps} control steps per episode) over {len(s.restarts)} restart(s)",
              f"- rebuilding snapshots after a resume: {s.rebuild_steps} control steps (not counted above)",
              f"- snapshots alive at most: {s.peak_snapshots} (in the search's last process; bound "
              f"{2 * s.spec.width + 1})", "",
              "## Replay", "",
-             f"The best node's whole schedule (zeros outside the window) re-simulated from step 0 is "
+             f"The chosen node's whole schedule (zeros outside the window) re-simulated from step 0 is "
              f"`{out_dir / BEST}`, one episode; `mcverify replay {out_dir / BEST} 0` re-simulates it bit for bit.", ""]
     path = out_dir / "report.md"
     files.atomic_write(path, lambda tmp: Path(tmp).write_text("\n".join(lines), encoding="utf-8"))

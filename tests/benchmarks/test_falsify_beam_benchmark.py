@@ -57,9 +57,10 @@ def test_a_beam_counterexample_is_the_best_episode_after_the_whole_search(beam_r
     _, out, (trial,) = beam_run
     where = out / "beam-cli" / "beam" / "trial-00"
     summary = beam_folder.read_summary(where)
-    assert summary.best == 0  # the frontier is in rank order: keep the best first
-    violated = dataclasses.replace(summary, frontier=tuple(dataclasses.replace(n, robustness=-1.5 + k)
-                                                           for k, n in enumerate(summary.frontier)))
+    (only,) = summary.restarts
+    assert only.best == 0  # the frontier is in rank order: keep the best first
+    frontier = tuple(dataclasses.replace(n, robustness=-1.5 + k) for k, n in enumerate(only.frontier))
+    violated = dataclasses.replace(summary, restarts=(dataclasses.replace(only, frontier=frontier),))
     hit = bench.beam_trial("beam-cli", violated, where)
     assert hit.min_robustness == -1.5 and hit.first_counterexample == 0
     assert hit.first_episode_equivalents == hit.episode_equivalents == summary.search_steps / 30
@@ -121,3 +122,20 @@ def test_a_population_method_on_a_beam_only_target_is_one_line(tmp_path, capsys)
 
 def test_beam_is_a_method_of_the_benchmark():
     assert bench.chosen_methods("cma,beam") == ["cma", "beam"]
+
+
+def test_random_schedules_are_the_beam_with_branching_1_paired_by_seed(beam_run, tmp_path):
+    """The baseline runs the target's table with branching 1 under the beam's seed, in its own folder; the
+    paired sentence counts the pairs where the beam went lower, with the sign test."""
+    target, _, (beam_trial,) = beam_run
+    (base,) = bench.run_trials([target], [bench.RANDOM_SCHEDULES], 1, 3, 7, tmp_path / "r")
+    where = tmp_path / "r" / "beam-cli" / bench.RANDOM_SCHEDULES / "trial-00"
+    summary = beam_folder.read_summary(where)
+    assert summary.spec.branching == 1 and summary.spec.width == 2 and summary.seed == 7
+    assert base.method == bench.RANDOM_SCHEDULES and not base.counts_episodes
+    assert summary.spec.children_per_depth() == [2, 2]
+    text = bench.paired_sentence([beam_trial, base], "beam-cli", "beam", bench.RANDOM_SCHEDULES)
+    lower = int(beam_trial.min_robustness < base.min_robustness)
+    assert text.startswith("beam-cli, 1 paired seeds: beam falsified 0, random-schedules 0;")
+    assert f"below random-schedules's in {lower} of 1 pairs" in text
+    assert bench.paired_sentence([beam_trial], "beam-cli", "beam", bench.RANDOM_SCHEDULES) == ""

@@ -57,7 +57,7 @@ def test_nodes_cost_their_own_steps_and_memory_stays_bounded(whole):
 
 
 def test_the_best_schedule_replays_bit_for_bit_from_step_0(campaign, whole, tmp_path):
-    run = beam.write_best(campaign, whole, tmp_path / "best")
+    run = beam.write_best(campaign, whole.frontier[whole.best].units, SPEC, tmp_path / "best")
     row = pq.read_table(run / "episodes.parquet").to_pylist()[0]
     best = whole.frontier[whole.best]
     for key in ("min_h_front", "theorem5_margin", "steps", "outcome", "both_infeasible_steps"):

@@ -5,6 +5,7 @@ nothing (the real closed loop on tests/falsify/test_beam.py's 30-step episode)."
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import io
 import json
 
@@ -49,17 +50,20 @@ def whole(tmp_path_factory):
 def test_a_beam_search_writes_its_folder_report_and_replayable_best(whole, capsys):
     out, lines = whole
     assert json.loads((out / "falsify.json").read_text())["finished_utc"]
-    assert sorted(p.name for p in (out / "beam").glob("depth-*.npz")) == ["depth-001.npz", "depth-002.npz"]
+    assert sorted(p.name for p in (out / "beam" / "restart-00").glob("depth-*.npz")) == ["depth-001.npz",
+                                                                                         "depth-002.npz"]
+    assert not (out / "beam" / "restart-01").exists()  # a second beam's bound does not fit the budget left
     assert [line.split(":")[0] for line in lines if line.startswith("beam depth")] == ["beam depth 1/2",
                                                                                         "beam depth 2/2"]
     summary = beam_folder.read_summary(out)
     # both frontier episodes time out at step 29 (test_beam.py), so the bound is reached exactly
     assert summary.search_steps == BOUND_STEPS and summary.episode_equivalents == BOUND_STEPS / 30
-    assert [d[2] for d in summary.depth_log] == [15, 35] and summary.peak_snapshots <= 5
+    assert [d[2] for d in summary.restarts[0].depth_log] == [15, 35] and summary.peak_snapshots <= 5
     row = pq.read_table(out / "best" / "episodes.parquet").to_pylist()[0]
     assert row["min_h_front"] == summary.best_robustness  # ellipse's robustness is min h_ef
     report = (out / "report.md").read_text()
-    for part in ("## Depths", "## Final frontier", "(best)", f"{BOUND_STEPS} control steps",
+    for part in ("## Restarts", "| 0 (chosen) |", "## Depths of restart 0", "## Final frontier of restart 0",
+                 "(best)", f"{BOUND_STEPS} control steps",
                  f"mcverify replay {out / 'best'} 0", "control steps [5, 15) = [0.5, 1.5) s"):
         assert part in report, part
     (out / "report.md").unlink()  # `mcverify report` rewrites it from beam/result.json, running nothing
@@ -87,13 +91,45 @@ def test_resume_after_an_interruption_ends_where_the_uninterrupted_search_ends(w
     assert "1 depth(s) already stored" in capsys.readouterr().err
     a, b = beam_folder.read_summary(whole[0]), beam_folder.read_summary(out)
     assert b.rebuild_steps == 2 * 10  # the two frontier nodes re-simulated to the end of depth 1
-    assert (a.frontier, a.depth_log, a.search_steps, a.best) == (b.frontier, b.depth_log, b.search_steps, b.best)
+    assert dataclasses.replace(a.restarts[0], rebuild_steps=0) == dataclasses.replace(b.restarts[0], rebuild_steps=0)
     rows = [pq.read_table(d / "best" / "episodes.parquet").to_pylist()[0] for d in (out, whole[0])]
     differ = [k for k in rows[1] if k not in TIMING_COLUMNS and rows[0][k] != rows[1][k]
               and not (rows[0][k] != rows[0][k] and rows[1][k] != rows[1][k])]  # NaN equals NaN
     assert differ == []
     assert cli.main(["falsify", "--resume", str(out)]) == 0  # finished: says so, runs nothing
     assert "already complete" in capsys.readouterr().out
+
+
+def test_without_a_counterexample_the_beam_restarts_while_the_budget_covers_another_bound(whole, tmp_path,
+                                                                                          monkeypatch, capsys):
+    """Budget 5 (150 steps): restart 0 spends its bound (65) and finds nothing, 65 + 65 <= 150 so restart 1 runs
+    with new draws, and 130 + 65 > 150 ends the search. Cut inside restart 1 and resumed, it ends the same."""
+    first = beam_folder.read_summary(whole[0])
+    assert first.best_robustness >= 0.0  # the test episode has no counterexample
+    real = beam.search
+
+    def cut_in_restart_1(campaign, spec, folder, *, stop_after_depths=None, progress=None):
+        if spec.restart == 1:
+            return real(campaign, spec, folder, stop_after_depths=1)  # RunError after its first depth
+        return real(campaign, spec, folder, progress=progress)
+
+    out = tmp_path / "restarts"
+    monkeypatch.setattr(beam, "search", cut_in_restart_1)
+    assert cli.main([*_args(_campaign(tmp_path), out), "--budget", "5"]) == 2
+    monkeypatch.setattr(beam, "search", real)
+    assert cli.main(["falsify", "--resume", str(out)]) == 0
+    assert "3 depth(s) already stored" in capsys.readouterr().err  # restart 0's two, restart 1's first
+    summary = beam_folder.read_summary(out)
+    assert [r.restart for r in summary.restarts] == [0, 1] and summary.search_steps == 2 * BOUND_STEPS
+    assert summary.restarts[0] == first.restarts[0]  # restart 0 is the budget-3 search, re-read after the cut
+    assert summary.restarts[1].frontier != summary.restarts[0].frontier  # new draws of every child
+    robs = [r.best_robustness for r in summary.restarts]
+    assert summary.chosen == robs.index(min(robs)) and summary.best_robustness == min(robs)
+    row = pq.read_table(out / "best" / "episodes.parquet").to_pylist()[0]
+    assert row["min_h_front"] == summary.best_robustness
+    report = (out / "report.md").read_text()
+    assert f"| {summary.chosen} (chosen) |" in report and "over 2 restart(s)" in report
+    assert cli.main(["replay", str(out / "best"), "0"]) == 0
 
 
 BAD = [
