@@ -16,6 +16,11 @@ robustness of the requirement decides. The best node's whole schedule (zeros out
 written into an ordinary run folder (:func:`mcverify.falsify.adversary.run_folder`), re-simulated from
 step 0, whose episode ``mcverify replay`` re-simulates bit for bit.
 
+A requirement that is a running minimum (:data:`DECIDED_IN_PREFIX`: ``ellipse``, ``collision_front``,
+``safe``, ``theorem5_certified``) is violated for good once a node's prefix violates it, so such a child ends
+the search at once: it runs to the end of its episode and is the counterexample, and the cost to it is the
+search's cost so far (a beam judged only after its last depth would spend the rest for nothing).
+
 Every cost is in control steps simulated. Resume: after each depth the frontier (units, end steps,
 scores) and the cost so far go to ``FOLDER/depth-NNN.npz``; a resumed search re-simulates each stored
 frontier node from step 0 to rebuild its snapshot (counted apart, as ``rebuild_steps``), checks that the
@@ -141,6 +146,16 @@ def spec_of(table: BeamTable, requirement: str, seed: int, sim: Simulation) -> B
     return spec
 
 
+#: Requirements whose violation a snapshot already decides (running minima over the episode: once violated
+#: in a prefix, violated for the whole episode), and how to read it from the snapshot.
+DECIDED_IN_PREFIX: dict[str, Callable[[EpisodeSnapshot], bool]] = {
+    "ellipse": lambda s: float(s.trace.min_h_front) < 0.0,
+    "collision_front": lambda s: bool(s.trace.collision_front),
+    "safe": lambda s: float(s.trace.min_h_front) < 0.0 or bool(s.trace.collision_front) or bool(s.trace.collision_opp),
+    "theorem5_certified": lambda s: s.state.both_certified_infeasible_steps > 0,
+}
+
+
 @dataclass
 class Node:
     """A partial schedule: ``units`` (steps, 5), simulated to ``end_step`` (inclusive), with its running
@@ -165,6 +180,7 @@ class BeamResult:
     full_episode_steps: int
     peak_snapshots: int
     depth_log: list[dict[str, float]] = field(default_factory=list)
+    stopped_at_depth: int | None = None  # a child of this depth violated the requirement in its segment
 
     @property
     def best(self) -> int:
@@ -260,6 +276,8 @@ def search(campaign: Campaign, spec: BeamSpec, folder: Path, *, stop_after_depth
             for units in _children(spec, node, depth, rank, cols):
                 child, steps = loop.run(units, node.snapshot, last)
                 cost += steps
+                if _violated(child, spec.requirement):
+                    return _stopped(loop, spec, child, cost, rebuild, peak, log, depth + 1)
                 kept.append((child.score, order, child))
                 order += 1
                 kept.sort(key=lambda t: (t[0], t[1]))
@@ -282,6 +300,27 @@ def search(campaign: Campaign, spec: BeamSpec, folder: Path, *, stop_after_depth
             cost += steps
     robs = [rb.robustness(n.row, spec.requirement) for n in frontier]
     return BeamResult(spec, frontier, robs, cost, rebuild, loop.steps, peak, log)
+
+
+def _violated(node: Node, requirement: str) -> bool:
+    """Whether ``node`` already violates ``requirement`` for good: its episode ended violating it, or its
+    prefix decides it (:data:`DECIDED_IN_PREFIX`)."""
+    if node.row is not None:
+        return rb.robustness(node.row, requirement) < 0.0
+    decided = DECIDED_IN_PREFIX.get(requirement)
+    return decided is not None and node.snapshot is not None and decided(node.snapshot)
+
+
+def _stopped(loop: _Loop, spec: BeamSpec, node: Node, cost: int, rebuild: int, peak: int,
+             log: list[dict[str, float]], depth: int) -> BeamResult:
+    """The search ended by ``node``, a violation found at ``depth``: the node run to its episode's end."""
+    if node.row is None:
+        finished, steps = loop.run(node.units, node.snapshot, None)
+        node.row, node.snapshot = finished.row, None
+        cost += steps
+    log = [*log, {"depth": depth, "best_score": node.score, "control_steps": cost}]
+    return BeamResult(spec, [node], [rb.robustness(node.row, spec.requirement)], cost, rebuild, loop.steps, peak, log,
+                      stopped_at_depth=depth)
 
 
 def write_best(campaign: Campaign, units: np.ndarray, spec: BeamSpec, run_dir: Path) -> Path:

@@ -248,6 +248,7 @@ class RestartSummary:
     search_steps: int
     rebuild_steps: int
     peak_snapshots: int
+    stopped_at_depth: int | None = None  # a child of this depth violated the requirement: the search ended there
 
     @classmethod
     def of(cls, result: BeamResult) -> RestartSummary:
@@ -255,7 +256,7 @@ class RestartSummary:
                       for n, r in zip(result.frontier, result.robustness, strict=True))
         log = tuple((int(d["depth"]), float(d["best_score"]), int(d["control_steps"])) for d in result.depth_log)
         return cls(result.spec.restart, log, nodes, result.best, result.search_steps, result.rebuild_steps,
-                   result.peak_snapshots)
+                   result.peak_snapshots, result.stopped_at_depth)
 
     @property
     def best_robustness(self) -> float:
@@ -365,6 +366,9 @@ def write_report(out_dir: Path, summary: BeamSummary) -> Path:
                f"{r.search_steps} |" for r in s.restarts], "",
              f"## Depths of restart {s.chosen}", "", f"| depth | best running {s.spec.score} | control steps so far |",
              "|---:|---:|---:|", *[f"| {d} | {score:.4g} | {cost} |" for d, score, cost in chosen.depth_log], "",
+             *([f"Stopped at depth {chosen.stopped_at_depth}: a child violated `{s.requirement}` in its segment (a "
+                "running minimum, violated for good), so it ran to its episode's end as the counterexample and the "
+                "search ended; its frontier below is that node.", ""] if chosen.stopped_at_depth is not None else []),
              f"## Final frontier of restart {s.chosen}", "", f"| rank | robustness ({s.requirement}) | running "
              f"{s.spec.score} at the window's end | outcome | control steps |", "|---:|---:|---:|---|---:|",
              *[f"| {i}{' (best)' if i == chosen.best else ''} | {n.robustness:.4g} | {n.score:.4g} | {n.outcome} | "

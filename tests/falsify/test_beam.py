@@ -68,3 +68,25 @@ def test_the_best_schedule_replays_bit_for_bit_from_step_0(campaign, whole, tmp_
 def test_a_bad_window_is_one_line(campaign, tmp_path):
     with pytest.raises(RunError, match="must lie in"):
         beam.search(campaign, dataclasses.replace(SPEC, last_step=99), tmp_path / "bad")
+
+
+def test_a_violation_decided_in_a_prefix_ends_the_search_at_once(campaign, tmp_path, monkeypatch):
+    """A running-minimum requirement violated in a child's prefix is violated for good: that child runs to its
+    episode's end and the search stops there, its cost the steps so far. The decision is faked here (the test
+    episode violates nothing): every node whose prefix reaches step 9, i.e. the first child of depth 1."""
+    monkeypatch.setitem(beam.DECIDED_IN_PREFIX, "ellipse", lambda snap: snap.step >= 9)
+    stopped = beam.search(campaign, SPEC, tmp_path / "stop")
+    assert stopped.stopped_at_depth == 1 and len(stopped.frontier) == 1
+    # the prefix (5 steps), the first child of depth 1 (5), then that child run to the time limit (steps 10-29)
+    assert stopped.search_steps == 5 + 5 + 20 and stopped.frontier[0].row["steps"] == 30
+    assert stopped.depth_log == [{"depth": 1, "best_score": stopped.frontier[0].score, "control_steps": 30}]
+    assert stopped.robustness == [stopped.frontier[0].row["min_h_front"]]
+    resumed = beam.search(campaign, SPEC, tmp_path / "stop")  # no depth file was written: the same stop again
+    assert resumed.search_steps == stopped.search_steps and resumed.stopped_at_depth == 1
+
+
+@pytest.mark.parametrize("requirement", sorted(beam.DECIDED_IN_PREFIX))
+def test_prefix_decisions_name_requirements_whose_robustness_is_a_running_minimum(requirement):
+    from mcverify.analysis import robustness as rb
+
+    assert requirement in rb.REQUIREMENTS  # a typo would silently never stop a search
