@@ -152,6 +152,9 @@ def headline(results: Sequence[EpsilonTrials], setting: Setting) -> str:
     """One sentence from the trials: the largest ε with a counterexample, the method that found it first
     and how to replay it; else the lowest robustness found, where and at what cost."""
     req = f"`{setting.requirement}`"
+    every = [t for r in results for t in r.trials]
+    unit = ("episodes" if all(t.counts_episodes for t in every) else "episode-equivalents"
+            if not any(t.counts_episodes for t in every) else "episodes (episode-equivalents for beams)")
     broken = [r for r in results if any(t.counterexamples for t in r.trials)]
     if broken:
         level = max(broken, key=lambda r: r.epsilon)
@@ -162,14 +165,14 @@ def headline(results: Sequence[EpsilonTrials], setting: Setting) -> str:
         text = (f"{setting.noise}, {req} at ε = {level.epsilon:g} is broken by {best.method} after "
                 f"{best.first_episode_equivalents:.3g} episode-equivalents (seed {best.seed}; replay: "
                 f"`mcverify replay {cx.run_dir} {cx.episode_id}`); {hits} of {len(group)} {best.method} trials broke "
-                f"it within {setting.budget} episodes.")
+                f"it within {setting.budget} {unit}.")
     else:
         pairs = [(t.min_robustness, r.epsilon, t) for r in results for t in r.trials
                  if not math.isnan(t.min_robustness)]
         if not pairs:
             return f"{setting.noise[0].upper()}{setting.noise[1:]}, no trial evaluated a robustness."
         low, eps, t = min(pairs, key=lambda p: p[0])
-        text = (f"{setting.noise}, no trial broke {req} at any ε within {setting.budget} episodes; the lowest "
+        text = (f"{setting.noise}, no trial broke {req} at any ε within {setting.budget} {unit}; the lowest "
                 f"robustness found at ε = {eps:g} is {falsify.compact(low)} ({t.method}, seed {t.seed}) after "
                 f"{t.episode_equivalents:.3g} episode-equivalents.")
     return text[0].upper() + text[1:]

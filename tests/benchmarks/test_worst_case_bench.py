@@ -3,6 +3,7 @@ trial folders per ε (re-read on a second run) and its one-line refusals."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import pytest
@@ -54,6 +55,15 @@ def test_the_headline_without_a_counterexample_gives_the_lowest_robustness():
     assert wc.headline(unbroken, SETTING) == (
         "Within the paper's noise bounds, no trial broke `safe` at any ε within 12 episodes; the lowest robustness "
         "found at ε = 0.2 is 0.0031 (random, seed 1) after 10.2 episode-equivalents.")
+
+
+def test_the_headline_of_beam_trials_states_the_budget_in_episode_equivalents():
+    beams = [wc.EpsilonTrials(e, tuple(dataclasses.replace(t, method=m, counts_episodes=False)
+                                       for m, t in (("beam", _trial("x", 0, -1.0, 1.9)),
+                                                    ("random-schedules", _trial("x", 0, -1.0, 0.7)))))
+             for e in (0.0, 0.3)]
+    assert wc.headline(beams, SETTING).endswith("1 of 1 random-schedules trials broke it within 12 "
+                                                "episode-equivalents.")
 
 
 def test_the_section_has_a_row_per_level_and_method():
