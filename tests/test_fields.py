@@ -7,7 +7,7 @@ import dataclasses
 from pathlib import Path
 
 from mcverify import cli, fields, model
-from mcverify.campaign.spec import model_fields
+from mcverify.campaign.fields import model_fields
 
 GUIDE = Path(__file__).resolve().parent.parent / "docs" / "campaigns.md"
 

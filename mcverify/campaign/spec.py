@@ -31,8 +31,6 @@ what to do; the CLI prints that one line and exits with status 2.
 from __future__ import annotations
 
 import dataclasses
-import difflib
-import itertools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -40,23 +38,14 @@ from typing import Any
 
 import tomllib
 
+from mcverify.campaign.fields import UNIT_ALIASES, apply_overrides, coerce, flatten_model, model_fields, suggest
+from mcverify.campaign.grid import MAX_EPISODES_PER_CELL, expand_cells, read_axes, read_grid
 from mcverify.campaign.search_space import SearchSpace, read_search_space
-from mcverify.campaign.validate import _short, validate_params
+from mcverify.campaign.validate import _short
 from mcverify.cell import Cell
 from mcverify.errors import CampaignError
-from mcverify.levels import Level
 from mcverify.model import ModelParams
 
-#: Grid/model keys in other units, converted on load: alias -> (field, factor).
-UNIT_ALIASES: dict[str, tuple[str, float]] = {
-    "scenario.front_speed_kmh": ("scenario.front_speed_mps", 1.0 / 3.6),
-    "scenario.ego_speed_kmh": ("scenario.ego_speed_mps", 1.0 / 3.6),
-    "ego.speed_max_kmh": ("ego.speed_max_mps", 1.0 / 3.6),
-}
-
-#: Most episodes per cell: a run plans one chunk per few episodes up front, and an episode id is
-#: folded into its JAX key as a 32-bit integer; 10 million closed-loop episodes are months of CPU.
-MAX_EPISODES_PER_CELL = 10_000_000
 #: Largest seed (jax.random.PRNGKey takes a signed 64-bit integer).
 MAX_SEED = 2**63 - 1
 
@@ -165,11 +154,11 @@ def _check_setting(key: str, value: Any, item: str) -> None:
     ``mcverify falsify`` sets) named as the option's, not blamed on the campaign file."""
     known = model_fields()
     if key not in known:
-        raise CampaignError(f"--set {item!r}: unknown model field {_short(key)}{_suggest(key, known)}")
+        raise CampaignError(f"--set {item!r}: unknown model field {_short(key)}{suggest(key, known)}")
     if key == "sim.stop_at":
         raise CampaignError(f"--set {item!r}: sim.stop_at is set by `mcverify falsify` only "
                             "(stop_episodes = true in [falsify])")
-    _coerce(value, known[key], f"--set {item!r}")
+    coerce(value, known[key], f"--set {item!r}")
 
 
 def _refuse_varied_field(raw: Mapping[str, Any], key: str, item: str) -> None:
@@ -223,10 +212,10 @@ def campaign_from_dict(
         raise CampaignError(f"{where} [campaign].seed: must be >= 0 and < 2**63, got {seed_v}")
     crn = _typed(head, "common_random_numbers", bool, f"{where} [campaign]", default=False)
 
-    base = apply_overrides(ModelParams(), _flatten_model(raw.get("model", {}), where), where)
-    grid = _read_grid(raw.get("grid", {}), where)
-    axes = _read_axes(raw.get("axes", {}), where)
-    cells = tuple(_expand_cells(base, axes, grid, n_ep, where, episodes_forced=episodes is not None))
+    base = apply_overrides(ModelParams(), flatten_model(raw.get("model", {}), where), where)
+    grid = read_grid(raw.get("grid", {}), where)
+    axes = read_axes(raw.get("axes", {}), where)
+    cells = tuple(expand_cells(base, axes, grid, n_ep, where, episodes_forced=episodes is not None))
     falsify = read_search_space(raw["falsify"], where, model_fields()) if "falsify" in raw else None
     reference = raw.get("reference", {})
     if not isinstance(reference, Mapping):
@@ -248,206 +237,7 @@ def campaign_from_dict(
     )
 
 
-# ------------------------------------------------------------------------------------ overrides
-
-
-def model_fields() -> dict[str, type]:
-    """Every settable ``section.field`` of ModelParams with its type, plus the unit aliases."""
-    out: dict[str, type] = {}
-    for sec in dataclasses.fields(ModelParams):
-        sub = sec.default_factory()  # type: ignore[misc]
-        for f in dataclasses.fields(sub):
-            out[f"{sec.name}.{f.name}"] = type(getattr(sub, f.name)) if getattr(sub, f.name) is not None else float
-    for alias in UNIT_ALIASES:
-        out[alias] = float
-    return out
-
-
-def apply_overrides(params: ModelParams, overrides: Mapping[str, Any], where: str) -> ModelParams:
-    """Return ``params`` with dotted ``section.field`` overrides applied, each type-checked."""
-    known = model_fields()
-    sections: dict[str, dict[str, Any]] = {}
-    for key, value in overrides.items():
-        if key not in known:
-            raise CampaignError(f"{where}: unknown model field {_short(key)}{_suggest(key, known)}")
-        value = _coerce(value, known[key], f"{where}: {key}")
-        if key in UNIT_ALIASES:
-            key, factor = UNIT_ALIASES[key]
-            value = value * factor
-        sec, name = key.split(".", 1)
-        sections.setdefault(sec, {})[name] = value
-    barrier = sections.get("barrier", {})
-    if "lambda0" in barrier and "epsilon" in barrier:
-        raise CampaignError(f"{where}: set barrier.epsilon or barrier.lambda0, not both (one defines the other)")
-    # The level is given one way or the other: setting one clears the other's inherited value.
-    if "lambda0" in barrier:
-        barrier["epsilon"] = None
-    elif "epsilon" in barrier:
-        barrier["lambda0"] = None
-    new = params
-    for sec, values in sections.items():
-        new = dataclasses.replace(new, **{sec: dataclasses.replace(getattr(new, sec), **values)})
-    try:
-        validate_params(new, where)
-    except CampaignError as err:  # a value given in km/h is checked in m/s: say what the user wrote
-        given = [f"{k} = {overrides[k]:g}" for k in overrides if k in UNIT_ALIASES
-                 and UNIT_ALIASES[k][0] in str(err) and isinstance(overrides[k], int | float)]
-        if given:
-            raise CampaignError(f"{err} (given as {', '.join(given)})") from None
-        raise
-    return new
-
-
-
-
-
-
 # ------------------------------------------------------------------------------------- helpers
-
-
-def _flatten_model(model: Any, where: str) -> dict[str, Any]:
-    if not isinstance(model, Mapping):
-        raise CampaignError(f"{where} [model]: must be a table of sections, e.g. [model.barrier]")
-    sections = {f.name for f in dataclasses.fields(ModelParams)}
-    flat: dict[str, Any] = {}
-    for sec, values in model.items():
-        if sec not in sections:
-            raise CampaignError(f"{where}: unknown model section [model.{sec}]{_suggest(sec, sections)}")
-        if not isinstance(values, Mapping):
-            raise CampaignError(f"{where} [model.{sec}]: must be a table")
-        for k, v in values.items():
-            flat[f"{sec}.{k}"] = v
-    return flat
-
-
-def _read_grid(grid: Any, where: str) -> dict[str, list[Any]]:
-    if not isinstance(grid, Mapping):
-        raise CampaignError(f"{where} [grid]: must be a table of 'section.field' = [values]")
-    known = model_fields()
-    out: dict[str, list[Any]] = {}
-    for key, values in grid.items():
-        if key not in known:
-            raise CampaignError(f"{where} [grid]: unknown field {_short(key)}{_suggest(key, known)}")
-        if not isinstance(values, list) or not values:
-            raise CampaignError(f"{where} [grid].{key}: must be a non-empty list of values")
-        labels = [_fmt(v) for v in values]
-        twice = next((label for label in labels if labels.count(label) > 1), None)
-        if twice is not None:
-            raise CampaignError(f"{where} [grid].{key}: the value {_short(twice)} is listed twice (cells must differ)")
-        out[key] = list(values)
-    return out
-
-
-def _read_axes(axes: Any, where: str) -> dict[str, dict[str, dict[str, Any]]]:
-    """``[axes.<axis>.<label>]`` tables: each label a bundle of dotted model overrides (and
-    optionally ``episodes``). Checked here; values are applied per cell."""
-    if not isinstance(axes, Mapping):
-        raise CampaignError(f"{where} [axes]: must be a table of axes, e.g. [axes.method.\"MPC-DC\"]")
-    known = model_fields()
-    out: dict[str, dict[str, dict[str, Any]]] = {}
-    for axis, labels in axes.items():
-        if not isinstance(labels, Mapping) or not labels:
-            raise CampaignError(f"{where} [axes.{axis}]: must hold one or more tables, e.g. [axes.{axis}.A]")
-        out[axis] = {}
-        for label, bundle in labels.items():
-            here = f"{where} [axes.{axis}.{label}]"
-            if not isinstance(bundle, Mapping):
-                raise CampaignError(f"{here}: must be a table of 'section.field' = value")
-            for key, value in bundle.items():
-                if key == "episodes":
-                    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_EPISODES_PER_CELL:
-                        raise CampaignError(
-                            f"{here}.episodes: must be an integer >= 1 and <= {MAX_EPISODES_PER_CELL:,}, "
-                            f"got {_short(value)}"
-                        )
-                elif key not in known:
-                    hint = _suggest(key, list(known) + ["episodes"])
-                    raise CampaignError(f"{here}: unknown field {_short(key)}{hint}")
-            out[axis][str(label)] = dict(bundle)
-    return out
-
-
-def _expand_cells(
-    base: ModelParams,
-    axes: dict[str, dict[str, dict[str, Any]]],
-    grid: dict[str, list[Any]],
-    episodes: int,
-    where: str,
-    *,
-    episodes_forced: bool = False,
-):
-    """Cells: the product of the axes (in file order) and then the grid fields.
-
-    Episode ids are unique in a run: cell k's episode 0 has id sum of the earlier cells' counts.
-    ``episodes_forced`` (the CLI's --episodes) overrides any bundle's own ``episodes``.
-    """
-    dims: list[list[tuple[str, str, dict[str, Any]]]] = []
-    for axis, labels in axes.items():
-        dims.append([(axis, label, bundle) for label, bundle in labels.items()])
-    for key, values in grid.items():
-        dims.append([(key.split(".", 1)[1], _fmt(v), {key: v}) for v in values])
-    names: set[str] = set()
-    offset = 0
-    for index, combo in enumerate(itertools.product(*dims)):
-        labels = {axis: label for axis, label, _ in combo}
-        overrides: dict[str, Any] = {}
-        n_ep = episodes
-        for axis, _, bundle in combo:
-            for key, value in bundle.items():
-                if key == "episodes":
-                    n_ep = episodes if episodes_forced else value
-                    continue
-                if key in overrides:
-                    raise CampaignError(
-                        f"{where}: cell {_short(labels)} sets {key!r} twice (axis {_short(axis)} and another)"
-                    )
-                overrides[key] = value
-        name = ",".join(f"{axis}={label}" for axis, label in labels.items()) or "all"
-        if name in names:
-            raise CampaignError(f"{where}: duplicate cell {_short(name)}; grid values and axis labels must be distinct")
-        names.add(name)
-        params = apply_overrides(base, overrides, f"{where} cell {_short(name)}")
-        yield Cell(
-            episode_offset=offset,
-            index=index,
-            name=name,
-            overrides=overrides,
-            params=params,
-            episodes=n_ep,
-            level=Level.of_barrier(params.barrier),
-            labels=labels,
-        )
-        offset += n_ep
-
-
-def _fmt(v: Any) -> str:
-    if isinstance(v, float) and v.is_integer():
-        return str(int(v))
-    if isinstance(v, list):
-        return "[" + ",".join(_fmt(x) for x in v) + "]"
-    return str(v)
-
-
-def _coerce(value: Any, expected: type, where: str) -> Any:
-    if expected is float:
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise CampaignError(f"{where}: expected a number, got {type(value).__name__} {_short(value)}")
-        return float(value)
-    if expected is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise CampaignError(f"{where}: expected an integer, got {type(value).__name__} {_short(value)}")
-        return value
-    if expected is tuple:
-        if not isinstance(value, list) or any(
-            isinstance(x, bool) or not isinstance(x, int | float) for x in value
-        ):
-            raise CampaignError(f"{where}: expected a list of numbers, got {_short(value)}")
-        return tuple(float(x) for x in value)
-    if not isinstance(value, expected):
-        raise CampaignError(
-            f"{where}: expected {expected.__name__}, got {type(value).__name__} {_short(value)}"
-        )
-    return value
 
 
 def _typed(
@@ -475,11 +265,4 @@ def _typed(
 def _check_keys(table: Mapping[str, Any], valid: set[str], where: str) -> None:
     for key in table:
         if key not in valid:
-            raise CampaignError(f"{where}: unknown key {_short(key)}{_suggest(key, valid)}")
-
-
-
-
-def _suggest(key: str, valid) -> str:
-    close = difflib.get_close_matches(key, list(valid), n=1, cutoff=0.5)
-    return f" (did you mean {close[0]!r}?)" if close else ""
+            raise CampaignError(f"{where}: unknown key {_short(key)}{suggest(key, valid)}")

@@ -42,8 +42,9 @@ from mcverify.analysis import counterexamples as cx
 from mcverify.analysis import failure_regions
 from mcverify.campaign import executors, runner
 from mcverify.campaign.executors import EpisodeFn, Executor
+from mcverify.campaign.fields import apply_overrides
 from mcverify.campaign.search_space import SearchSpace, check_single_target, split_element
-from mcverify.campaign.spec import Campaign, apply_overrides, campaign_from_dict
+from mcverify.campaign.spec import Campaign, campaign_from_dict
 from mcverify.errors import CampaignError, RunError
 from mcverify.falsify import ask_tell, candidate_scores, generation_folder, methods
 from mcverify.falsify.generation_folder import GENERATIONS
