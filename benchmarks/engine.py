@@ -40,7 +40,7 @@ from benchmarks.ipopt_loop import ipopt_loop_planner
 from benchmarks.naive import naive_planner
 from benchmarks.sides import PAIRED_VALUES, SIDES, SideResult, ratio_interval
 from benchmarks.solve_classes import ClassTally, TimedSolver
-from mcverify.campaign.fields import apply_overrides
+from mcverify.campaign.overrides import apply_overrides
 from mcverify.campaign.spec import load_campaign
 from mcverify.cell import Cell
 from mcverify.cli.options import nonneg_int, positive_int

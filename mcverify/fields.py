@@ -20,9 +20,13 @@ from mcverify import model
 #: Name suffix -> unit (the model's naming convention).
 UNIT_SUFFIXES = (("_mps2", "m/s^2"), ("_mps", "m/s"), ("_kmh", "km/h"), ("_rad", "rad"), ("_per_s", "1/s"),
                  ("_s", "s"), ("_m", "m"))
-#: Fields that may also be given in another unit (the campaign loader converts them).
-ALIASES = {"scenario.front_speed_kmh": "scenario.front_speed_mps", "scenario.ego_speed_kmh": "scenario.ego_speed_mps",
-           "ego.speed_max_kmh": "ego.speed_max_mps"}
+#: Fields that may also be given in another unit, converted on load (:mod:`mcverify.campaign.overrides`):
+#: alias -> (field, factor).
+UNIT_ALIASES: dict[str, tuple[str, float]] = {
+    "scenario.front_speed_kmh": ("scenario.front_speed_mps", 1.0 / 3.6),
+    "scenario.ego_speed_kmh": ("scenario.ego_speed_mps", 1.0 / 3.6),
+    "ego.speed_max_kmh": ("ego.speed_max_mps", 1.0 / 3.6),
+}
 
 
 @dataclass(frozen=True)

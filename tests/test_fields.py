@@ -7,7 +7,7 @@ import dataclasses
 from pathlib import Path
 
 from mcverify import cli, fields, model
-from mcverify.campaign.fields import model_fields
+from mcverify.campaign.overrides import model_fields
 
 GUIDE = Path(__file__).resolve().parent.parent / "docs" / "campaigns.md"
 
@@ -15,7 +15,7 @@ GUIDE = Path(__file__).resolve().parent.parent / "docs" / "campaigns.md"
 def test_every_field_has_a_docstring_and_a_row():
     docs = fields.field_docs()
     assert [d for d in docs if not d.doc] == []
-    settable = {k for k in model_fields() if k not in fields.ALIASES}
+    settable = {k for k in model_fields() if k not in fields.UNIT_ALIASES}
     assert {d.key for d in docs} == settable
     n = sum(len(dataclasses.fields(f.default_factory())) for f in dataclasses.fields(model.ModelParams))
     assert len(docs) == n

@@ -1,7 +1,7 @@
 """The campaign layer: from a campaign file to a finished run folder.
 
 * :mod:`~mcverify.campaign.spec`: campaign files (TOML), validated at load, expanded into cells;
-* :mod:`~mcverify.campaign.fields` / :mod:`~mcverify.campaign.grid`: the settable model fields and their
+* :mod:`~mcverify.campaign.overrides` / :mod:`~mcverify.campaign.grid`: the settable model fields and their
   typed overrides; the grid and axes of a campaign file and the cells they expand into;
 * :mod:`~mcverify.campaign.work`: the unit a worker runs (cell-local episode ids of one cell) and its outcome;
 * :mod:`~mcverify.campaign.scheduler`: chunks, retries, the executor interface, the serial executor;

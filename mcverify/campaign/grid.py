@@ -9,7 +9,7 @@ import itertools
 from collections.abc import Mapping
 from typing import Any
 
-from mcverify.campaign.fields import apply_overrides, model_fields, suggest
+from mcverify.campaign.overrides import apply_overrides, model_fields, suggest
 from mcverify.campaign.validate import _short
 from mcverify.cell import Cell
 from mcverify.errors import CampaignError

@@ -38,12 +38,13 @@ from typing import Any
 
 import tomllib
 
-from mcverify.campaign.fields import UNIT_ALIASES, apply_overrides, coerce, flatten_model, model_fields, suggest
 from mcverify.campaign.grid import MAX_EPISODES_PER_CELL, expand_cells, read_axes, read_grid
+from mcverify.campaign.overrides import apply_overrides, coerce, flatten_model, model_fields, suggest
 from mcverify.campaign.search_space import SearchSpace, read_search_space
 from mcverify.campaign.validate import _short
 from mcverify.cell import Cell
 from mcverify.errors import CampaignError
+from mcverify.fields import UNIT_ALIASES
 from mcverify.model import ModelParams
 
 #: Largest seed (jax.random.PRNGKey takes a signed 64-bit integer).

@@ -44,7 +44,7 @@ import pyarrow.parquet as pq
 from mcverify import store
 from mcverify.campaign import executors
 from mcverify.campaign.audit import REFERENCE_BACKEND, reference_cell
-from mcverify.campaign.fields import apply_overrides
+from mcverify.campaign.overrides import apply_overrides
 from mcverify.campaign.replay import ReplayMismatch, ReplayResult, checked, write_recording
 from mcverify.campaign.runner import campaign_from_manifest
 from mcverify.episode.rollout import run_episodes

@@ -42,7 +42,7 @@ from mcverify.analysis import counterexamples as cx
 from mcverify.analysis import failure_regions
 from mcverify.campaign import executors, runner
 from mcverify.campaign.executors import EpisodeFn, Executor
-from mcverify.campaign.fields import apply_overrides
+from mcverify.campaign.overrides import apply_overrides
 from mcverify.campaign.search_space import SearchSpace, check_single_target, split_element
 from mcverify.campaign.spec import Campaign, campaign_from_dict
 from mcverify.errors import CampaignError, RunError

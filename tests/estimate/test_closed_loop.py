@@ -145,7 +145,7 @@ def _replayed_scores(proc: ClosedLoopProcess, record: dict) -> np.ndarray:
     its noise branches scheduled (what ``mcverify replay`` of a splitting folder does)."""
     import dataclasses  # noqa: PLC0415
 
-    from mcverify.campaign.fields import apply_overrides  # noqa: PLC0415
+    from mcverify.campaign.overrides import apply_overrides  # noqa: PLC0415
     from mcverify.episode.rollout import run_episodes  # noqa: PLC0415
     from mcverify.episode.snapshot import Branching  # noqa: PLC0415
 

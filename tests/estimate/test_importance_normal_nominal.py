@@ -14,7 +14,7 @@ import pytest
 from scipy import integrate
 from scipy import stats as sps
 
-from mcverify.campaign.fields import apply_overrides
+from mcverify.campaign.overrides import apply_overrides
 from mcverify.episode import draws as episode_draws
 from mcverify.estimate import importance
 from mcverify.model import ModelParams

@@ -13,7 +13,7 @@ import pytest
 from scipy.special import ndtri
 
 from mcverify.campaign import executors
-from mcverify.campaign.fields import apply_overrides
+from mcverify.campaign.overrides import apply_overrides
 from mcverify.campaign.spec import load_campaign
 from mcverify.episode.draws import episode_key
 from mcverify.episode.rollout import run_episodes

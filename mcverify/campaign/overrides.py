@@ -15,14 +15,8 @@ from typing import Any
 
 from mcverify.campaign.validate import _short, validate_params
 from mcverify.errors import CampaignError
+from mcverify.fields import UNIT_ALIASES
 from mcverify.model import ModelParams
-
-#: Grid/model keys in other units, converted on load: alias -> (field, factor).
-UNIT_ALIASES: dict[str, tuple[str, float]] = {
-    "scenario.front_speed_kmh": ("scenario.front_speed_mps", 1.0 / 3.6),
-    "scenario.ego_speed_kmh": ("scenario.ego_speed_mps", 1.0 / 3.6),
-    "ego.speed_max_kmh": ("ego.speed_max_mps", 1.0 / 3.6),
-}
 
 
 def model_fields() -> dict[str, type]:
