@@ -304,12 +304,16 @@ def paired_sentence(trials: Sequence[Trial], target: str, method: str, baseline:
     lower = sum(a[k].min_robustness < b[k].min_robustness for k in seeds)
     higher = sum(a[k].min_robustness > b[k].min_robustness for k in seeds)
     hits = [sum(g[k].first_counterexample is not None for k in seeds) for g in (a, b)]
-    meds = [cost_text(statistics.median(math.inf if g[k].first_episode_equivalents is None
-                                        else g[k].first_episode_equivalents for k in seeds)) for g in (a, b)]
+    first = [{k: math.inf if g[k].first_episode_equivalents is None else g[k].first_episode_equivalents
+              for k in seeds} for g in (a, b)]
+    meds = [cost_text(statistics.median(f.values())) for f in first]
+    sooner = sum(first[0][k] < first[1][k] for k in seeds)
+    later = sum(first[0][k] > first[1][k] for k in seeds)
     return (f"{target}, {len(seeds)} paired seeds: {method} falsified {hits[0]}, {baseline} {hits[1]}; median ep-eq "
-            f"to the first counterexample (all trials) {meds[0]} against {meds[1]}; {method}'s lowest robustness "
-            f"below {baseline}'s in {lower} of {len(seeds)} pairs, above in {higher} (exact sign test p = "
-            f"{stats.mcnemar_exact_pvalue(lower, higher):.3g})")
+            f"to the first counterexample (all trials) {meds[0]} against {meds[1]}, {method} sooner in {sooner} pairs "
+            f"and later in {later} (exact sign test p = {stats.mcnemar_exact_pvalue(sooner, later):.3g}); {method}'s "
+            f"lowest robustness below {baseline}'s in {lower} of {len(seeds)} pairs, above in {higher} (exact sign "
+            f"test p = {stats.mcnemar_exact_pvalue(lower, higher):.3g})")
 
 
 def goal_verdict(trials: Sequence[Trial], target: str, budget: int) -> str:
@@ -476,15 +480,16 @@ BEAM_TEXT = (
     "Beam (`--method beam`, a beam search over the per-step error of one scenario): the same budget, {budget}, "
     "read as a ceiling in episode-equivalents on the beam's cost bound (a beam that could exceed it is refused "
     "before it runs). It simulates segments from snapshots rather than episodes one by one, so its episode "
-    "columns read –; its counterexample is the best final-frontier episode when its robustness is negative, "
-    "known only after the whole search, so its ep-eq to the first counterexample is the search's whole cost; "
-    "it is `TRIAL/best` episode 0 (`mcverify replay`). Its lowest guide is the lowest running score "
-    "(`[falsify.beam] score`) of its final frontier at the window's end. The seed of trial t, seed + t, keys its "
-    "children draws (the scenario and its seed are the campaign's). Without a counterexample a beam restarts with "
-    "new draws while the budget left covers another beam's cost bound, so its cost counts every restart. "
-    "random-schedules is its baseline at equal cost: the same table with branching = 1, i.e. the root's width "
-    "children (keyed as the beam's, so a trial is paired with the beam's trial of the same seed) each run one "
-    "random schedule through the window, with no selection, restarting under the same budget.")
+    "columns read –. Its counterexample is the first child whose prefix already violates a running-minimum "
+    "requirement (ellipse, collision_front, safe, theorem5_certified: the search stops there and runs that child to "
+    "its episode's end), else the best final-frontier episode when its robustness is negative; its ep-eq to the "
+    "first counterexample is the search's cost up to it, and it is `TRIAL/best` episode 0 (`mcverify replay`). Its "
+    "lowest guide is the lowest running score (`[falsify.beam] score`) of the nodes it ended with. The seed of "
+    "trial t, seed + t, keys its children draws (the scenario and its seed are the campaign's). Without a "
+    "counterexample a beam restarts with new draws while the budget left covers another beam's cost bound, so its "
+    "cost counts every restart. random-schedules is its baseline at equal budget: the same table with branching = "
+    "1, i.e. the root's width children (keyed as the beam's, so a trial is paired with the beam's trial of the same "
+    "seed) each run one random schedule through the window, with no selection, restarting under the same budget.")
 
 
 def markdown(trials: Sequence[Trial], *, budget: int, command: str, name: str = NAME,
@@ -528,10 +533,12 @@ def markdown(trials: Sequence[Trial], *, budget: int, command: str, name: str = 
         lines += ["", "Beam trials, snapshots alive at most per trial (the bound is 2 width + 1):", ""]
         lines += [f"- {target} {method}: {', '.join(str(t.peak_snapshots) for t in group)}"
                   for (target, method), group in groups.items() if not group[0].counts_episodes]
-    lines += ["", replay_sentence(replays), "",
-              "Issue 16's goal, per target (medians over all trials, a failed trial counting as beyond the "
-              "budget):", ""]
-    lines += [f"- {goal_verdict(trials, target, budget)}" for target in dict.fromkeys(t.target for t in trials)]
+    lines += ["", replay_sentence(replays)]
+    if any(t.counts_episodes for t in trials):
+        lines += ["", "Issue 16's goal, per target (medians over all trials, a failed trial counting as beyond the "
+                  "budget):", ""]
+    lines += [f"- {goal_verdict(trials, target, budget)}" for target in dict.fromkeys(t.target for t in trials)
+              if any(t.counts_episodes for t in trials if t.target == target)]
     paired = [line for target in dict.fromkeys(t.target for t in trials)
               if (line := paired_sentence(trials, target, beam.BEAM, RANDOM_SCHEDULES))]
     if paired:
