@@ -148,13 +148,21 @@ def _fastest(trials: Sequence[falsify.Trial]) -> falsify.Trial:
     return min(hits, key=lambda t: t.first_episode_equivalents)
 
 
+def budget_unit(results: Sequence[EpsilonTrials]) -> str:
+    """What ``--budget`` counts for these trials: episodes for the population searches, episode-equivalents
+    for the beam methods (:mod:`benchmarks.falsify`)."""
+    every = [t for r in results for t in r.trials]
+    if all(t.counts_episodes for t in every):
+        return "episodes"
+    return "episode-equivalents" if not any(t.counts_episodes for t in every) else \
+        "episodes (episode-equivalents for beams)"
+
+
 def headline(results: Sequence[EpsilonTrials], setting: Setting) -> str:
     """One sentence from the trials: the largest ε with a counterexample, the method that found it first
     and how to replay it; else the lowest robustness found, where and at what cost."""
     req = f"`{setting.requirement}`"
-    every = [t for r in results for t in r.trials]
-    unit = ("episodes" if all(t.counts_episodes for t in every) else "episode-equivalents"
-            if not any(t.counts_episodes for t in every) else "episodes (episode-equivalents for beams)")
+    unit = budget_unit(results)
     broken = [r for r in results if any(t.counterexamples for t in r.trials)]
     if broken:
         level = max(broken, key=lambda r: r.epsilon)
@@ -206,7 +214,7 @@ def markdown(results: Sequence[EpsilonTrials], setting: Setting, *, command: str
         f"Target `{setting.source}`, requirement `{req.name}` ({req.statement}; robustness negative iff violated), "
         f"{setting.noise}. Per level ε (`--set barrier.epsilon=ε`) and method, {trials} "
         f"search{'es' if trials != 1 else ''} ({seed_text}, search and noise), each with a budget of "
-        f"{setting.budget} episodes and stopping at its first counterexample. Falsified: trials with a "
+        f"{setting.budget} {budget_unit(results)} and stopping at its first counterexample. Falsified: trials with a "
         "counterexample within the budget, with the exact 95% Clopper-Pearson interval of the rate. Cost to the "
         "first counterexample in episode-equivalents (control steps simulated up to and including its episode over "
         "a whole episode's), the median over all trials with a failed trial counted as beyond the budget. Lowest "
@@ -214,16 +222,22 @@ def markdown(results: Sequence[EpsilonTrials], setting: Setting, *, command: str
         "order (two significant digits, sign kept).", "",
         f"**Headline.** {headline(results, setting)}", "",
         *table(results), "",
-        (f"Figure: `{figure_path}` (ε across; each trial's lowest robustness a point, a counterexample a cross "
-         "below the line at 0; the median per method a line)." if figure_path else "Figure: not drawn."), "",
+        (f"Figure: `{figure_path}` (ε across; left, each trial's lowest robustness a point, a counterexample a "
+         "cross below the line at 0, the median per method a line; right, each trial's episode-equivalents to its "
+         "first counterexample, a trial without one a triangle at the top)." if figure_path else
+         "Figure: not drawn."), "",
         falsify.replay_sentence(replays),
     ]
     return section.wrap(NAME, "\n".join(body))
 
 
 def figure(results: Sequence[EpsilonTrials], setting: Setting, path: Path) -> Path:
-    """Each trial's lowest robustness against ε (points; crosses for counterexamples), the median per method
-    (line), the line at 0; symmetric-log vertical axis so that metres and hundredths both show."""
+    """Two panels against ε: each trial's lowest robustness (points; crosses for counterexamples) with the
+    median per method (line) and the line at 0, on a symmetric-log axis so that metres and hundredths both
+    show; and each trial's cost to its first counterexample (log axis; a trial without one drawn at the top),
+    which separates the methods where the requirement's robustness is a sign (``theorem5_certified``)."""
+    from matplotlib.ticker import FormatStrFormatter  # noqa: PLC0415
+
     from mcverify.falsify.report import label_symlog_axis  # noqa: PLC0415 - matplotlib only when drawing
     from mcverify.reporting.figure_common import save, subplots  # noqa: PLC0415
 
@@ -231,38 +245,75 @@ def figure(results: Sequence[EpsilonTrials], setting: Setting, path: Path) -> Pa
     levels = [r.epsilon for r in results]
     spread = 0.15 * (min(b - a for a, b in zip(sorted(levels), sorted(levels)[1:], strict=False)) if len(levels) > 1
                      else 0.1)
-    fig, ax = subplots(figsize=(7.0, 4.2))
+    fig, (ax, cost_ax) = subplots(1, 2, figsize=(10.0, 4.2))
     for k, method in enumerate(methods_):
         colour, shift = f"C{k}", spread * (k - (len(methods_) - 1) / 2) / max(1, len(methods_))
-        xs, meds = [], []
-        for r in results:
-            lows = [t.min_robustness for t in r.by_method().get(method, []) if not math.isnan(t.min_robustness)]
-            if not lows:
-                continue
-            safe = [x for x in lows if x >= 0.0]
-            broken = [x for x in lows if x < 0.0]
-            ax.plot([r.epsilon + shift] * len(safe), safe, "o", mfc="none", color=colour, ms=5, alpha=0.8)
-            ax.plot([r.epsilon + shift] * len(broken), broken, "X", color=colour, mec="k", mew=0.5, ms=7)
-            xs.append(r.epsilon + shift)
-            meds.append(statistics.median(lows))
-        ax.plot(xs, meds, "-", color=colour, lw=1.5, label=f"{method}: median of the trials")
+        _robustness_points(ax, results, method, colour, shift)
+        _cost_points(cost_ax, results, method, colour, shift, _top(results, setting))
     ax.plot([], [], "o", mfc="none", color="0.4", label="a trial's lowest robustness")
     ax.plot([], [], "X", color="0.4", mec="k", mew=0.5, label="a counterexample (below 0)")
     ax.axhline(0.0, color="k", lw=0.8, ls="--")
     ax.set_yscale("symlog", linthresh=0.05)
     ax.margins(y=0.08)
     label_symlog_axis(ax)
-    ax.set_xticks(levels)
-    ax.set_xticklabels([f"{e:g}" for e in levels])
-    ax.set_xlabel("VL-CBF level ε (barrier.epsilon)")
     ax.set_ylabel(f"lowest robustness ({setting.requirement})")
-    ax.set_title(f"{Path(setting.source).name}: worst case of `{setting.requirement}` against ε, {setting.noise}\n"
-                 f"budget {setting.budget} episodes per trial", fontsize=9)
-    ax.legend(loc="best", fontsize=7)
-    ax.grid(alpha=0.3)
+    cost_ax.set_yscale("log")
+    cost_ax.yaxis.set_major_formatter(FormatStrFormatter("%g"))
+    cost_ax.yaxis.set_minor_formatter(FormatStrFormatter("%g"))
+    cost_ax.tick_params(axis="y", which="minor", labelsize=7)
+    cost_ax.set_ylabel("episode-equivalents to the first counterexample")
+    cost_ax.plot([], [], "^", color="0.4", label="none within the budget")
+    for a in (ax, cost_ax):
+        a.set_xticks(levels)
+        a.set_xticklabels([f"{e:g}" for e in levels])
+        a.set_xlabel("VL-CBF level ε (barrier.epsilon)")
+        a.legend(loc="best", fontsize=7)
+        a.grid(alpha=0.3)
+    fig.suptitle(f"{Path(setting.source).name}: worst case of `{setting.requirement}` against ε, {setting.noise}; "
+                 f"budget {setting.budget} {budget_unit(results)} per trial", fontsize=9)
     fig.tight_layout()
     save(fig, path)
     return Path(path)
+
+
+def _robustness_points(ax: Any, results: Sequence[EpsilonTrials], method: str, colour: str, shift: float) -> None:
+    xs, meds = [], []
+    for r in results:
+        lows = [t.min_robustness for t in r.by_method().get(method, []) if not math.isnan(t.min_robustness)]
+        if not lows:
+            continue
+        safe = [x for x in lows if x >= 0.0]
+        broken = [x for x in lows if x < 0.0]
+        ax.plot([r.epsilon + shift] * len(safe), safe, "o", mfc="none", color=colour, ms=5, alpha=0.8)
+        ax.plot([r.epsilon + shift] * len(broken), broken, "X", color=colour, mec="k", mew=0.5, ms=7)
+        xs.append(r.epsilon + shift)
+        meds.append(statistics.median(lows))
+    ax.plot(xs, meds, "-", color=colour, lw=1.5, label=f"{method}: median of the trials")
+
+
+def _top(results: Sequence[EpsilonTrials], setting: Setting) -> float:
+    """Where a trial without a counterexample is drawn: at the budget when it is counted in
+    episode-equivalents, else above the dearest trial."""
+    if budget_unit(results) == "episode-equivalents":
+        return float(setting.budget)
+    return max((t.episode_equivalents for r in results for t in r.trials), default=1.0) * 1.5
+
+
+def _cost_points(ax: Any, results: Sequence[EpsilonTrials], method: str, colour: str, shift: float,
+                 top: float) -> None:
+    xs, meds = [], []
+    for r in results:
+        group = r.by_method().get(method, [])
+        if not group:
+            continue
+        firsts = [t.first_episode_equivalents for t in group]
+        found = [x for x in firsts if x is not None]
+        ax.plot([r.epsilon + shift] * len(found), found, "X", color=colour, mec="k", mew=0.5, ms=7)
+        ax.plot([r.epsilon + shift] * (len(firsts) - len(found)), [top] * (len(firsts) - len(found)), "^",
+                color=colour, ms=6)
+        xs.append(r.epsilon + shift)
+        meds.append(statistics.median(top if x is None else x for x in firsts))
+    ax.plot(xs, meds, "-", color=colour, lw=1.5, label=f"{method}: median (none counted at the top)")
 
 
 def _parser() -> argparse.ArgumentParser:
