@@ -178,14 +178,15 @@ def thread_settings() -> dict[str, Any]:
     return {**{name: os.environ.get(name) for name in THREAD_VARIABLES}, "usable_cores": cores}
 
 
-def git_commit(short: bool = False) -> str | None:
-    """HEAD of the checkout this package runs from (``+dirty`` with uncommitted changes), or None."""
+def git_commit(short: bool = False, ignore: tuple[str, ...] = ()) -> str | None:
+    """HEAD of the checkout this package runs from (``+dirty`` with uncommitted changes outside the paths
+    ``ignore``, relative to the checkout), or None."""
     root = PACKAGE_DIR.parent
     try:
         out = subprocess.run(["git", "-C", str(root), "rev-parse", *(["--short"] if short else []), "HEAD"],
                              capture_output=True, text=True, timeout=5)
-        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
-                               capture_output=True, text=True, timeout=5)
+        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no", "--", ".",
+                                *(f":(exclude){p}" for p in ignore)], capture_output=True, text=True, timeout=5)
     except (OSError, subprocess.TimeoutExpired):
         return None
     if out.returncode != 0:

@@ -129,3 +129,29 @@ def test_the_run_layer_that_makes_rows_still_changes_the_version(package_copy: P
     before = provenance.source_digest(package_copy)
     _append(package_copy / edited, "\n# edited\n")
     assert provenance.source_digest(package_copy) != before
+
+
+def test_git_commit_is_dirty_unless_only_ignored_paths_changed(tmp_path, monkeypatch):
+    """A benchmark writing its section into results/BENCHMARKS.md does not make its own commit dirty."""
+    import subprocess
+
+    from mcverify import provenance
+
+    def git(*args: str) -> None:
+        subprocess.run(["git", "-C", str(tmp_path), *args], check=True, capture_output=True)
+
+    git("init", "-q")
+    (tmp_path / "mcverify").mkdir()
+    (tmp_path / "mcverify" / "x.py").write_text("a = 1\n")
+    (tmp_path / "results").mkdir()
+    (tmp_path / "results" / "BENCHMARKS.md").write_text("# page\n")
+    git("add", "-A")
+    git("-c", "user.email=t@t", "-c", "user.name=t", "commit", "-qm", "c")
+    monkeypatch.setattr(provenance, "PACKAGE_DIR", tmp_path / "mcverify")
+    head = provenance.git_commit(short=True)
+    assert head and not head.endswith("+dirty")
+    (tmp_path / "results" / "BENCHMARKS.md").write_text("# page\nsection\n")
+    assert provenance.git_commit(short=True) == head + "+dirty"
+    assert provenance.git_commit(short=True, ignore=("results/BENCHMARKS.md",)) == head
+    (tmp_path / "mcverify" / "x.py").write_text("a = 2\n")
+    assert provenance.git_commit(short=True, ignore=("results/BENCHMARKS.md",)) == head + "+dirty"
