@@ -146,12 +146,16 @@ def spec_of(table: BeamTable, requirement: str, seed: int, sim: Simulation) -> B
     return spec
 
 
+def _ellipse_crossed(s: EpisodeSnapshot) -> bool:
+    return float(s.trace.min_h_front) < 0.0
+
+
 #: Requirements whose violation a snapshot already decides (running minima over the episode: once violated
 #: in a prefix, violated for the whole episode), and how to read it from the snapshot.
 DECIDED_IN_PREFIX: dict[str, Callable[[EpisodeSnapshot], bool]] = {
-    "ellipse": lambda s: float(s.trace.min_h_front) < 0.0,
+    "ellipse": _ellipse_crossed,
     "collision_front": lambda s: bool(s.trace.collision_front),
-    "safe": lambda s: float(s.trace.min_h_front) < 0.0 or bool(s.trace.collision_front) or bool(s.trace.collision_opp),
+    "safe": lambda s: _ellipse_crossed(s) or bool(s.trace.collision_front) or bool(s.trace.collision_opp),
     "theorem5_certified": lambda s: s.state.both_certified_infeasible_steps > 0,
 }
 
