@@ -12,7 +12,7 @@ import pytest
 from benchmarks import plant, rare, section
 
 REPO = Path(__file__).resolve().parents[2]
-NAMES = ("engine", "solver", "falsify", "rare", "plant", "validation", "worst_case")
+NAMES = ("engine", "solver", "falsify", "rare", "plant", "validation", "worst_case", "continuation")
 
 
 def _one_error_line(err: str, name: str) -> str:

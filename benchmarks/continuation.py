@@ -1,0 +1,263 @@
+"""The rare cell reached by continuation: one closed-loop cell at several values of one parameter (the
+noise scale by default), crude Monte Carlo where the event is common enough to count and subset
+simulation at every value, side by side. Where both ran, the subset simulation interval is checked
+against crude Monte Carlo; where only subset simulation ran, the section says what crude Monte Carlo
+would need for the same width. Everything is read from the stored folders, never typed in.
+
+    python -m benchmarks.continuation --crude RUN_DIR ... --subset ESTIMATE_DIR ... [--parameter noise.scale]
+        [--figure PNG] [--no-write]
+
+RUN_DIR: a finished ``mcverify run`` folder of one cell (its events counted from episodes.parquet with the
+subset estimate's target, exact Clopper-Pearson interval); ESTIMATE_DIR: a finished ``mcverify estimate
+--method subset`` folder of one cell. Every folder must hold the same cell but for the parameter."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from benchmarks import section
+from mcverify import store
+from mcverify.analysis.columns import Columns, floats
+from mcverify.analysis.estimates import target_events
+from mcverify.analysis.intervals import proportion_interval
+from mcverify.errors import UserError
+from mcverify.estimate.folder import ESTIMATE
+
+NAME = "continuation"
+
+
+@dataclass(frozen=True)
+class Crude:
+    """Crude Monte Carlo at one value: k events of n episodes, the exact interval, its control steps."""
+
+    value: float
+    k: int
+    n: int
+    low: float
+    high: float
+    steps: int
+    seed: int
+    folder: Path
+
+    @property
+    def rate(self) -> float:
+        return self.k / self.n
+
+
+@dataclass(frozen=True)
+class Subset:
+    """One subset simulation estimate at one value (its folder's estimate.json, one cell)."""
+
+    value: float
+    estimate: float
+    low: float
+    high: float
+    relative_halfwidth: float
+    within_run_cov: float
+    runs: tuple[float, ...]
+    stages: tuple[int, ...]
+    samples: int
+    steps: int
+    cpu_s: float
+    crude_steps: float
+    seed: int
+    target: str
+    folder: Path
+
+    @property
+    def factor(self) -> float:
+        return self.crude_steps / self.steps if self.steps else math.nan
+
+
+def _param(params: Mapping[str, Any], dotted: str) -> Any:
+    node: Any = params
+    for part in dotted.split("."):
+        if not isinstance(node, Mapping) or part not in node:
+            raise UserError(f"the cell has no parameter {dotted!r} (e.g. noise.scale, barrier.epsilon)")
+        node = node[part]
+    return node
+
+
+def _without(params: Mapping[str, Any], dotted: str) -> dict[str, Any]:
+    """``params`` with the parameter ``dotted`` removed (what every folder must share)."""
+    head, _, rest = dotted.partition(".")
+    out = dict(params)
+    if rest:
+        out[head] = _without(out[head], rest)
+    else:
+        out.pop(head, None)
+    return out
+
+
+def _one_cell(folder: Path) -> tuple[dict[str, Any], dict[str, Any]]:
+    """(manifest, its one cell) of a finished folder."""
+    if not (Path(folder) / store.MANIFEST).is_file():
+        raise UserError(f"not a run or estimate folder (no {store.MANIFEST}): {folder}")
+    manifest = store.read_manifest(folder)
+    if not manifest.get("finished_utc"):
+        raise UserError(f"{folder} is not finished: resume it first")
+    if len(manifest["cells"]) != 1:
+        raise UserError(f"{folder} has {len(manifest['cells'])} cells; the continuation reads one cell per folder")
+    return manifest, manifest["cells"][0]
+
+
+def read_subset(folder: Path, parameter: str) -> tuple[Subset, dict[str, Any]]:
+    manifest, cell = _one_cell(folder)
+    if (manifest.get("estimate") or {}).get("method") != "subset":
+        raise UserError(f"{folder} is not a subset simulation estimate (mcverify estimate --method subset)")
+    (c,) = store.read_json(Path(folder) / ESTIMATE)["cells"]
+    spec = manifest["estimate"]
+    point = Subset(float(_param(cell["params"], parameter)), float(c["estimate"]), float(c["low"]), float(c["high"]),
+                   float(c["relative_halfwidth"]), float(c["within_run_cov"]), tuple(c["runs"]), tuple(c["stages"]),
+                   int(spec["samples"]), int(c["steps"]), float(c["cpu_s"]), float(c["crude_steps"]),
+                   int(manifest["campaign"]["seed"]), spec["target"], Path(folder))
+    return point, cell["params"]
+
+
+def read_crude(folder: Path, parameter: str, target: str) -> tuple[Crude, dict[str, Any]]:
+    manifest, cell = _one_cell(folder)
+    if manifest.get("estimate"):
+        raise UserError(f"{folder} is an estimate folder; --crude reads `mcverify run` folders")
+    cols = Columns.from_table(store.read_episodes(folder))
+    event, valid = target_events(cols, target)
+    k, n = int(event.sum()), int(valid.sum())
+    ci = proportion_interval(k, n)
+    steps = int(np.nansum(floats(cols, "steps")[valid]))
+    return Crude(float(_param(cell["params"], parameter)), k, n, ci.low, ci.high, steps,
+                 int(manifest["campaign"]["seed"]), Path(folder)), cell["params"]
+
+
+def _check_same_cell(cells: Sequence[tuple[Path, Mapping[str, Any]]], parameter: str) -> None:
+    first_folder, first = cells[0]
+    base = _without(first, parameter)
+    for folder, params in cells[1:]:
+        if _without(params, parameter) != base:
+            differing = sorted(k for k in base if base[k] != _without(params, parameter).get(k))
+            raise UserError(f"{folder} holds another cell than {first_folder} (they differ in "
+                            f"{', '.join(differing) or 'their parameters'}, not only in {parameter})")
+
+
+def _g(x: float) -> str:
+    return f"{x:.3g}" if math.isfinite(x) else "–"
+
+
+def _agreement(s: Subset, c: Crude) -> str:
+    overlap = s.low <= c.high and c.low <= s.high
+    inside = c.low <= s.estimate <= c.high
+    return (f"{'overlap' if overlap else 'DISAGREE'}; subset / crude = {_g(s.estimate / c.rate) if c.k else '–'}; "
+            f"subset estimate {'inside' if inside else 'outside'} crude's interval")
+
+
+def table(points: Sequence[Subset], crude: Mapping[float, Crude], parameter: str) -> str:
+    head = [parameter, "crude Monte Carlo (exact 95 %)", "subset simulation (95 % t on runs)", "runs", "stages",
+            "rel. half-width", "within-run CoV", "control steps", "CPU-s", "crude steps, same width", "factor",
+            "against crude"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for s in sorted(points, key=lambda p: -p.value):
+        c = crude.get(s.value)
+        crude_text = f"{c.k}/{c.n} = {_g(c.rate)} [{_g(c.low)}, {_g(c.high)}], {c.steps:,} steps" if c else "–"
+        lines.append("| " + " | ".join([
+            f"{s.value:g}", crude_text, f"{_g(s.estimate)} [{_g(s.low)}, {_g(s.high)}]",
+            ", ".join(_g(r) for r in s.runs), ", ".join(map(str, s.stages)), f"{s.relative_halfwidth:.2f}",
+            f"{s.within_run_cov:.2f}", f"{s.steps:,}", f"{s.cpu_s:.0f}", f"{s.crude_steps:.3g}", f"{s.factor:.3g}x",
+            _agreement(s, c) if c else "no crude reference"]) + " |")
+    return "\n".join(lines)
+
+
+def beyond_crude(s: Subset) -> str:
+    """What crude Monte Carlo would cost for the subset estimate's width, in CPU at the estimate's own rate."""
+    cpu_h = s.crude_steps * s.cpu_s / s.steps / 3600.0 if s.steps else math.nan
+    return (f"at {s.value:g}: no crude reference; for the same relative half-width ({s.relative_halfwidth:.2f}) crude "
+            f"Monte Carlo needs {s.crude_steps:.3g} control steps, about {cpu_h:.3g} CPU-hours at this machine's "
+            f"rate, against {s.cpu_s / 3600.0:.2g} for subset simulation ({s.factor:.3g}x).")
+
+
+def figure(points: Sequence[Subset], crude: Mapping[float, Crude], parameter: str, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    for i, s in enumerate(sorted(points, key=lambda p: p.value)):
+        low = max(s.low, s.estimate / 100.0)  # a t interval can reach below 0: drawn down to the axis' floor
+        ax.errorbar([s.value + 0.01], [s.estimate], yerr=[[s.estimate - low], [s.high - s.estimate]], fmt="o",
+                    color="C0", capsize=3, label="subset simulation" if i == 0 else None)
+    for i, c in enumerate(sorted(crude.values(), key=lambda p: p.value)):
+        if c.k:
+            ax.errorbar([c.value - 0.01], [c.rate], yerr=[[c.rate - c.low], [c.high - c.rate]], fmt="s", color="C1",
+                        capsize=3, label="crude Monte Carlo" if i == 0 else None)
+        else:
+            ax.plot([c.value - 0.01], [c.high], marker="v", color="C1", label="crude: upper bound" if i == 0 else None)
+    ax.set_yscale("log")
+    ax.set_xlabel(parameter)
+    ax.set_ylabel(f"P({points[0].target})")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def build(points: Sequence[Subset], crude: Mapping[float, Crude], parameter: str, cmd: str,
+          campaign: Mapping[str, Any], figure_path: Path | None) -> str:
+    alone = [s for s in sorted(points, key=lambda p: -p.value) if s.value not in crude]
+    return "\n".join([
+        f"## The rare cell by continuation along {parameter} (`python -m benchmarks.continuation`)", "",
+        section.provenance_line(cmd), "",
+        f"Cell: campaign {campaign['name']} ({campaign['source']}) with {parameter} moved; target "
+        f"{points[0].target}. Crude Monte Carlo: `mcverify run` folders (seeds "
+        f"{', '.join(str(c.seed) for c in crude.values()) or '–'}), the exact two-sided 95 % Clopper-Pearson interval. "
+        f"Subset simulation: `mcverify estimate --method subset` folders (seeds "
+        f"{', '.join(str(s.seed) for s in points)}), independent runs of N samples per stage "
+        f"(N = {', '.join(sorted({str(s.samples) for s in points}))}), the 95 % Student t interval on the runs' "
+        "estimates, the within-run coefficient of variation (Au and Beck, the chains' correlation included) beside "
+        "it. Crude steps, same width: z² (1 - p) / (p r²) episodes of stage 0's mean episode. Agreement: the two "
+        "intervals overlap.", "",
+        table(points, crude, parameter), "",
+        *(f"- {beyond_crude(s)}" for s in alone),
+        *([f"- Figure: `{figure_path}`."] if figure_path else []),
+    ])
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    def body() -> int:
+        p = section.parser(NAME, __doc__.splitlines()[0])
+        p.add_argument("--subset", type=Path, nargs="+", required=True, metavar="DIR",
+                       help="finished subset simulation estimate folders, one value each")
+        p.add_argument("--crude", type=Path, nargs="*", default=[], metavar="DIR",
+                       help="finished `mcverify run` folders of the same cell, one value each")
+        p.add_argument("--parameter", default="noise.scale", help="the parameter moved (default noise.scale)")
+        p.add_argument("--figure", type=Path, help="also draw P(target) against the parameter into this PNG")
+        section.add_output_options(p)
+        args = p.parse_args(argv)
+        read = [read_subset(d, args.parameter) for d in args.subset]
+        points = [s for s, _ in read]
+        if len({s.target for s in points}) != 1:
+            raise UserError("the subset folders estimate different targets")
+        crude_read = [read_crude(d, args.parameter, points[0].target) for d in args.crude]
+        _check_same_cell([(s.folder, prm) for s, prm in read] + [(c.folder, prm) for c, prm in crude_read],
+                         args.parameter)
+        for kind, values in (("subset", [s.value for s in points]), ("crude", [c.value for c, _ in crude_read])):
+            if len(set(values)) != len(values):
+                raise UserError(f"two {kind} folders at the same {args.parameter}; pool them or give one")
+        crude = {c.value: c for c, _ in crude_read}
+        campaign = store.read_manifest(args.subset[0])["campaign"]
+        if args.figure:
+            figure(points, crude, args.parameter, args.figure)
+        text = build(points, crude, args.parameter, section.command(NAME, argv), campaign, args.figure)
+        section.publish(NAME, section.wrap(NAME, text), args)
+        return 0
+
+    return section.run_main(NAME, body)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,83 @@
+"""benchmarks.continuation: the rare cell's section is read from stored crude run folders and subset
+simulation estimate folders of one cell at several noise scales, checked against each other where both ran."""
+
+from __future__ import annotations
+
+import synthetic
+
+from benchmarks import continuation
+from mcverify import files, store
+from mcverify.campaign.spec import campaign_from_dict
+from mcverify.estimate import folder
+
+CELL = {"campaign": {"name": "cont", "seed": 5, "episodes": 200}, "model": {"barrier": {"epsilon": 0.1}}}
+
+
+def _raw(scale: float, **campaign) -> dict:
+    return {"campaign": {**CELL["campaign"], **campaign}, "model": {**CELL["model"], "noise": {"scale": scale}}}
+
+
+def _finish(path):
+    manifest = store.read_json(path / store.MANIFEST)
+    manifest["finished_utc"] = "2026-01-01T11:30:00+00:00"
+    files.write_json_atomic(path / store.MANIFEST, manifest)
+    return path
+
+
+def _crude(tmp_path, scale: float):
+    run = synthetic.make_run(tmp_path / f"crude{scale}", _raw(scale),
+                             probs=lambda cell: {"unsafe": 0.05 * cell.params.noise.scale, "overtook": 0.9,
+                                                 "went_back": 0.05}, trajectories=False)
+    return _finish(run)
+
+
+def _subset(tmp_path, scale: float, estimate: float, runs=(0.9, 1.0, 1.1), target="ellipse"):
+    out = tmp_path / f"subset{scale}"
+    camp = campaign_from_dict(_raw(scale, seed=int(100 * scale)))
+    spec = {"method": "subset", "target": target, "samples": 200, "p0": 0.1, "runs": 3, "level": 0.95,
+            "max_stages": 20}
+    folder.create(out, camp, spec, None)
+    cell = {"cell_index": 0, "cell": "all", "estimate": estimate, "low": 0.5 * estimate, "high": 1.5 * estimate,
+            "relative_halfwidth": 0.5, "within_run_cov": 0.4, "runs": [r * estimate for r in runs],
+            "stages": [3, 3, 3], "steps": 100_000, "cpu_s": 2000.0, "crude_steps": 1e7}
+    files.write_json_atomic(out / folder.ESTIMATE, {"spec": spec, "cells": [cell]})
+    return _finish(out)
+
+
+def test_the_section_sets_subset_beside_crude_and_says_what_crude_would_need(tmp_path, capsys):
+    crude = _crude(tmp_path, 2.0)
+    rate = 0.05 * 2.0
+    args = ["--subset", str(_subset(tmp_path, 2.0, rate)), str(_subset(tmp_path, 1.0, 1e-4)),
+            "--crude", str(crude), "--figure", str(tmp_path / "c.png"), "--write", str(tmp_path / "B.md")]
+    assert continuation.main(args) == 0
+    text = (tmp_path / "B.md").read_text()
+    assert "<!-- benchmarks.continuation:begin" in text and "| noise.scale | crude Monte Carlo" in text
+    crude_point, _ = continuation.read_crude(crude, "noise.scale", "ellipse")
+    assert f"{crude_point.k}/{crude_point.n} =" in text  # counted from episodes.parquet, not typed in
+    row_2 = next(line for line in text.splitlines() if line.startswith("| 2 |"))
+    row_1 = next(line for line in text.splitlines() if line.startswith("| 1 |"))
+    assert "overlap" in row_2 and "no crude reference" in row_1
+    assert "at 1: no crude reference" in text and "100x" in text  # 1e7 crude steps against 1e5
+    assert (tmp_path / "c.png").stat().st_size > 0
+    capsys.readouterr()
+
+
+def test_a_disagreement_is_flagged(tmp_path, capsys):
+    crude = _crude(tmp_path, 2.0)
+    args = ["--subset", str(_subset(tmp_path, 2.0, 1e-4)), "--crude", str(crude), "--no-write"]
+    assert continuation.main(args) == 0
+    assert "DISAGREE" in capsys.readouterr().out
+
+
+def test_folders_of_another_cell_or_unfinished_are_one_line(tmp_path, capsys):
+    other = synthetic.make_run(tmp_path / "other", {**_raw(2.0), "model": {"barrier": {"epsilon": 0.3},
+                                                                          "noise": {"scale": 2.0}}},
+                               trajectories=False)
+    assert continuation.main(["--subset", str(_subset(tmp_path, 1.0, 1e-4)), "--crude", str(other), "--no-write"]) == 2
+    assert "is not finished" in capsys.readouterr().err
+    _finish(other)
+    assert continuation.main(["--subset", str(tmp_path / "subset1.0"), "--crude", str(other), "--no-write"]) == 2
+    err = capsys.readouterr().err
+    assert "holds another cell" in err and "barrier" in err and err.count("\n") == 1
+    assert continuation.main(["--subset", str(tmp_path / "none"), "--no-write"]) == 2
+    assert "no manifest.json" in capsys.readouterr().err
