@@ -225,7 +225,7 @@ def beam_trial(target: str, summary: beam_folder.BeamSummary, where: Path, metho
     eq = summary.episode_equivalents
     scores = [n.score for r in summary.restarts for n in r.frontier if not math.isinf(n.score)]
     return Trial(target, method, summary.seed, 0, 0 if found else None, low, (), eq, eq if found else None,
-                 summary.spec.score, min(scores) if scores else math.nan,
+                 summary.spec.shape.score, min(scores) if scores else math.nan,
                  (Counterexample(where / beam_folder.BEST, 0),) if found else (), counts_episodes=False,
                  peak_snapshots=summary.peak_snapshots)
 

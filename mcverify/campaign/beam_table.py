@@ -43,11 +43,11 @@ _OPTIONAL = ("channels", "units", "score", "front_share", "opp_share")
 
 
 @dataclass(frozen=True)
-class BeamTable:
-    """A validated ``[falsify.beam]`` table (module docstring), times in seconds."""
+class BeamShape:
+    """A beam apart from its time window: how it branches and ranks its nodes, and what its adversary acts on
+    (which channels, with which units, at which shares of the noise bounds). Declared once here, held by the
+    table (times in seconds) and by :class:`mcverify.falsify.beam.BeamSpec` (times in control steps)."""
 
-    window_s: tuple[float, float]
-    segment_s: float
     branching: int
     width: int
     channels: tuple[str, ...] = ("front_y",)
@@ -55,6 +55,15 @@ class BeamTable:
     score: str = "h_front"
     front_share: float = 1.0
     opp_share: float = 1.0
+
+
+@dataclass(frozen=True)
+class BeamTable:
+    """A validated ``[falsify.beam]`` table (module docstring), times in seconds."""
+
+    window_s: tuple[float, float]
+    segment_s: float
+    shape: BeamShape
 
 
 def read_beam(table: Any, here: str) -> BeamTable:
@@ -99,7 +108,8 @@ def read_beam(table: Any, here: str) -> BeamTable:
             if not _number(v) or not 0.0 <= v <= 1.0:
                 raise CampaignError(f"{at}.{key}: expected a number in [0, 1], got {_short(v)}")
             out[key] = float(v)
-    return BeamTable((float(window[0]), float(window[1])), float(segment), channels=tuple(channels), **out)
+    return BeamTable((float(window[0]), float(window[1])), float(segment),
+                     BeamShape(channels=tuple(channels), **out))
 
 
 def _number(v: Any) -> bool:

@@ -36,7 +36,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -45,7 +45,7 @@ import numpy as np
 from mcverify import store
 from mcverify.analysis import robustness as rb
 from mcverify.campaign import executors
-from mcverify.campaign.beam_table import SCORES, UNITS, BeamTable
+from mcverify.campaign.beam_table import SCORES, UNITS, BeamShape, BeamTable
 from mcverify.campaign.spec import Campaign
 from mcverify.episode.rollout import run_episodes
 from mcverify.episode.snapshot import Branching, EpisodeSnapshot
@@ -54,7 +54,7 @@ from mcverify.files import atomic_write, write_json_atomic
 from mcverify.model import Simulation
 from mcverify.sim.schedule import CHANNELS, ErrorSchedule, control_steps
 
-__all__ = ["BEAM", "SCORES", "UNITS", "BeamResult", "BeamSpec", "search", "spec_of", "write_best"]
+__all__ = ["BEAM", "SCORES", "UNITS", "BeamResult", "BeamShape", "BeamSpec", "search", "spec_of", "write_best"]
 
 BEAM = "beam"
 FORMAT = 1
@@ -68,14 +68,8 @@ class BeamSpec:
     first_step: int
     last_step: int
     segment_steps: int
-    branching: int
-    width: int
+    shape: BeamShape  # branching, width, channels, units, score, shares: as the table gives them
     requirement: str
-    channels: tuple[str, ...] = ("front_y",)
-    units: str = "bang_bang"
-    score: str = "h_front"
-    front_share: float = 1.0
-    opp_share: float = 1.0
     seed: int = 0
     restart: int = 0  # a new draw of every child under the same seed (mcverify.falsify.beam_folder's restarts)
 
@@ -83,11 +77,12 @@ class BeamSpec:
         """ValueError (one line) for a spec that does not fit an episode of ``steps`` control steps."""
         if not 0 <= self.first_step < self.last_step <= steps:
             raise ValueError(f"beam window [{self.first_step}, {self.last_step}) must lie in [0, {steps}) steps")
-        if self.segment_steps < 1 or self.branching < 1 or self.width < 1:
+        shape = self.shape
+        if self.segment_steps < 1 or shape.branching < 1 or shape.width < 1:
             raise ValueError("beam segment_steps, branching and width must be positive")
-        if self.units not in UNITS or self.score not in SCORES:
+        if shape.units not in UNITS or shape.score not in SCORES:
             raise ValueError(f"beam units must be one of {UNITS} and score one of {SCORES}")
-        if not self.channels or any(c not in CHANNELS for c in self.channels):
+        if not shape.channels or any(c not in CHANNELS for c in shape.channels):
             raise ValueError(f"beam channels must be names among {', '.join(CHANNELS)}")
 
     @property
@@ -100,13 +95,13 @@ class BeamSpec:
         frontier node."""
         out = [self.root_children]
         for _ in range(1, self.depths):
-            out.append(min(self.width, out[-1]) * self.branching)
+            out.append(min(self.shape.width, out[-1]) * self.shape.branching)
         return out
 
     @property
     def root_children(self) -> int:
         """The root fills the first frontier: ``max(branching, width)`` children."""
-        return max(self.branching, self.width)
+        return max(self.shape.branching, self.shape.width)
 
     def segment_lengths(self) -> list[int]:
         """Control steps of each depth's segment (the last one may be shorter)."""
@@ -119,7 +114,22 @@ class BeamSpec:
         that end earlier, at the goal or inside the window, cost less). A resume's rebuilding is apart."""
         children = self.children_per_depth()
         segments = sum(n * k for n, k in zip(children, self.segment_lengths(), strict=True))
-        return self.first_step + segments + min(self.width, children[-1]) * (steps - self.last_step)
+        return self.first_step + segments + min(self.shape.width, children[-1]) * (steps - self.last_step)
+
+    def to_json(self) -> dict[str, Any]:
+        """The flat dict ``beam.json`` and ``result.json`` keep: the shape's fields inline, in the key order
+        written before :class:`BeamShape` existed, so stored folders compare and re-read unchanged."""
+        shape = {**asdict(self.shape), "channels": list(self.shape.channels)}
+        return {"first_step": self.first_step, "last_step": self.last_step, "segment_steps": self.segment_steps,
+                "branching": shape.pop("branching"), "width": shape.pop("width"), "requirement": self.requirement,
+                **shape, "seed": self.seed, "restart": self.restart}
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> BeamSpec:
+        """The spec of a flat dict from :meth:`to_json`."""
+        names = {f.name for f in fields(BeamShape)}
+        shape = BeamShape(**{**{k: v for k, v in data.items() if k in names}, "channels": tuple(data["channels"])})
+        return cls(**{k: v for k, v in data.items() if k not in names}, shape=shape)
 
 
 def spec_of(table: BeamTable, requirement: str, seed: int, sim: Simulation) -> BeamSpec:
@@ -140,8 +150,7 @@ def spec_of(table: BeamTable, requirement: str, seed: int, sim: Simulation) -> B
     if step(table.segment_s) < 1:
         raise ValueError(f"[falsify.beam] segment_s = {table.segment_s:g} s rounds to no control step "
                          f"({period_s:g} s each)")
-    spec = BeamSpec(step(a), min(step(b), control_steps(sim)), step(table.segment_s), table.branching, table.width,
-                    requirement, table.channels, table.units, table.score, table.front_share, table.opp_share, seed)
+    spec = BeamSpec(step(a), min(step(b), control_steps(sim)), step(table.segment_s), table.shape, requirement, seed)
     spec.check(control_steps(sim))
     return spec
 
@@ -214,7 +223,7 @@ class _Loop:
             branching = Branching(start=start)
         else:
             branching = Branching(start=start, keep=lambda v: v.step == until, stop=lambda v: v.step == until)
-        schedule = ErrorSchedule.of(units, self.spec.front_share, self.spec.opp_share)
+        schedule = ErrorSchedule.of(units, self.spec.shape.front_share, self.spec.shape.opp_share)
         result = run_episodes(self.cell, [0], self.seed, self.planner, branching=branching, schedules=[schedule])
         snap = None if until is None else branching.snapshots.get(until)
         row = result.rows[0] if snap is None else None
@@ -222,7 +231,7 @@ class _Loop:
         return Node(units, end, self._score(snap, row), snap, row), branching.steps
 
     def _score(self, snap: EpisodeSnapshot | None, row: dict[str, Any] | None) -> float:
-        if self.spec.score == "h_front":
+        if self.spec.shape.score == "h_front":
             value = float(snap.trace.min_h_front) if snap is not None else float(row["min_h_front"])
         else:
             value = float(snap.state.theorem5_margin) if snap is not None else float(row["theorem5_margin"])
@@ -233,10 +242,10 @@ def _children(spec: BeamSpec, node: Node, depth: int, rank: int, cols: list[int]
     a = spec.first_step + depth * spec.segment_steps
     b = min(a + spec.segment_steps, spec.last_step)
     out = []
-    for j in range(spec.root_children if depth == 0 else spec.branching):
+    for j in range(spec.root_children if depth == 0 else spec.shape.branching):
         rng = np.random.default_rng([spec.seed, spec.restart, depth, rank, j])
-        shape = (b - a, len(cols))
-        seg = rng.choice([-1.0, 1.0], size=shape) if spec.units == "bang_bang" else rng.uniform(-1.0, 1.0, shape)
+        size = (b - a, len(cols))
+        seg = rng.choice([-1.0, 1.0], size=size) if spec.shape.units == "bang_bang" else rng.uniform(-1.0, 1.0, size)
         units = node.units.copy()
         units[a:b, cols] = seg
         out.append(units)
@@ -255,7 +264,7 @@ def search(campaign: Campaign, spec: BeamSpec, folder: Path, *, stop_after_depth
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     _check_config(folder, spec)
-    cols = [CHANNELS.index(c) for c in spec.channels]
+    cols = [CHANNELS.index(c) for c in spec.shape.channels]
     depth, frontier, cost, rebuild, log = _restore(loop, folder, spec)
     peak = len(frontier)
     if depth == 0:
@@ -285,9 +294,9 @@ def search(campaign: Campaign, spec: BeamSpec, folder: Path, *, stop_after_depth
                 kept.append((child.score, order, child))
                 order += 1
                 kept.sort(key=lambda t: (t[0], t[1]))
-                for _, _, dropped in kept[spec.width:]:
+                for _, _, dropped in kept[spec.shape.width:]:
                     dropped.snapshot = None  # memory: only the frontier keeps its snapshot
-                kept = kept[:spec.width]
+                kept = kept[:spec.shape.width]
                 peak = max(peak, len(frontier) + len(kept) + 1)
         frontier = [n for _, _, n in kept]
         depth += 1
@@ -295,7 +304,7 @@ def search(campaign: Campaign, spec: BeamSpec, folder: Path, *, stop_after_depth
         log.append({"depth": depth, "best_score": frontier[0].score, "control_steps": cost})
         _save(folder, depth, frontier, cost, log)
         if progress is not None:
-            progress(f"beam depth {depth}/{spec.depths}: best {spec.score} {frontier[0].score:.4g}, "
+            progress(f"beam depth {depth}/{spec.depths}: best {spec.shape.score} {frontier[0].score:.4g}, "
                      f"{cost} control steps")
     for node in frontier:  # finish every frontier episode, exactly measured after the window
         if node.row is None:
@@ -335,13 +344,14 @@ def write_best(campaign: Campaign, units: np.ndarray, spec: BeamSpec, run_dir: P
 
     if sum(c.episodes for c in campaign.cells) != 1:
         raise RunError("the beam's best schedule is written as one episode: give a one-episode target campaign")
-    adversary.run_folder(campaign, {0: ErrorSchedule.of(units, spec.front_share, spec.opp_share)}, Path(run_dir))
+    schedule = ErrorSchedule.of(units, spec.shape.front_share, spec.shape.opp_share)
+    adversary.run_folder(campaign, {0: schedule}, Path(run_dir))
     return Path(run_dir)
 
 
 def _check_config(folder: Path, spec: BeamSpec) -> None:
     path = folder / "beam.json"
-    recorded = {**asdict(spec), "channels": list(spec.channels), "format": FORMAT}
+    recorded = {**spec.to_json(), "format": FORMAT}
     if path.is_file():
         if store.read_json(path) != recorded:
             raise RunError(f"{folder}: holds a beam search of another specification; choose another folder")

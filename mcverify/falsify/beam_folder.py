@@ -119,15 +119,15 @@ def describe(config: SearchConfig) -> str:
 
 
 def _spec_lines(spec: BeamSpec, period_s: float, steps: int) -> list[str]:
-    children = spec.children_per_depth()
+    children, shape = spec.children_per_depth(), spec.shape
     return [
         f"window: control steps [{spec.first_step}, {spec.last_step}) = [{spec.first_step * period_s:g}, "
         f"{spec.last_step * period_s:g}) s of {steps} ({period_s:g} s each), segments of {spec.segment_steps} steps: "
         f"{spec.depths} depth(s)",
         f"children per depth (at most): {', '.join(map(str, children))} ({sum(children)} in all); branching "
-        f"{spec.branching}, width {spec.width}; snapshots alive at most {2 * spec.width + 1}",
-        f"units: {spec.units} on {', '.join(spec.channels)}, shares front {spec.front_share:g}, opposing "
-        f"{spec.opp_share:g}; nodes ranked by the running {spec.score}",
+        f"{shape.branching}, width {shape.width}; snapshots alive at most {2 * shape.width + 1}",
+        f"units: {shape.units} on {', '.join(shape.channels)}, shares front {shape.front_share:g}, opposing "
+        f"{shape.opp_share:g}; nodes ranked by the running {shape.score}",
     ]
 
 
@@ -326,14 +326,11 @@ class BeamSummary:
         return self.search_steps / self.full_episode_steps
 
     def to_json(self) -> dict[str, Any]:
-        data = asdict(self)
-        data["spec"]["channels"] = list(self.spec.channels)
-        return data
+        return {**asdict(self), "spec": self.spec.to_json()}
 
     @classmethod
     def from_json(cls, data: dict[str, Any]) -> BeamSummary:
-        spec = BeamSpec(**{**data["spec"], "channels": tuple(data["spec"]["channels"])})
-        return cls(**{**data, "spec": spec,
+        return cls(**{**data, "spec": BeamSpec.from_json(data["spec"]),
                       "restarts": tuple(RestartSummary.from_json(r) for r in data["restarts"])})
 
 
@@ -364,13 +361,14 @@ def write_report(out_dir: Path, summary: BeamSummary) -> Path:
              f"| restart | lowest robustness ({s.requirement}) | control steps |", "|---:|---:|---:|",
              *[f"| {r.restart}{' (chosen)' if r.restart == s.chosen else ''} | {r.best_robustness:.4g} | "
                f"{r.search_steps} |" for r in s.restarts], "",
-             f"## Depths of restart {s.chosen}", "", f"| depth | best running {s.spec.score} | control steps so far |",
+             f"## Depths of restart {s.chosen}", "",
+             f"| depth | best running {s.spec.shape.score} | control steps so far |",
              "|---:|---:|---:|", *[f"| {d} | {score:.4g} | {cost} |" for d, score, cost in chosen.depth_log], "",
              *([f"Stopped at depth {chosen.stopped_at_depth}: a child violated `{s.requirement}` in its segment (a "
                 "running minimum, violated for good), so it ran to its episode's end as the counterexample and the "
                 "search ended; its frontier below is that node.", ""] if chosen.stopped_at_depth is not None else []),
              f"## Final frontier of restart {s.chosen}", "", f"| rank | robustness ({s.requirement}) | running "
-             f"{s.spec.score} at the window's end | outcome | control steps |", "|---:|---:|---:|---|---:|",
+             f"{s.spec.shape.score} at the window's end | outcome | control steps |", "|---:|---:|---:|---|---:|",
              *[f"| {i}{' (best)' if i == chosen.best else ''} | {n.robustness:.4g} | {n.score:.4g} | {n.outcome} | "
                f"{n.steps} |" for i, n in enumerate(chosen.frontier)], "",
              "## Cost", "",
@@ -378,7 +376,7 @@ def write_report(out_dir: Path, summary: BeamSummary) -> Path:
              f"({steps} control steps per episode) over {len(s.restarts)} restart(s)",
              f"- rebuilding snapshots after a resume: {s.rebuild_steps} control steps (not counted above)",
              f"- snapshots alive at most: {s.peak_snapshots} (in the search's last process; bound "
-             f"{2 * s.spec.width + 1})", "",
+             f"{2 * s.spec.shape.width + 1})", "",
              "## Replay", "",
              f"The chosen node's whole schedule (zeros outside the window) re-simulated from step 0 is "
              f"`{out_dir / BEST}`, one episode; `mcverify replay {out_dir / BEST} 0` re-simulates it bit for bit.", ""]

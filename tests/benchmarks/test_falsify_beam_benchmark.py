@@ -44,7 +44,7 @@ def test_a_beam_trial_is_its_folder_in_episode_equivalents(beam_run, monkeypatch
     assert not trial.counts_episodes and trial.episodes == 0 and trial.curve == ()
     found = trial.min_robustness < 0.0
     assert (trial.first_counterexample is not None) == found == bool(trial.counterexamples)
-    assert trial.peak_snapshots == summary.peak_snapshots <= 2 * summary.spec.width + 1
+    assert trial.peak_snapshots == summary.peak_snapshots <= 2 * summary.spec.shape.width + 1
     assert trial.guide == "h_front" and trial.min_guide == min(n.score for n in summary.frontier)
     assert trial.peak_rss_mb is not None and trial.peak_rss_mb > 0.0  # psutil comes with the test extra
     monkeypatch.setattr(beam, "search", lambda *a, **k: pytest.fail("a finished trial is re-read, not run"))
@@ -131,7 +131,7 @@ def test_random_schedules_are_the_beam_with_branching_1_paired_by_seed(beam_run,
     (base,) = bench.run_trials([target], [bench.RANDOM_SCHEDULES], 1, 3, 7, tmp_path / "r")
     where = tmp_path / "r" / "beam-cli" / bench.RANDOM_SCHEDULES / "trial-00"
     summary = beam_folder.read_summary(where)
-    assert summary.spec.branching == 1 and summary.spec.width == 2 and summary.seed == 7
+    assert summary.spec.shape.branching == 1 and summary.spec.shape.width == 2 and summary.seed == 7
     assert base.method == bench.RANDOM_SCHEDULES and not base.counts_episodes
     assert summary.spec.children_per_depth() == [2, 2]
     text = bench.paired_sentence([beam_trial, base], "beam-cli", "beam", bench.RANDOM_SCHEDULES)

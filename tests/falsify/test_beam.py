@@ -5,6 +5,7 @@ only their own steps, and the best schedule re-simulated from step 0 gives the b
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 
 import numpy as np
 import pyarrow.parquet as pq
@@ -18,8 +19,8 @@ from mcverify.falsify import beam
 RAW = {"campaign": {"name": "beam-test", "seed": 3, "episodes": 1},
        "model": {"sim": {"control_period_s": 0.1, "substeps": 20, "max_time_s": 3.0},
                  "scenario": {"front_x_m": 30.0}}}
-SPEC = beam.BeamSpec(first_step=5, last_step=15, segment_steps=5, branching=2, width=2, requirement="ellipse",
-                     channels=("front_x", "front_y"), seed=7)
+SPEC = beam.BeamSpec(first_step=5, last_step=15, segment_steps=5, requirement="ellipse", seed=7,
+                     shape=beam.BeamShape(branching=2, width=2, channels=("front_x", "front_y")))
 
 
 @pytest.fixture(scope="module")
@@ -49,11 +50,17 @@ def test_nodes_cost_their_own_steps_and_memory_stays_bounded(whole):
     assert [n.row["outcome"] for n in whole.frontier] == ["timeout", "timeout"]
     assert whole.search_steps == 5 + 10 + 20 + 30
     assert [d["control_steps"] for d in whole.depth_log] == [15, 35]
-    assert whole.peak_snapshots <= 2 * SPEC.width + 1
+    assert whole.peak_snapshots <= 2 * SPEC.shape.width + 1
     # the adversary acted in the window only, with bang-bang units on the chosen channels
     for node in whole.frontier:
         assert not node.units[:5].any() and not node.units[15:].any() and not node.units[:, 2:].any()
         assert set(np.unique(node.units[5:15, :2])) <= {-1.0, 1.0}
+
+
+def test_the_final_frontier_is_the_one_found_before(whole):
+    """The frontier's schedules, pinned from the code before BeamShape: the draws and the ranking unchanged."""
+    digest = hashlib.sha256(np.stack([n.units for n in whole.frontier]).tobytes()).hexdigest()
+    assert digest == "6429cdbb89962418581fb792ac5646754d4296f114cfd8e99ea5329d834236e3"
 
 
 def test_the_best_schedule_replays_bit_for_bit_from_step_0(campaign, whole, tmp_path):
