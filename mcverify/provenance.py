@@ -37,7 +37,7 @@ PACKAGE_DIR = Path(__file__).resolve().parent
 #: the model, the plant, the optimal-control problem, the solvers, the controller, the rollout and
 #: the run layer (cell expansion, error rows).
 SIMULATION_PARTS = (
-    "model.py", "model_validation.py", "levels.py", "cell.py", "schema.py", "requirements.py", "draws.py",
+    "model", "model_validation.py", "levels.py", "cell.py", "schema.py", "requirements.py", "draws.py",
     "sim", "ocp", "solver", "control", "episode", "campaign", "estimate",
 )
 #: Modules inside :data:`SIMULATION_PARTS` that cannot change an episode row, with the reason: rows

@@ -36,11 +36,11 @@ def test_every_part_of_the_package_is_classified() -> None:
 
 def test_the_c_solver_enters_the_hash() -> None:
     names = {p.relative_to(PACKAGE).as_posix() for p in provenance.simulation_files()}
-    assert "solver/csrc/ipm.c" in names and "sim/plant.py" in names and "model.py" in names
+    assert "solver/csrc/ipm.c" in names and "sim/plant.py" in names and "model/params.py" in names
     assert not any(n.startswith(("reporting/", "analysis/", "cli/")) for n in names)
 
 
-@pytest.mark.parametrize("edited", ["solver/csrc/ipm.c", "sim/plant.py", "ocp/__init__.py", "model.py"])
+@pytest.mark.parametrize("edited", ["solver/csrc/ipm.c", "sim/plant.py", "ocp/__init__.py", "model/noise.py"])
 def test_editing_a_simulation_file_changes_the_version(package_copy: Path, edited: str) -> None:
     before = provenance.source_digest(package_copy)
     _append(package_copy / edited, "\n/* edited */\n" if edited.endswith(".c") else "\n# edited\n")
