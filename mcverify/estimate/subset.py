@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
@@ -122,6 +123,9 @@ class Run:
     capped: bool
     failing: np.ndarray = field(repr=False, compare=False)  # == leaves the arrays out; same_as compares them
     failing_g: np.ndarray = field(repr=False, compare=False)
+    #: CPU seconds of the stages kept, across resumes (NaN: a checkpoint from before it was kept); a measure of
+    #: the machine, not of the run, so neither == nor same_as compares it
+    cpu_s: float = field(default=math.nan, compare=False)
 
     def same_as(self, other: Run) -> bool:
         """Bit-for-bit equality, arrays included."""
@@ -212,11 +216,12 @@ class _State:
     made: tuple[float | None, float | None, int, int]  # acceptance, scale, evaluations, steps of this population
     scale: float
     stages: list[Stage]
+    cpu_s: float = 0.0  # CPU seconds spent on the stages and population kept here, earlier processes included
 
 
 def _save(path: Path, fingerprint: str, state: _State) -> None:
     meta = json.dumps({"fingerprint": fingerprint, "stage": state.stage, "made": list(state.made),
-                       "stages": [asdict(s) for s in state.stages]})
+                       "stages": [asdict(s) for s in state.stages], "cpu_s": state.cpu_s})
 
     def write(tmp: str) -> None:
         with open(tmp, "wb") as f:
@@ -232,7 +237,7 @@ def _load(path: Path, fingerprint: str) -> _State:
             raise ValueError(f"{path} is the checkpoint of another run (problem, settings, seed or run differ)")
         acc, sc, ev, st = meta["made"]
         return _State(meta["stage"], data["x"].copy(), data["g"].copy(), (acc, sc, int(ev), int(st)),
-                      float(data["scale"][0]), [Stage(**s) for s in meta["stages"]])
+                      float(data["scale"][0]), [Stage(**s) for s in meta["stages"]], float(meta.get("cpu_s", math.nan)))
 
 
 # -- one run -----------------------------------------------------------------------------------------
@@ -255,9 +260,12 @@ def run(problem: Problem, settings: Settings = Settings(), *, seed: Seed = 0, ru
     each stage is saved there, and a run that finds its own checkpoint continues from it."""
     fingerprint = _fingerprint(problem, settings, seed, run)
     path = None if checkpoint is None else Path(checkpoint)
+    clock = time.process_time()
     state = _load(path, fingerprint) if path is not None and path.is_file() else _start(problem, settings, seed, run)
     chains = settings.chains
     while True:
+        state.cpu_s += time.process_time() - clock  # the work this process did since the state it came from
+        clock = time.process_time()
         if path is not None:
             _save(path, fingerprint, state)
         g = state.g
@@ -277,7 +285,7 @@ def run(problem: Problem, settings: Settings = Settings(), *, seed: Seed = 0, ru
         xs, gs, rate, scale, spent = _chains(problem, state.x[seeds], g[seeds], level, state.scale, settings,
                                              (seed, run, stage))
         state = _State(stage, xs.reshape(settings.n, -1), gs.reshape(settings.n),
-                       (rate, state.scale, settings.n - chains, spent), scale, state.stages)
+                       (rate, state.scale, settings.n - chains, spent), scale, state.stages, state.cpu_s)
     return _finish(state, settings, capped=not last)
 
 
@@ -289,7 +297,7 @@ def _finish(state: _State, settings: Settings, capped: bool) -> Run:
     cov = math.sqrt(sum(terms)) if shares[-1] > 0 else math.inf
     fail = state.g <= settings.failure_level
     return Run(estimate, cov, tuple(stages), sum(s.evaluations for s in stages), sum(s.steps for s in stages),
-               capped, state.x[fail], state.g[fail])
+               capped, state.x[fail], state.g[fail], state.cpu_s)
 
 
 # -- independent runs and their interval -------------------------------------------------------------

@@ -6,6 +6,7 @@ refused. The coverage study on the surrogate is marked slow (and is benchmarks.s
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -81,9 +82,13 @@ def test_a_killed_run_resumed_from_its_checkpoint_equals_an_uninterrupted_one(tm
         with pytest.raises(KeyboardInterrupt):
             subset.run(Killed(SURROGATE, calls), settings, seed=5, run=2, checkpoint=path)
         assert path.is_file()
+    with np.load(path) as data:  # the CPU of the stages the killed attempts kept travels in the checkpoint
+        kept_cpu_s = json.loads(str(data["meta"]))["cpu_s"]
+    assert kept_cpu_s > 0
     counting = Killed(SURROGATE, 10**6)
     resumed = subset.run(counting, settings, seed=5, run=2, checkpoint=path)
     assert resumed.same_as(whole) and resumed == whole
+    assert resumed.cpu_s > kept_cpu_s and whole.cpu_s > 0  # a resumed run's CPU counts the earlier processes' stages
     # it continued from the saved stage: stage 0 (one call) and the first conditional stage (45 calls:
     # 5 groups of 10 chains, 9 steps each) were not run again
     assert 10**6 - counting.calls <= 1 + 45 * (len(whole.stages) - 1) - 46
