@@ -206,9 +206,22 @@ def figure(points: Sequence[Subset], crude: Mapping[float, Crude], parameter: st
     plt.close(fig)
 
 
+def code_line(folders: Sequence[Path]) -> str:
+    """Which code made each folder: its git commit and the hash of its simulation source (folders with the
+    same source hash simulate identically, whatever their commits)."""
+    def one(folder: Path) -> str:
+        m = store.read_manifest(folder)
+        commit = str(m.get("environment", {}).get("git_commit") or "unknown")[:7]
+        return f"{folder.name} {commit} (source {str(m.get('code', {}).get('source_sha256', '?'))[:8]})"
+
+    return "Code, per folder: " + "; ".join(one(f) for f in folders) + "."
+
+
 def build(points: Sequence[Subset], crude: Mapping[float, Crude], parameter: str, cmd: str,
           campaign: Mapping[str, Any], figure_path: Path | None) -> str:
     alone = [s for s in sorted(points, key=lambda p: -p.value) if s.value not in crude]
+    folders = [p.folder for p in sorted(points, key=lambda p: -p.value)] + [
+        c.folder for c in sorted(crude.values(), key=lambda c: -c.value)]
     return "\n".join([
         f"## The rare cell by continuation along {parameter} (`python -m benchmarks.continuation`)", "",
         section.provenance_line(cmd), "",
@@ -223,6 +236,7 @@ def build(points: Sequence[Subset], crude: Mapping[float, Crude], parameter: str
         "intervals overlap.", "",
         table(points, crude, parameter), "",
         *(f"- {beyond_crude(s)}" for s in alone),
+        f"- {code_line(folders)}",
         *([f"- Figure: `{figure_path}`."] if figure_path else []),
     ])
 
