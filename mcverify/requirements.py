@@ -239,6 +239,9 @@ SCORES: dict[str, str] = {s.name: s.target for s in _SCORES}
 H_EF_SCORES: tuple[str, ...] = tuple(s.name for s in _SCORES if s.signal == "h_ef")
 #: The targets a score reaches (what splitting and importance sampling can estimate).
 SCORED_TARGETS: tuple[str, ...] = tuple(t for t in TARGETS if any(s.target == t for s in _SCORES))
+#: The performance functions subset simulation can climb (``mcverify estimate --performance``), the default
+#: first; each is <= 0 exactly at its target's event (:mod:`mcverify.estimate.input_vector`).
+PERFORMANCES: tuple[str, ...] = ("robustness", "precursor-ladder")
 
 
 def default_score(target: str) -> str:

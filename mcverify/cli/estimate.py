@@ -61,6 +61,10 @@ def _add_rare_event_options(p: argparse.ArgumentParser) -> None:
                         "docs/decisions.md)")
     p.add_argument("--p0", type=options.open_unit, default=None,
                    help="subset: conditional level of each stage (default 0.1; N * p0 chains of 1 / p0 episodes)")
+    p.add_argument("--performance", choices=requirements.PERFORMANCES, default=None,
+                   help="subset: the function whose levels the runs climb, <= 0 exactly at the event: robustness "
+                        "(the target's) or precursor-ladder (robustness / (1 + longest run of control steps with "
+                        "neither Q1 nor Q2 solved): for events that follow a held plan (default robustness)")
     p.add_argument("--cell", action="append", default=[], metavar="NAME",
                    help="splitting, importance: only this cell (repeatable; default: every cell); splitting runs its "
                         "AMS runs, importance its batches of 8 episodes, in this process unless --workers (local) "
@@ -96,6 +100,7 @@ _ESTIMATE_METHOD_OPTIONS: tuple[tuple[str, str, tuple[str, ...]], ...] = (
     ("replicates", "--replicates", ("splitting", "subset")),
     ("stage_samples", "--stage-samples", ("subset",)),
     ("p0", "--p0", ("subset",)),
+    ("performance", "--performance", ("subset",)),
     ("max_iterations", "--max-iterations", ("splitting",)),
     ("samples", "--samples", ("importance",)),
     ("ce_samples", "--ce-samples", ("importance",)),
@@ -107,7 +112,7 @@ _ESTIMATE_METHOD_OPTIONS: tuple[tuple[str, str, tuple[str, ...]], ...] = (
 _ESTIMATE_DEFAULTS: dict[str, object] = {
     "method": "mc", "target": "collision", "budget": 1000, "level": 0.95, "particles": 20, "replicates": 8,
     "samples": 400, "ce_samples": 100, "ce_iterations": 10, "elite_share": 0.1, "max_iterations": 2000,
-    "stage_samples": 2000, "p0": 0.1,
+    "stage_samples": 2000, "p0": 0.1, "performance": "robustness",
 }
 
 
@@ -194,7 +199,8 @@ def _estimate_spec(args, method: str):
                 raise RunError(f"--score {score} estimates {spec.target}, not --target {args.target}")
             return spec
         if method == "subset":
-            return subset_run.SubsetSpec(args.target, args.stage_samples, args.p0, args.replicates, args.level)
+            return subset_run.SubsetSpec(args.target, args.stage_samples, args.p0, args.replicates, args.level,
+                                         performance=args.performance)
         return importance_run.ImportanceSpec(args.target, args.samples, args.ce_samples, rho=args.elite_share,
                                              level=args.level, max_ce_iterations=args.ce_iterations,
                                              score=args.score, noise_tilt=args.noise_tilt)

@@ -15,10 +15,20 @@ law the rollout draws it with, and each error unit is uniform in [-1, 1], the pa
 (:func:`mcverify.sim.noise.measure` with no structured share) scaled by the same half-widths. A cell
 whose noise has structured disturbances, a fixed key or noise branches has another law and is refused.
 
-The performance function g of a row is the target's robustness (:mod:`mcverify.analysis.robustness`,
-the minimum over the target's requirements): g <= 0 exactly when the target event occurred (a
-collision reads as a negative robustness; h_ef = 0 exactly has probability 0). Cost: the control
-steps each episode ran (``steps`` of its row).
+The performance function g of a row is one of :data:`mcverify.requirements.PERFORMANCES`, each <= 0
+exactly when the target event occurred, so the event and its probability do not depend on the choice,
+only the intermediate levels subset simulation climbs:
+
+- ``robustness`` (the default): the target's robustness (:mod:`mcverify.analysis.robustness`, the
+  minimum over the target's requirements; a collision reads as a negative robustness; h_ef = 0
+  exactly has probability 0);
+- ``precursor-ladder``: the robustness divided by 1 + the longest run of consecutive control steps in
+  which neither Q1 nor Q2 was solved. Where the event comes from the ego holding its last plan through
+  such a run, the runs of 1, 2, 4, ... unsolved steps are its precursors, each about a tenth as common
+  as the one before, and this g puts the intermediate levels on them instead of on the tail of the
+  episodes that never hold a plan (the measurement: docs/rare_events.md, "the precursor ladder").
+
+Cost: the control steps each episode ran (``steps`` of its row).
 """
 
 from __future__ import annotations
@@ -39,7 +49,7 @@ from mcverify.draws import DRAWS, Draw
 from mcverify.episode.draws import value_of_unit
 from mcverify.episode.rollout import ChunkResult, run_episodes
 from mcverify.errors import RunError
-from mcverify.requirements import TARGETS
+from mcverify.requirements import PERFORMANCES, TARGETS
 from mcverify.sim.schedule import CHANNELS, FRONT_CHANNELS, OPP_CHANNELS, ErrorSchedule, control_steps
 
 
@@ -72,14 +82,16 @@ def check_law(cell: Cell) -> None:
 @dataclass
 class ClosedLoopProblem:
     """One cell's closed loop for :func:`mcverify.estimate.subset.run`: ``dimension``, ``evaluate(x)``
-    (robustness, control steps per row), ``key`` (names it in checkpoints). Episodes are run in batches
-    of the rows given (one rollout per call); an episode's id is its row within the call, which no value
+    (performance, control steps per row; ``performance_function`` one of
+    :data:`mcverify.requirements.PERFORMANCES`), ``key`` (names it in checkpoints). Episodes are run in
+    batches of the rows given (one rollout per call); an episode's id is its row within the call, which no value
     depends on (every input comes from x)."""
 
     cell: Cell
     seed: int
     target: str
     planner: Any
+    performance_function: str = PERFORMANCES[0]
     draws: tuple[Draw, ...] = field(init=False)
     channels: tuple[int, ...] = field(init=False)
     steps: int = field(init=False)
@@ -89,6 +101,9 @@ class ClosedLoopProblem:
     def __post_init__(self) -> None:
         if self.target not in TARGETS:
             raise RunError(f"unknown target {self.target!r}; valid: {', '.join(TARGETS)}")
+        if self.performance_function not in PERFORMANCES:
+            raise RunError(f"unknown performance function {self.performance_function!r}; valid: "
+                           f"{', '.join(PERFORMANCES)}")
         check_law(self.cell)
         self.draws = random_draws(self.cell)
         self.channels = measured_channels(self.cell)
@@ -100,9 +115,13 @@ class ClosedLoopProblem:
 
     @property
     def key(self) -> str:
-        """The cell's parameters, seed and target, hashed: a checkpoint of another problem is refused."""
-        text = json.dumps({"cell": self.cell.name, "params": repr(self.cell.params), "seed": self.seed,
-                           "target": self.target}, sort_keys=True)
+        """The cell's parameters, seed, target and performance function, hashed: a checkpoint of another
+        problem is refused. (The default performance function is left out, so that keys made before there
+        was a choice stay valid.)"""
+        fields = {"cell": self.cell.name, "params": repr(self.cell.params), "seed": self.seed, "target": self.target}
+        if self.performance_function != PERFORMANCES[0]:
+            fields["performance"] = self.performance_function
+        text = json.dumps(fields, sort_keys=True)
         return hashlib.sha256(text.encode()).hexdigest()
 
     def inputs(self, x: np.ndarray) -> tuple[list[dict[str, float]], list[ErrorSchedule]]:
@@ -128,9 +147,12 @@ class ClosedLoopProblem:
                             schedules=schedules, record=record)
 
     def performance(self, row: dict[str, Any]) -> float:
-        """The target's robustness of one row (<= 0 exactly at the event)."""
+        """The performance function of one row (<= 0 exactly at the event)."""
         values = [robustness(row, r) for r in TARGETS[self.target].requirements]
-        return float(min(values)) if values else math.nan
+        g = float(min(values)) if values else math.nan
+        if self.performance_function == "precursor-ladder":
+            g /= 1.0 + int(row.get("both_infeasible_longest_run") or 0)  # a positive divisor keeps the sign
+        return g
 
     def evaluate(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         result = self.simulate(x)

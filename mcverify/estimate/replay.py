@@ -55,6 +55,7 @@ from mcverify.estimate.closed_loop import score_of
 from mcverify.estimate.importance import Proposal, log_defensive_weights
 from mcverify.estimate.importance_files import samples_file
 from mcverify.estimate.importance_run import scenario_nominal
+from mcverify.requirements import PERFORMANCES
 from mcverify.sim.tilt import NoiseTilt
 
 
@@ -240,7 +241,8 @@ def replay_sample(est_dir: Path, k: int, out_dir: Path | None = None, cell_name:
         x, g = subset_run.failing_inputs(est_dir, result["cell_index"], run_id)
         cell = _solver_of(campaign.cells[result["cell_index"]], reference)
         target = manifest["estimate"]["target"]
-    problem = subset_run.problem_for(cell, campaign.seed, target)
+        performance = manifest["estimate"].get("performance", PERFORMANCES[0])
+    problem = subset_run.problem_for(cell, campaign.seed, target, performance)
     replayed = problem.simulate(x[j:j + 1], record=True)
     row = replayed.rows[0]
     stem = f"cell{result['cell_index']:03d}-sample-{k:04d}" + _suffix(reference)
@@ -248,6 +250,6 @@ def replay_sample(est_dir: Path, k: int, out_dir: Path | None = None, cell_name:
                                  stem)
     got = problem.performance(row)
     if not reference and np.float64(got).tobytes() != np.float64(g[j]).tobytes():
-        raise ReplayMismatch(f"failing sample {k} does not reproduce: its {target} robustness was {float(g[j])!r}, "
+        raise ReplayMismatch(f"failing sample {k} does not reproduce: its {target} {performance} was {float(g[j])!r}, "
                              f"replayed {got!r}")
     return ReplayResult(k, traj, plot, row, ())

@@ -37,13 +37,14 @@ from mcverify.errors import RunError
 from mcverify.estimate import folder, replicates, subset
 from mcverify.estimate.folder import num
 from mcverify.estimate.input_vector import ClosedLoopProblem, check_law
-from mcverify.requirements import TARGETS
+from mcverify.requirements import PERFORMANCES, TARGETS
 
 
 @dataclass(frozen=True)
 class SubsetSpec:
     """target: the event (:data:`mcverify.requirements.TARGETS`); samples: N per stage; p0: the
-    conditional level; runs: independent runs for the interval; level; max_stages per run."""
+    conditional level; runs: independent runs for the interval; level; max_stages per run; performance:
+    the function whose levels the runs climb (:data:`mcverify.requirements.PERFORMANCES`)."""
 
     target: str = "collision"
     samples: int = 2000
@@ -51,10 +52,13 @@ class SubsetSpec:
     runs: int = 8
     level: float = 0.95
     max_stages: int = 20
+    performance: str = PERFORMANCES[0]
 
     def __post_init__(self) -> None:
         if self.target not in TARGETS:
             raise ValueError(f"unknown target {self.target!r}; valid: {', '.join(TARGETS)}")
+        if self.performance not in PERFORMANCES:
+            raise ValueError(f"unknown --performance {self.performance!r}; valid: {', '.join(PERFORMANCES)}")
         if self.runs < 2:
             raise ValueError(f"--replicates must be at least 2 (got {self.runs}) for an interval")
         self.settings()  # N and p0 checked there
@@ -111,8 +115,8 @@ class _UnitResult:
     recordings: dict = field(default_factory=dict)
 
 
-def problem_for(cell: Cell, seed: int, target: str) -> ClosedLoopProblem:
-    return ClosedLoopProblem(cell, seed, target, executors.solver_for(cell.params))
+def problem_for(cell: Cell, seed: int, target: str, performance: str = PERFORMANCES[0]) -> ClosedLoopProblem:
+    return ClosedLoopProblem(cell, seed, target, executors.solver_for(cell.params), performance)
 
 
 def run_key(campaign_seed: int, cell: Cell, common_random_numbers: bool) -> tuple[int, ...]:
@@ -128,7 +132,7 @@ def run_unit(cell: Cell, episode_ids: tuple[int, ...], seed: int, common_random_
     stem = run_stem(Path(out), cell.index, run_id)
     stem.parent.mkdir(parents=True, exist_ok=True)
     start = time.process_time()
-    problem = problem_for(cell, seed, sp.target)
+    problem = problem_for(cell, seed, sp.target, sp.performance)
     setup_s = time.process_time() - start  # the solver loaded in this process; the run counts its own stages
     result = subset.run(problem, sp.settings(), seed=run_key(seed, cell, common_random_numbers), run=run_id,
                         checkpoint=stem.with_suffix(".npz"))
@@ -193,7 +197,11 @@ def columns(out: Path, cells: int) -> list[folder.Column]:
 def _write(out: Path, spec: SubsetSpec, campaign: Campaign, results: dict[int, dict]) -> Path:
     intro = (f"Target: {spec.target} (its robustness <= 0). Subset simulation over the whole input vector (the "
              f"scenario draws and every per-step perception error as standard normals), {spec.runs} independent "
-             f"runs of {spec.samples} episodes per stage at conditional level {spec.p0}; the interval is asymptotic "
+             f"runs of {spec.samples} episodes per stage at conditional level {spec.p0}"
+             + ("" if spec.performance == PERFORMANCES[0] else
+                " climbing the precursor ladder (performance function: the robustness / (1 + the longest run of "
+                "control steps with neither Q1 nor Q2 solved), the same event)")
+             + "; the interval is asymptotic "
              f"({spec.level:.0%} Student t on the runs' estimates), the within-run CoV (Au and Beck, chains' "
              "correlation included) beside it.")
     return folder.write(out, f"mcverify subset estimate: {campaign.name}", intro,

@@ -5,6 +5,8 @@ cells whose noise is not i.i.d. uniform units."""
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 from pathlib import Path
 
 import jax
@@ -77,3 +79,27 @@ def test_an_unknown_target_is_refused(cell):
 
 def test_jax_is_in_double_precision():  # the law test above compares to 1e-9
     assert jax.config.read("jax_enable_x64")
+
+
+@pytest.mark.parametrize(("h_ef", "longest_run", "expected"), [
+    (0.3, 0, 0.3), (0.3, 2, 0.1), (-0.03, 2, -0.01), (0.0, 5, 0.0), (-0.2, 0, -0.2),
+])
+def test_the_precursor_ladder_divides_the_robustness_by_one_plus_the_longest_unsolved_run(
+        cell, h_ef, longest_run, expected):
+    plain = ClosedLoopProblem(cell, 11, "ellipse", None)
+    ladder = ClosedLoopProblem(cell, 11, "ellipse", None, "precursor-ladder")
+    row = {"outcome": "completed", "min_h_front": h_ef, "both_infeasible_longest_run": longest_run}
+    assert plain.performance(row) == h_ef
+    assert ladder.performance(row) == pytest.approx(expected, abs=1e-15)
+    assert (ladder.performance(row) <= 0) == (plain.performance(row) <= 0)  # the same event
+
+
+def test_the_performance_function_names_the_problem_but_the_default_keeps_old_keys(cell):
+    plain = ClosedLoopProblem(cell, 11, "ellipse", None)
+    ladder = ClosedLoopProblem(cell, 11, "ellipse", None, "precursor-ladder")
+    assert plain.key != ladder.key
+    old = hashlib.sha256(json.dumps({"cell": cell.name, "params": repr(cell.params), "seed": 11,
+                                     "target": "ellipse"}, sort_keys=True).encode()).hexdigest()
+    assert plain.key == old  # checkpoints written before there was a choice still resume
+    with pytest.raises(RunError, match="unknown performance function 'gap'; valid: robustness, precursor-ladder"):
+        ClosedLoopProblem(cell, 11, "ellipse", None, "gap")

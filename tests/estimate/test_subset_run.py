@@ -36,9 +36,22 @@ class _SurrogateProblem:
 @pytest.fixture
 def surrogate(monkeypatch):
     s = Surrogate.at(1e-3, clock="decision")
-    monkeypatch.setattr(subset_run, "problem_for", lambda cell, seed, target: _SurrogateProblem(s))
+    monkeypatch.setattr(subset_run, "problem_for", lambda cell, seed, target, performance: _SurrogateProblem(s))
     monkeypatch.setattr(subset_run, "check_law", lambda cell: None)
     return s
+
+
+@pytest.fixture
+def asked(surrogate, monkeypatch):
+    """The performance function each run asked for."""
+    names = []
+
+    def problem_for(cell, seed, target, performance):
+        names.append(performance)
+        return _SurrogateProblem(surrogate)
+
+    monkeypatch.setattr(subset_run, "problem_for", problem_for)
+    return names
 
 
 def _estimate(out: Path) -> dict:
@@ -46,7 +59,7 @@ def _estimate(out: Path) -> dict:
     return {k: v for k, v in cells[0].items() if k != "cpu_s"}
 
 
-def test_subset_folder_holds_the_estimate_its_interval_and_cost(tmp_path, surrogate):
+def test_subset_folder_holds_the_estimate_its_interval_and_cost(tmp_path, surrogate, asked):
     out = tmp_path / "sub"
     argv = ["estimate", str(FIXTURE), "--method", "subset", "--target", "ellipse", "--stage-samples", "200",
             "--replicates", "3", "--cell", CELL, "--run-dir", str(out), "-q"]
@@ -64,6 +77,18 @@ def test_subset_folder_holds_the_estimate_its_interval_and_cost(tmp_path, surrog
     assert "Subset simulation over the whole input vector" in report and "| front_speed_kmh=36 |" in report
     assert main(["report", str(out)]) == 0  # rebuilt from the stored runs, running nothing
     assert (out / "report.md").read_text() == report
+    assert asked == ["robustness"] * 3 and "precursor ladder" not in report
+
+
+def test_the_precursor_ladder_is_recorded_in_the_folder_and_its_report(tmp_path, asked):
+    out = tmp_path / "sub"
+    argv = ["estimate", str(FIXTURE), "--method", "subset", "--target", "ellipse", "--stage-samples", "100",
+            "--replicates", "2", "--cell", CELL, "--performance", "precursor-ladder", "--run-dir", str(out), "-q"]
+    assert main(argv) == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["estimate"]["performance"] == "precursor-ladder"
+    assert asked == ["precursor-ladder"] * 2
+    assert "climbing the precursor ladder" in (out / "report.md").read_text()
 
 
 def test_an_interrupted_subset_estimate_resumes_to_the_uninterrupted_one(tmp_path, surrogate):
@@ -90,6 +115,7 @@ def test_subset_bad_options_are_one_line(capsys):
         (["--p0", "0.3", "--stage-samples", "10"], "n * p0 must be an integer"),
         (["--replicates", "1"], "--replicates must be at least 2"),
         (["--particles", "4"], "--particles is for --method splitting"),
+        (["--method", "splitting", "--performance", "precursor-ladder"], "--performance is for --method subset"),
         (["--set", "noise.structured_share=0.5"], "noise.structured_share = 0.5"),
     ):
         assert main(["estimate", str(FIXTURE), "--method", "subset", *argv]) == 2, argv
