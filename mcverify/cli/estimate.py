@@ -260,6 +260,11 @@ def _executor_for(args, method: str) -> dict:
     return {"executor": executors.make_executor(kind, workers=args.workers, address=args.address)}
 
 
+def _stage_lines(args, method: str) -> dict:
+    """subset: a line per closed stage of each run (minutes apart on the closed loop), unless -q."""
+    return {"stage_lines": not args.quiet} if method == "subset" else {}
+
+
 def _folder_method(run_dir: Path) -> str | None:
     """The method recorded in an estimate folder's manifest (None if unreadable or absent)."""
     import json
@@ -294,14 +299,16 @@ def _in_process(args, method: str) -> int:
         campaign = runner.with_recorded_params(  # the cells' parameters as the run recorded them
             campaign_from_dict(camp["raw"], source=camp["source"], seed=camp["seed"]), manifest.get("cells", []),
             str(args.resume))
-        path = module.resume(args.resume, campaign, progress=log, **_executor_for(args, method))
+        path = module.resume(args.resume, campaign, progress=log, **_executor_for(args, method),
+                             **_stage_lines(args, method))
     else:
         spec = _estimate_spec(args, method)
         campaign = _estimate_campaign(args, method)  # checked before any folder is made
         out = args.run_dir = run.new_folder(args, lambda parent: run_folders.default_run_dir(campaign, parent))
         log(runner.describe(campaign, episodes=False))  # the estimator chooses how many episodes
         log(f"estimate folder: {out}")
-        path = module.run(campaign, spec, out, progress=log, cells=args.cell or None, **_executor_for(args, method))
+        path = module.run(campaign, spec, out, progress=log, cells=args.cell or None, **_executor_for(args, method),
+                          **_stage_lines(args, method))
     print(path.read_text())
     _log.info("report: %s", path)
     return 0

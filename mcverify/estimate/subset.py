@@ -41,6 +41,7 @@ from __future__ import annotations
 import json
 import math
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
@@ -255,9 +256,11 @@ def _start(problem: Problem, settings: Settings, seed: Seed, run: int) -> _State
 
 
 def run(problem: Problem, settings: Settings = Settings(), *, seed: Seed = 0, run: int = 0,
-        checkpoint: Path | None = None) -> Run:
+        checkpoint: Path | None = None, on_stage: Callable[[Stage, float], None] | None = None) -> Run:
     """One subset simulation run (see the module docstring). With ``checkpoint``, the state after
-    each stage is saved there, and a run that finds its own checkpoint continues from it."""
+    each stage is saved there, and a run that finds its own checkpoint continues from it. ``on_stage``
+    is told each stage this process closes, with the run's CPU seconds so far (a resumed run's earlier
+    processes included)."""
     fingerprint = _fingerprint(problem, settings, seed, run)
     path = None if checkpoint is None else Path(checkpoint)
     clock = time.process_time()
@@ -277,6 +280,8 @@ def run(problem: Problem, settings: Settings = Settings(), *, seed: Seed = 0, ru
         share = float(hits.mean())
         gamma = gamma_factor(hits.reshape(chains, -1), share) if state.stage else 0.0
         state.stages.append(Stage(level, share, gamma, *state.made))
+        if on_stage is not None:
+            on_stage(state.stages[-1], state.cpu_s)
         if last or state.stage >= settings.max_stages:
             break
         stage = state.stage + 1

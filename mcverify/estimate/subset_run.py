@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import functools
 import math
+import sys
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -71,33 +72,37 @@ class SubsetSpec:
 
 
 def run(campaign: Campaign, spec: SubsetSpec, out: Path, *, progress=print,
-        cells: list[str] | None = None, executor: Executor | None = None) -> Path:
-    """Estimate every cell of ``campaign`` (or those in ``cells``) into the new folder ``out``."""
+        cells: list[str] | None = None, executor: Executor | None = None, stage_lines: bool = False) -> Path:
+    """Estimate every cell of ``campaign`` (or those in ``cells``) into the new folder ``out``; with
+    ``stage_lines`` each run says on stderr every stage it closes (a closed-loop run takes minutes per
+    stage)."""
     for cell in campaign.cells:
         if not cells or cell.name in cells:
             check_law(cell)
     folder.create(out, campaign, {"method": "subset", **asdict(spec)}, cells)
-    return replicates.run_cells(campaign, _replicated(campaign, spec, Path(out)), Path(out), {}, progress, cells,
-                                executor)
+    return replicates.run_cells(campaign, _replicated(campaign, spec, Path(out), stage_lines), Path(out), {},
+                                progress, cells, executor)
 
 
-def resume(out: Path, campaign: Campaign, *, progress=print, executor: Executor | None = None) -> Path:
+def resume(out: Path, campaign: Campaign, *, progress=print, executor: Executor | None = None,
+           stage_lines: bool = False) -> Path:
     """Finish an interrupted subset estimate: finished cells kept, finished runs kept, runs in progress
     continued from their last stage."""
     manifest, done = folder.load(out, "subset")
     spec = SubsetSpec(**{k: v for k, v in manifest["estimate"].items() if k != "method"})
-    return replicates.run_cells(campaign, _replicated(campaign, spec, Path(out)), Path(out), done, progress,
-                                manifest.get("only_cells"), executor)
+    return replicates.run_cells(campaign, _replicated(campaign, spec, Path(out), stage_lines), Path(out), done,
+                                progress, manifest.get("only_cells"), executor)
 
 
-def _replicated(campaign: Campaign, spec: SubsetSpec, out: Path) -> replicates.Replicated:
+def _replicated(campaign: Campaign, spec: SubsetSpec, out: Path, stage_lines: bool) -> replicates.Replicated:
     def done_text(row: dict[str, Any]) -> str:
         r = row["run"]
         return (f"estimate {num(r['estimate'])}, {len(r['stages'])} stages, {r['steps']} control steps, "
                 f"{row['cpu_s']:.0f} CPU-s")
 
     return replicates.Replicated(
-        label="subset run", count=spec.runs, unit=functools.partial(run_unit, spec=asdict(spec), out=str(out)),
+        label="subset run", count=spec.runs,
+        unit=functools.partial(run_unit, spec=asdict(spec), out=str(out), stage_lines=stage_lines),
         announce=lambda cell: f"cell {cell.name}: {spec.runs} subset simulation runs of {spec.samples} episodes "
                               "per stage",
         done_text=done_text, cell_result=functools.partial(cell_result, spec=spec),
@@ -125,8 +130,9 @@ def run_key(campaign_seed: int, cell: Cell, common_random_numbers: bool) -> tupl
 
 
 def run_unit(cell: Cell, episode_ids: tuple[int, ...], seed: int, common_random_numbers: bool,
-             record: tuple[int, ...], *, spec: dict[str, Any], out: str) -> _UnitResult:
-    """One subset simulation run (run ``episode_ids[0]``) of ``cell`` as an executor work unit."""
+             record: tuple[int, ...], *, spec: dict[str, Any], out: str, stage_lines: bool = False) -> _UnitResult:
+    """One subset simulation run (run ``episode_ids[0]``) of ``cell`` as an executor work unit; with
+    ``stage_lines`` it says on stderr every stage it closes (from a worker too: workers share stderr)."""
     sp = SubsetSpec(**spec)
     (run_id,) = episode_ids
     stem = run_stem(Path(out), cell.index, run_id)
@@ -134,14 +140,21 @@ def run_unit(cell: Cell, episode_ids: tuple[int, ...], seed: int, common_random_
     start = time.process_time()
     problem = problem_for(cell, seed, sp.target, sp.performance)
     setup_s = time.process_time() - start  # the solver loaded in this process; the run counts its own stages
+    on_stage = functools.partial(_say_stage, f"cell {cell.name} run {run_id}", setup_s) if stage_lines else None
     result = subset.run(problem, sp.settings(), seed=run_key(seed, cell, common_random_numbers), run=run_id,
-                        checkpoint=stem.with_suffix(".npz"))
+                        checkpoint=stem.with_suffix(".npz"), on_stage=on_stage)
     failing = stem.parent / f"{stem.name}-failing.npz"
     files.atomic_write(failing, lambda tmp: _save_failing(tmp, result))
     first = result.stages[0]
     return _UnitResult([{"cell_episode": run_id, "outcome": "subset", "run": _run_record(result),
                          "cpu_s": setup_s + result.cpu_s,  # earlier processes' stages included (resume)
                          "stage0_episode_steps": first.steps / max(1, first.evaluations)}])
+
+
+def _say_stage(name: str, setup_s: float, stage: subset.Stage, cpu_s: float) -> None:
+    what = "the event" if stage.threshold <= 0.0 else f"level {stage.threshold:.4g}"
+    print(f"  {name}: {what}, share {stage.share:.3g} (this stage {stage.evaluations} episodes, {stage.steps} "
+          f"control steps); {setup_s + cpu_s:.0f} CPU-s so far", file=sys.stderr, flush=True)
 
 
 def _save_failing(tmp: str, result: subset.Run) -> None:

@@ -149,3 +149,17 @@ def test_a_failing_closed_loop_sample_replays_bit_for_bit(tmp_path, capsys):
     assert said.startswith("failing sample 3: ") and "invariance: event" in said
     assert main(["replay", str(out), "20", "--cell", cell]) == 2
     assert "has 20 failing samples (0 to 19), not 20" in capsys.readouterr().err
+
+
+def test_each_run_says_every_stage_it_closes_unless_quiet(tmp_path, surrogate, capsys):
+    argv = ["estimate", str(FIXTURE), "--method", "subset", "--target", "ellipse", "--stage-samples", "100",
+            "--replicates", "2", "--cell", CELL]
+    assert main([*argv, "--run-dir", str(tmp_path / "a")]) == 0
+    err = capsys.readouterr().err
+    stages = json.loads((tmp_path / "a" / "estimate.json").read_text())["cells"][0]["stages"]
+    for run in (0, 1):
+        lines = [ln for ln in err.splitlines() if ln.startswith(f"  cell {CELL} run {run}: ")]
+        assert len(lines) == stages[run] and "the event, share" in lines[-1], err
+        assert "level " in lines[0] and "(this stage 100 episodes" in lines[0] and "CPU-s so far" in lines[0]
+    assert main([*argv, "--run-dir", str(tmp_path / "b"), "-q"]) == 0
+    assert "CPU-s so far" not in capsys.readouterr().err
