@@ -28,6 +28,7 @@ from mcverify.analysis.estimates import target_events
 from mcverify.analysis.intervals import proportion_interval
 from mcverify.errors import UserError
 from mcverify.estimate.folder import ESTIMATE
+from mcverify.requirements import PERFORMANCES
 
 NAME = "continuation"
 
@@ -69,6 +70,7 @@ class Subset:
     seed: int
     target: str
     folder: Path
+    performance: str = PERFORMANCES[0]  # the function the runs climbed (the same event whichever)
 
     @property
     def factor(self) -> float:
@@ -116,7 +118,8 @@ def read_subset(folder: Path, parameter: str) -> tuple[Subset, dict[str, Any]]:
     point = Subset(float(_param(cell["params"], parameter)), float(c["estimate"]), float(c["low"]), float(c["high"]),
                    float(c["relative_halfwidth"]), float(c["within_run_cov"]), tuple(c["runs"]), tuple(c["stages"]),
                    int(spec["samples"]), int(c["steps"]), float(c["cpu_s"]), float(c["crude_steps"]),
-                   int(manifest["campaign"]["seed"]), spec["target"], Path(folder))
+                   int(manifest["campaign"]["seed"]), spec["target"], Path(folder),
+                   spec.get("performance", PERFORMANCES[0]))  # folders from before the choice climbed the robustness
     return point, cell["params"]
 
 
@@ -155,15 +158,16 @@ def _agreement(s: Subset, c: Crude) -> str:
 
 
 def table(points: Sequence[Subset], crude: Mapping[float, Crude], parameter: str) -> str:
-    head = [parameter, "crude Monte Carlo (exact 95 %)", "subset simulation (95 % t on runs)", "runs", "stages",
+    head = [parameter, "crude Monte Carlo (exact 95 %)", "subset simulation (95 % t on runs)", "performance function",
+            "runs", "stages",
             "rel. half-width", "within-run CoV", "control steps", "CPU-s", "crude steps, same width", "factor",
             "against crude"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for s in sorted(points, key=lambda p: -p.value):
+    for s in sorted(points, key=lambda p: (-p.value, PERFORMANCES.index(p.performance))):
         c = crude.get(s.value)
         crude_text = f"{c.k}/{c.n} = {_g(c.rate)} [{_g(c.low)}, {_g(c.high)}], {c.steps:,} steps" if c else "–"
         lines.append("| " + " | ".join([
-            f"{s.value:g}", crude_text, f"{_g(s.estimate)} [{_g(s.low)}, {_g(s.high)}]",
+            f"{s.value:g}", crude_text, f"{_g(s.estimate)} [{_g(s.low)}, {_g(s.high)}]", s.performance,
             ", ".join(_g(r) for r in s.runs), ", ".join(map(str, s.stages)), f"{s.relative_halfwidth:.2f}",
             f"{s.within_run_cov:.2f}", f"{s.steps:,}", f"{s.cpu_s:.0f}", f"{s.crude_steps:.3g}", f"{s.factor:.3g}x",
             _agreement(s, c) if c else "no crude reference"]) + " |")
@@ -185,10 +189,14 @@ def figure(points: Sequence[Subset], crude: Mapping[float, Crude], parameter: st
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
-    for i, s in enumerate(sorted(points, key=lambda p: p.value)):
+    labelled = set()
+    for s in sorted(points, key=lambda p: p.value):
+        k = PERFORMANCES.index(s.performance)
         low = max(s.low, s.estimate / 100.0)  # a t interval can reach below 0: drawn down to the axis' floor
-        ax.errorbar([s.value + 0.01], [s.estimate], yerr=[[s.estimate - low], [s.high - s.estimate]], fmt="o",
-                    color="C0", capsize=3, label="subset simulation" if i == 0 else None)
+        label = f"subset simulation ({s.performance})" if s.performance not in labelled else None
+        labelled.add(s.performance)
+        ax.errorbar([s.value + 0.01 * (1 + 2 * k)], [s.estimate], yerr=[[s.estimate - low], [s.high - s.estimate]],
+                    fmt="o^sd"[k % 4], color=f"C{(0, 2, 3, 4)[k % 4]}", capsize=3, label=label)
     for i, c in enumerate(sorted(crude.values(), key=lambda p: p.value)):
         if c.k:
             ax.errorbar([c.value - 0.01], [c.rate], yerr=[[c.rate - c.low], [c.high - c.rate]], fmt="s", color="C1",
@@ -232,8 +240,10 @@ def build(points: Sequence[Subset], crude: Mapping[float, Crude], parameter: str
         f"{', '.join(str(s.seed) for s in points)}), independent runs of N samples per stage "
         f"(N = {', '.join(sorted({str(s.samples) for s in points}))}), the 95 % Student t interval on the runs' "
         "estimates, the within-run coefficient of variation (Au and Beck, the chains' correlation included) beside "
-        "it. Crude steps, same width: z² (1 - p) / (p r²) episodes of stage 0's mean episode. Agreement: the two "
-        "intervals overlap.", "",
+        "it; the performance function whose levels the runs climbed is the target's robustness or the precursor "
+        "ladder (the robustness over 1 + the longest run of control steps with neither Q1 nor Q2 solved), the same "
+        "event either way. Crude steps, same width: z² (1 - p) / (p r²) episodes of stage 0's mean episode. "
+        "Agreement: the two intervals overlap.", "",
         table(points, crude, parameter), "",
         *(f"- {beyond_crude(s)}" for s in alone),
         f"- {code_line(folders)}",
@@ -245,7 +255,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     def body() -> int:
         p = section.parser(NAME, __doc__.splitlines()[0])
         p.add_argument("--subset", type=Path, nargs="+", required=True, metavar="DIR",
-                       help="finished subset simulation estimate folders, one value each")
+                       help="finished subset simulation estimate folders, one per value and performance function")
         p.add_argument("--crude", type=Path, nargs="*", default=[], metavar="DIR",
                        help="finished `mcverify run` folders of the same cell, one value each")
         p.add_argument("--parameter", default="noise.scale", help="the parameter moved (default noise.scale)")
@@ -259,9 +269,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         crude_read = [read_crude(d, args.parameter, points[0].target) for d in args.crude]
         _check_same_cell([(s.folder, prm) for s, prm in read] + [(c.folder, prm) for c, prm in crude_read],
                          args.parameter)
-        for kind, values in (("subset", [s.value for s in points]), ("crude", [c.value for c, _ in crude_read])):
+        for kind, values in (("subset", [(s.value, s.performance) for s in points]),
+                             ("crude", [c.value for c, _ in crude_read])):
             if len(set(values)) != len(values):
-                raise UserError(f"two {kind} folders at the same {args.parameter}; pool them or give one")
+                same = " with the same performance function" if kind == "subset" else ""
+                raise UserError(f"two {kind} folders at the same {args.parameter}{same}; pool them or give one")
         crude = {c.value: c for c, _ in crude_read}
         campaign = store.read_manifest(args.subset[0])["campaign"]
         if args.figure:

@@ -31,11 +31,11 @@ def _crude(tmp_path, scale: float):
     return _finish(run)
 
 
-def _subset(tmp_path, scale: float, estimate: float, runs=(0.9, 1.0, 1.1), target="ellipse"):
-    out = tmp_path / f"subset{scale}"
+def _subset(tmp_path, scale: float, estimate: float, runs=(0.9, 1.0, 1.1), target="ellipse", performance=None):
+    out = tmp_path / f"subset{scale}{performance or ''}"
     camp = campaign_from_dict(_raw(scale, seed=int(100 * scale)))
     spec = {"method": "subset", "target": target, "samples": 200, "p0": 0.1, "runs": 3, "level": 0.95,
-            "max_stages": 20}
+            "max_stages": 20, **({"performance": performance} if performance else {})}
     folder.create(out, camp, spec, None)
     cell = {"cell_index": 0, "cell": "all", "estimate": estimate, "low": 0.5 * estimate, "high": 1.5 * estimate,
             "relative_halfwidth": 0.5, "within_run_cov": 0.4, "runs": [r * estimate for r in runs],
@@ -60,6 +60,16 @@ def test_the_section_sets_subset_beside_crude_and_says_what_crude_would_need(tmp
     assert "at 1: no crude reference" in text and "100x" in text  # 1e7 crude steps against 1e5
     assert (tmp_path / "c.png").stat().st_size > 0
     capsys.readouterr()
+
+
+def test_each_row_names_the_performance_function_its_runs_climbed(tmp_path, capsys):
+    ladder = _subset(tmp_path, 1.0, 2e-4, performance="precursor-ladder")
+    args = ["--subset", str(_subset(tmp_path, 1.0, 1e-4)), str(ladder), "--figure", str(tmp_path / "c.png"),
+            "--no-write"]
+    assert continuation.main(args) == 0
+    rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| 1 |")]
+    assert len(rows) == 2 and "| robustness |" in rows[0] and "| precursor-ladder |" in rows[1]
+    assert (tmp_path / "c.png").stat().st_size > 0
 
 
 def test_a_disagreement_is_flagged(tmp_path, capsys):
