@@ -244,7 +244,7 @@ def _estimate_dry_run(args, method: str) -> int:
         method, args.target, budget=args.budget, samples=args.samples, ce_samples=args.ce_samples,
         ce_iterations=args.ce_iterations, particles=args.particles, replicates=args.replicates,
         max_iterations=args.max_iterations, cells=tuple(args.cell), workers=workers,
-        stage_samples=args.stage_samples, p0=args.p0)
+        stage_samples=args.stage_samples, p0=args.p0, performance=args.performance)
     print(plan.render(campaign, options))
     return 0
 

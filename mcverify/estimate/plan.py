@@ -47,6 +47,7 @@ class EstimateOptions:
     workers: int
     stage_samples: int = 2000
     p0: float = 0.1
+    performance: str = "robustness"
 
 
 def _selected(campaign: Campaign, cells: Sequence[str]) -> list[Cell]:
@@ -64,7 +65,9 @@ def render(campaign: Campaign, options: EstimateOptions) -> str:
     """The dry run's report: the method, the cells, the episodes and a rough CPU range."""
     cells = _selected(campaign, options.cells)
     names = ", ".join(c.name for c in cells)
-    head = f"estimate {campaign.source}: {options.method}, target {options.target}, {len(cells)} cell(s): {names}"
+    climbing = f" (performance function {options.performance})" if options.method == "subset" else ""
+    head = (f"estimate {campaign.source}: {options.method}, target {options.target}{climbing}, {len(cells)} cell(s): "
+            f"{names}")
     rough = "(per-episode costs measured on a 2-core machine, results/BENCHMARKS.md; a rough range)"
     if options.method == "mc":
         n = options.budget

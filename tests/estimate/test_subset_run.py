@@ -128,6 +128,9 @@ def test_subset_dry_run_counts_stages(capsys):
     out = capsys.readouterr().out
     assert "8 subset simulation runs per cell of 100 episodes per stage" in out
     assert "at p = 1e-05: about 5 stages per run, 3680 episodes per cell" in out
+    assert "target collision (performance function robustness)" in out
+    assert main(["estimate", str(FIXTURE), "--method", "subset", "--performance", "precursor-ladder", "--dry-run"]) == 0
+    assert "(performance function precursor-ladder)" in capsys.readouterr().out
 
 
 @pytest.mark.slow
