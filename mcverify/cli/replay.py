@@ -29,6 +29,14 @@ def add(sub, parents: list[argparse.ArgumentParser]) -> None:
     p.set_defaults(handler="replay")
 
 
+def _performance_of(est_dir) -> str:
+    """The performance function a subset simulation folder's runs climbed (its failing samples keep its value)."""
+    from mcverify import store
+    from mcverify.requirements import PERFORMANCES
+
+    return store.read_manifest(est_dir)["estimate"].get("performance", PERFORMANCES[0])
+
+
 def command(args) -> int:
     from mcverify import api
     from mcverify.campaign.replay import ReplayMismatch
@@ -46,7 +54,7 @@ def command(args) -> int:
         print(f"failing particle {res.episode_id} reproduced exactly (its running score at its last step) "
               f"({res.row['outcome']}, safe={res.row['safe']})")
     elif method == "subset":
-        print(f"failing sample {res.episode_id} reproduced exactly (its robustness) "
+        print(f"failing sample {res.episode_id} reproduced exactly (its {_performance_of(args.run_dir)} value) "
               f"({res.row['outcome']}, safe={res.row['safe']})")
     else:
         kept = " (the values its estimate folder keeps)" if method else ""
