@@ -188,8 +188,9 @@ def test_at_1e_4_the_studys_settings_keep_every_route_and_hold_p():
     assert np.all(taken > 0)
 
 
-ROUTE_LOSS = ("measured (benchmarks.surrogate_coverage, 40 repetitions): 85 %, the populations still lose part of "
-              "the sustained and away-then-towards routes, which hold 0.05 % and 0.2 % of the intermediate levels")
+ROUTE_LOSS = ("measured (benchmarks.surrogate_coverage, 100 repetitions): 82 % (73-89 %), the populations still lose "
+              "part of the sustained and away-then-towards routes, which hold 0.05 % and 0.2 % of the intermediate "
+              "levels")
 
 
 @pytest.mark.slow
@@ -197,6 +198,6 @@ ROUTE_LOSS = ("measured (benchmarks.surrogate_coverage, 40 repetitions): 85 %, t
 def test_coverage_on_the_surrogate_under_the_decision_clock(p):
     """The coverage study of benchmarks.surrogate_coverage (the settings above, p0 = 0.1, 10 runs per
     interval, 100 repetitions): the target is >= 90 %. About 25 CPU-minutes at p = 1e-6, where it is
-    an expected failure (not strict: only 40 of the 100 repetitions have been run)."""
+    an expected failure (not strict: 82 % has an interval, 73-89 %, and a lucky seed could pass)."""
     problem = Surrogate.at(p, clock="decision")
     assert _coverage(problem, problem.exact_p(), STUDY[p], reps=100, runs=10) >= 0.9
