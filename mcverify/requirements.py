@@ -241,7 +241,9 @@ H_EF_SCORES: tuple[str, ...] = tuple(s.name for s in _SCORES if s.signal == "h_e
 SCORED_TARGETS: tuple[str, ...] = tuple(t for t in TARGETS if any(s.target == t for s in _SCORES))
 #: The performance functions subset simulation can climb (``mcverify estimate --performance``), the default
 #: first; each is <= 0 exactly at its target's event (:mod:`mcverify.estimate.input_vector`).
-PERFORMANCES: tuple[str, ...] = ("robustness", "precursor-ladder")
+PLAIN_ROBUSTNESS = "robustness"
+PRECURSOR_LADDER = "precursor-ladder"
+PERFORMANCES: tuple[str, ...] = (PLAIN_ROBUSTNESS, PRECURSOR_LADDER)
 
 
 def default_score(target: str) -> str:

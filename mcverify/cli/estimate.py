@@ -112,7 +112,7 @@ _ESTIMATE_METHOD_OPTIONS: tuple[tuple[str, str, tuple[str, ...]], ...] = (
 _ESTIMATE_DEFAULTS: dict[str, object] = {
     "method": "mc", "target": "collision", "budget": 1000, "level": 0.95, "particles": 20, "replicates": 8,
     "samples": 400, "ce_samples": 100, "ce_iterations": 10, "elite_share": 0.1, "max_iterations": 2000,
-    "stage_samples": 2000, "p0": 0.1, "performance": "robustness",
+    "stage_samples": 2000, "p0": 0.1, "performance": requirements.PLAIN_ROBUSTNESS,
 }
 
 

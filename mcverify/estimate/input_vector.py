@@ -49,7 +49,7 @@ from mcverify.draws import DRAWS, Draw
 from mcverify.episode.draws import value_of_unit
 from mcverify.episode.rollout import ChunkResult, run_episodes
 from mcverify.errors import RunError
-from mcverify.requirements import PERFORMANCES, TARGETS
+from mcverify.requirements import PERFORMANCES, PRECURSOR_LADDER, TARGETS
 from mcverify.sim.schedule import CHANNELS, FRONT_CHANNELS, OPP_CHANNELS, ErrorSchedule, control_steps
 
 
@@ -150,7 +150,7 @@ class ClosedLoopProblem:
         """The performance function of one row (<= 0 exactly at the event)."""
         values = [robustness(row, r) for r in TARGETS[self.target].requirements]
         g = float(min(values)) if values else math.nan
-        if self.performance_function == "precursor-ladder":
+        if self.performance_function == PRECURSOR_LADDER:
             g /= 1.0 + int(row.get("both_infeasible_longest_run") or 0)  # a positive divisor keeps the sign
         return g
 

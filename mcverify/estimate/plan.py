@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from mcverify.campaign import cost
 from mcverify.campaign.spec import Campaign
 from mcverify.cell import Cell
+from mcverify.requirements import PLAIN_ROBUSTNESS
 
 #: Probabilities at which a splitting plan shows its expected iterations.
 SPLITTING_PROBABILITIES = (1e-2, 1e-5)
@@ -47,7 +48,7 @@ class EstimateOptions:
     workers: int
     stage_samples: int = 2000
     p0: float = 0.1
-    performance: str = "robustness"
+    performance: str = PLAIN_ROBUSTNESS
 
 
 def _selected(campaign: Campaign, cells: Sequence[str]) -> list[Cell]:
