@@ -41,6 +41,7 @@ class EpisodeState:
     both_unsolved_uncertified_steps: int = 0
     both_infeasible_run: int = 0  # the current run of consecutive both-unsolved steps
     both_infeasible_longest_run: int = 0
+    both_infeasible_longest_run_first_step: int = -1  # 0-based control step at which that run began
     theorem5_margin: float = math.nan  # the lowest theorem5_margin of a step (NaN before any dual-planner step)
     fallback_steps: int = 0
     held_steps: int = 0
@@ -106,7 +107,9 @@ class EpisodeState:
         self.both_certified_infeasible_steps += int(certified)
         self.both_unsolved_uncertified_steps += int(not certified)
         self.both_infeasible_run += 1
-        self.both_infeasible_longest_run = max(self.both_infeasible_longest_run, self.both_infeasible_run)
+        if self.both_infeasible_run > self.both_infeasible_longest_run:  # the first of equally long runs is kept
+            self.both_infeasible_longest_run = self.both_infeasible_run
+            self.both_infeasible_longest_run_first_step = self.steps - self.both_infeasible_run  # steps counts this one
 
 
 

@@ -164,6 +164,7 @@ def episode_row(
         "both_certified_infeasible_steps": st.both_certified_infeasible_steps,
         "both_unsolved_uncertified_steps": st.both_unsolved_uncertified_steps,
         "both_infeasible_longest_run": st.both_infeasible_longest_run,
+        "both_infeasible_longest_run_first_step": st.both_infeasible_longest_run_first_step,
         "theorem5_margin": st.theorem5_margin,
         "solves": len(st.iterations),
         "cold_retries": st.cold_retries,

@@ -138,6 +138,10 @@ def test_the_step_views_carry_the_planners_current_run(repo_root):
     assert np.all((runs[1:] == 0) | (runs[1:] == runs[:-1] + 1))
     assert np.array_equal(np.diff(totals), (runs[1:] > 0).astype(int))
     assert runs.max() == row["both_infeasible_longest_run"] and totals[-1] == row["both_infeasible_steps"]
+    # the row's first step of that run: the view (control step) where the run first reached its length, minus it
+    steps = np.array([v.step for v in br.views])
+    ended = int(np.flatnonzero(runs == runs.max())[0])
+    assert row["both_infeasible_longest_run_first_step"] == steps[ended] - runs.max() + 1
 
 
 def _replayed_scores(proc: ClosedLoopProcess, record: dict) -> np.ndarray:
