@@ -32,6 +32,13 @@ class _SurrogateProblem:
     def evaluate(self, x):
         return self.surrogate.evaluate(x)
 
+    @property
+    def layout(self):
+        return self.surrogate.layout
+
+    def evaluate_focused(self, x):
+        return self.surrogate.evaluate_focused(x)
+
 
 @pytest.fixture
 def surrogate(monkeypatch):
@@ -91,6 +98,17 @@ def test_the_precursor_ladder_is_recorded_in_the_folder_and_its_report(tmp_path,
     assert "climbing the precursor ladder" in (out / "report.md").read_text()
 
 
+def test_block_moves_are_recorded_in_the_folder_its_report_and_runs(tmp_path, surrogate):
+    out = tmp_path / "sub"
+    argv = ["estimate", str(FIXTURE), "--method", "subset", "--target", "ellipse", "--stage-samples", "100",
+            "--replicates", "2", "--cell", CELL, "--block-steps", "3", "--run-dir", str(out), "-q"]
+    assert main(argv) == 0
+    assert json.loads((out / "manifest.json").read_text())["estimate"]["block_steps"] == 3
+    assert "a window of 3 control steps around the episode's decisive step" in (out / "report.md").read_text()
+    stages = json.loads((out / "runs" / "cell001_run000.json").read_text())["run"]["stages"]
+    assert stages[0]["block_acceptance"] is None and all(0 < s["block_acceptance"] < 1 for s in stages[1:])
+
+
 def test_an_interrupted_subset_estimate_resumes_to_the_uninterrupted_one(tmp_path, surrogate):
     campaign = load_campaign(FIXTURE)
     spec = subset_run.SubsetSpec("ellipse", samples=100, runs=2)
@@ -117,6 +135,8 @@ def test_subset_bad_options_are_one_line(capsys):
         (["--particles", "4"], "--particles is for --method splitting"),
         (["--method", "splitting", "--performance", "precursor-ladder"], "--performance is for --method subset"),
         (["--set", "noise.structured_share=0.5"], "noise.structured_share = 0.5"),
+        (["--block-steps", "11"], "--block-steps 11 exceeds the 10 control steps"),
+        (["--method", "importance", "--block-steps", "2"], "--block-steps is for --method subset"),
     ):
         assert main(["estimate", str(FIXTURE), "--method", "subset", *argv]) == 2, argv
         err = capsys.readouterr().err.strip()
@@ -131,6 +151,8 @@ def test_subset_dry_run_counts_stages(capsys):
     assert "target collision (performance function robustness)" in out
     assert main(["estimate", str(FIXTURE), "--method", "subset", "--performance", "precursor-ladder", "--dry-run"]) == 0
     assert "(performance function precursor-ladder)" in capsys.readouterr().out
+    assert main(["estimate", str(FIXTURE), "--method", "subset", "--block-steps", "2", "--dry-run"]) == 0
+    assert "(performance function robustness, block moves of 2 control steps)" in capsys.readouterr().out
 
 
 @pytest.mark.slow
