@@ -243,7 +243,13 @@ SCORED_TARGETS: tuple[str, ...] = tuple(t for t in TARGETS if any(s.target == t 
 #: first; each is <= 0 exactly at its target's event (:mod:`mcverify.estimate.input_vector`).
 PLAIN_ROBUSTNESS = "robustness"
 PRECURSOR_LADDER = "precursor-ladder"
-PERFORMANCES: tuple[str, ...] = (PLAIN_ROBUSTNESS, PRECURSOR_LADDER)
+MARGIN_LADDER = "margin-ladder"
+PERFORMANCES: tuple[str, ...] = (PLAIN_ROBUSTNESS, PRECURSOR_LADDER, MARGIN_LADDER)
+#: What each performance function other than the plain robustness climbs, in words (reports, help).
+PERFORMANCE_TEXT: dict[str, str] = {
+    PRECURSOR_LADDER: "the robustness / (1 + the longest run of control steps with neither Q1 nor Q2 solved)",
+    MARGIN_LADDER: "the robustness / (1 + 10 x the depth of the lowest Theorem 5 margin below 0)",
+}
 
 
 def default_score(target: str) -> str:

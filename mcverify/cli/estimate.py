@@ -63,8 +63,9 @@ def _add_rare_event_options(p: argparse.ArgumentParser) -> None:
                    help="subset: conditional level of each stage (default 0.1; N * p0 chains of 1 / p0 episodes)")
     p.add_argument("--performance", choices=requirements.PERFORMANCES, default=None,
                    help="subset: the function whose levels the runs climb, <= 0 exactly at the event: robustness "
-                        "(the target's) or precursor-ladder (robustness / (1 + longest run of control steps with "
-                        "neither Q1 nor Q2 solved): for events that follow a held plan (default robustness)")
+                        "(the target's), precursor-ladder (robustness / (1 + longest run of control steps with "
+                        "neither Q1 nor Q2 solved)) or margin-ladder (robustness / (1 + 10 x the depth of the lowest "
+                        "Theorem 5 margin below 0)): for events that follow a held plan (default robustness)")
     p.add_argument("--block-steps", type=options.nonneg_int, default=None, metavar="L",
                    help="subset: every other chain step moves only the perception units of L control steps, drawn "
                         "around the episode's decisive step (the one after its longest run with neither Q1 nor Q2 "

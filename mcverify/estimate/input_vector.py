@@ -26,7 +26,13 @@ only the intermediate levels subset simulation climbs:
   which neither Q1 nor Q2 was solved. Where the event comes from the ego holding its last plan through
   such a run, the runs of 1, 2, 4, ... unsolved steps are its precursors, each about a tenth as common
   as the one before, and this g puts the intermediate levels on them instead of on the tail of the
-  episodes that never hold a plan (the measurement: docs/rare_events.md, "the precursor ladder").
+  episodes that never hold a plan (the measurement: docs/rare_events.md, "the precursor ladder");
+- ``margin-ladder``: the robustness divided by 1 + ``MARGIN_FACTOR`` times the depth of the row's
+  ``theorem5_margin`` below 0 (0 where it is not negative or not measured). Why: the run of unsolved
+  steps after a certified infeasible one is decided by whether the fast path converges on a barely
+  infeasible problem (the steps in between are presumed infeasible), a knife edge a Markov chain cannot
+  walk along; the margin is a real number of the solves, and its depth ranks the episodes that go on to
+  the event (docs/rare_events.md, "the margin ladder").
 
 Focus, for subset simulation's block moves (:class:`mcverify.estimate.subset.FocusedProblem`): the
 control step right after the episode's longest run of steps with neither Q1 nor Q2 solved (the step
@@ -55,8 +61,13 @@ from mcverify.episode.draws import value_of_unit
 from mcverify.episode.rollout import ChunkResult, run_episodes
 from mcverify.errors import RunError
 from mcverify.estimate.subset import Layout
-from mcverify.requirements import PERFORMANCES, PRECURSOR_LADDER, TARGETS
+from mcverify.requirements import MARGIN_LADDER, PERFORMANCES, PRECURSOR_LADDER, TARGETS
 from mcverify.sim.schedule import CHANNELS, FRONT_CHANNELS, OPP_CHANNELS, ErrorSchedule, control_steps
+
+
+#: margin-ladder: a Theorem 5 margin of -0.1 halves the robustness, as one unsolved step does on the precursor
+#: ladder (the events' margins are -0.4 to -2.4 on the validation cell at 1.25 and 2 times the paper's noise).
+MARGIN_FACTOR = 10.0
 
 
 def random_draws(cell: Cell) -> tuple[Draw, ...]:
@@ -165,6 +176,9 @@ class ClosedLoopProblem:
         g = float(min(values)) if values else math.nan
         if self.performance_function == PRECURSOR_LADDER:
             g /= 1.0 + int(row.get("both_infeasible_longest_run") or 0)  # a positive divisor keeps the sign
+        elif self.performance_function == MARGIN_LADDER:
+            margin = float(row.get("theorem5_margin", math.nan))
+            g /= 1.0 + MARGIN_FACTOR * (max(0.0, -margin) if math.isfinite(margin) else 0.0)
         return g
 
     def evaluate(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

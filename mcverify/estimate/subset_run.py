@@ -38,7 +38,7 @@ from mcverify.errors import RunError
 from mcverify.estimate import folder, replicates, subset
 from mcverify.estimate.folder import num
 from mcverify.estimate.input_vector import ClosedLoopProblem, check_block_steps, check_law
-from mcverify.requirements import PERFORMANCES, TARGETS
+from mcverify.requirements import PERFORMANCE_TEXT, PERFORMANCES, TARGETS
 
 
 @dataclass(frozen=True)
@@ -215,8 +215,8 @@ def _write(out: Path, spec: SubsetSpec, campaign: Campaign, results: dict[int, d
              f"scenario draws and every per-step perception error as standard normals), {spec.runs} independent "
              f"runs of {spec.samples} episodes per stage at conditional level {spec.p0}"
              + ("" if spec.performance == PERFORMANCES[0] else
-                " climbing the precursor ladder (performance function: the robustness / (1 + the longest run of "
-                "control steps with neither Q1 nor Q2 solved), the same event)")
+                f" climbing the {spec.performance.replace('-', ' ')} (performance function: "
+                f"{PERFORMANCE_TEXT[spec.performance]}, the same event)")
              + ("" if not spec.block_steps else
                 f", every other chain step moving the perception error of a window of {spec.block_steps} control "
                 "steps around the episode's decisive step")

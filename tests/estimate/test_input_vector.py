@@ -94,6 +94,17 @@ def test_the_precursor_ladder_divides_the_robustness_by_one_plus_the_longest_uns
     assert (ladder.performance(row) <= 0) == (plain.performance(row) <= 0)  # the same event
 
 
+@pytest.mark.parametrize(("h_ef", "margin", "expected"), [
+    (0.3, 0.2, 0.3), (0.3, -0.1, 0.15), (0.3, -0.5, 0.05), (-0.06, -0.5, -0.01), (0.3, float("nan"), 0.3),
+    (0.0, -1.0, 0.0),
+])
+def test_the_margin_ladder_divides_the_robustness_by_the_depth_of_the_theorem5_margin(cell, h_ef, margin, expected):
+    ladder = ClosedLoopProblem(cell, 11, "ellipse", None, "margin-ladder")
+    row = {"outcome": "completed", "min_h_front": h_ef, "theorem5_margin": margin, "both_infeasible_longest_run": 4}
+    assert ladder.performance(row) == pytest.approx(expected, abs=1e-15)
+    assert (ladder.performance(row) <= 0) == (h_ef <= 0)  # the same event
+
+
 def test_the_performance_function_names_the_problem_but_the_default_keeps_old_keys(cell):
     plain = ClosedLoopProblem(cell, 11, "ellipse", None)
     ladder = ClosedLoopProblem(cell, 11, "ellipse", None, "precursor-ladder")
@@ -101,7 +112,8 @@ def test_the_performance_function_names_the_problem_but_the_default_keeps_old_ke
     old = hashlib.sha256(json.dumps({"cell": cell.name, "params": repr(cell.params), "seed": 11,
                                      "target": "ellipse"}, sort_keys=True).encode()).hexdigest()
     assert plain.key == old  # checkpoints written before there was a choice still resume
-    with pytest.raises(RunError, match="unknown performance function 'gap'; valid: robustness, precursor-ladder"):
+    with pytest.raises(RunError, match="unknown performance function 'gap'; valid: robustness, precursor-ladder, "
+                       "margin-ladder"):
         ClosedLoopProblem(cell, 11, "ellipse", None, "gap")
 
 
