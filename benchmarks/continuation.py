@@ -240,9 +240,10 @@ def build(points: Sequence[Subset], crude: Mapping[float, Crude], parameter: str
         f"{', '.join(str(s.seed) for s in points)}), independent runs of N samples per stage "
         f"(N = {', '.join(sorted({str(s.samples) for s in points}))}), the 95 % Student t interval on the runs' "
         "estimates, the within-run coefficient of variation (Au and Beck, the chains' correlation included) beside "
-        "it; the performance function whose levels the runs climbed is the target's robustness or the precursor "
-        "ladder (the robustness over 1 + the longest run of control steps with neither Q1 nor Q2 solved), the same "
-        "event either way. Crude steps, same width: z² (1 - p) / (p r²) episodes of stage 0's mean episode. "
+        "it; the performance function whose levels the runs climbed is the target's robustness, the precursor "
+        "ladder (the robustness over 1 + the longest run of control steps with neither Q1 nor Q2 solved) or the "
+        "margin ladder (the robustness over 1 + 10 x the depth of the lowest Theorem 5 margin below 0), the same "
+        "event in every case. Crude steps, same width: z² (1 - p) / (p r²) episodes of stage 0's mean episode. "
         "Agreement: the two intervals overlap.", "",
         table(points, crude, parameter), "",
         *(f"- {beyond_crude(s)}" for s in alone),

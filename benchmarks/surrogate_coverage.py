@@ -1,5 +1,5 @@
 """Coverage of subset simulation on the structure-matched surrogate with exact p (issue 50):
-``python -m benchmarks.surrogate_coverage [--reps R] [--runs K] [--n N] [--n-rare N] [--block-steps L] [--quick]``.
+``python -m benchmarks.surrogate_coverage [--reps R] [--runs K] [--n N] [--n-rare N] [--quick]``.
 
 For each clock of the surrogate (:mod:`mcverify.estimate.surrogate`: "time", the noise keyed to control
 steps as the closed loop draws it today, and "decision", keyed to the decision instant) and each p,
@@ -10,9 +10,8 @@ docs/decisions.md): coverage of the exact p (with its Clopper-Pearson interval),
 bias, the mean relative error, the mean relative half-width, control steps per repetition, crude Monte
 Carlo's steps for the same relative half-width at the exact p, and their ratio. Beside it: openturns'
 SubsetSampling at the same N and p0 (fewer repetitions: it is slower), and the routes of the failing
-samples against the exact route shares (where subset simulation loses a route, this says which). With
-``--block-steps L`` (default 3) every subset row is repeated with block moves of L control steps (the
-same seeds). Writes only its own section of results/BENCHMARKS.md.
+samples against the exact route shares (where subset simulation loses a route, this says which). Writes
+only its own section of results/BENCHMARKS.md.
 """
 
 from __future__ import annotations
@@ -20,7 +19,7 @@ from __future__ import annotations
 import argparse
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import stats as sps
@@ -82,13 +81,8 @@ def _clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]
     return low, high
 
 
-def method_name(settings: subset.Settings) -> str:
-    return f"subset (pCN + blocks of {settings.block_steps})" if settings.block_steps else "subset (pCN)"
-
-
 def subset_row(clock: str, p: float, settings: subset.Settings, reps: int, runs: int) -> tuple[Row, np.ndarray]:
-    """Coverage of our subset simulation (with block moves where ``settings`` has them), and the failing
-    samples' route counts (summed over runs)."""
+    """Coverage of our subset simulation, and the failing samples' route counts (summed over runs)."""
     problem = Surrogate.at(p, clock=clock)
     start = time.process_time()
     estimates, counts = [], np.zeros(len(ROUTES))
@@ -98,7 +92,7 @@ def subset_row(clock: str, p: float, settings: subset.Settings, reps: int, runs:
         for r in done:
             if r.failing.size:
                 counts += problem.routes(r.failing).sum(axis=0)
-    return _row(method_name(settings), clock, problem, estimates, runs, settings.n, time.process_time() - start), counts
+    return _row("subset (pCN)", clock, problem, estimates, runs, settings.n, time.process_time() - start), counts
 
 
 def openturns_row(clock: str, p: float, n: int, p0: float, reps: int, runs: int) -> Row | None:
@@ -162,7 +156,7 @@ def _t_estimate(values: np.ndarray, steps: int, level: float = 0.95) -> subset.E
                            tuple(values.tolist()), math.nan, 0, steps, math.nan)
 
 
-def render(rows: list[Row], routes: dict[tuple[str, str, float], np.ndarray], command: str, settings: subset.Settings,
+def render(rows: list[Row], routes: dict[tuple[str, float], np.ndarray], command: str, settings: subset.Settings,
            seconds: float) -> str:
     lines = ["## Rare-event estimators on the structure-matched surrogate (exact p)", "",
              f"{section.provenance_line(command)[:-1]} ({seconds:.0f} CPU-s). Surrogate: "
@@ -170,9 +164,7 @@ def render(rows: list[Row], routes: dict[tuple[str, str, float], np.ndarray], co
              f"{Surrogate().horizon_steps} per-step noise units), event decided at the decision instant by 1-3 draws "
              "over three routes (jump, sustained offset, away then towards: 40/35/25 % of p), robustness graded in "
              f"units of the noise bound. Subset simulation: N per stage as in the table, p0 = {settings.p0}, "
-             f"pCN moves adapted towards acceptance {settings.target_acceptance} (with blocks of L: every other chain "
-             "step instead moves the units of L control steps drawn around the decision step, pCN with its own adapted "
-             "scale, Metropolis-Hastings for the window's law); each repetition is the "
+             f"pCN moves adapted towards acceptance {settings.target_acceptance}; each repetition is the "
              "95 % Student t interval of independent runs; rel. half-width r: the mean of (high - estimate) / p. "
              "Crude steps: z^2 (1 - p) / (p r^2) episodes of the surrogate's mean episode (the steps to the decision, "
              "its draws and the depth). Bias of mean: the mean of the repetitions' estimates over p, minus 1.", "",
@@ -185,14 +177,14 @@ def render(rows: list[Row], routes: dict[tuple[str, str, float], np.ndarray], co
                      f"{r.bias:+.0%} | {r.mean_relative_error:.0%} | {r.relative_halfwidth:.0%} | {r.steps:.3g} | "
                      f"{r.crude_steps:.3g} | {r.factor:.3g}x | {r.seconds:.0f} |")
     lines += ["", "Routes of the failing samples of the last stage (all runs pooled) against each route's exact share "
-              "of p (routes overlap a little):", "", "| method | clock | p | jump | sustained | away then towards |",
-              "| --- | --- | --- | --- | --- | --- |"]
-    for (method, clock, p), counts in routes.items():
+              "of p (routes overlap a little):", "", "| clock | p | jump | sustained | away then towards |",
+              "| --- | --- | --- | --- | --- |"]
+    for (clock, p), counts in routes.items():
         exact = Surrogate.at(p, clock=clock).route_probabilities()
         share = counts / max(1.0, counts.sum())
         cells = " | ".join(f"{s:.0%} (exact {exact[name] / sum(exact.values()):.0%})"
                            for s, name in zip(share, ROUTES, strict=True))
-        lines.append(f"| {method} | {clock} | {p:.0e} | {cells} |")
+        lines.append(f"| {clock} | {p:.0e} | {cells} |")
     return section.wrap(NAME, "\n".join(lines))
 
 
@@ -209,8 +201,6 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--rare-reps", type=int, default=None,
                         help="repetitions at p = 1e-6 under the decision clock (default: --reps)")
     parser.add_argument("--ot-reps", type=int, default=10, help="openturns repetitions at p = 1e-4 (default 10)")
-    parser.add_argument("--block-steps", type=int, default=3,
-                        help="also subset simulation with block moves of this many steps (default 3; 0: none)")
     parser.add_argument("--quick", action="store_true", help="3 repetitions of 3 runs, no openturns (a smoke run)")
     section.add_output_options(parser)
     args = parser.parse_args(argv)
@@ -219,9 +209,9 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     args.time_reps = args.reps if args.time_reps is None else args.time_reps
     args.rare_reps = args.reps if args.rare_reps is None or args.quick else args.rare_reps
     if (min(args.reps, args.time_reps, args.rare_reps) < 1 or args.runs < 2 or min(args.n, args.n_rare) < 20
-            or min(args.ot_reps, args.split_reps, args.block_steps) < 0):
+            or min(args.ot_reps, args.split_reps) < 0):
         raise UserError("need --reps, --time-reps and --rare-reps >= 1, --runs >= 2, --n and --n-rare >= 20, "
-                        "--ot-reps, --split-reps and --block-steps >= 0")
+                        "--ot-reps and --split-reps >= 0")
     return args
 
 
@@ -234,8 +224,6 @@ def _main(argv: list[str] | None) -> int:
     try:
         settings = subset.Settings(n=args.n)
         rare = subset.Settings(n=args.n_rare)
-        variants = [(settings, rare)] + ([(replace(settings, block_steps=args.block_steps),
-                                           replace(rare, block_steps=args.block_steps))] if args.block_steps else [])
     except ValueError as err:
         raise UserError(str(err)) from None
     start = time.process_time()
@@ -243,13 +231,12 @@ def _main(argv: list[str] | None) -> int:
     for clock in ("time", "decision"):
         for p in (1e-3, 1e-4, 1e-6):
             reps = args.time_reps if clock == "time" else args.rare_reps if p < 1e-5 else args.reps
-            for common, rare_settings in variants:
-                row, counts = subset_row(clock, p, rare_settings if p < 1e-5 else common, reps, args.runs)
-                rows.append(row)
-                routes[(row.method, clock, p)] = counts
-                print(f"{row.method} {clock} p={p:.0e}: coverage {row.coverage:.0%}, bias {row.bias:+.0%}, "
-                      f"rel. half-width {row.relative_halfwidth:.0%}, factor {row.factor:.3g}x ({row.seconds:.0f} s)",
-                      flush=True)
+            row, counts = subset_row(clock, p, rare if p < 1e-5 else settings, reps, args.runs)
+            rows.append(row)
+            routes[(clock, p)] = counts
+            print(f"{row.method} {clock} p={p:.0e}: coverage {row.coverage:.0%}, bias {row.bias:+.0%}, "
+                  f"rel. half-width {row.relative_halfwidth:.0%}, factor {row.factor:.3g}x ({row.seconds:.0f} s)",
+                  flush=True)
         if args.ot_reps:
             ot_row = openturns_row(clock, 1e-4, args.n, settings.p0, args.ot_reps, args.runs)
             if ot_row is not None:

@@ -172,7 +172,7 @@ EPISODE_COLUMNS: tuple[Column, ...] = (
     _c("both_infeasible_longest_run", _INT, "", "longest run of consecutive control steps counted in "
        "both_infeasible_steps"),
     _c("both_infeasible_longest_run_first_step", _INT, "", "0-based control step at which that longest run began (the "
-       "first of equally long runs; -1 if none): where a noise-driven failure is decided"),
+       "first of equally long runs; -1 if none)"),
     _c("theorem5_margin", _FLOAT, "", "lowest Theorem 5 margin of a control step: the larger signed room of the "
        "step's Q1 and Q2 solves (problem_margin: the smallest barrier-row slack of a solved plan, minus the "
        "returned point's violation of a failed one), negative exactly at the steps counted in "

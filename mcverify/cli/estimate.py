@@ -66,10 +66,6 @@ def _add_rare_event_options(p: argparse.ArgumentParser) -> None:
                         "(the target's), precursor-ladder (robustness / (1 + longest run of control steps with "
                         "neither Q1 nor Q2 solved)) or margin-ladder (robustness / (1 + 10 x the depth of the lowest "
                         "Theorem 5 margin below 0)): for events that follow a held plan (default robustness)")
-    p.add_argument("--block-steps", type=options.nonneg_int, default=None, metavar="L",
-                   help="subset: every other chain step moves only the perception units of L control steps, drawn "
-                        "around the episode's decisive step (the one after its longest run with neither Q1 nor Q2 "
-                        "solved): for events a few draws at one instant decide (default 0: pCN moves only)")
     p.add_argument("--cell", action="append", default=[], metavar="NAME",
                    help="splitting, importance: only this cell (repeatable; default: every cell); splitting runs its "
                         "AMS runs, importance its batches of 8 episodes, in this process unless --workers (local) "
@@ -106,7 +102,6 @@ _ESTIMATE_METHOD_OPTIONS: tuple[tuple[str, str, tuple[str, ...]], ...] = (
     ("stage_samples", "--stage-samples", ("subset",)),
     ("p0", "--p0", ("subset",)),
     ("performance", "--performance", ("subset",)),
-    ("block_steps", "--block-steps", ("subset",)),
     ("max_iterations", "--max-iterations", ("splitting",)),
     ("samples", "--samples", ("importance",)),
     ("ce_samples", "--ce-samples", ("importance",)),
@@ -118,7 +113,7 @@ _ESTIMATE_METHOD_OPTIONS: tuple[tuple[str, str, tuple[str, ...]], ...] = (
 _ESTIMATE_DEFAULTS: dict[str, object] = {
     "method": "mc", "target": "collision", "budget": 1000, "level": 0.95, "particles": 20, "replicates": 8,
     "samples": 400, "ce_samples": 100, "ce_iterations": 10, "elite_share": 0.1, "max_iterations": 2000,
-    "stage_samples": 2000, "p0": 0.1, "performance": requirements.PLAIN_ROBUSTNESS, "block_steps": 0,
+    "stage_samples": 2000, "p0": 0.1, "performance": requirements.PLAIN_ROBUSTNESS,
 }
 
 
@@ -206,7 +201,7 @@ def _estimate_spec(args, method: str):
             return spec
         if method == "subset":
             return subset_run.SubsetSpec(args.target, args.stage_samples, args.p0, args.replicates, args.level,
-                                         performance=args.performance, block_steps=args.block_steps)
+                                         performance=args.performance)
         return importance_run.ImportanceSpec(args.target, args.samples, args.ce_samples, rho=args.elite_share,
                                              level=args.level, max_ce_iterations=args.ce_iterations,
                                              score=args.score, noise_tilt=args.noise_tilt)
@@ -227,12 +222,11 @@ def _estimate_campaign(args, method: str):
     if method == "importance":
         importance_run.check_cells_have_ranges(campaign, args.cell or None)
     if method == "subset":
-        from mcverify.estimate.input_vector import check_block_steps, check_law
+        from mcverify.estimate.input_vector import check_law
 
         for cell in campaign.cells:
             if not args.cell or cell.name in args.cell:
                 check_law(cell)
-                check_block_steps(cell, args.block_steps)
     return campaign
 
 
@@ -251,7 +245,7 @@ def _estimate_dry_run(args, method: str) -> int:
         method, args.target, budget=args.budget, samples=args.samples, ce_samples=args.ce_samples,
         ce_iterations=args.ce_iterations, particles=args.particles, replicates=args.replicates,
         max_iterations=args.max_iterations, cells=tuple(args.cell), workers=workers,
-        stage_samples=args.stage_samples, p0=args.p0, performance=args.performance, block_steps=args.block_steps)
+        stage_samples=args.stage_samples, p0=args.p0, performance=args.performance)
     print(plan.render(campaign, options))
     return 0
 

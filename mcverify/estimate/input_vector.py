@@ -34,11 +34,6 @@ only the intermediate levels subset simulation climbs:
   walk along; the margin is a real number of the solves, and its depth ranks the episodes that go on to
   the event (docs/rare_events.md, "the margin ladder").
 
-Focus, for subset simulation's block moves (:class:`mcverify.estimate.subset.FocusedProblem`): the
-control step right after the episode's longest run of steps with neither Q1 nor Q2 solved (the step
-whose measurement decides whether that run goes on; the row's
-``both_infeasible_longest_run_first_step`` + its length), -1 for an episode without such a step.
-
 Cost: the control steps each episode ran (``steps`` of its row).
 """
 
@@ -60,7 +55,6 @@ from mcverify.draws import DRAWS, Draw
 from mcverify.episode.draws import value_of_unit
 from mcverify.episode.rollout import ChunkResult, run_episodes
 from mcverify.errors import RunError
-from mcverify.estimate.subset import Layout
 from mcverify.requirements import MARGIN_LADDER, PERFORMANCES, PRECURSOR_LADDER, TARGETS
 from mcverify.sim.schedule import CHANNELS, FRONT_CHANNELS, OPP_CHANNELS, ErrorSchedule, control_steps
 
@@ -93,13 +87,6 @@ def check_law(cell: Cell) -> None:
     if n.key_seed >= 0 or n.branch_after_steps:
         raise RunError(f"cell {cell.name} fixes its noise (noise.key_seed or noise.branch_after_steps): subset "
                        "simulation draws every input itself")
-
-
-def check_block_steps(cell: Cell, block_steps: int) -> None:
-    """Refuse (one line) a block-move window longer than the cell's episodes."""
-    steps = control_steps(cell.params.sim)
-    if block_steps > steps:
-        raise RunError(f"--block-steps {block_steps} exceeds the {steps} control steps of cell {cell.name}'s episodes")
 
 
 @dataclass
@@ -181,27 +168,9 @@ class ClosedLoopProblem:
         return g
 
     def evaluate(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        g, steps, _ = self.evaluate_focused(x)
-        return g, steps
-
-    @property
-    def layout(self) -> Layout:
-        """Where the per-step perception units lie in x (after the scenario units)."""
-        return Layout(len(self.draws), len(self.channels), self.steps)
-
-    def focus(self, row: dict[str, Any]) -> int:
-        """The control step after the row's longest run of steps with neither problem solved; -1 for none."""
-        first = int(row.get("both_infeasible_longest_run_first_step", -1))
-        if first < 0:
-            return -1
-        return min(self.steps - 1, first + int(row["both_infeasible_longest_run"]))
-
-    def evaluate_focused(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(performance, control steps, focus) of the rows of x: one batch of episodes."""
         result = self.simulate(x)
         g = np.array([self.performance(r) for r in result.rows])
         steps = np.array([int(r["steps"]) for r in result.rows])
-        focus = np.array([self.focus(r) for r in result.rows], dtype=np.int64)
         self.steps_run += int(steps.sum())
         self.episodes_run += len(result.rows)
-        return g, steps, focus
+        return g, steps

@@ -49,7 +49,6 @@ class EstimateOptions:
     stage_samples: int = 2000
     p0: float = 0.1
     performance: str = PLAIN_ROBUSTNESS
-    block_steps: int = 0
 
 
 def _selected(campaign: Campaign, cells: Sequence[str]) -> list[Cell]:
@@ -67,8 +66,7 @@ def render(campaign: Campaign, options: EstimateOptions) -> str:
     """The dry run's report: the method, the cells, the episodes and a rough CPU range."""
     cells = _selected(campaign, options.cells)
     names = ", ".join(c.name for c in cells)
-    blocks = f", block moves of {options.block_steps} control steps" if options.block_steps else ""
-    climbing = f" (performance function {options.performance}{blocks})" if options.method == "subset" else ""
+    climbing = f" (performance function {options.performance})" if options.method == "subset" else ""
     head = (f"estimate {campaign.source}: {options.method}, target {options.target}{climbing}, {len(cells)} cell(s): "
             f"{names}")
     rough = "(per-episode costs measured on a 2-core machine, results/BENCHMARKS.md; a rough range)"

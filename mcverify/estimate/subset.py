@@ -20,24 +20,13 @@ chains towards an acceptance rate of ``target_acceptance`` (log lambda += (rate 
 sqrt(group)), carried from level to level; chains within a group share one scale, so each is a
 Markov chain of its own.
 
-Block moves (``Settings.block_steps`` > 0, for a :class:`FocusedProblem`): where a few draws at one
-instant decide the event, pCN changes every unit a little and the decisive ones too little, so the
-chains stay on the rung their seeds stand on. Every other chain step then moves only a window of
-``block_steps`` control steps (all its units, pCN with its own adapted scale sigma_b, started at 1: a
-redraw from the prior). The window is drawn around the state's focus (the step the problem names as
-decisive, e.g. the step after the closed loop's longest run of unsolved steps) with probability
-``focus_share``, else uniformly; its law w(window | state) depends on the state, so the candidate is
-accepted iff g(v) <= y_j and, with probability min(1, w(window | v) / w(window | x)) (Metropolis-
-Hastings for a state-dependent choice among prior-reversible kernels: detailed balance holds window
-by window).
-
 Error: the within-run coefficient of variation of [AB01], delta^2 = sum_j (1 - P_j) / (N P_j)
 (1 + gamma_j), gamma_j from the indicator's correlation along the chains; the interval is the
 Student t interval of independent runs (:func:`estimate`), with the within-run value reported beside.
 
 Determinism: stage 0's draws come from SeedSequence(seed, spawn_key=(run, 0, 0)), seed an int or ints
 such as (campaign seed, cell index); chain c of stage j from (run, j, 1, c), step s being the s-th
-block of its stream, its block moves' draws from (run, j, 2, c); the seeds' order from (run, j, 0).
+block of its stream; the seeds' order from (run, j, 0).
 A run with a ``checkpoint`` path saves its state after each stage and resumes from it: the resumed
 run is bit for bit the uninterrupted one. Every failing sample of the last stage is returned with its
 full input vector, so a deterministic episode function replays it.
@@ -77,25 +66,6 @@ class Problem(Protocol):
 
 
 @dataclass(frozen=True)
-class Layout:
-    """Where the per-step units lie in x: unit c of control step k is x[offset + k * per_step + c]."""
-
-    offset: int
-    per_step: int
-    steps: int
-
-
-class FocusedProblem(Problem, Protocol):
-    """A problem that also names, per evaluated row, its decisive control step (its focus; -1 for
-    none), for block moves: ``evaluate_focused`` returns (g, steps, focus) from one call."""
-
-    @property
-    def layout(self) -> Layout: ...
-
-    def evaluate_focused(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
-
-
-@dataclass(frozen=True)
 class Settings:
     """N samples per stage, conditional level p0, and the pCN moves' scale adaptation.
 
@@ -111,8 +81,6 @@ class Settings:
     chains_per_group: int = 10  # [PBS15] adapt after every 100 p0 chains
     max_stages: int = 40
     failure_level: float = 0.0
-    block_steps: int = 0  # > 0: every other chain step moves a window of this many control steps (block moves)
-    focus_share: float = 0.8  # block moves: how often the window is drawn around the state's focus
 
     def __post_init__(self) -> None:
         if not 0.0 < self.p0 < 0.5:
@@ -122,17 +90,6 @@ class Settings:
             raise ValueError(f"n * p0 must be an integer >= 2 that divides n, got n={self.n}, p0={self.p0}")
         if not 0.0 < self.target_acceptance < 1.0 or self.initial_scale <= 0 or self.chains_per_group < 1:
             raise ValueError("need 0 < target_acceptance < 1, initial_scale > 0 and chains_per_group >= 1")
-        if self.block_steps < 0 or not 0.0 <= self.focus_share <= 1.0:
-            raise ValueError(f"need block_steps >= 0 and 0 <= focus_share <= 1, got {self.block_steps}, "
-                             f"{self.focus_share}")
-
-    def fingerprint(self) -> dict[str, Any]:
-        """The settings a checkpoint must match; the block moves' only when they are on, so that
-        checkpoints made before block moves existed still resume."""
-        fields = asdict(self)
-        if not self.block_steps:
-            del fields["block_steps"], fields["focus_share"]
-        return fields
 
     @property
     def chains(self) -> int:
@@ -142,9 +99,8 @@ class Settings:
 @dataclass(frozen=True)
 class Stage:
     """One stage's population: its threshold y_j (failure_level at the last), the share P_j of it at or
-    below, Au and Beck's gamma_j, and how it was made: the pCN moves' acceptance rate and the scale
-    lambda they started from (None at stage 0, drawn from the prior), its evaluations and control steps,
-    and the block moves' acceptance rate and sigma_b (None without block moves)."""
+    below, Au and Beck's gamma_j, and how it was made: the moves' acceptance rate and the scale lambda
+    they started from (None at stage 0, drawn from the prior), its evaluations and control steps."""
 
     threshold: float
     share: float
@@ -153,8 +109,6 @@ class Stage:
     scale: float | None
     evaluations: int
     steps: int
-    block_acceptance: float | None = None  # block moves' acceptance rate and the sigma_b they started from
-    block_scale: float | None = None
 
 
 @dataclass(frozen=True)
@@ -210,154 +164,37 @@ def _propose(x: np.ndarray, sigma: np.ndarray, normals: np.ndarray) -> np.ndarra
     return np.sqrt(1.0 - sigma**2) * x + sigma * normals
 
 
-#: The block moves' sigma_b before any adaptation: a window redrawn from the prior.
-INITIAL_BLOCK_SCALE = 1.0
-
-
-@dataclass(frozen=True)
-class _Windows:
-    """The block moves' windows: ``length`` control steps starting at 0 .. starts - 1 of ``layout``, drawn
-    around a state's focus with probability ``share`` (the starts whose window holds the focus), else
-    uniformly."""
-
-    layout: Layout
-    length: int
-    share: float
-
-    @property
-    def starts(self) -> int:
-        return self.layout.steps - self.length + 1
-
-    def _around(self, focus: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(first start, number of starts) of the windows holding each focus (0 of them for focus -1)."""
-        low = np.maximum(0, focus - self.length + 1)
-        count = np.where(focus >= 0, np.minimum(focus, self.starts - 1) - low + 1, 0)
-        return low, np.maximum(count, 0)
-
-    def draw(self, focus: np.ndarray, coin: np.ndarray, position: np.ndarray) -> np.ndarray:
-        """Window starts for states with ``focus``, from uniforms ``coin`` (around the focus or not) and
-        ``position``."""
-        low, count = self._around(focus)
-        local = (coin < self.share) & (count > 0)
-        start = np.where(local, low + np.floor(position * count), np.floor(position * self.starts))
-        return np.minimum(start.astype(np.int64), self.starts - 1)
-
-    def probability(self, start: np.ndarray, focus: np.ndarray) -> np.ndarray:
-        """w(start | a state with ``focus``): the law :meth:`draw` draws with."""
-        low, count = self._around(focus)
-        inside = (start >= low) & (start < low + count)
-        local = self.share * inside / np.maximum(count, 1)
-        return np.where(count > 0, (1.0 - self.share) / self.starts + local, 1.0 / self.starts)
-
-    def columns(self, start: np.ndarray) -> np.ndarray:
-        """(m, length * per_step) the coordinates of x each window moves."""
-        per = self.layout.per_step
-        return self.layout.offset + start[:, None] * per + np.arange(self.length * per)[None, :]
-
-
-@dataclass
-class _Tally:
-    """Accepted and tried moves of one kind."""
-
-    accepted: int = 0
-    tried: int = 0
-
-    def add(self, ok: np.ndarray) -> None:
-        self.accepted += int(ok.sum())
-        self.tried += int(ok.size)
-
-    @property
-    def rate(self) -> float:
-        return self.accepted / self.tried
-
-
-@dataclass(frozen=True)
-class _Chained:
-    """A stage made by the chains: states (chains, length, d), their g and focus, how the moves fared and
-    the scales they adapted to, the control steps spent."""
-
-    x: np.ndarray
-    g: np.ndarray
-    focus: np.ndarray | None
-    acceptance: float
-    scale: float
-    block_acceptance: float | None
-    block_scale: float
-    steps: int
-
-
-def _chains(problem: Problem, seeds: _Population, threshold: float, scales: tuple[float, float], settings: Settings,
-            key: tuple[Seed, int, int]) -> _Chained:
-    """Run the chains of stage ``key`` = (seed, run, stage) from ``seeds``, with the pCN scale lambda and
-    the block moves' sigma_b of ``scales``."""
+def _chains(problem: Problem, seeds: np.ndarray, seed_g: np.ndarray, threshold: float, scale: float,
+            settings: Settings, key: tuple[Seed, int, int]) -> tuple[np.ndarray, np.ndarray, float, float, int]:
+    """Run the chains of stage ``key`` = (seed, run, stage) from ``seeds``: returns states (chains,
+    length, d), their g, the acceptance rate, the adapted scale and the control steps spent."""
     seed, run, stage = key
-    chains, d = seeds.x.shape
+    chains, d = seeds.shape
     length = settings.n // chains
-    windows = _windows(problem, settings)
-    spread = np.maximum(seeds.x.std(axis=0), 1e-3) if chains > 1 else np.ones(d)
+    spread = np.maximum(seeds.std(axis=0), 1e-3) if chains > 1 else np.ones(d)
     x = np.empty((chains, length, d))
     g = np.empty((chains, length))
-    focus = None if windows is None else np.empty((chains, length), dtype=np.int64)
-    x[:, 0], g[:, 0] = seeds.x, seeds.g
-    if focus is not None:
-        focus[:, 0] = seeds.focus
-    pcn, block, steps = _Tally(), _Tally(), 0
-    log_scale, log_block = math.log(scales[0]), math.log(scales[1])
+    x[:, 0], g[:, 0] = seeds, seed_g
+    accepted, steps, log_scale = 0, 0, math.log(scale)
     group_size = settings.chains_per_group
     for group, start in enumerate(range(0, chains, group_size)):
         idx = np.arange(start, min(chains, start + group_size))
         sigma = np.minimum(1.0, math.exp(log_scale) * spread)
-        sigma_b = min(1.0, math.exp(log_block))
         draws = [_rng(seed, run, stage, 1, int(c)) for c in idx]
         normals = np.stack([r.standard_normal((length - 1, d)) for r in draws], axis=1)
-        if windows is not None:
-            block_rngs = [_rng(seed, run, stage, 2, int(c)) for c in idx]
-            uniforms = np.stack([r.random((length - 1, 3)) for r in block_rngs], axis=1)
-            block_normals = np.stack([r.standard_normal((length - 1, windows.length * windows.layout.per_step))
-                                      for r in block_rngs], axis=1)
-        group_pcn, group_block = _Tally(), _Tally()
+        group_accepted = 0
         for s in range(1, length):
-            here = x[idx, s - 1]
-            if windows is not None and s % 2 == 0:
-                u = uniforms[s - 1]
-                starts = windows.draw(focus[idx, s - 1], u[:, 0], u[:, 1])
-                cols = windows.columns(starts)
-                rows = np.arange(idx.size)[:, None]
-                cand = here.copy()
-                cand[rows, cols] = np.sqrt(1.0 - sigma_b**2) * here[rows, cols] + sigma_b * block_normals[s - 1]
-                g_cand, spent, f_cand = _evaluate(problem, cand, focused=True)
-                ratio = windows.probability(starts, f_cand) / windows.probability(starts, focus[idx, s - 1])
-                ok = (g_cand <= threshold) & (u[:, 2] < ratio)
-                group_block.add(ok)
-            else:
-                cand = _propose(here, sigma, normals[s - 1])
-                g_cand, spent, f_cand = _evaluate(problem, cand, focused=windows is not None)
-                ok = g_cand <= threshold
-                group_pcn.add(ok)
+            cand = _propose(x[idx, s - 1], sigma, normals[s - 1])
+            g_cand, spent = _evaluate(problem, cand)
             steps += spent
-            x[idx, s] = np.where(ok[:, None], cand, here)
+            ok = g_cand <= threshold
+            x[idx, s] = np.where(ok[:, None], cand, x[idx, s - 1])
             g[idx, s] = np.where(ok, g_cand, g[idx, s - 1])
-            if focus is not None:
-                focus[idx, s] = np.where(ok, f_cand, focus[idx, s - 1])
-        pcn.accepted, pcn.tried = pcn.accepted + group_pcn.accepted, pcn.tried + group_pcn.tried
-        log_scale += (group_pcn.rate - settings.target_acceptance) / math.sqrt(group + 1)
-        if group_block.tried:
-            block.accepted, block.tried = block.accepted + group_block.accepted, block.tried + group_block.tried
-            log_block = min(0.0, log_block + (group_block.rate - settings.target_acceptance) / math.sqrt(group + 1))
-    return _Chained(x, g, focus, pcn.rate, math.exp(log_scale), block.rate if block.tried else None,
-                    math.exp(log_block), steps)
-
-
-def _windows(problem: Problem, settings: Settings) -> _Windows | None:
-    """The block moves' windows, or None without block moves; a problem that cannot have them is refused."""
-    if not settings.block_steps:
-        return None
-    layout = getattr(problem, "layout", None)
-    if layout is None or not hasattr(problem, "evaluate_focused"):
-        raise ValueError("block moves (block_steps > 0) need a problem with a layout and evaluate_focused")
-    if settings.block_steps > layout.steps:
-        raise ValueError(f"block_steps = {settings.block_steps} exceeds the problem's {layout.steps} control steps")
-    return _Windows(layout, settings.block_steps, settings.focus_share)
+            group_accepted += int(ok.sum())
+        rate = group_accepted / (idx.size * (length - 1))
+        accepted += group_accepted
+        log_scale += (rate - settings.target_acceptance) / math.sqrt(group + 1)
+    return x, g, accepted / (chains * (length - 1)), math.exp(log_scale), steps
 
 
 # -- checkpoints -------------------------------------------------------------------------------------
@@ -366,51 +203,30 @@ def _windows(problem: Problem, settings: Settings) -> _Windows | None:
 def _fingerprint(problem: Problem, settings: Settings, seed: Seed, run: int) -> str:
     """What a checkpoint must match: a problem names itself by a ``key`` attribute, else by its repr."""
     name = getattr(problem, "key", None) or repr(problem)
-    return json.dumps({"settings": settings.fingerprint(), "seed": seed, "run": run,
-                       "dimension": int(problem.dimension), "problem": name}, sort_keys=True)
-
-
-@dataclass(frozen=True)
-class _Population:
-    """Samples with their g and, under block moves, their focus."""
-
-    x: np.ndarray
-    g: np.ndarray
-    focus: np.ndarray | None = None
-
-    def take(self, rows: np.ndarray) -> _Population:
-        return _Population(self.x[rows], self.g[rows], None if self.focus is None else self.focus[rows])
-
-
-#: How a population was made: acceptance, scale, evaluations, steps, block acceptance, block scale (Stage's fields).
-_Made = tuple[float | None, float | None, int, int, float | None, float | None]
+    return json.dumps({"settings": asdict(settings), "seed": seed, "run": run, "dimension": int(problem.dimension),
+                       "problem": name}, sort_keys=True)
 
 
 @dataclass
 class _State:
-    """A run between stages: population ``stage``, how it was made, the scales, stages done."""
+    """A run between stages: population ``stage`` (x, g), how it was made, the scale, stages done."""
 
     stage: int
-    population: _Population
-    made: _Made
+    x: np.ndarray
+    g: np.ndarray
+    made: tuple[float | None, float | None, int, int]  # acceptance, scale, evaluations, steps of this population
     scale: float
     stages: list[Stage]
     cpu_s: float = 0.0  # CPU seconds spent on the stages and population kept here, earlier processes included
-    block_scale: float = INITIAL_BLOCK_SCALE
 
 
 def _save(path: Path, fingerprint: str, state: _State) -> None:
     meta = json.dumps({"fingerprint": fingerprint, "stage": state.stage, "made": list(state.made),
-                       "stages": [asdict(s) for s in state.stages], "cpu_s": state.cpu_s,
-                       "block_scale": state.block_scale})
-    pop = state.population
-    arrays = {"x": pop.x, "g": pop.g, "scale": np.array([state.scale]), "meta": np.array(meta)}
-    if pop.focus is not None:
-        arrays["focus"] = pop.focus
+                       "stages": [asdict(s) for s in state.stages], "cpu_s": state.cpu_s})
 
     def write(tmp: str) -> None:
         with open(tmp, "wb") as f:
-            np.savez(f, **arrays)
+            np.savez(f, x=state.x, g=state.g, scale=np.array([state.scale]), meta=np.array(meta))
 
     files.atomic_write(path, write)
 
@@ -420,30 +236,23 @@ def _load(path: Path, fingerprint: str) -> _State:
         meta = json.loads(str(data["meta"]))
         if meta["fingerprint"] != fingerprint:
             raise ValueError(f"{path} is the checkpoint of another run (problem, settings, seed or run differ)")
-        acc, sc, ev, st, *block = meta["made"]  # checkpoints from before block moves have four entries
-        made = (acc, sc, int(ev), int(st), *(block or [None, None]))
-        focus = data["focus"].copy() if "focus" in data.files else None
-        return _State(meta["stage"], _Population(data["x"].copy(), data["g"].copy(), focus), made,
-                      float(data["scale"][0]), [Stage(**s) for s in meta["stages"]], float(meta.get("cpu_s", math.nan)),
-                      float(meta.get("block_scale", INITIAL_BLOCK_SCALE)))
+        acc, sc, ev, st = meta["made"]
+        return _State(meta["stage"], data["x"].copy(), data["g"].copy(), (acc, sc, int(ev), int(st)),
+                      float(data["scale"][0]), [Stage(**s) for s in meta["stages"]], float(meta.get("cpu_s", math.nan)))
 
 
 # -- one run -----------------------------------------------------------------------------------------
 
 
-def _evaluate(problem: Problem, x: np.ndarray, focused: bool = False) -> tuple[np.ndarray, int, np.ndarray | None]:
-    """(g, control steps in all, focus or None) of the rows of x."""
-    if focused:
-        g, steps, focus = problem.evaluate_focused(x)
-        return np.asarray(g, dtype=float), int(np.sum(steps)), np.asarray(focus, dtype=np.int64)
+def _evaluate(problem: Problem, x: np.ndarray) -> tuple[np.ndarray, int]:
     g, steps = problem.evaluate(x)
-    return np.asarray(g, dtype=float), int(np.sum(steps)), None
+    return np.asarray(g, dtype=float), int(np.sum(steps))
 
 
 def _start(problem: Problem, settings: Settings, seed: Seed, run: int) -> _State:
     x = _rng(seed, run, 0, 0).standard_normal((settings.n, problem.dimension))
-    g, steps, focus = _evaluate(problem, x, focused=_windows(problem, settings) is not None)
-    return _State(0, _Population(x, g, focus), (None, None, settings.n, steps, None, None), settings.initial_scale, [])
+    g, steps = _evaluate(problem, x)
+    return _State(0, x, g, (None, None, settings.n, steps), settings.initial_scale, [])
 
 
 def run(problem: Problem, settings: Settings = Settings(), *, seed: Seed = 0, run: int = 0,
@@ -453,7 +262,6 @@ def run(problem: Problem, settings: Settings = Settings(), *, seed: Seed = 0, ru
     is told each stage this process closes, with the run's CPU seconds so far (a resumed run's earlier
     processes included)."""
     fingerprint = _fingerprint(problem, settings, seed, run)
-    _windows(problem, settings)  # a problem that cannot have the block moves asked for is refused before any work
     path = None if checkpoint is None else Path(checkpoint)
     clock = time.process_time()
     state = _load(path, fingerprint) if path is not None and path.is_file() else _start(problem, settings, seed, run)
@@ -463,7 +271,7 @@ def run(problem: Problem, settings: Settings = Settings(), *, seed: Seed = 0, ru
         clock = time.process_time()
         if path is not None:
             _save(path, fingerprint, state)
-        g = state.population.g
+        g = state.g
         order = np.argsort(g, kind="stable")
         threshold = 0.5 * float(g[order[chains - 1]] + g[order[chains]])
         last = threshold <= settings.failure_level
@@ -478,14 +286,11 @@ def run(problem: Problem, settings: Settings = Settings(), *, seed: Seed = 0, ru
             break
         stage = state.stage + 1
         perm = _rng(seed, run, stage, 0).permutation(chains)  # [PBS15]: the groups get seeds in random order
-        seeds = state.population.take(order[:chains][perm])
-        made = _chains(problem, seeds, level, (state.scale, state.block_scale), settings, (seed, run, stage))
-        focus = None if made.focus is None else made.focus.reshape(settings.n)
-        blocks = settings.block_steps > 0
-        state = _State(stage, _Population(made.x.reshape(settings.n, -1), made.g.reshape(settings.n), focus),
-                       (made.acceptance, state.scale, settings.n - chains, made.steps, made.block_acceptance,
-                        state.block_scale if blocks else None),
-                       made.scale, state.stages, state.cpu_s, made.block_scale)
+        seeds = order[:chains][perm]
+        xs, gs, rate, scale, spent = _chains(problem, state.x[seeds], g[seeds], level, state.scale, settings,
+                                             (seed, run, stage))
+        state = _State(stage, xs.reshape(settings.n, -1), gs.reshape(settings.n),
+                       (rate, state.scale, settings.n - chains, spent), scale, state.stages, state.cpu_s)
     return _finish(state, settings, capped=not last)
 
 
@@ -495,10 +300,9 @@ def _finish(state: _State, settings: Settings, capped: bool) -> Run:
     estimate = math.nan if capped else float(np.prod(shares))
     terms = [(1 - s.share) / (settings.n * s.share) * (1 + s.gamma) for s in stages if s.share > 0]
     cov = math.sqrt(sum(terms)) if shares[-1] > 0 else math.inf
-    pop = state.population
-    fail = pop.g <= settings.failure_level
+    fail = state.g <= settings.failure_level
     return Run(estimate, cov, tuple(stages), sum(s.evaluations for s in stages), sum(s.steps for s in stages),
-               capped, pop.x[fail], pop.g[fail], state.cpu_s)
+               capped, state.x[fail], state.g[fail], state.cpu_s)
 
 
 # -- independent runs and their interval -------------------------------------------------------------

@@ -37,7 +37,7 @@ from mcverify.cell import Cell
 from mcverify.errors import RunError
 from mcverify.estimate import folder, replicates, subset
 from mcverify.estimate.folder import num
-from mcverify.estimate.input_vector import ClosedLoopProblem, check_block_steps, check_law
+from mcverify.estimate.input_vector import ClosedLoopProblem, check_law
 from mcverify.requirements import PERFORMANCE_TEXT, PERFORMANCES, TARGETS
 
 
@@ -45,8 +45,7 @@ from mcverify.requirements import PERFORMANCE_TEXT, PERFORMANCES, TARGETS
 class SubsetSpec:
     """target: the event (:data:`mcverify.requirements.TARGETS`); samples: N per stage; p0: the
     conditional level; runs: independent runs for the interval; level; max_stages per run; performance:
-    the function whose levels the runs climb (:data:`mcverify.requirements.PERFORMANCES`); block_steps:
-    the window of the block moves in control steps (0: pCN moves only; :mod:`mcverify.estimate.subset`)."""
+    the function whose levels the runs climb (:data:`mcverify.requirements.PERFORMANCES`)."""
 
     target: str = "collision"
     samples: int = 2000
@@ -55,7 +54,6 @@ class SubsetSpec:
     level: float = 0.95
     max_stages: int = 20
     performance: str = PERFORMANCES[0]
-    block_steps: int = 0
 
     def __post_init__(self) -> None:
         if self.target not in TARGETS:
@@ -68,9 +66,9 @@ class SubsetSpec:
 
     def settings(self) -> subset.Settings:
         try:
-            return subset.Settings(n=self.samples, p0=self.p0, max_stages=self.max_stages, block_steps=self.block_steps)
+            return subset.Settings(n=self.samples, p0=self.p0, max_stages=self.max_stages)
         except ValueError as err:
-            raise ValueError(f"--stage-samples, --p0 and --block-steps: {err}") from None
+            raise ValueError(f"--samples and --p0: {err}") from None
 
 
 def run(campaign: Campaign, spec: SubsetSpec, out: Path, *, progress=print,
@@ -81,7 +79,6 @@ def run(campaign: Campaign, spec: SubsetSpec, out: Path, *, progress=print,
     for cell in campaign.cells:
         if not cells or cell.name in cells:
             check_law(cell)
-            check_block_steps(cell, spec.block_steps)
     folder.create(out, campaign, {"method": "subset", **asdict(spec)}, cells)
     return replicates.run_cells(campaign, _replicated(campaign, spec, Path(out), stage_lines), Path(out), {},
                                 progress, cells, executor)
@@ -217,9 +214,6 @@ def _write(out: Path, spec: SubsetSpec, campaign: Campaign, results: dict[int, d
              + ("" if spec.performance == PERFORMANCES[0] else
                 f" climbing the {spec.performance.replace('-', ' ')} (performance function: "
                 f"{PERFORMANCE_TEXT[spec.performance]}, the same event)")
-             + ("" if not spec.block_steps else
-                f", every other chain step moving the perception error of a window of {spec.block_steps} control "
-                "steps around the episode's decisive step")
              + "; the interval is asymptotic "
              f"({spec.level:.0%} Student t on the runs' estimates), the within-run CoV (Au and Beck, chains' "
              "correlation included) beside it.")

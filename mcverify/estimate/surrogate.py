@@ -45,8 +45,6 @@ import numpy as np
 from scipy import optimize
 from scipy.special import ndtr, ndtri
 
-from mcverify.estimate.subset import Layout
-
 #: The scenario units at the front of the input vector (initial gap, closing-speed class).
 SCENARIO_UNITS = 2
 #: How the noise units are keyed to control steps (see :meth:`Surrogate.noise_units`).
@@ -190,19 +188,6 @@ class Surrogate:
     def evaluate(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(robustness, control steps) of the rows of ``x``: the interface of subset simulation."""
         return self.performance(x), self.steps(x)
-
-    @property
-    def layout(self) -> Layout:
-        """Where subset simulation's block moves find the noise units of a control step."""
-        return Layout(SCENARIO_UNITS, self.channels, self.horizon_steps)
-
-    def evaluate_focused(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """As :meth:`evaluate`, with each row's focus: the first step whose noise unit decides (tau
-        under the clock "time", unit 0 under "decision")."""
-        x = np.atleast_2d(np.asarray(x, dtype=float))
-        _, tau = self.scenario(x)
-        focus = tau if self.clock == "time" else np.zeros_like(tau)
-        return self.performance(x), self.steps(x), focus
 
     def steps(self, x: np.ndarray) -> np.ndarray:
         """(n,) control steps an evaluation simulates: up to the decision, its three draws, the depth."""

@@ -116,23 +116,3 @@ def test_the_performance_function_names_the_problem_but_the_default_keeps_old_ke
                        "margin-ladder"):
         ClosedLoopProblem(cell, 11, "ellipse", None, "gap")
 
-
-@pytest.mark.parametrize(("first_step", "longest_run", "focus"), [(-1, 0, -1), (3, 2, 5), (0, 1, 1), (7, 5, 9)])
-def test_the_focus_is_the_step_after_the_longest_unsolved_run(cell, first_step, longest_run, focus):
-    """Block moves centre their windows on the step whose measurement decides whether the run goes on
-    (clipped to the episode's last step, 9 in this 10-step cell)."""
-    problem = ClosedLoopProblem(cell, 11, "ellipse", None)
-    row = {"both_infeasible_longest_run_first_step": first_step, "both_infeasible_longest_run": longest_run}
-    assert problem.focus(row) == focus
-
-
-def test_the_layout_names_each_steps_perception_units(cell):
-    """Unit c of control step k is x[offset + k * per_step + c]: the schedule inputs() builds agrees."""
-    problem = ClosedLoopProblem(cell, 11, "ellipse", None)
-    layout = problem.layout
-    assert (layout.offset, layout.per_step, layout.steps) == (len(problem.draws), 3, 10)
-    x = np.zeros((1, problem.dimension))
-    x[0, layout.offset + 4 * layout.per_step + 1] = 3.0  # step 4, veh_f's y
-    _, (schedule,) = problem.inputs(x)
-    units = np.asarray(schedule.units)
-    assert units[4, 1] > 0.99 and np.count_nonzero(units) == 1

@@ -32,13 +32,6 @@ class _SurrogateProblem:
     def evaluate(self, x):
         return self.surrogate.evaluate(x)
 
-    @property
-    def layout(self):
-        return self.surrogate.layout
-
-    def evaluate_focused(self, x):
-        return self.surrogate.evaluate_focused(x)
-
 
 @pytest.fixture
 def surrogate(monkeypatch):
@@ -87,26 +80,17 @@ def test_subset_folder_holds_the_estimate_its_interval_and_cost(tmp_path, surrog
     assert asked == ["robustness"] * 3 and "precursor ladder" not in report
 
 
-def test_the_precursor_ladder_is_recorded_in_the_folder_and_its_report(tmp_path, asked):
+@pytest.mark.parametrize("ladder", ["precursor-ladder", "margin-ladder"])
+def test_a_ladder_is_recorded_in_the_folder_and_its_report(tmp_path, asked, ladder):
     out = tmp_path / "sub"
     argv = ["estimate", str(FIXTURE), "--method", "subset", "--target", "ellipse", "--stage-samples", "100",
-            "--replicates", "2", "--cell", CELL, "--performance", "precursor-ladder", "--run-dir", str(out), "-q"]
+            "--replicates", "2", "--cell", CELL, "--performance", ladder, "--run-dir", str(out), "-q"]
     assert main(argv) == 0
     manifest = json.loads((out / "manifest.json").read_text())
-    assert manifest["estimate"]["performance"] == "precursor-ladder"
-    assert asked == ["precursor-ladder"] * 2
-    assert "climbing the precursor ladder" in (out / "report.md").read_text()
-
-
-def test_block_moves_are_recorded_in_the_folder_its_report_and_runs(tmp_path, surrogate):
-    out = tmp_path / "sub"
-    argv = ["estimate", str(FIXTURE), "--method", "subset", "--target", "ellipse", "--stage-samples", "100",
-            "--replicates", "2", "--cell", CELL, "--block-steps", "3", "--run-dir", str(out), "-q"]
-    assert main(argv) == 0
-    assert json.loads((out / "manifest.json").read_text())["estimate"]["block_steps"] == 3
-    assert "a window of 3 control steps around the episode's decisive step" in (out / "report.md").read_text()
-    stages = json.loads((out / "runs" / "cell001_run000.json").read_text())["run"]["stages"]
-    assert stages[0]["block_acceptance"] is None and all(0 < s["block_acceptance"] < 1 for s in stages[1:])
+    assert manifest["estimate"]["performance"] == ladder
+    assert asked == [ladder] * 2
+    assert f"climbing the {ladder.replace('-', ' ')} (performance function: the robustness / (1 + " in (
+        out / "report.md").read_text()
 
 
 def test_an_interrupted_subset_estimate_resumes_to_the_uninterrupted_one(tmp_path, surrogate):
@@ -135,8 +119,6 @@ def test_subset_bad_options_are_one_line(capsys):
         (["--particles", "4"], "--particles is for --method splitting"),
         (["--method", "splitting", "--performance", "precursor-ladder"], "--performance is for --method subset"),
         (["--set", "noise.structured_share=0.5"], "noise.structured_share = 0.5"),
-        (["--block-steps", "11"], "--block-steps 11 exceeds the 10 control steps"),
-        (["--method", "importance", "--block-steps", "2"], "--block-steps is for --method subset"),
     ):
         assert main(["estimate", str(FIXTURE), "--method", "subset", *argv]) == 2, argv
         err = capsys.readouterr().err.strip()
@@ -151,8 +133,6 @@ def test_subset_dry_run_counts_stages(capsys):
     assert "target collision (performance function robustness)" in out
     assert main(["estimate", str(FIXTURE), "--method", "subset", "--performance", "precursor-ladder", "--dry-run"]) == 0
     assert "(performance function precursor-ladder)" in capsys.readouterr().out
-    assert main(["estimate", str(FIXTURE), "--method", "subset", "--block-steps", "2", "--dry-run"]) == 0
-    assert "(performance function robustness, block moves of 2 control steps)" in capsys.readouterr().out
 
 
 @pytest.mark.slow
