@@ -197,12 +197,16 @@ def figure(points: Sequence[Subset], crude: Mapping[float, Crude], parameter: st
         labelled.add(s.performance)
         ax.errorbar([s.value + 0.01 * (1 + 2 * k)], [s.estimate], yerr=[[s.estimate - low], [s.high - s.estimate]],
                     fmt="o^sd"[k % 4], color=f"C{(0, 2, 3, 4)[k % 4]}", capsize=3, label=label)
-    for i, c in enumerate(sorted(crude.values(), key=lambda p: p.value)):
+    crude_labels = set()
+    for c in sorted(crude.values(), key=lambda p: p.value):
+        label = "crude Monte Carlo" if c.k else "crude: upper bound"
+        shown = label if label not in crude_labels else None  # one legend entry per kind of crude point
+        crude_labels.add(label)
         if c.k:
-            ax.errorbar([c.value - 0.01], [c.rate], yerr=[[c.rate - c.low], [c.high - c.rate]], fmt="s", color="C1",
-                        capsize=3, label="crude Monte Carlo" if i == 0 else None)
+            ax.errorbar([c.value - 0.01], [c.rate], yerr=[[c.rate - c.low], [c.high - c.rate]], fmt="X", color="C1",
+                        capsize=3, label=shown)
         else:
-            ax.plot([c.value - 0.01], [c.high], marker="v", color="C1", label="crude: upper bound" if i == 0 else None)
+            ax.plot([c.value - 0.01], [c.high], marker="v", color="C1", label=shown)
     ax.set_yscale("log")
     ax.set_xlabel(parameter)
     ax.set_ylabel(f"P({points[0].target})")
