@@ -63,9 +63,9 @@ def _add_rare_event_options(p: argparse.ArgumentParser) -> None:
                    help="subset: conditional level of each stage (default 0.1; N * p0 chains of 1 / p0 episodes)")
     p.add_argument("--performance", choices=requirements.PERFORMANCES, default=None,
                    help="subset: the function whose levels the runs climb, <= 0 exactly at the event: robustness "
-                        "(the target's), precursor-ladder (robustness / (1 + longest run of control steps with "
-                        "neither Q1 nor Q2 solved)) or margin-ladder (robustness / (1 + 10 x the depth of the lowest "
-                        "Theorem 5 margin below 0)): for events that follow a held plan (default robustness)")
+                        "(the target's), " + ", ".join(f"{name} ({text})" for name, text in
+                                                       requirements.PERFORMANCE_TEXT.items())
+                        + ": for events that follow a held plan (default robustness)")
     p.add_argument("--cell", action="append", default=[], metavar="NAME",
                    help="splitting, importance: only this cell (repeatable; default: every cell); splitting runs its "
                         "AMS runs, importance its batches of 8 episodes, in this process unless --workers (local) "

@@ -55,12 +55,8 @@ from mcverify.draws import DRAWS, Draw
 from mcverify.episode.draws import value_of_unit
 from mcverify.episode.rollout import ChunkResult, run_episodes
 from mcverify.errors import RunError
-from mcverify.requirements import MARGIN_LADDER, PERFORMANCES, PRECURSOR_LADDER, TARGETS
+from mcverify.requirements import MARGIN_FACTOR, MARGIN_LADDER, PERFORMANCES, PRECURSOR_LADDER, TARGETS
 from mcverify.sim.schedule import CHANNELS, FRONT_CHANNELS, OPP_CHANNELS, ErrorSchedule, control_steps
-
-#: margin-ladder: a Theorem 5 margin of -0.1 halves the robustness, as one unsolved step does on the precursor
-#: ladder (the events' margins are -0.4 to -2.4 on the validation cell at 1.25 and 2 times the paper's noise).
-MARGIN_FACTOR = 10.0
 
 
 def random_draws(cell: Cell) -> tuple[Draw, ...]:
