@@ -13,19 +13,20 @@ def add(sub, parents: list[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("replay", parents=parents, help="re-simulate one stored episode and write its trajectory")
     p.add_argument("run_dir", type=Path,
                    help="run folder (a search's generation folder, e.g. SEARCH/generations/g000, is one), or "
-                          "an importance-sampling or splitting estimate folder")
+                          "an importance-sampling, splitting or subset simulation estimate folder")
     p.add_argument("episode_id", type=options.nonneg_int,
                    help="the episode's id (column episode_id, from 0); in an importance-sampling estimate "
                           "folder a final draw's cell_episode, in a splitting one a failing particle's place in "
-                          "the cell's failing_particles")
+                          "the cell's failing_particles, in a subset simulation one a failing sample's place in "
+                          "the cell's failing_samples")
     p.add_argument("--out", type=Path, help="folder for the trajectory and plot (default: RUN_DIR/replay)")
     p.add_argument("--cell", metavar="NAME",
-                   help="estimate folders: the cell of the draw or particle (needed when the folder "
+                   help="estimate folders: the cell of the draw, particle or sample (needed when the folder "
                           "estimates several cells)")
     p.add_argument("--backend", choices=("ipopt",), default=None,
                    help="audit instead: re-simulate the episode on the same noise with the reference solver "
                         "(IPOPT at every step) and say whether its safety verdict is confirmed by the reference "
-                        "solver or solver-dependent (run folders)")
+                        "solver or solver-dependent (run and estimate folders)")
     p.set_defaults(handler="replay")
 
 
