@@ -8,7 +8,8 @@ would need for the same width. Everything is read from the stored folders, never
         [--figure PNG] [--no-write]
 
 RUN_DIR: a finished ``mcverify run`` folder of one cell (its events counted from episodes.parquet with the
-subset estimate's target, exact Clopper-Pearson interval); ESTIMATE_DIR: a finished ``mcverify estimate
+subset estimate's target, exact Clopper-Pearson interval); folders at the same value with different campaign
+seeds (independent episodes) are pooled into one count; ESTIMATE_DIR: a finished ``mcverify estimate
 --method subset`` folder of one cell. Every folder must hold the same cell but for the parameter."""
 
 from __future__ import annotations
@@ -35,7 +36,8 @@ NAME = "continuation"
 
 @dataclass(frozen=True)
 class Crude:
-    """Crude Monte Carlo at one value: k events of n episodes, the exact interval, its control steps."""
+    """Crude Monte Carlo at one value: k events of n episodes, the exact interval, its control steps, and the
+    folders (with their campaign seeds) it was counted from."""
 
     value: float
     k: int
@@ -43,8 +45,8 @@ class Crude:
     low: float
     high: float
     steps: int
-    seed: int
-    folder: Path
+    seeds: tuple[int, ...]
+    folders: tuple[Path, ...]
 
     @property
     def rate(self) -> float:
@@ -133,7 +135,26 @@ def read_crude(folder: Path, parameter: str, target: str) -> tuple[Crude, dict[s
     ci = proportion_interval(k, n)
     steps = int(np.nansum(floats(cols, "steps")[valid]))
     return Crude(float(_param(cell["params"], parameter)), k, n, ci.low, ci.high, steps,
-                 int(manifest["campaign"]["seed"]), Path(folder)), cell["params"]
+                 (int(manifest["campaign"]["seed"]),), (Path(folder),)), cell["params"]
+
+
+def pool(points: Sequence[Crude]) -> dict[float, Crude]:
+    """One count per value: folders at the same value are pooled (k, n and steps added, the exact interval of
+    the sum), which is valid only for independent episodes, so two folders of one seed are refused."""
+    out: dict[float, Crude] = {}
+    for c in points:
+        if c.value not in out:
+            out[c.value] = c
+            continue
+        a = out[c.value]
+        same = set(a.seeds) & set(c.seeds)
+        if same:
+            raise UserError(f"{c.folders[0]} and {a.folders[0]} ran the same seed ({min(same)}) at {c.value:g}: "
+                            "the same episodes; give one of them")
+        ci = proportion_interval(a.k + c.k, a.n + c.n)
+        out[c.value] = Crude(c.value, a.k + c.k, a.n + c.n, ci.low, ci.high, a.steps + c.steps, a.seeds + c.seeds,
+                             a.folders + c.folders)
+    return out
 
 
 def _check_same_cell(cells: Sequence[tuple[Path, Mapping[str, Any]]], parameter: str) -> None:
@@ -165,7 +186,9 @@ def table(points: Sequence[Subset], crude: Mapping[float, Crude], parameter: str
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for s in sorted(points, key=lambda p: (-p.value, PERFORMANCES.index(p.performance))):
         c = crude.get(s.value)
-        crude_text = f"{c.k}/{c.n} = {_g(c.rate)} [{_g(c.low)}, {_g(c.high)}], {c.steps:,} steps" if c else "–"
+        pooled = f" ({len(c.folders)} runs pooled)" if c and len(c.folders) > 1 else ""
+        crude_text = (f"{c.k}/{c.n} = {_g(c.rate)} [{_g(c.low)}, {_g(c.high)}], {c.steps:,} steps{pooled}"
+                      if c else "–")
         lines.append("| " + " | ".join([
             f"{s.value:g}", crude_text, f"{_g(s.estimate)} [{_g(s.low)}, {_g(s.high)}]", s.performance,
             ", ".join(_g(r) for r in s.runs), ", ".join(map(str, s.stages)), f"{s.relative_halfwidth:.2f}",
@@ -233,13 +256,13 @@ def build(points: Sequence[Subset], crude: Mapping[float, Crude], parameter: str
           campaign: Mapping[str, Any], figure_path: Path | None) -> str:
     alone = [s for s in sorted(points, key=lambda p: -p.value) if s.value not in crude]
     folders = [p.folder for p in sorted(points, key=lambda p: -p.value)] + [
-        c.folder for c in sorted(crude.values(), key=lambda c: -c.value)]
+        f for c in sorted(crude.values(), key=lambda c: -c.value) for f in c.folders]
     return "\n".join([
         f"## The rare cell by continuation along {parameter} (`python -m benchmarks.continuation`)", "",
         section.provenance_line(cmd), "",
         f"Cell: campaign {campaign['name']} ({campaign['source']}) with {parameter} moved; target "
         f"{points[0].target}. Crude Monte Carlo: `mcverify run` folders (seeds "
-        f"{', '.join(str(c.seed) for c in crude.values()) or '–'}), the exact two-sided 95 % Clopper-Pearson interval. "
+        f"{', '.join(str(seed) for c in crude.values() for seed in c.seeds) or '–'}), the exact two-sided 95 % Clopper-Pearson interval. "
         f"Subset simulation: `mcverify estimate --method subset` folders (seeds "
         f"{', '.join(str(s.seed) for s in points)}), independent runs of N samples per stage "
         f"(N = {', '.join(sorted({str(s.samples) for s in points}))}), the 95 % Student t interval on the runs' "
@@ -272,14 +295,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         if len({s.target for s in points}) != 1:
             raise UserError("the subset folders estimate different targets")
         crude_read = [read_crude(d, args.parameter, points[0].target) for d in args.crude]
-        _check_same_cell([(s.folder, prm) for s, prm in read] + [(c.folder, prm) for c, prm in crude_read],
+        _check_same_cell([(s.folder, prm) for s, prm in read] + [(c.folders[0], prm) for c, prm in crude_read],
                          args.parameter)
-        for kind, values in (("subset", [(s.value, s.performance) for s in points]),
-                             ("crude", [c.value for c, _ in crude_read])):
-            if len(set(values)) != len(values):
-                same = " with the same performance function" if kind == "subset" else ""
-                raise UserError(f"two {kind} folders at the same {args.parameter}{same}; pool them or give one")
-        crude = {c.value: c for c, _ in crude_read}
+        values = [(s.value, s.performance) for s in points]
+        if len(set(values)) != len(values):
+            raise UserError(f"two subset folders at the same {args.parameter} with the same performance function; "
+                            "give one")
+        crude = pool([c for c, _ in crude_read])
         campaign = store.read_manifest(args.subset[0])["campaign"]
         if args.figure:
             figure(points, crude, args.parameter, args.figure)

@@ -12,7 +12,7 @@ import pytest
 from benchmarks import plant, rare, section
 
 REPO = Path(__file__).resolve().parents[2]
-NAMES = ("engine", "solver", "falsify", "rare", "plant", "validation", "worst_case", "continuation")
+NAMES = ("engine", "solver", "falsify", "rare", "plant", "validation", "worst_case", "continuation", "stratified")
 
 
 def _one_error_line(err: str, name: str) -> str:

@@ -91,3 +91,23 @@ def test_folders_of_another_cell_or_unfinished_are_one_line(tmp_path, capsys):
     assert "holds another cell" in err and "barrier" in err and err.count("\n") == 1
     assert continuation.main(["--subset", str(tmp_path / "none"), "--no-write"]) == 2
     assert "no manifest.json" in capsys.readouterr().err
+
+
+def test_crude_runs_of_one_value_are_pooled_unless_they_share_a_seed(tmp_path, capsys):
+    def crude(name: str, seed: int):
+        run = synthetic.make_run(tmp_path / name, _raw(2.0, seed=seed),
+                                 probs=lambda cell: {"unsafe": 0.1, "overtook": 0.9, "went_back": 0.05},
+                                 trajectories=False)
+        return _finish(run)
+
+    a, b = crude("a", 1), crude("b", 2)
+    one, _ = continuation.read_crude(a, "noise.scale", "ellipse")
+    two, _ = continuation.read_crude(b, "noise.scale", "ellipse")
+    args = ["--subset", str(_subset(tmp_path, 2.0, 0.1)), "--crude", str(a), str(b), "--no-write"]
+    assert continuation.main(args) == 0
+    out = capsys.readouterr().out
+    assert f"{one.k + two.k}/{one.n + two.n} =" in out and "(2 runs pooled)" in out and "seeds 1, 2" in out
+    args[args.index(str(b))] = str(crude("c", 1))
+    assert continuation.main(args) == 2
+    err = capsys.readouterr().err
+    assert "ran the same seed (1)" in err and err.count("\n") == 1
