@@ -4,13 +4,14 @@ simulation at every value, side by side. Where both ran, the subset simulation i
 against crude Monte Carlo; where only subset simulation ran, the section says what crude Monte Carlo
 would need for the same width. Everything is read from the stored folders, never typed in.
 
-    python -m benchmarks.continuation --crude RUN_DIR ... --subset ESTIMATE_DIR ... [--parameter noise.scale]
-        [--figure PNG] [--no-write]
+    python -m benchmarks.continuation --crude RUN_DIR ... --subset ESTIMATE_DIR ... [--stratified OUT ...]
+        [--parameter noise.scale] [--figure PNG] [--no-write]
 
 RUN_DIR: a finished ``mcverify run`` folder of one cell (its events counted from episodes.parquet with the
 subset estimate's target, exact Clopper-Pearson interval); folders at the same value with different campaign
 seeds (independent episodes) are pooled into one count; ESTIMATE_DIR: a finished ``mcverify estimate
---method subset`` folder of one cell. Every folder must hold the same cell but for the parameter."""
+--method subset`` folder of one cell; OUT: a finished ``python -m benchmarks.stratified`` folder (its bound.json),
+the exact lower bound drawn beside the estimates. Every folder must hold the same cell but for the parameter."""
 
 from __future__ import annotations
 
@@ -79,6 +80,19 @@ class Subset:
         return self.crude_steps / self.steps if self.steps else math.nan
 
 
+@dataclass(frozen=True)
+class Stratified:
+    """The stratified lower bound at one value (``benchmarks.stratified``'s bound.json)."""
+
+    value: float
+    lower: float
+    point: float
+    level: float
+    episodes: int
+    events: int
+    folder: Path
+
+
 def _param(params: Mapping[str, Any], dotted: str) -> Any:
     node: Any = params
     for part in dotted.split("."):
@@ -138,6 +152,18 @@ def read_crude(folder: Path, parameter: str, target: str) -> tuple[Crude, dict[s
                  (int(manifest["campaign"]["seed"]),), (Path(folder),)), cell["params"]
 
 
+def read_stratified(folder: Path, parameter: str, target: str) -> tuple[Stratified, dict[str, Any]]:
+    path = Path(folder) / "bound.json"
+    if not path.is_file():
+        raise UserError(f"{folder} holds no finished stratified bound (bound.json): run python -m "
+                        "benchmarks.stratified")
+    b = store.read_json(path)
+    if b.get("target") != target:
+        raise UserError(f"{folder} bounds {b.get('target')}, not the subset estimates' {target}")
+    return Stratified(float(_param(b["params"], parameter)), float(b["lower"]), float(b["point"]), float(b["level"]),
+                      int(b["episodes"]), int(b["events"]), Path(folder)), b["params"]
+
+
 def pool(points: Sequence[Crude]) -> dict[float, Crude]:
     """One count per value: folders at the same value are pooled (k, n and steps added, the exact interval of
     the sum), which is valid only for independent episodes, so two folders of one seed are refused."""
@@ -178,8 +204,11 @@ def _agreement(s: Subset, c: Crude) -> str:
             f"subset estimate {'inside' if inside else 'outside'} crude's interval")
 
 
-def table(points: Sequence[Subset], crude: Mapping[float, Crude], parameter: str) -> str:
-    head = [parameter, "crude Monte Carlo (exact 95 %)", "subset simulation (95 % t on runs)", "performance function",
+def table(points: Sequence[Subset], crude: Mapping[float, Crude], parameter: str,
+          bounds: Mapping[float, Stratified] | None = None) -> str:
+    bounds = bounds or {}
+    head = [parameter, "crude Monte Carlo (exact 95 %)", "stratified lower bound", "subset simulation (95 % t on runs)",
+            "performance function",
             "runs", "stages",
             "rel. half-width", "within-run CoV", "control steps", "CPU-s", "crude steps, same width", "factor",
             "against crude"]
@@ -189,8 +218,10 @@ def table(points: Sequence[Subset], crude: Mapping[float, Crude], parameter: str
         pooled = f" ({len(c.folders)} runs pooled)" if c and len(c.folders) > 1 else ""
         crude_text = (f"{c.k}/{c.n} = {_g(c.rate)} [{_g(c.low)}, {_g(c.high)}], {c.steps:,} steps{pooled}"
                       if c else "–")
+        b = bounds.get(s.value)
+        bound_text = f">= {_g(b.lower)} ({b.events} events in {b.episodes})" if b else "–"
         lines.append("| " + " | ".join([
-            f"{s.value:g}", crude_text, f"{_g(s.estimate)} [{_g(s.low)}, {_g(s.high)}]", s.performance,
+            f"{s.value:g}", crude_text, bound_text, f"{_g(s.estimate)} [{_g(s.low)}, {_g(s.high)}]", s.performance,
             ", ".join(_g(r) for r in s.runs), ", ".join(map(str, s.stages)), f"{s.relative_halfwidth:.2f}",
             f"{s.within_run_cov:.2f}", f"{s.steps:,}", f"{s.cpu_s:.0f}", f"{s.crude_steps:.3g}", f"{s.factor:.3g}x",
             _agreement(s, c) if c else "no crude reference"]) + " |")
@@ -205,7 +236,8 @@ def beyond_crude(s: Subset) -> str:
             f"rate, against {s.cpu_s / 3600.0:.2g} for subset simulation ({s.factor:.3g}x).")
 
 
-def figure(points: Sequence[Subset], crude: Mapping[float, Crude], parameter: str, path: Path) -> None:
+def figure(points: Sequence[Subset], crude: Mapping[float, Crude], parameter: str, path: Path,
+           bounds: Mapping[float, Stratified] | None = None) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -230,6 +262,10 @@ def figure(points: Sequence[Subset], crude: Mapping[float, Crude], parameter: st
                         capsize=3, label=shown)
         else:
             ax.plot([c.value - 0.01], [c.high], marker="v", color="C1", label=shown)
+    for i, b in enumerate(sorted((bounds or {}).values(), key=lambda p: p.value)):
+        if b.lower > 0:  # a bound of 0 says nothing and has no place on a log axis
+            ax.plot([b.value - 0.02], [b.lower], marker="^", color="C5", linestyle="none",
+                    label="stratified lower bound" if i == 0 else None)
     ax.set_yscale("log")
     ax.set_xlabel(parameter)
     ax.set_ylabel(f"P({points[0].target})")
@@ -253,8 +289,12 @@ def code_line(folders: Sequence[Path]) -> str:
 
 
 def build(points: Sequence[Subset], crude: Mapping[float, Crude], parameter: str, cmd: str,
-          campaign: Mapping[str, Any], figure_path: Path | None) -> str:
+          campaign: Mapping[str, Any], figure_path: Path | None,
+          bounds: Mapping[float, Stratified] | None = None) -> str:
+    bounds = bounds or {}
     alone = [s for s in sorted(points, key=lambda p: -p.value) if s.value not in crude]
+    values = {s.value for s in points}
+    bound_only = [b for b in sorted(bounds.values(), key=lambda p: -p.value) if b.value not in values]
     folders = [p.folder for p in sorted(points, key=lambda p: -p.value)] + [
         f for c in sorted(crude.values(), key=lambda c: -c.value) for f in c.folders]
     return "\n".join([
@@ -262,7 +302,8 @@ def build(points: Sequence[Subset], crude: Mapping[float, Crude], parameter: str
         section.provenance_line(cmd), "",
         f"Cell: campaign {campaign['name']} ({campaign['source']}) with {parameter} moved; target "
         f"{points[0].target}. Crude Monte Carlo: `mcverify run` folders (seeds "
-        f"{', '.join(str(seed) for c in crude.values() for seed in c.seeds) or '–'}), the exact two-sided 95 % Clopper-Pearson interval. "
+        f"{', '.join(str(seed) for c in crude.values() for seed in c.seeds) or '–'}), the exact two-sided 95 % "
+        "Clopper-Pearson interval. "
         f"Subset simulation: `mcverify estimate --method subset` folders (seeds "
         f"{', '.join(str(s.seed) for s in points)}), independent runs of N samples per stage "
         f"(N = {', '.join(sorted({str(s.samples) for s in points}))}), the 95 % Student t interval on the runs' "
@@ -271,10 +312,15 @@ def build(points: Sequence[Subset], crude: Mapping[float, Crude], parameter: str
         "ladder (the robustness over 1 + the longest run of control steps with neither Q1 nor Q2 solved) or the "
         "margin ladder (the robustness over 1 + 10 x the depth of the lowest Theorem 5 margin below 0), the same "
         "event in every case. Crude steps, same width: z² (1 - p) / (p r²) episodes of stage 0's mean episode. "
-        "Agreement: the two intervals overlap.", "",
-        table(points, crude, parameter), "",
+        "Agreement: the two intervals overlap. Stratified lower bound: `python -m benchmarks.stratified` folders, "
+        "crude Monte Carlo inside boxes of the decisive draws, exact at 95 % (no estimate below it is credible; it "
+        "cannot say an estimate reads high).", "",
+        table(points, crude, parameter, bounds), "",
         *(f"- {beyond_crude(s)}" for s in alone),
+        *(f"- at {b.value:g}: stratified lower bound >= {_g(b.lower)} ({b.events} events in {b.episodes} episodes; "
+          f"the strata's point {_g(b.point)}), no subset estimate yet." for b in bound_only),
         f"- {code_line(folders)}",
+        *([f"- Stratified folders: {', '.join(str(b.folder) for b in bounds.values())}."] if bounds else []),
         *([f"- Figure: `{figure_path}`."] if figure_path else []),
     ])
 
@@ -286,6 +332,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                        help="finished subset simulation estimate folders, one per value and performance function")
         p.add_argument("--crude", type=Path, nargs="*", default=[], metavar="DIR",
                        help="finished `mcverify run` folders of the same cell, one value each")
+        p.add_argument("--stratified", type=Path, nargs="*", default=[], metavar="OUT",
+                       help="finished `python -m benchmarks.stratified` folders of the same cell, one value each")
         p.add_argument("--parameter", default="noise.scale", help="the parameter moved (default noise.scale)")
         p.add_argument("--figure", type=Path, help="also draw P(target) against the parameter into this PNG")
         section.add_output_options(p)
@@ -295,8 +343,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         if len({s.target for s in points}) != 1:
             raise UserError("the subset folders estimate different targets")
         crude_read = [read_crude(d, args.parameter, points[0].target) for d in args.crude]
-        _check_same_cell([(s.folder, prm) for s, prm in read] + [(c.folders[0], prm) for c, prm in crude_read],
-                         args.parameter)
+        bound_read = [read_stratified(d, args.parameter, points[0].target) for d in args.stratified]
+        _check_same_cell([(s.folder, prm) for s, prm in read] + [(c.folders[0], prm) for c, prm in crude_read]
+                         + [(b.folder, prm) for b, prm in bound_read], args.parameter)
+        if len({b.value for b, _ in bound_read}) != len(bound_read):
+            raise UserError(f"two stratified folders at the same {args.parameter}; give one")
+        bounds = {b.value: b for b, _ in bound_read}
         values = [(s.value, s.performance) for s in points]
         if len(set(values)) != len(values):
             raise UserError(f"two subset folders at the same {args.parameter} with the same performance function; "
@@ -304,8 +356,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         crude = pool([c for c, _ in crude_read])
         campaign = store.read_manifest(args.subset[0])["campaign"]
         if args.figure:
-            figure(points, crude, args.parameter, args.figure)
-        text = build(points, crude, args.parameter, section.command(NAME, argv), campaign, args.figure)
+            figure(points, crude, args.parameter, args.figure, bounds)
+        text = build(points, crude, args.parameter, section.command(NAME, argv), campaign, args.figure, bounds)
         section.publish(NAME, section.wrap(NAME, text), args)
         return 0
 

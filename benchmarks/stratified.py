@@ -14,6 +14,8 @@ robustness compared bit for bit.
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import math
 import multiprocessing
 import time
@@ -31,6 +33,7 @@ from mcverify.requirements import TARGETS
 
 NAME = "stratified"
 CHUNK = 10  # episodes per work unit (one rollout call)
+BOUND = "bound.json"  # OUT's finished bound: what benchmarks.continuation draws beside the estimates
 
 _PROBLEM: dict[tuple, object] = {}  # one closed loop per process (its solver loads once)
 
@@ -126,6 +129,15 @@ def replay(problem, rows: list[dict]) -> tuple[int, int]:
     return same, total
 
 
+def write_bound(args, problem, rows: list[dict], bound: strata.Bound) -> None:
+    """OUT/bound.json: the bound with the cell's parameters (as a run's manifest records them) and its counts."""
+    record = {"target": args.target, "level": bound.level, "lower": bound.lower, "point": bound.point,
+              "episodes": sum(r["episodes"] for r in rows), "events": sum(r["events"] for r in rows),
+              "seed": args.seed, "strata": str(args.strata), "settings": list(args.settings),
+              "params": json.loads(json.dumps(dataclasses.asdict(problem.cell.params), default=files.json_default))}
+    files.write_json_atomic(args.out_dir / BOUND, record)
+
+
 def _box_text(s: strata.Stratum) -> str:
     draws = [f"{name} in [{lo:g}, {hi:g}]" for name, lo, hi in s.draws]
     units = [f"{u.channel}[{u.step}] in [{u.low:g}, {u.high:g}]" for u in s.units]
@@ -188,6 +200,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         bound = strata.lower_bound([strata.StratumCount(r["stratum"].name, r["probability"], r["events"],
                                                         r["episodes"]) for r in rows], args.level)
         replayed = replay(problem, rows) if args.replay else None
+        write_bound(args, problem, rows, bound)
         text = render(section.command(NAME, argv), rows, bound, replayed, args.target, args.settings)
         section.publish(NAME, section.wrap(NAME, text), args)
         return 0

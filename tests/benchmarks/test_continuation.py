@@ -111,3 +111,27 @@ def test_crude_runs_of_one_value_are_pooled_unless_they_share_a_seed(tmp_path, c
     assert continuation.main(args) == 2
     err = capsys.readouterr().err
     assert "ran the same seed (1)" in err and err.count("\n") == 1
+
+
+def _bound(tmp_path, scale: float, lower: float, target="ellipse"):
+    out = tmp_path / f"strata{scale}"
+    out.mkdir(parents=True)
+    params = store.read_manifest(_crude(tmp_path, scale))["cells"][0]["params"]  # the same cell, as recorded
+    files.write_json_atomic(out / "bound.json", {"target": target, "level": 0.95, "lower": lower, "point": 4 * lower,
+                                                 "episodes": 600, "events": 7, "seed": 0, "strata": "s.toml",
+                                                 "settings": [], "params": params})
+    return out
+
+
+def test_the_stratified_bound_is_a_column_a_line_and_a_marker(tmp_path, capsys):
+    args = ["--subset", str(_subset(tmp_path, 2.0, 0.1)), "--stratified", str(_bound(tmp_path, 2.0, 5.3e-5)),
+            str(_bound(tmp_path, 1.0, 6e-7)), "--figure", str(tmp_path / "c.png"), "--no-write"]
+    assert continuation.main(args) == 0
+    out = capsys.readouterr().out
+    row = next(line for line in out.splitlines() if line.startswith("| 2 |"))
+    assert ">= 5.3e-05 (7 events in 600)" in row
+    assert "at 1: stratified lower bound >= 6e-07 (7 events in 600 episodes; the strata's point 2.4e-06)" in out
+    assert (tmp_path / "c.png").stat().st_size > 0
+    args[args.index("--stratified") + 1] = str(_bound(tmp_path / "other", 2.0, 1e-5, target="collision"))
+    assert continuation.main(args) == 2
+    assert "bounds collision, not the subset estimates' ellipse" in capsys.readouterr().err

@@ -3,6 +3,7 @@ the section's bound from the kept counts, a bad input one line (exit 2)."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -50,6 +51,9 @@ def test_a_run_keeps_its_chunks_resumes_and_writes_its_bound(tmp_path, capsys):
     bound = strata.lower_bound([strata.StratumCount("s", p_region, int((g <= 0).sum()), 12)])
     assert f"P(collision) >= {bound.lower:.3g}" in page
     assert f"{int((g <= 0).sum())} / 12" in page
+    kept = json.loads((tmp_path / "a" / stratified.BOUND).read_text())  # what benchmarks.continuation reads
+    assert kept["lower"] == bound.lower and kept["episodes"] == 12 and kept["target"] == "collision"
+    assert kept["params"]["scenario"]["front_accel_range_mps2"] == [0.5, 2.0]
     capsys.readouterr()
     assert stratified.main(_args(tmp_path, "a", "--no-write")) == 0  # resumed: nothing left to run
     assert "2 of 2 chunks kept" in capsys.readouterr().out
