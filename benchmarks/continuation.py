@@ -197,6 +197,10 @@ def _g(x: float) -> str:
     return f"{x:.3g}" if math.isfinite(x) else "–"
 
 
+def _events(b: Stratified) -> str:
+    return f"{b.events} event{'' if b.events == 1 else 's'}"
+
+
 def _agreement(s: Subset, c: Crude) -> str:
     overlap = s.low <= c.high and c.low <= s.high
     inside = c.low <= s.estimate <= c.high
@@ -219,7 +223,7 @@ def table(points: Sequence[Subset], crude: Mapping[float, Crude], parameter: str
         crude_text = (f"{c.k}/{c.n} = {_g(c.rate)} [{_g(c.low)}, {_g(c.high)}], {c.steps:,} steps{pooled}"
                       if c else "–")
         b = bounds.get(s.value)
-        bound_text = f">= {_g(b.lower)} ({b.events} events in {b.episodes})" if b else "–"
+        bound_text = f">= {_g(b.lower)} ({_events(b)} in {b.episodes})" if b else "–"
         lines.append("| " + " | ".join([
             f"{s.value:g}", crude_text, bound_text, f"{_g(s.estimate)} [{_g(s.low)}, {_g(s.high)}]", s.performance,
             ", ".join(_g(r) for r in s.runs), ", ".join(map(str, s.stages)), f"{s.relative_halfwidth:.2f}",
@@ -317,7 +321,7 @@ def build(points: Sequence[Subset], crude: Mapping[float, Crude], parameter: str
         "cannot say an estimate reads high).", "",
         table(points, crude, parameter, bounds), "",
         *(f"- {beyond_crude(s)}" for s in alone),
-        *(f"- at {b.value:g}: stratified lower bound >= {_g(b.lower)} ({b.events} events in {b.episodes} episodes; "
+        *(f"- at {b.value:g}: stratified lower bound >= {_g(b.lower)} ({_events(b)} in {b.episodes} episodes; "
           f"the strata's point {_g(b.point)}), no subset estimate yet." for b in bound_only),
         f"- {code_line(folders)}",
         *([f"- Stratified folders: {', '.join(str(b.folder) for b in bounds.values())}."] if bounds else []),
