@@ -104,11 +104,16 @@ def run_strata(args, jobs_for: list[tuple[int, int]], base: tuple) -> None:
             keep(result)
 
 
+def _read(path: Path) -> dict[str, np.ndarray]:
+    with np.load(path) as data:
+        return {k: data[k] for k in data.files}
+
+
 def counts(args, problem, all_strata: Sequence[strata.Stratum]) -> list[dict]:
     """Per stratum: its box's probability, events, episodes, control steps, CPU and the events' inputs."""
     out = []
     for i, s in enumerate(all_strata):
-        parts = [np.load(chunk_path(args.out_dir, i, c)) for c in range(math.ceil(s.episodes / CHUNK))]
+        parts = [_read(chunk_path(args.out_dir, i, c)) for c in range(math.ceil(s.episodes / CHUNK))]
         g = np.concatenate([p["g"] for p in parts])
         out.append({"stratum": s, "probability": s.probability(problem), "events": int((g <= 0).sum()),
                     "episodes": int(g.size), "steps": int(sum(p["steps"].sum() for p in parts)),

@@ -29,9 +29,9 @@ from pathlib import Path
 
 import numpy as np
 import tomllib
-from scipy import stats
 from scipy.special import ndtri
 
+from mcverify.analysis.intervals import clopper_pearson_arrays
 from mcverify.errors import RunError
 from mcverify.sim.schedule import CHANNELS
 
@@ -145,8 +145,10 @@ class Bound:
 
 
 def clopper_pearson_lower(k: int, n: int, level: float) -> float:
-    """The exact one-sided lower confidence bound of a binomial rate (0 when k = 0)."""
-    return float(stats.beta.ppf(1.0 - level, k, n - k + 1)) if k > 0 else 0.0
+    """The exact one-sided lower confidence bound of a binomial rate (0 when k = 0): the lower end of the
+    two-sided Clopper-Pearson interval at level 2 level - 1."""
+    low, _ = clopper_pearson_arrays(k, n, 2.0 * level - 1.0)
+    return float(low)
 
 
 def lower_bound(counts: Sequence[StratumCount], level: float = 0.95) -> Bound:
