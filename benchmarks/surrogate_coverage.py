@@ -1,12 +1,13 @@
 """Coverage of subset simulation on the structure-matched surrogate with exact p (issue 50):
-``python -m benchmarks.surrogate_coverage [--reps R] [--runs K] [--n N] [--n-rare N] [--quick]``.
+``python -m benchmarks.surrogate_coverage [--reps R] [--runs K] [--rare-runs K] [--n N] [--n-rare N] [--quick]``.
 
 For each clock of the surrogate (:mod:`mcverify.estimate.surrogate`: "time", the noise keyed to control
 steps as the closed loop draws it today, and "decision", keyed to the decision instant) and each p,
 ``reps`` independent repetitions, each the Student t interval of ``runs`` independent subset simulation
-runs of N samples per stage (``--n`` at p = 1e-3 and 1e-4, ``--n-rare`` at 1e-6: the rarest cell needs
-more samples per stage to carry the routes that are rare at the intermediate levels, see
-docs/decisions.md): coverage of the exact p (with its Clopper-Pearson interval), the mean's relative
+runs of N samples per stage (``--n`` and ``--runs`` at p = 1e-3 and 1e-4, ``--n-rare`` and ``--rare-runs``
+at 1e-6: the rarest cell needs more samples per stage to carry the routes that are rare at the intermediate
+levels, and more runs because a run that keeps such a route reads several times p while most read under it,
+see docs/decisions.md): coverage of the exact p (with its Clopper-Pearson interval), the mean's relative
 bias, the mean relative error, the mean relative half-width, control steps per repetition, crude Monte
 Carlo's steps for the same relative half-width at the exact p, and their ratio. Beside it: openturns'
 SubsetSampling at the same N and p0 (fewer repetitions: it is slower), and the routes of the failing
@@ -195,7 +196,10 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
                         help="repetitions under the time clock (default: --reps)")
     parser.add_argument("--split-reps", type=int, default=30,
                         help="AMS splitting repetitions at p = 1e-4, time clock (default 30; 0: none)")
-    parser.add_argument("--runs", type=int, default=10, help="subset simulation runs per interval (default 10)")
+    parser.add_argument("--runs", type=int, default=10,
+                        help="subset simulation runs per interval at p = 1e-3 and 1e-4 (default 10)")
+    parser.add_argument("--rare-runs", type=int, default=20,
+                        help="subset simulation runs per interval at p = 1e-6 (default 20)")
     parser.add_argument("--n", type=int, default=2000, help="samples per stage at p = 1e-3 and 1e-4 (default 2000)")
     parser.add_argument("--n-rare", type=int, default=20000, help="samples per stage at p = 1e-6 (default 20000)")
     parser.add_argument("--rare-reps", type=int, default=None,
@@ -205,13 +209,15 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     section.add_output_options(parser)
     args = parser.parse_args(argv)
     if args.quick:
-        args.reps, args.runs, args.ot_reps, args.split_reps, args.n, args.n_rare = 3, 3, 0, 0, 500, 500
+        args.reps, args.runs, args.rare_runs, args.ot_reps, args.split_reps = 3, 3, 3, 0, 0
+        args.n, args.n_rare = 500, 500
     args.time_reps = args.reps if args.time_reps is None else args.time_reps
     args.rare_reps = args.reps if args.rare_reps is None or args.quick else args.rare_reps
-    if (min(args.reps, args.time_reps, args.rare_reps) < 1 or args.runs < 2 or min(args.n, args.n_rare) < 20
+    if (min(args.reps, args.time_reps, args.rare_reps) < 1 or min(args.runs, args.rare_runs) < 2
+            or min(args.n, args.n_rare) < 20
             or min(args.ot_reps, args.split_reps) < 0):
-        raise UserError("need --reps, --time-reps and --rare-reps >= 1, --runs >= 2, --n and --n-rare >= 20, "
-                        "--ot-reps and --split-reps >= 0")
+        raise UserError("need --reps, --time-reps and --rare-reps >= 1, --runs and --rare-runs >= 2, "
+                        "--n and --n-rare >= 20, --ot-reps and --split-reps >= 0")
     return args
 
 
@@ -231,7 +237,9 @@ def _main(argv: list[str] | None) -> int:
     for clock in ("time", "decision"):
         for p in (1e-3, 1e-4, 1e-6):
             reps = args.time_reps if clock == "time" else args.rare_reps if p < 1e-5 else args.reps
-            row, counts = subset_row(clock, p, rare if p < 1e-5 else settings, reps, args.runs)
+            rare_cell = p < 1e-5
+            row, counts = subset_row(clock, p, rare if rare_cell else settings, reps,
+                                     args.rare_runs if rare_cell else args.runs)
             rows.append(row)
             routes[(clock, p)] = counts
             print(f"{row.method} {clock} p={p:.0e}: coverage {row.coverage:.0%}, bias {row.bias:+.0%}, "

@@ -15,6 +15,7 @@ This module is a low layer: numpy only, no JAX, no model, no analysis.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -248,6 +249,15 @@ MARGIN_LADDER = "margin-ladder"
 #: ladder (the events' margins are -0.4 to -2.4 on the validation cell at 1.25 and 2 times the paper's noise).
 MARGIN_FACTOR = 10.0
 PERFORMANCES: tuple[str, ...] = (PLAIN_ROBUSTNESS, PRECURSOR_LADDER, MARGIN_LADDER)
+
+
+def margin_ladder(value: float, theorem5_margin: float) -> float:
+    """``value`` divided by 1 + MARGIN_FACTOR times the depth of ``theorem5_margin`` below 0 (no depth where the
+    margin is not negative or not measured): a positive divisor, so the sign of ``value`` is kept, and among
+    equal values the episode (or node) whose planner came closer to having neither problem solvable ranks lower.
+    Subset simulation's ``margin-ladder`` performance function and the beam's ``margin_ladder`` score."""
+    depth = max(0.0, -theorem5_margin) if math.isfinite(theorem5_margin) else 0.0
+    return value / (1.0 + MARGIN_FACTOR * depth)
 #: What each performance function other than the plain robustness climbs, in words (reports, help).
 PERFORMANCE_TEXT: dict[str, str] = {
     PRECURSOR_LADDER: "the robustness / (1 + the longest run of control steps with neither Q1 nor Q2 solved)",

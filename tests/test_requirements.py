@@ -78,3 +78,10 @@ def test_an_unknown_name_is_refused_with_the_known_ones():
     assert requirements.requirement_help().endswith(
         "theorem5_certified, safe or stl:<formula> (STL over the stored signals)")
     assert all(f"{name} (target {target})" in requirements.score_help() for name, target in SCORES.items())
+
+
+@pytest.mark.parametrize(("value", "margin", "expected"), [
+    (0.3, 0.2, 0.3), (0.3, -0.1, 0.15), (-0.06, -0.5, -0.01), (0.3, float("nan"), 0.3), (0.0, -1.0, 0.0),
+])
+def test_the_margin_ladder_keeps_the_sign_and_divides_by_the_depth_below_0(value, margin, expected):
+    assert requirements.margin_ladder(value, margin) == pytest.approx(expected, abs=1e-15)

@@ -55,7 +55,7 @@ from mcverify.draws import DRAWS, Draw
 from mcverify.episode.draws import value_of_unit
 from mcverify.episode.rollout import ChunkResult, run_episodes
 from mcverify.errors import RunError
-from mcverify.requirements import MARGIN_FACTOR, MARGIN_LADDER, PERFORMANCES, PRECURSOR_LADDER, TARGETS
+from mcverify.requirements import MARGIN_LADDER, PERFORMANCES, PRECURSOR_LADDER, TARGETS, margin_ladder
 from mcverify.sim.schedule import CHANNELS, FRONT_CHANNELS, OPP_CHANNELS, ErrorSchedule, control_steps
 
 
@@ -159,8 +159,7 @@ class ClosedLoopProblem:
         if self.performance_function == PRECURSOR_LADDER:
             g /= 1.0 + int(row.get("both_infeasible_longest_run") or 0)  # a positive divisor keeps the sign
         elif self.performance_function == MARGIN_LADDER:
-            margin = float(row.get("theorem5_margin", math.nan))
-            g /= 1.0 + MARGIN_FACTOR * (max(0.0, -margin) if math.isfinite(margin) else 0.0)
+            g = margin_ladder(g, float(row.get("theorem5_margin", math.nan)))
         return g
 
     def evaluate(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

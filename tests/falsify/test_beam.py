@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import types
 
 import numpy as np
 import pyarrow.parquet as pq
@@ -97,3 +98,13 @@ def test_prefix_decisions_name_requirements_whose_robustness_is_a_running_minimu
     from mcverify.analysis import robustness as rb
 
     assert requirement in rb.REQUIREMENTS  # a typo would silently never stop a search
+
+
+@pytest.mark.parametrize(("score", "expected"), [("h_front", 0.3), ("theorem5", -0.5), ("margin_ladder", 0.05)])
+def test_each_score_ranks_a_node_by_its_own_running_value(score, expected):
+    loop = types.SimpleNamespace(spec=types.SimpleNamespace(shape=types.SimpleNamespace(score=score)))
+    row = {"min_h_front": 0.3, "theorem5_margin": -0.5}
+    assert beam._Loop._score(loop, None, row) == pytest.approx(expected, abs=1e-15)
+    # before any dual-planner step the margin is NaN: the margin ladder is h_front itself, theorem5 ranks last
+    fresh = beam._Loop._score(loop, None, {"min_h_front": 0.3, "theorem5_margin": float("nan")})
+    assert fresh == {"h_front": 0.3, "theorem5": float("inf"), "margin_ladder": 0.3}[score]
