@@ -159,6 +159,18 @@ def test_an_interval_needs_two_runs():
         subset.estimate(SURROGATE, SMALL, runs=1)
 
 
+def _runs_reading(values: list[float]) -> list[subset.Run]:
+    return [subset.Run(v, 0.3, (), 10, 100, False, np.zeros((0, 2)), np.zeros(0)) for v in values]
+
+
+@pytest.mark.parametrize(("values", "warned"), [
+    ([1e-6, 2e-6, 3e-6], True), ([1e-6, 2e-6] * 10, False), ([1e-4, 2e-4, 3e-4], False),
+])
+def test_a_rare_estimate_from_few_runs_is_flagged(values, warned):
+    est = subset.from_runs(_runs_reading(values), crude_episode_steps=1.0)
+    assert any("use --replicates 20 or more" in w for w in est.warnings) == warned
+
+
 def _coverage(problem, p: float, settings: subset.Settings, reps: int, runs: int) -> float:
     return float(np.mean([subset.estimate(problem, settings, runs=runs, seed=rep, crude_episode_steps=1.0).contains(p)
                           for rep in range(reps)]))
