@@ -254,8 +254,8 @@ PERFORMANCES: tuple[str, ...] = (PLAIN_ROBUSTNESS, PRECURSOR_LADDER, MARGIN_LADD
 def margin_ladder(value: float, theorem5_margin: float) -> float:
     """``value`` divided by 1 + MARGIN_FACTOR times the depth of ``theorem5_margin`` below 0 (no depth where the
     margin is not negative or not measured): a positive divisor, so the sign of ``value`` is kept, and among
-    equal values the episode (or node) whose planner came closer to having neither problem solvable ranks lower.
-    Subset simulation's ``margin-ladder`` performance function and the beam's ``margin_ladder`` score."""
+    equal values the episode whose planner went deeper into having neither problem solvable ranks lower
+    (subset simulation's ``margin-ladder`` performance function)."""
     depth = max(0.0, -theorem5_margin) if math.isfinite(theorem5_margin) else 0.0
     return value / (1.0 + MARGIN_FACTOR * depth)
 #: What each performance function other than the plain robustness climbs, in words (reports, help).

@@ -12,8 +12,7 @@
     width = 4                  # frontier nodes kept per depth
     channels = ["front_y"]     # of front_x, front_y, front_v, opp_x, opp_v (default ["front_y"])
     units = "bang_bang"        # or "uniform": each step's unit per channel (default "bang_bang")
-    score = "theorem5"         # the running score nodes are ranked by: "h_front", "theorem5" or "margin_ladder"
-                               # (default "h_front")
+    score = "theorem5"         # the running score nodes are ranked by: "h_front" or "theorem5" (default "h_front")
     front_share = 1.0          # veh_f's share of its noise bounds handed to the adversary (default 1)
     opp_share = 0.0            # veh_o's (default 1)
 
@@ -32,12 +31,9 @@ from typing import Any
 from mcverify.campaign.validate import _short
 from mcverify.errors import CampaignError
 
-#: Running scores a beam ranks nodes by: ``h_front`` (the lowest h_ef so far), ``theorem5`` (the lowest
-#: graded Theorem 5 margin so far; +inf before any dual-planner step) and ``margin_ladder`` (the lowest h_ef
-#: so far divided by 1 + 10 times the depth of that margin below 0, :func:`mcverify.requirements.margin_ladder`:
-#: negative exactly when h_front is, and among nodes alike in h_ef it ranks first the one whose planner is
-#: deeper in a stretch with neither problem solvable, the precursor of VL-CBF's violations under noise).
-SCORES: tuple[str, ...] = ("h_front", "theorem5", "margin_ladder")
+#: Running scores a beam ranks nodes by: ``h_front`` (the lowest h_ef so far) and ``theorem5`` (the lowest
+#: graded Theorem 5 margin so far; +inf before any dual-planner step).
+SCORES: tuple[str, ...] = ("h_front", "theorem5")
 #: How a child's units are drawn per step and channel: a sign, or a uniform value in [-1, 1].
 UNITS: tuple[str, ...] = ("bang_bang", "uniform")
 #: Largest branching and width a table may ask for (a guard against a typo, not a tuned limit).

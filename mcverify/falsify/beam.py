@@ -52,7 +52,6 @@ from mcverify.episode.snapshot import Branching, EpisodeSnapshot
 from mcverify.errors import RunError
 from mcverify.files import atomic_write, write_json_atomic
 from mcverify.model import Simulation
-from mcverify.requirements import margin_ladder
 from mcverify.sim.schedule import CHANNELS, ErrorSchedule, control_steps
 
 __all__ = ["BEAM", "SCORES", "UNITS", "BeamResult", "BeamShape", "BeamSpec", "search", "spec_of", "write_best"]
@@ -232,10 +231,10 @@ class _Loop:
         return Node(units, end, self._score(snap, row), snap, row), branching.steps
 
     def _score(self, snap: EpisodeSnapshot | None, row: dict[str, Any] | None) -> float:
-        h_front = float(snap.trace.min_h_front) if snap is not None else float(row["min_h_front"])
-        margin = float(snap.state.theorem5_margin) if snap is not None else float(row["theorem5_margin"])
-        value = {"h_front": h_front, "theorem5": margin,
-                 "margin_ladder": margin_ladder(h_front, margin)}[self.spec.shape.score]
+        if self.spec.shape.score == "h_front":
+            value = float(snap.trace.min_h_front) if snap is not None else float(row["min_h_front"])
+        else:
+            value = float(snap.state.theorem5_margin) if snap is not None else float(row["theorem5_margin"])
         return math.inf if math.isnan(value) else value
 
 

@@ -100,11 +100,11 @@ def test_prefix_decisions_name_requirements_whose_robustness_is_a_running_minimu
     assert requirement in rb.REQUIREMENTS  # a typo would silently never stop a search
 
 
-@pytest.mark.parametrize(("score", "expected"), [("h_front", 0.3), ("theorem5", -0.5), ("margin_ladder", 0.05)])
+@pytest.mark.parametrize(("score", "expected"), [("h_front", 0.3), ("theorem5", -0.5)])
 def test_each_score_ranks_a_node_by_its_own_running_value(score, expected):
     loop = types.SimpleNamespace(spec=types.SimpleNamespace(shape=types.SimpleNamespace(score=score)))
     row = {"min_h_front": 0.3, "theorem5_margin": -0.5}
     assert beam._Loop._score(loop, None, row) == pytest.approx(expected, abs=1e-15)
-    # before any dual-planner step the margin is NaN: the margin ladder is h_front itself, theorem5 ranks last
+    # before any dual-planner step the margin is NaN: theorem5 ranks such a node last
     fresh = beam._Loop._score(loop, None, {"min_h_front": 0.3, "theorem5_margin": float("nan")})
-    assert fresh == {"h_front": 0.3, "theorem5": float("inf"), "margin_ladder": 0.3}[score]
+    assert fresh == {"h_front": 0.3, "theorem5": float("inf")}[score]
