@@ -200,16 +200,17 @@ def test_at_1e_4_the_studys_settings_keep_every_route_and_hold_p():
     assert np.all(taken > 0)
 
 
-ROUTE_LOSS = ("measured (benchmarks.surrogate_coverage, 100 repetitions): 82 % (73-89 %), the populations still lose "
-              "part of the sustained and away-then-towards routes, which hold 0.05 % and 0.2 % of the intermediate "
-              "levels")
+ROUTE_LOSS = ("measured (benchmarks.surrogate_coverage, 100 repetitions of 20 runs): 88 % (80-94 %); a run that keeps "
+              "the sustained or away-then-towards route, which hold 0.05 % and 0.2 % of the intermediate levels, reads "
+              "several times p and most runs read under it, so the t interval still reads low too often")
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("p", [1e-3, 1e-4, pytest.param(1e-6, marks=pytest.mark.xfail(reason=ROUTE_LOSS))])
 def test_coverage_on_the_surrogate_under_the_decision_clock(p):
-    """The coverage study of benchmarks.surrogate_coverage (the settings above, p0 = 0.1, 10 runs per
-    interval, 100 repetitions): the target is >= 90 %. About 25 CPU-minutes at p = 1e-6, where it is
-    an expected failure (not strict: 82 % has an interval, 73-89 %, and a lucky seed could pass)."""
+    """The coverage study of benchmarks.surrogate_coverage (the settings above, p0 = 0.1, 100 repetitions of
+    10 runs per interval, 20 at p = 1e-6): the target is >= 90 %. About 55 CPU-minutes at p = 1e-6, where it
+    is an expected failure (not strict: 88 % has an interval, 80-94 %, and a lucky seed could pass)."""
     problem = Surrogate.at(p, clock="decision")
-    assert _coverage(problem, problem.exact_p(), STUDY[p], reps=100, runs=10) >= 0.9
+    runs = subset.RARE_RUNS if p < subset.RARE_ESTIMATE else 10
+    assert _coverage(problem, problem.exact_p(), STUDY[p], reps=100, runs=runs) >= 0.9
