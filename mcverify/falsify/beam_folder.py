@@ -379,7 +379,10 @@ def write_report(out_dir: Path, summary: BeamSummary) -> Path:
              f"{2 * s.spec.shape.width + 1})", "",
              "## Replay", "",
              f"The chosen node's whole schedule (zeros outside the window) re-simulated from step 0 is "
-             f"`{out_dir / BEST}`, one episode; `mcverify replay {out_dir / BEST} 0` re-simulates it bit for bit.", ""]
+             f"`{out_dir / BEST}`, one episode; `mcverify replay {out_dir / BEST} 0` re-simulates it bit for bit. "
+             f"`mcverify replay {out_dir / BEST} 0 --backend ipopt` re-simulates the same error with IPOPT at every "
+             "step and says whether the verdict is the controller's or the fast path's (a held plan that grazes the "
+             "ellipse under the fast path may not under IPOPT).", ""]
     path = out_dir / "report.md"
     files.atomic_write(path, lambda tmp: Path(tmp).write_text("\n".join(lines), encoding="utf-8"))
     return path

@@ -64,7 +64,8 @@ def test_a_beam_search_writes_its_folder_report_and_replayable_best(whole, capsy
     report = (out / "report.md").read_text()
     for part in ("## Restarts", "| 0 (chosen) |", "## Depths of restart 0", "## Final frontier of restart 0",
                  "(best)", f"{BOUND_STEPS} control steps",
-                 f"mcverify replay {out / 'best'} 0", "control steps [5, 15) = [0.5, 1.5) s"):
+                 f"mcverify replay {out / 'best'} 0", f"mcverify replay {out / 'best'} 0 --backend ipopt",
+                 "control steps [5, 15) = [0.5, 1.5) s"):
         assert part in report, part
     (out / "report.md").unlink()  # `mcverify report` rewrites it from beam/result.json, running nothing
     assert cli.main(["report", str(out)]) == 0
