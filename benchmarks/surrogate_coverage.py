@@ -198,8 +198,8 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
                         help="AMS splitting repetitions at p = 1e-4, time clock (default 30; 0: none)")
     parser.add_argument("--runs", type=int, default=10,
                         help="subset simulation runs per interval at p = 1e-3 and 1e-4 (default 10)")
-    parser.add_argument("--rare-runs", type=int, default=20,
-                        help="subset simulation runs per interval at p = 1e-6 (default 20)")
+    parser.add_argument("--rare-runs", type=int, default=30,
+                        help="subset simulation runs per interval at p = 1e-6 (default 30)")
     parser.add_argument("--n", type=int, default=2000, help="samples per stage at p = 1e-3 and 1e-4 (default 2000)")
     parser.add_argument("--n-rare", type=int, default=20000, help="samples per stage at p = 1e-6 (default 20000)")
     parser.add_argument("--rare-reps", type=int, default=None,
