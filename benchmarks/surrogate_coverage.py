@@ -198,8 +198,8 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
                         help="AMS splitting repetitions at p = 1e-4, time clock (default 30; 0: none)")
     parser.add_argument("--runs", type=int, default=10,
                         help="subset simulation runs per interval at p = 1e-3 and 1e-4 (default 10)")
-    parser.add_argument("--rare-runs", type=int, default=30,
-                        help="subset simulation runs per interval at p = 1e-6 (default 30)")
+    parser.add_argument("--rare-runs", type=int, default=subset.RARE_RUNS,
+                        help=f"subset simulation runs per interval at p = 1e-6 (default {subset.RARE_RUNS})")
     parser.add_argument("--n", type=int, default=2000, help="samples per stage at p = 1e-3 and 1e-4 (default 2000)")
     parser.add_argument("--n-rare", type=int, default=20000, help="samples per stage at p = 1e-6 (default 20000)")
     parser.add_argument("--rare-reps", type=int, default=None,
@@ -236,8 +236,8 @@ def _main(argv: list[str] | None) -> int:
     rows, routes = [], {}
     for clock in ("time", "decision"):
         for p in (1e-3, 1e-4, 1e-6):
-            reps = args.time_reps if clock == "time" else args.rare_reps if p < 1e-5 else args.reps
-            rare_cell = p < 1e-5
+            rare_cell = p < subset.RARE_ESTIMATE
+            reps = args.time_reps if clock == "time" else args.rare_reps if rare_cell else args.reps
             row, counts = subset_row(clock, p, rare if rare_cell else settings, reps,
                                      args.rare_runs if rare_cell else args.runs)
             rows.append(row)

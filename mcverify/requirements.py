@@ -249,6 +249,11 @@ MARGIN_LADDER = "margin-ladder"
 #: ladder (the events' margins are -0.4 to -2.4 on the validation cell at 1.25 and 2 times the paper's noise).
 MARGIN_FACTOR = 10.0
 PERFORMANCES: tuple[str, ...] = (PLAIN_ROBUSTNESS, PRECURSOR_LADDER, MARGIN_LADDER)
+#: What each performance function other than the plain robustness climbs, in words (reports, help).
+PERFORMANCE_TEXT: dict[str, str] = {
+    PRECURSOR_LADDER: "the robustness / (1 + the longest run of control steps with neither Q1 nor Q2 solved)",
+    MARGIN_LADDER: f"the robustness / (1 + {MARGIN_FACTOR:g} x the depth of the lowest Theorem 5 margin below 0)",
+}
 
 
 def margin_ladder(value: float, theorem5_margin: float) -> float:
@@ -258,11 +263,6 @@ def margin_ladder(value: float, theorem5_margin: float) -> float:
     (subset simulation's ``margin-ladder`` performance function)."""
     depth = max(0.0, -theorem5_margin) if math.isfinite(theorem5_margin) else 0.0
     return value / (1.0 + MARGIN_FACTOR * depth)
-#: What each performance function other than the plain robustness climbs, in words (reports, help).
-PERFORMANCE_TEXT: dict[str, str] = {
-    PRECURSOR_LADDER: "the robustness / (1 + the longest run of control steps with neither Q1 nor Q2 solved)",
-    MARGIN_LADDER: f"the robustness / (1 + {MARGIN_FACTOR:g} x the depth of the lowest Theorem 5 margin below 0)",
-}
 
 
 def default_score(target: str) -> str:

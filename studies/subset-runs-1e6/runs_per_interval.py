@@ -18,6 +18,7 @@ import time
 import numpy as np
 from scipy import stats
 
+from mcverify.analysis.intervals import clopper_pearson_arrays
 from mcverify.estimate import subset
 from mcverify.estimate.surrogate import Surrogate
 
@@ -35,7 +36,8 @@ def collect(first_rep: int, reps: int, runs: int, n: int, out: str) -> None:
 
 
 def coverage(paths: list[str]) -> None:
-    values = np.vstack([np.load(p)["est"] / np.load(p)["p"] for p in paths])
+    loaded = [np.load(path) for path in paths]
+    values = np.vstack([f["est"] / f["p"] for f in loaded])
     print(f"{values.shape[0]} repetitions of {values.shape[1]} runs; run estimates over p: median "
           f"{np.median(values):.2f}, share over 2 p {np.mean(values > 2):.0%}")
     for k in range(10, values.shape[1] + 1, 10):
@@ -43,8 +45,7 @@ def coverage(paths: list[str]) -> None:
         mean, half = x.mean(1), stats.t.ppf(0.975, k - 1) * x.std(1, ddof=1) / np.sqrt(k)
         hit = int(np.sum((mean - half <= 1) & (1 <= mean + half)))
         m = len(mean)
-        low = stats.beta.ppf(0.025, hit, m - hit + 1) if hit else 0.0
-        high = stats.beta.ppf(0.975, hit + 1, m - hit) if hit < m else 1.0
+        low, high = (float(v) for v in clopper_pearson_arrays(hit, m))
         print(f"{k} runs: coverage {hit}/{m} = {hit / m:.0%} ({low:.0%}-{high:.0%}), intervals below p "
               f"{int(np.sum(mean + half < 1))}, mean upper half-width {np.mean(half):.2f} p, "
               f"bias {mean.mean() - 1:+.1%}")
