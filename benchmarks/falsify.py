@@ -9,7 +9,10 @@ whole episode's, the search's own cost column: episodes that stop early cost les
 robustness (and lowest guide value, for a guided target); per target, issue 16's verdict
 (:func:`goal_verdict`): is the target rare for random search, and does a method meet the goal there.
 With ``--replay`` every counterexample found is re-simulated and checked bit for bit
-(:func:`replay_counterexamples`). Written as a generated section of ``results/BENCHMARKS.md``, named by
+(:func:`replay_counterexamples`); with ``--audit`` each trial's first counterexample is re-simulated on the
+same error with the reference solver, IPOPT solving every problem in full (:func:`audit_counterexamples`, as
+``mcverify replay --backend ipopt``), because a fast-path violation may be the solver's rather than the
+controller's. Written as a generated section of ``results/BENCHMARKS.md``, named by
 ``--section`` (so the adversary targets keep a section apart from the default targets'); the search
 folders stay under ``out_dir``.
 
@@ -73,6 +76,10 @@ class Counterexample(NamedTuple):
         trial = self.run_dir.parent.parent if self.run_dir.parent.name == search.GENERATIONS else self.run_dir.parent
         return trial / "replay" / self.run_dir.name
 
+    def audit_dir(self) -> Path:
+        """Where ``--audit`` writes the reference solver's trajectory: ``TRIAL/audit/<folder>``."""
+        return self.replay_dir().parent.parent / "audit" / self.run_dir.name
+
 
 @dataclass(frozen=True)
 class Trial:
@@ -97,6 +104,8 @@ class Trial:
     peak_rss_mb: float | None = None
     #: A beam trial's most snapshots alive at once (None: not a beam).
     peak_snapshots: int | None = None
+    #: The named requirement the search falsified (its robustness is the trial's).
+    requirement: str = ""
 
 
 class PlannedTrial(NamedTuple):
@@ -180,7 +189,7 @@ def run_planned(planned: Sequence[PlannedTrial], progress: Callable[[str], None]
         else:
             peak_mb = peak.peak_mb
             files.write_json_atomic(where / PEAK_RSS, {"peak_rss_mb": peak_mb, "interval_s": peak.interval_s})
-        trial = replace(trial, peak_rss_mb=peak_mb)
+        trial = replace(trial, peak_rss_mb=peak_mb, requirement=config.requirement)
         out.append(trial)
         if progress is not None:
             progress(f"{name} {method} trial {t}: " + _found_text(trial))
@@ -468,6 +477,72 @@ def replay_sentence(checks: Sequence[ReplayCheck] | None) -> str:
             f"these do not: {named}.")
 
 
+class AuditCheck(NamedTuple):
+    """A trial's first counterexample under the reference solver: whether it still violates the trial's
+    requirement (``confirmed``) and the requirement's robustness there (None: not finite)."""
+
+    trial: Trial
+    counterexample: Counterexample
+    confirmed: bool
+    reference_robustness: float | None
+
+
+def audit_counterexamples(trials: Sequence[Trial], progress: Callable[[str], None] | None = None
+                          ) -> list[AuditCheck]:
+    """Re-simulate each trial's first counterexample with the reference solver on the trial's requirement
+    (:func:`mcverify.campaign.audit.audit`), keeping the audit in the counterexample's folder (``audits.json``)
+    so that a re-read benchmark does not repeat it; the trajectories go to ``TRIAL/audit/<folder>``."""
+    from mcverify.campaign import audit  # noqa: PLC0415 - simulation only with --audit
+
+    checks = []
+    for trial in trials:
+        if not trial.counterexamples:
+            continue
+        cx = trial.counterexamples[0]
+        entry = audit.recorded(cx.run_dir).get(str(cx.episode_id))
+        if not _kept_audit_of(entry, trial.requirement):
+            result = audit.audit(cx.run_dir, cx.episode_id, out_dir=cx.audit_dir(), requirement=trial.requirement)
+            audit.record(cx.run_dir, result)
+            entry = audit.recorded(cx.run_dir)[str(cx.episode_id)]
+        confirmed = entry["verdict"] == audit.AuditVerdict.CONFIRMED.value
+        checks.append(AuditCheck(trial, cx, confirmed, entry["reference_robustness"]))
+        if progress is not None:
+            progress(f"audit {cx.run_dir} {cx.episode_id}: {entry['verdict']}, reference robustness "
+                     f"{compact(entry['reference_robustness'])}")
+    return checks
+
+
+def _kept_audit_of(entry: dict | None, requirement: str) -> bool:
+    """Whether a kept audit answers for ``requirement`` (one kept before the reference robustness was, does not)."""
+    return (entry is not None and entry.get("requirement", "safe") == requirement
+            and "reference_robustness" in entry)
+
+
+def audit_sentence(checks: Sequence[AuditCheck] | None) -> str:
+    """What the section says about the audits: how many counterexamples the reference solver confirms, and the
+    reference robustness of every one."""
+    if checks is None:
+        return ("Counterexamples not audited with the reference solver (run with `--audit`): a fast-path violation "
+                "may be the solver's rather than the controller's.")
+    if not checks:
+        return "Audit: no counterexample was found, so none was audited."
+    confirmed = sum(c.confirmed for c in checks)
+    each = "; ".join(f"{c.trial.method} seed {c.trial.seed}: {'confirmed' if c.confirmed else 'solver-dependent'}, "
+                     f"robustness {compact(c.reference_robustness)}" for c in checks)
+    return (f"Audit (`--audit`): each trial's first counterexample re-simulated on the same error and draws with the "
+            f"reference solver, IPOPT solving every problem in full (`mcverify replay DIR E --backend ipopt`); "
+            f"{confirmed} of {len(checks)} still violate the requirement (confirmed), the others are solver-dependent "
+            f"(the fast path's, not the controller's). Per counterexample: {each}.")
+
+
+def confirmed_text(group: Sequence[Trial], checks: Sequence[AuditCheck] | None) -> str:
+    """The table's audit cell of one method: confirmed successes out of successes; ``–`` without audits."""
+    if checks is None:
+        return "–"
+    mine = [c for c in checks if any(c.trial is t for t in group)]
+    return f"{sum(c.confirmed for c in mine)} of {len(mine)}"
+
+
 #: What the peak RSS column is (:mod:`benchmarks.memory`).
 PEAK_RSS_TEXT = (
     "Peak RSS: the largest summed resident set size of the benchmark process and its worker processes, sampled "
@@ -493,7 +568,7 @@ BEAM_TEXT = (
 
 
 def markdown(trials: Sequence[Trial], *, budget: int, command: str, name: str = NAME,
-             replays: Sequence[ReplayCheck] | None = None) -> str:
+             replays: Sequence[ReplayCheck] | None = None, audits: Sequence[AuditCheck] | None = None) -> str:
     begin, end = markers(name)
     keys = list(dict.fromkeys((t.target, t.method) for t in trials))
     groups = {key: [t for t in trials if (t.target, t.method) == key] for key in keys}
@@ -511,14 +586,15 @@ def markdown(trials: Sequence[Trial], *, budget: int, command: str, name: str = 
              "the budget. " + PEAK_RSS_TEXT, *([""] + [BEAM_TEXT.format(budget=budget)] if beamed else []), "",
              "| target | method | trials | successes | success rate (95% CI) | mean ep-eq to 1st | "
              "median ep-eq to 1st | median ep-eq to 1st, all trials | median episodes to 1st | "
-             "min robustness | episodes spent | ep-eq spent | peak RSS (MB) |",
-             "|---|---|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "min robustness | episodes spent | ep-eq spent | peak RSS (MB) | confirmed by IPOPT |",
+             "|---|---|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for (target, method), s in summaries.items():
         med = "–" if s.median_episodes is None else f"{s.median_episodes:g}"
         spent = "–" if s.episodes_spent is None else f"{s.episodes_spent}"
         lines.append(f"| {target} | {method} | {s.trials} | {s.successes} | {s.rate:.2f} [{s.low:.2f}, {s.high:.2f}] "
                      f"| {cost_text(s.mean_eq)} | {cost_text(s.median_eq)} | {cost_text(s.median_eq_all)} | {med} | "
-                     f"{s.min_robustness:.4g} | {spent} | {s.eq_spent:.4g} | {peak_text(s)} |")
+                     f"{s.min_robustness:.4g} | {spent} | {s.eq_spent:.4g} | {peak_text(s)} | "
+                     f"{confirmed_text(groups[(target, method)], audits)} |")
     lines += ["", "Per trial, in seed order from the first seed (– : no counterexample): ep-eq to the first "
               "counterexample and the lowest robustness reached"
               + (" and the lowest value of the guide the search was steered by" if guided else "") + ":", "",
@@ -533,7 +609,7 @@ def markdown(trials: Sequence[Trial], *, budget: int, command: str, name: str = 
         lines += ["", "Beam trials, snapshots alive at most per trial (the bound is 2 width + 1):", ""]
         lines += [f"- {target} {method}: {', '.join(str(t.peak_snapshots) for t in group)}"
                   for (target, method), group in groups.items() if not group[0].counts_episodes]
-    lines += ["", replay_sentence(replays)]
+    lines += ["", replay_sentence(replays), "", audit_sentence(audits)]
     if any(t.counts_episodes for t in trials):
         lines += ["", "Issue 16's goal, per target (medians over all trials, a failed trial counting as beyond the "
                   "budget):", ""]
@@ -619,6 +695,9 @@ def _parser() -> argparse.ArgumentParser:
                    "the adversary targets, so that each set of targets keeps its own section")
     p.add_argument("--replay", action="store_true",
                    help="re-simulate every counterexample found and check it bit for bit (as mcverify replay)")
+    p.add_argument("--audit", action="store_true",
+                   help="re-simulate each trial's first counterexample with the reference solver (as mcverify replay "
+                   "--backend ipopt; about a minute of CPU each at 50 Hz) and report whether it still violates")
     section.add_output_options(p)
     return p
 
@@ -644,7 +723,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"figure: {path}", file=sys.stderr)
         replays = (replay_counterexamples(trials, progress=lambda line: print(line, file=sys.stderr))
                    if args.replay else None)
-        text = markdown(trials, budget=args.budget, command=section.command(NAME, argv), name=name, replays=replays)
+        audits = (audit_counterexamples(trials, progress=lambda line: print(line, file=sys.stderr))
+                  if args.audit else None)
+        text = markdown(trials, budget=args.budget, command=section.command(NAME, argv), name=name, replays=replays,
+                        audits=audits)
         print(text)
         if not args.no_write:
             write_section(args.write, text, name)

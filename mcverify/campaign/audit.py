@@ -10,6 +10,7 @@ bit here (the solvers differ); :func:`mcverify.campaign.replay.replay` does that
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from enum import Enum
 from pathlib import Path
@@ -71,11 +72,17 @@ def record(run_dir: Path, result: AuditResult) -> None:
         "verdict": result.verdict.value, "backend": REFERENCE_BACKEND,
         "outcome": result.stored["outcome"], "safe": bool(result.stored["safe"]),
         "reference_outcome": result.reference["outcome"], "reference_safe": bool(result.reference["safe"]),
+        "reference_robustness": finite_or_none(robustness(result.reference, result.requirement)),
         **({} if result.requirement == "safe" else {
             "requirement": result.requirement,
             "reference_violated": violated(result.reference, result.requirement)}),
     }
     files.write_json_atomic(path, dict(sorted(audits.items(), key=lambda kv: int(kv[0]))))
+
+
+def finite_or_none(x: float) -> float | None:
+    """``x`` as JSON keeps it: a finite float, None otherwise."""
+    return float(x) if math.isfinite(x) else None
 
 
 def recorded(run_dir: Path) -> dict[str, dict]:

@@ -139,3 +139,23 @@ def test_random_schedules_are_the_beam_with_branching_1_paired_by_seed(beam_run,
     assert text.startswith("beam-cli, 1 paired seeds: beam falsified 0, random-schedules 0;")
     assert f"below random-schedules's in {lower} of 1 pairs" in text
     assert bench.paired_sentence([beam_trial], "beam-cli", "beam", bench.RANDOM_SCHEDULES) == ""
+
+
+def test_audit_reruns_the_counterexample_with_ipopt_once(beam_run, monkeypatch):
+    """--audit re-simulates a trial's first counterexample with the reference solver on the trial's requirement,
+    keeps the audit (with the reference robustness) beside the episode, and re-reads it on the next run."""
+    from mcverify.campaign import audit
+
+    target, out, (trial,) = beam_run
+    where = out / "beam-cli" / "beam" / "trial-00"
+    hit = dataclasses.replace(trial, first_counterexample=0, counterexamples=(bench.Counterexample(where / "best", 0),))
+    assert hit.requirement == "ellipse"  # set from the search's config
+    (check,) = bench.audit_counterexamples([hit])
+    kept = audit.recorded(where / "best")["0"]
+    assert kept["requirement"] == "ellipse" and kept["backend"] == "ipopt"
+    assert check.reference_robustness == kept["reference_robustness"]
+    # the stored episode holds (the test's beam finds no violation), so "confirmed" is the same verdict: holds
+    assert check.confirmed == (kept["reference_violated"] is False)
+    assert list((where / "audit" / "best").glob("episode-000000-ipopt*"))
+    monkeypatch.setattr(audit, "audit", lambda *a, **k: pytest.fail("a kept audit is re-read, not re-run"))
+    assert bench.audit_counterexamples([hit]) == [check]

@@ -203,3 +203,39 @@ def test_replay_names_the_counterexamples_that_do_not_reproduce(tmp_path, monkey
                                                 "(`mcverify replay`).")
     assert "no counterexample was found" in bench.replay_sentence([])
     assert "Replay: 1 of 2" in bench.markdown(trials, budget=2, command="c", replays=checks)
+
+
+def test_audit_counts_the_counterexamples_the_reference_solver_confirms(tmp_path, monkeypatch):
+    """The audit column and sentence: confirmed (the reference solver violates too) out of audited, per method;
+    only each trial's first counterexample is audited, on the trial's requirement."""
+    from mcverify.campaign import audit
+
+    calls = []
+
+    def fake_audit(run_dir, episode_id, out_dir=None, requirement="safe"):
+        calls.append((run_dir, episode_id, out_dir, requirement))
+        low = -0.5 if run_dir.name == "g000" else 0.25
+        return audit.AuditResult(episode_id, audit.AuditVerdict.CONFIRMED if low < 0 else
+                                 audit.AuditVerdict.SOLVER_DEPENDENT, {"outcome": "x", "safe": True},
+                                 {"outcome": "x", "safe": True, "min_h_front": low}, None, None, requirement)
+
+    monkeypatch.setattr(audit, "audit", fake_audit)
+    monkeypatch.setattr(audit, "robustness", lambda row, requirement: row["min_h_front"])
+    first = bench.Counterexample(tmp_path / "generations" / "g000", 3)
+    second = bench.Counterexample(tmp_path / "g001", 0)
+    trials = [bench.Trial("t", "cma", 0, 1, 1, -1.0, (), 1.0, 1.0, counterexamples=(first, second),
+                          requirement="ellipse"),
+              bench.Trial("t", "random", 4, 2, 2, -1.0, (), 2.0, 2.0, counterexamples=(second,), requirement="ellipse"),
+              bench.Trial("t", "random", 5, 2, None, 1.0, (), requirement="ellipse")]
+    checks = bench.audit_counterexamples(trials)
+    assert [(c.counterexample, c.confirmed, c.reference_robustness) for c in checks] == [
+        (first, True, -0.5), (second, False, 0.25)]
+    assert calls[0] == (first.run_dir, 3, tmp_path / "audit" / "g000", "ellipse")
+    sentence = bench.audit_sentence(checks)
+    assert "1 of 2 still violate the requirement" in sentence
+    assert "cma seed 0: confirmed, robustness -0.5; random seed 4: solver-dependent, robustness 0.25" in sentence
+    text = bench.markdown(trials, budget=2, command="c", audits=checks)
+    assert "| peak RSS (MB) | confirmed by IPOPT |" in text
+    assert text.count("| 1 of 1 |") == 1 and text.count("| 0 of 1 |") == 1
+    assert "not audited with the reference solver" in bench.markdown(trials, budget=2, command="c")
+    assert "none was audited" in bench.audit_sentence([])
