@@ -185,6 +185,11 @@ EPISODE_COLUMNS: tuple[Column, ...] = (
        "the fast path alone would decide): Q1 solved in full (IPM, then IPOPT) before the decision"),
     _c("q1_confirm_solved", _INT, "", "q1_confirm_solves that found a Q1 solution: the ego went on overtaking where "
        "the presumed verdict would have turned it back"),
+    _c("hold_confirm_solves", _INT, "", "steps where no plan would be applied (the last plan held, or the brake) on a "
+       "presumed failure of Q1 or Q2: the presumed problem solved in full (IPM, then IPOPT) first, the mode's own "
+       "problem first"),
+    _c("hold_confirm_solved", _INT, "", "hold_confirm_solves that found a solution: a plan was applied where the "
+       "presumed verdict would have held the last one"),
     _c("infeasibility_audits", _INT, "", "C certificates of infeasibility IPOPT re-checked as the scheduled auditor "
        "(mpc.infeasibility = phase1, or phase1_mpcdc for the MPC-DC baselines; 0 otherwise)"),
     _c("infeasibility_audit_disagreements", _INT, "", "infeasibility_audits where IPOPT solved the problem (its "

@@ -51,6 +51,8 @@ class EpisodeState:
     presumed_infeasible_solves: int = 0
     q1_confirm_solves: int = 0  # presumed Q1 failures that would have turned back, solved in full first
     q1_confirm_solved: int = 0  # ... and solved there (the overtake goes on)
+    hold_confirm_solves: int = 0  # presumed failures that would have held the plan (or braked), solved in full first
+    hold_confirm_solved: int = 0  # ... and solved there (a plan was applied)
     infeasibility_audits: int = 0  # phase-1 certificates (the MPC-DC attempt plan) IPOPT re-checked
     infeasibility_audit_disagreements: int = 0  # ... and solved
     switched_to_q2_at_s: float = math.nan

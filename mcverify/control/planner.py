@@ -139,18 +139,23 @@ class Planner:
             return self._step_mpcdc(state, t_s, ego, front_meas, opp_meas if detected else None, level, detected)
         solver = self.with_opp if detected else self.plain
         opp = opp_meas if detected else None
-        q1_start = state.warm.get((Q1, detected))
+        starts = {Q1: state.warm.get((Q1, detected)), Q2: state.warm.get((Q2, detected))}
         q1 = self._solve(state, solver, ego, front_meas, Q1, level, opp) if state.mode is Mode.OVERTAKE else None
         unread = self._q2_unread(q1, detected)
         q2 = (None if unread and self.params.mpc.q2_solve == "when_needed" else
               self._solve(state, solver, ego, front_meas, Q2, level, opp,
                           fast_path_only=unread and self.params.mpc.q2_solve == "fast_when_unneeded"))
         if self._switch_presumed(state, ego, front_meas, q1, q2):
-            q1 = self._confirm_q1(state, solver, ego, front_meas, level, opp, q1_start)
+            q1 = self._confirm_q1(state, solver, ego, front_meas, level, opp, starts[Q1])
         if q1 is None and not q2.success:
             # Going back and Q2 failed: solve Q1 too, so that "both unsolved" (Theorem 5) is counted
             # exactly and the ego can follow a feasible plan instead of braking blindly.
             q1 = self._solve(state, solver, ego, front_meas, Q1, level, opp)
+        for direction in self._presumed_holds(state, ego, front_meas, q1, q2):
+            solved = self._confirm_hold(state, solver, ego, front_meas, direction, level, opp, starts[direction])
+            q1, q2 = (solved, q2) if direction == Q1 else (q1, solved)
+            if solved.success:
+                break
         q1_ok, q2_ok = q1 is not None and q1.success, q2 is not None and q2.success
         q1_failed = q1 is not None and not q1_ok
         if q1_failed:
@@ -218,6 +223,32 @@ class Planner:
         sol = self._solve(state, solver, ego, front_meas, Q1, level, opp, confirm=True)
         state.q1_confirm_solves += 1
         state.q1_confirm_solved += int(sol.success)
+        return sol
+
+    def _presumed_holds(self, state: EpisodeState, ego, front_meas, q1: MpcSolution | None,
+                        q2: MpcSolution | None) -> list[int]:
+        """The presumed failures that would make this step hold its last plan or brake: none when a plan will
+        be applied; otherwise the problems (the mode's own first) that could give one and failed on the fast
+        path alone. A held plan is a decision too: the T3 beam's ellipse grazes were all held plans on
+        presumed verdicts that IPOPT overturned (docs/decisions.md, "The confirmation rule")."""
+        committed = state.mode is Mode.OVERTAKE and self.committed(ego, front_meas)
+        useful = (Q1,) if committed else ((Q2, Q1) if state.mode is Mode.GO_BACK else (Q1, Q2))
+        sols = {Q1: q1, Q2: q2}
+        if any(sols[d] is not None and sols[d].success for d in useful):
+            return []
+        return [d for d in useful if sols[d] is not None and sols[d].status.presumed_infeasible]
+
+    def _confirm_hold(self, state: EpisodeState, solver, ego, front_meas, direction: int, level, opp,
+                      start: WarmStart | None) -> MpcSolution:
+        """A presumed failure that would hold the plan, solved in full from the warm start the presumed solve
+        had (as :meth:`_confirm_q1`): a solution is applied and ends the memo, a failure is the memo's full
+        attempt (its wait doubles)."""
+        key = (direction, opp is not None)
+        if start is not None:
+            state.warm[key] = start
+        sol = self._solve(state, solver, ego, front_meas, direction, level, opp, confirm=True)
+        state.hold_confirm_solves += 1
+        state.hold_confirm_solved += int(sol.success)
         return sol
 
     def _q2_unread(self, q1: MpcSolution | None, detected: bool) -> bool:

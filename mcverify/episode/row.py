@@ -171,6 +171,8 @@ def episode_row(
         "presumed_infeasible_solves": st.presumed_infeasible_solves,
         "q1_confirm_solves": st.q1_confirm_solves,
         "q1_confirm_solved": st.q1_confirm_solved,
+        "hold_confirm_solves": st.hold_confirm_solves,
+        "hold_confirm_solved": st.hold_confirm_solved,
         "infeasibility_audits": st.infeasibility_audits,
         "infeasibility_audit_disagreements": st.infeasibility_audit_disagreements,
         "iterations_mean": float(iters.mean()),

@@ -180,8 +180,10 @@ def test_table_one_row_zero_waits_for_the_rule_with_a_human_driver():
 
 def test_both_unsolved_steps_split_by_certificate_and_longest_run():
     # overtaking: Q1 and Q2 both fail at steps 1-3 (certified, certified, Q2 out of iterations),
-    # solved at 4, both fail again at 5 (Q1 only presumed); the default rule then abandons at 6
-    q1 = [None, CERT, CERT_FB, CERT, None, PRES, ITER]
+    # solved at 4, both fail again at 5, Q1 only presumed: the plan would be held on a presumed verdict,
+    # so Q1 is solved in full there (the hold confirmation) and runs out of iterations (Q2 failed too: the plan
+    # is held); Q1 runs out again at 6, where Q2 solves, and the default rule abandons there
+    q1 = [None, CERT, CERT_FB, CERT, None, PRES, ITER, ITER]
     q2 = [None, CERT, CERT, ITER, None, CERT]
     st, recs = _run(q1, q2)
     assert st.both_infeasible_steps == 4
@@ -192,8 +194,9 @@ def test_both_unsolved_steps_split_by_certificate_and_longest_run():
     assert sum(neither_solved(r.q1, r.q2) for r in recs) == st.both_infeasible_steps
     assert st.both_infeasible_longest_run == 3
     assert st.q1_fail_steps == 5 and (st.q1_fail_certified_steps, st.q1_fail_presumed_steps,
-                                      st.q1_fail_iteration_limit_steps, st.q1_fail_other_steps) == (3, 1, 1, 0)
+                                      st.q1_fail_iteration_limit_steps, st.q1_fail_other_steps) == (3, 0, 2, 0)
     assert st.went_back_q1_failure == "iteration_limit" and st.mode is Mode.GO_BACK
+    assert (st.hold_confirm_solves, st.hold_confirm_solved) == (1, 0) and st.switched_to_q2_at_s == 0.02 * 6
 
 
 def test_validation_names_the_field():

@@ -101,9 +101,10 @@ def test_the_confirmation_starts_from_the_presumed_solves_warm_start():
     assert confirm[:2] == (+1, False) and confirm[2] == ("warm", +1, 0, True)
 
 
-def test_no_confirmation_when_q2_fails_too_or_the_failure_was_a_full_one():
-    # Q2's fast path fails at step 2 as well: nothing to turn back with, no switch to confirm
-    st, recs = _run({+1: FULL_Q1, -1: FULL_Q2}, {}, steps=3)
+def test_no_switch_confirmation_when_q2_fails_too_or_the_failure_was_a_full_one():
+    # Q2's fast path fails at step 2 as well: nothing to turn back with, no switch to confirm (the plan
+    # would be held instead, and that is confirmed: the tests below)
+    st, recs = _run({+1: FULL_Q1 + [CERT_FB], -1: FULL_Q2 + [CERT_FB]}, {}, steps=3)
     assert st.q1_confirm_solves == 0 and recs[2].source is Source.HELD and st.mode is Mode.OVERTAKE
     # a Q1 failure IPOPT itself gave (no memo yet) decides at once, as before
     st, recs = _run({+1: [None, CERT_FB]}, {}, steps=2)
@@ -115,3 +116,43 @@ def test_table_one_row_zero_is_confirmed_too():
     st, recs = _run({+1: FULL_Q1 + [None], -1: FULL_Q2}, {-1: FAST_Q2}, steps=3, human=True)
     assert recs[2].source is Source.Q1 and st.mode is Mode.OVERTAKE
     assert st.q1_confirm_solves == 1 and recs[2].table_row != 0
+
+
+# ----------------------------------------------------------------------- the hold confirmation
+# step 2: both fast paths fail (presumed infeasible): Algorithm 1 would hold the last plan on verdicts
+# IPOPT never gave. The mode's own problem (Q1, overtaking) is solved in full first, then Q2.
+
+
+def test_a_hold_on_presumed_failures_is_confirmed_and_overturned():
+    st, recs = _run({+1: FULL_Q1 + [None], -1: FULL_Q2}, {}, steps=3)
+    assert [r.source for r in recs] == [Source.Q1, Source.HELD, Source.Q1] and st.mode is Mode.OVERTAKE
+    assert (st.hold_confirm_solves, st.hold_confirm_solved) == (1, 1) and st.q1_confirm_solves == 0
+    # Q1 fast-only, Q2 fast-only, then Q1 in full; Q2 is not asked again once Q1 has a plan
+    assert [(d, f) for d, f, _ in _FastAndFull.log[-3:]] == [(+1, True), (-1, True), (+1, False)]
+    assert (+1, False) not in st.infeasible and (-1, False) in st.infeasible  # Q1's memo ends, Q2's goes on
+    assert recs[2].q1.success and not st.q1_fail_presumed_steps
+
+
+def test_a_hold_confirmation_may_turn_back_on_full_verdicts():
+    # Q1's full solve fails again (certified), Q2's full solve finds a plan: the turn-back rests on IPOPT
+    st, recs = _run({+1: FULL_Q1 + [CERT_FB], -1: FULL_Q2 + [None]}, {}, steps=3)
+    assert recs[2].source is Source.Q2 and st.mode is Mode.GO_BACK
+    assert st.went_back_q1_failure == "certified_infeasible"
+    assert (st.hold_confirm_solves, st.hold_confirm_solved) == (2, 1)
+    assert st.infeasible[(+1, False)] == (0, 2 * P.mpc.infeasible_recheck_steps)  # Q1's wait doubles
+
+
+def test_a_confirmed_hold_holds_and_both_waits_double():
+    st, recs = _run({+1: FULL_Q1 + [CERT_FB], -1: FULL_Q2 + [CERT_FB]}, {}, steps=3)
+    assert recs[2].source is Source.HELD and st.mode is Mode.OVERTAKE
+    assert (st.hold_confirm_solves, st.hold_confirm_solved) == (2, 0)
+    assert st.infeasible[(+1, False)] == st.infeasible[(-1, False)] == (0, 2 * P.mpc.infeasible_recheck_steps)
+    assert st.both_certified_infeasible_steps == 2  # steps 1 and 2, both now on IPOPT's certificates
+
+
+def test_a_hold_confirmation_starts_from_the_presumed_solves_warm_start():
+    # both fast paths solve at step 2 (warm starts) and fail at step 3: each full solve starts where its
+    # presumed solve started
+    st, recs = _run({+1: FULL_Q1 + [CERT_FB], -1: FULL_Q2 + [None]}, {+1: [None, PRES], -1: [None, PRES]}, steps=4)
+    assert recs[3].source is Source.Q2 and st.hold_confirm_solves == 2
+    assert [entry[2] for entry in _FastAndFull.log[-2:]] == [("warm", +1, 0, True), ("warm", -1, 0, True)]
