@@ -4,7 +4,7 @@
   (Table I, tab.cons_for_overtaking): which problem drives the ego;
 * :mod:`~mcverify.control.planner`: the dual TO-CBF-MPC planner (Q1 overtake, Q2 go back) or the
   MPC-DC baseline on the compiled solvers, with warm starts, held plans, the infeasibility memo and
-  the fallback brake; a turn-back on a presumed Q1 failure is confirmed by a full solve first;
+  the fallback brake; a turn-back or a held plan on a presumed failure is confirmed by a full solve first;
 * :mod:`~mcverify.control.episode_state`: one episode's memory and counters (mode, warm starts, the
   infeasibility memo) and the kinds of solver failure;
 * :mod:`~mcverify.control.margins`: Theorem 5 graded, the signed room of a step's Q1 and Q2 solves.

@@ -24,7 +24,10 @@ Controllers (``params.mpc.controller``):
 
 When no applicable problem has a solution, both controllers apply the rest of the last plan they
 followed (``held_steps``; it was verified one step earlier from nearly this state), and brake in
-lane once it is used up (``fallback_steps``).
+lane once it is used up (``fallback_steps``). A failure the infeasibility memo only presumed never
+decides the control: the problem is solved in full first when it would turn the ego back
+(:meth:`Planner._confirm_q1`) or hold the plan (:meth:`Planner._confirm_hold`); docs/decisions.md,
+"The confirmation rule" and "The hold confirmation".
 """
 
 from __future__ import annotations
