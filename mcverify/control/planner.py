@@ -217,13 +217,8 @@ class Planner:
 
     def _confirm_q1(self, state: EpisodeState, solver, ego, front_meas, level, opp,
                     start: WarmStart | None) -> MpcSolution:
-        """Q1 solved in full (the fast path, then IPOPT) from the warm start the presumed solve had:
-        the verdict that decides a switch. A confirmed solution ends the memo; a confirmed failure is
-        the memo's full attempt after a wait (its wait doubles)."""
-        key = (Q1, opp is not None)
-        if start is not None:
-            state.warm[key] = start
-        sol = self._solve(state, solver, ego, front_meas, Q1, level, opp, confirm=True)
+        """Q1 solved in full (:meth:`_solve_in_full`): the verdict that decides a switch."""
+        sol = self._solve_in_full(state, solver, ego, front_meas, Q1, level, opp, start)
         state.q1_confirm_solves += 1
         state.q1_confirm_solved += int(sol.success)
         return sol
@@ -243,16 +238,21 @@ class Planner:
 
     def _confirm_hold(self, state: EpisodeState, solver, ego, front_meas, direction: int, level, opp,
                       start: WarmStart | None) -> MpcSolution:
-        """A presumed failure that would hold the plan, solved in full from the warm start the presumed solve
-        had (as :meth:`_confirm_q1`): a solution is applied and ends the memo, a failure is the memo's full
-        attempt (its wait doubles)."""
-        key = (direction, opp is not None)
-        if start is not None:
-            state.warm[key] = start
-        sol = self._solve(state, solver, ego, front_meas, direction, level, opp, confirm=True)
+        """A presumed failure that would hold the plan, solved in full (:meth:`_solve_in_full`); a solution is
+        applied."""
+        sol = self._solve_in_full(state, solver, ego, front_meas, direction, level, opp, start)
         state.hold_confirm_solves += 1
         state.hold_confirm_solved += int(sol.success)
         return sol
+
+    def _solve_in_full(self, state: EpisodeState, solver, ego, front_meas, direction: int, level, opp,
+                       start: WarmStart | None) -> MpcSolution:
+        """A problem solved in full (the fast path, then IPOPT) whatever the memo says, from ``start``, the warm
+        start its presumed solve had: a solution ends the memo, a failure is the memo's full attempt after a
+        wait (its wait doubles)."""
+        if start is not None:
+            state.warm[(direction, opp is not None)] = start
+        return self._solve(state, solver, ego, front_meas, direction, level, opp, confirm=True)
 
     def _q2_unread(self, q1: MpcSolution | None, detected: bool) -> bool:
         """Will this step's decision ignore Q2 (:attr:`Mpc.q2_solve`)? Overtaking with Q1 solved and no
