@@ -10,12 +10,12 @@ bit here (the solvers differ); :func:`mcverify.campaign.replay.replay` does that
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass
 from enum import Enum
 from pathlib import Path
 
 from mcverify import files, store
+from mcverify.analysis.cells import json_ready
 from mcverify.analysis.robustness import robustness
 from mcverify.campaign import executors
 from mcverify.campaign.replay import stored_schedules, write_recording
@@ -62,27 +62,24 @@ class AuditResult:
                 f"the reference solver {REFERENCE_BACKEND}: {ref})")
 
 
-def record(run_dir: Path, result: AuditResult) -> None:
-    """Keep ``result`` in ``RUN_DIR/audits.json`` (the report reads it; an audit is never repeated)."""
+def record(run_dir: Path, result: AuditResult) -> dict | None:
+    """Keep ``result`` in ``RUN_DIR/audits.json`` (the report reads it; an audit is never repeated) and return
+    the entry kept; None for a run made with the reference solver (nothing to keep)."""
     if result.reference is None:
-        return
+        return None
     path = Path(run_dir) / store.AUDITS
     audits = store.read_json(path) if path.is_file() else {}
-    audits[str(result.episode_id)] = {
+    entry = audits[str(result.episode_id)] = {
         "verdict": result.verdict.value, "backend": REFERENCE_BACKEND,
         "outcome": result.stored["outcome"], "safe": bool(result.stored["safe"]),
         "reference_outcome": result.reference["outcome"], "reference_safe": bool(result.reference["safe"]),
-        "reference_robustness": finite_or_none(robustness(result.reference, result.requirement)),
+        "reference_robustness": json_ready(float(robustness(result.reference, result.requirement))),
         **({} if result.requirement == "safe" else {
             "requirement": result.requirement,
             "reference_violated": violated(result.reference, result.requirement)}),
     }
     files.write_json_atomic(path, dict(sorted(audits.items(), key=lambda kv: int(kv[0]))))
-
-
-def finite_or_none(x: float) -> float | None:
-    """``x`` as JSON keeps it: a finite float, None otherwise."""
-    return float(x) if math.isfinite(x) else None
+    return entry
 
 
 def recorded(run_dir: Path) -> dict[str, dict]:

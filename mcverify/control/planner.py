@@ -154,11 +154,7 @@ class Planner:
             # Going back and Q2 failed: solve Q1 too, so that "both unsolved" (Theorem 5) is counted
             # exactly and the ego can follow a feasible plan instead of braking blindly.
             q1 = self._solve(state, solver, ego, front_meas, Q1, level, opp)
-        for direction in self._presumed_holds(state, ego, front_meas, q1, q2):
-            solved = self._confirm_hold(state, solver, ego, front_meas, direction, level, opp, starts[direction])
-            q1, q2 = (solved, q2) if direction == Q1 else (q1, solved)
-            if solved.success:
-                break
+        q1, q2 = self._confirm_holds(state, solver, ego, front_meas, level, opp, q1, q2, starts)
         q1_ok, q2_ok = q1 is not None and q1.success, q2 is not None and q2.success
         q1_failed = q1 is not None and not q1_ok
         if q1_failed:
@@ -223,12 +219,24 @@ class Planner:
         state.q1_confirm_solved += int(sol.success)
         return sol
 
+    def _confirm_holds(self, state: EpisodeState, solver, ego, front_meas, level, opp, q1: MpcSolution | None,
+                       q2: MpcSolution | None, starts: dict) -> tuple[MpcSolution | None, MpcSolution | None]:
+        """(q1, q2) after the hold confirmation: each presumed failure of :meth:`_presumed_holds` solved in full,
+        in order, until one gives a plan (a held plan decides the control as a turn-back does;
+        docs/decisions.md, "The hold confirmation")."""
+        sols = {Q1: q1, Q2: q2}
+        for direction in self._presumed_holds(state, ego, front_meas, q1, q2):
+            sols[direction] = self._confirm_hold(state, solver, ego, front_meas, direction, level, opp,
+                                                 starts[direction])
+            if sols[direction].success:
+                break
+        return sols[Q1], sols[Q2]
+
     def _presumed_holds(self, state: EpisodeState, ego, front_meas, q1: MpcSolution | None,
                         q2: MpcSolution | None) -> list[int]:
         """The presumed failures that would make this step hold its last plan or brake: none when a plan will
         be applied; otherwise the problems (the mode's own first) that could give one and failed on the fast
-        path alone. A held plan is a decision too: the T3 beam's ellipse grazes were all held plans on
-        presumed verdicts that IPOPT overturned (docs/decisions.md, "The confirmation rule")."""
+        path alone."""
         committed = state.mode is Mode.OVERTAKE and self.committed(ego, front_meas)
         useful = (Q1,) if committed else ((Q2, Q1) if state.mode is Mode.GO_BACK else (Q1, Q2))
         sols = {Q1: q1, Q2: q2}

@@ -239,3 +239,17 @@ def test_audit_counts_the_counterexamples_the_reference_solver_confirms(tmp_path
     assert text.count("| 1 of 1 |") == 1 and text.count("| 0 of 1 |") == 1
     assert "not audited with the reference solver" in bench.markdown(trials, budget=2, command="c")
     assert "none was audited" in bench.audit_sentence([])
+
+
+def test_a_search_run_with_the_reference_solver_is_its_own_audit(tmp_path, monkeypatch):
+    """A counterexample of a run made with IPOPT has nothing to audit: confirmed, at its own robustness."""
+    from mcverify.campaign import audit
+
+    row = {"outcome": "overtook", "safe": True, "min_h_front": -0.25}
+    monkeypatch.setattr(audit, "audit", lambda run_dir, episode_id, out_dir=None, requirement="safe": audit.AuditResult(
+        episode_id, audit.AuditVerdict.REFERENCE_RUN, row, None, None, None, requirement))
+    cx = bench.Counterexample(tmp_path / "g000", 0)
+    trial = bench.Trial("t", "cma", 0, 1, 1, -0.25, (), 1.0, 1.0, counterexamples=(cx,), requirement="ellipse")
+    (check,) = bench.audit_counterexamples([trial])
+    assert check.confirmed and check.reference_robustness == -0.25
+    assert not (tmp_path / "g000" / "audits.json").exists()  # nothing kept: the run is the reference's
