@@ -25,6 +25,7 @@ import numpy as np
 from benchmarks import section
 from benchmarks.walk import Walk
 from mcverify import provenance
+from mcverify.analysis import intervals
 from mcverify.cli.options import positive_int
 from mcverify.errors import UserError
 from mcverify.estimate import splitting
@@ -55,7 +56,7 @@ def run(*, barrier: float = 6.2, particles: int = 100, replicates: int = 25, rep
     values = np.array([e.estimate for e in estimates])
     rel = float(np.mean([e.relative_halfwidth for e in estimates]))
     steps = float(np.mean([e.steps for e in estimates]))
-    crude_steps = splitting.crude_steps_for(p, rel, walk.horizon, level)
+    crude_steps = intervals.crude_steps_for(p, rel, walk.horizon, level)
     return {
         "barrier": barrier, "horizon": walk.horizon, "reference_episodes": total, "reference_hits": hits,
         "p_reference": p, "crude_cpu_s": crude_cpu, "particles": particles, "replicates": replicates,

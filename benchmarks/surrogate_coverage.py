@@ -26,6 +26,7 @@ import numpy as np
 from scipy import stats as sps
 
 from benchmarks import section
+from mcverify.analysis import intervals
 from mcverify.errors import UserError
 from mcverify.estimate import splitting, subset
 from mcverify.estimate.surrogate import SplittingProcess, Surrogate
@@ -71,7 +72,7 @@ def _row(method: str, clock: str, problem: Surrogate, estimates: list[subset.Est
     steps = float(np.mean([e.steps for e in estimates]))
     return Row(method, clock, p, len(estimates), runs, n, covered / len(estimates), low, high,
                float(np.nanmean(values) / p - 1.0), float(np.nanmean(np.abs(values - p)) / p), rel, steps,
-               subset.crude_steps_for(p, rel, problem.mean_steps()), seconds)
+               intervals.crude_steps_for(p, rel, problem.mean_steps()), seconds)
 
 
 def _clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:

@@ -45,6 +45,7 @@ import pyarrow as pa
 from benchmarks import section
 from benchmarks.validation_report import figure, markdown
 from mcverify import files, provenance, store
+from mcverify.analysis import intervals
 from mcverify.analysis.columns import Columns, floats
 from mcverify.analysis.estimates import ordered_prefix, target_events
 from mcverify.analysis.intervals import proportion_interval
@@ -332,7 +333,7 @@ def summarise(reps: Sequence[Repetition], ref: Reference, level: float = 0.95) -
     rel = (high - low) / 2 / np.where(est > 0, est, np.nan)
     mean_rel = float(np.nanmean(rel)) if np.any(est > 0) else math.inf
     steps = float(np.mean([r.steps for r in reps]))
-    crude = splitting.crude_steps_for(ref.p, mean_rel, ref.mean_episode_steps, level) if ref.p > 0 else math.nan
+    crude = intervals.crude_steps_for(ref.p, mean_rel, ref.mean_episode_steps, level) if ref.p > 0 else math.nan
     target_p = np.array([ref.p if r.reference_p is None else r.reference_p for r in reps])
     covered = int(np.sum((low <= target_p) & (target_p <= high)))
     return {

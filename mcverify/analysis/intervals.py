@@ -240,3 +240,13 @@ def rate_summary(k: int, n: int, level: float = 0.95, method: str = "clopper-pea
 
 # --------------------------------------------------------------------------------------------
 # continuous values
+
+
+def crude_steps_for(p: float, relative_halfwidth: float, steps_per_episode: float, level: float = 0.95) -> float:
+    """Control steps crude Monte Carlo needs for the relative half-width ``relative_halfwidth`` at rate ``p``
+    (normal approximation: z^2 (1 - p) / (p r^2) episodes of ``steps_per_episode`` steps); NaN where p or
+    the width is not positive. The yardstick of every rare-event estimator's cost."""
+    if not (p > 0 and relative_halfwidth > 0):
+        return math.nan
+    z = _z(level)
+    return z * z * (1.0 - p) / (p * relative_halfwidth**2) * steps_per_episode

@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from mcverify import store
+from mcverify.analysis import intervals
 from mcverify.campaign import executors
 from mcverify.campaign.executors import Executor
 from mcverify.campaign.spec import Campaign
@@ -47,7 +48,7 @@ from mcverify.control.planner import Planner
 from mcverify.draws import DRAW_REGISTRY, DRAWS
 from mcverify.episode.rollout import ChunkResult, run_episodes
 from mcverify.errors import RunError
-from mcverify.estimate import evaluations, folder, importance, splitting
+from mcverify.estimate import evaluations, folder, importance
 from mcverify.estimate.closed_loop import gap_score, h_ef_score
 from mcverify.estimate.evaluations import EvaluationCache
 from mcverify.estimate.folder import num
@@ -79,14 +80,14 @@ def scenario_bounds(cell: Cell) -> dict[str, tuple[float, float]]:
 def crude_comparison(est: importance.ISEstimate, rows: Sequence[dict[str, Any]], weights: np.ndarray,
                      steps: int) -> dict[str, float]:
     """What crude Monte Carlo would need for the estimate's relative half-width, in control steps: its
-    episodes (from the estimate, :func:`mcverify.estimate.splitting.crude_steps_for`) times a nominal
+    episodes (from the estimate, :func:`mcverify.estimate.intervals.crude_steps_for`) times a nominal
     episode's steps, the final draws' steps weighted by their likelihood ratios (self-normalised: the
     nominal mean, whichever proposal drew them); and the ratio to the steps this estimate took."""
     w = np.asarray(weights, dtype=float)
     kept = w.size and len(rows) == w.size  # a score function that keeps no rows (a test's stub) has no steps
     episode_steps = float(np.sum(w * [r.get("steps", math.nan) for r in rows]) / np.sum(w)) if kept else math.nan
     half = (est.high - est.estimate) / est.estimate if est.estimate > 0 else math.nan  # the low end is clipped at 0
-    crude = (splitting.crude_steps_for(est.estimate, half, episode_steps, est.level)
+    crude = (intervals.crude_steps_for(est.estimate, half, episode_steps, est.level)
              if math.isfinite(half) and half > 0 else math.nan)
     return {"relative_halfwidth": half, "mean_episode_steps": episode_steps, "crude_steps_same_width": crude,
             "steps_ratio_vs_crude": crude / steps if steps and math.isfinite(crude) else math.nan}

@@ -245,10 +245,3 @@ def t_interval(values: np.ndarray, level: float = 0.95) -> tuple[float, float, f
                         "that traps runs, or ties; docs/rare_events.md), so the mean of few runs may read low "
                         "and the t interval miss; add runs or particles")
     return mean, max(0.0, mean - half), mean + half, rel, warnings
-
-
-def crude_steps_for(p: float, relative_halfwidth: float, steps_per_episode: float, level: float = 0.95) -> float:
-    """Control steps crude Monte Carlo needs for the same relative half-width at ``p`` (normal
-    approximation: N = z^2 (1 - p) / (p r^2) episodes of ``steps_per_episode`` steps each)."""
-    z = float(sps.norm.ppf(0.5 + level / 2))
-    return z * z * (1.0 - p) / (p * relative_halfwidth**2) * steps_per_episode

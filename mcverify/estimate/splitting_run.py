@@ -26,6 +26,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from mcverify.analysis import intervals
 from mcverify.campaign import executors
 from mcverify.campaign.executors import Executor
 from mcverify.campaign.spec import Campaign
@@ -156,7 +157,7 @@ class _Cost:
 def cell_result(index: int, name: str, spec: SplittingSpec, est: splitting.SplittingEstimate,
                 runs: list[splitting.AMSRun], process: _Cost | ClosedLoopProcess) -> dict[str, Any]:
     episode_steps = sum(process.fresh_steps) / max(1, len(process.fresh_steps))
-    crude = (splitting.crude_steps_for(est.estimate, est.relative_halfwidth, episode_steps, spec.level)
+    crude = (intervals.crude_steps_for(est.estimate, est.relative_halfwidth, episode_steps, spec.level)
              if est.estimate > 0 and math.isfinite(est.relative_halfwidth) and est.relative_halfwidth > 0
              else math.nan)  # a zero-width interval (runs that agree exactly) has no crude equivalent
     if len(runs) < FEW_RUNS:

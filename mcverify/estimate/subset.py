@@ -50,6 +50,7 @@ import numpy as np
 from scipy import stats as sps
 
 from mcverify import files
+from mcverify.analysis import intervals
 
 
 class Problem(Protocol):
@@ -338,15 +339,6 @@ class Estimate:
         return self.crude_steps / self.steps if self.steps else math.nan
 
 
-def crude_steps_for(p: float, relative_halfwidth: float, steps_per_episode: float, level: float = 0.95) -> float:
-    """Control steps crude Monte Carlo needs for the same relative half-width at ``p`` (normal
-    approximation: z^2 (1 - p) / (p r^2) episodes of ``steps_per_episode`` steps)."""
-    if not (p > 0 and relative_halfwidth > 0):
-        return math.nan
-    z = float(sps.norm.ppf(0.5 + level / 2))
-    return z * z * (1.0 - p) / (p * relative_halfwidth**2) * steps_per_episode
-
-
 #: Below this estimate a t interval wants at least RARE_RUNS runs: at p = 1e-6 on the surrogate a run that keeps a
 #: route the intermediate levels nearly lose reads several times p and most runs read under it, so 10 runs per
 #: interval covered 82 %, 20 runs 88 % and 30 runs 92 % (docs/decisions.md, "Subset simulation on the surrogate").
@@ -376,7 +368,7 @@ def from_runs(runs: list[Run], crude_episode_steps: float, level: float = 0.95) 
                         "(the runs' estimates are skewed there: on the surrogate at 1e-6, 10 runs covered 82 %, 30 "
                         f"runs 92 %), use --replicates {RARE_RUNS} or more")
     within = float(np.mean([r.cov for r in runs if not r.capped])) / math.sqrt(kept.size)
-    crude = crude_steps_for(mean, rel, crude_episode_steps, level)
+    crude = intervals.crude_steps_for(mean, rel, crude_episode_steps, level)
     return Estimate(mean, max(0.0, mean - half), mean + half, level, rel, tuple(values.tolist()), within,
                     evaluations, steps, crude, warnings=tuple(warnings))
 

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from synthetic_walk import Walk
 
+from mcverify.analysis import intervals
 from mcverify.estimate import splitting
 
 WALK = Walk(drift=-0.05, sigma=0.3, horizon=60)
@@ -101,7 +102,7 @@ def test_coverage_large_rare():
     assert coverage >= 0.90, coverage
     assert abs(bias) < 0.05 and rel_err < 0.2
     mean_rel = float(np.mean([r.relative_halfwidth for r in results]))
-    crude = splitting.crude_steps_for(p, mean_rel, WALK.horizon)
+    crude = intervals.crude_steps_for(p, mean_rel, WALK.horizon)
     assert crude / np.mean([r.steps for r in results]) > 5
 
 

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from scipy.special import ndtr
 
+from mcverify.analysis import intervals
 from mcverify.estimate import subset
 from mcverify.estimate.surrogate import Surrogate
 
@@ -142,9 +143,9 @@ def test_the_gamma_factor_of_au_and_beck():
 
 def test_crude_steps_for_the_same_width():
     # z^2 (1 - p) / (p r^2) episodes: at p = 1e-4 and r = 0.3, about 4.27e5 episodes
-    assert subset.crude_steps_for(1e-4, 0.3, 100.0) == pytest.approx(1.96**2 * (1 - 1e-4) / (1e-4 * 0.09) * 100,
+    assert intervals.crude_steps_for(1e-4, 0.3, 100.0) == pytest.approx(1.96**2 * (1 - 1e-4) / (1e-4 * 0.09) * 100,
                                                                       rel=1e-3)
-    assert math.isnan(subset.crude_steps_for(0.0, 0.3, 100.0))
+    assert math.isnan(intervals.crude_steps_for(0.0, 0.3, 100.0))
 
 
 @pytest.mark.parametrize("options", [{"p0": 0.7}, {"n": 15, "p0": 0.1}, {"n": 105, "p0": 0.1},
