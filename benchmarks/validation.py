@@ -13,6 +13,9 @@ Inputs, all of one cell and one target event:
   ``group`` runs. Each repetition is exactly the estimate ``--replicates group`` would return (the
   mean of independent unbiased runs with its Student t interval), so the pool gives many independent
   repetitions of that estimator;
+- **subset** folders (``mcverify estimate --method subset``, distinct seeds, one setting of samples per
+  stage and performance function per pool): pooled and cut into repetitions of ``group`` runs as splitting's
+  are, each exactly the estimate ``--replicates group`` would return (the t interval on the runs);
 - **importance** folders (``mcverify estimate --method importance``, distinct seeds): one estimate each;
 - **crude Monte Carlo with sequential stopping** (``--sequential H``): the reference's own episodes,
   in their pre-assigned order, cut into consecutive runs of ``mcverify estimate --method mc
@@ -54,6 +57,7 @@ from mcverify.cli import options
 from mcverify.errors import RunError
 from mcverify.estimate import splitting
 from mcverify.estimate.folder import ESTIMATE
+from mcverify.requirements import PERFORMANCES
 
 
 @dataclass(frozen=True)
@@ -226,50 +230,63 @@ def _check_seeds(manifests: Sequence[dict[str, Any]], dirs: Sequence[Path], ref:
             raise RunError(f"{d} estimates another model than the reference: {shown}")
 
 
-def pooled_runs(dirs: Sequence[Path], ref: Reference) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-    """(estimate, control steps, CPU seconds) of every AMS run of the splitting folders ``dirs``
-    (folders in the order given, runs in replicate order; a folder's cost is split evenly over its
-    runs) and the runs' settings (particles, score), which must be the same in every folder."""
+#: The replicated estimators whose runs are pooled, and the settings every folder of one pool must share.
+POOLED_SETTINGS = {"splitting": ("particles", "score"), "subset": ("samples", "performance")}
+
+
+def _pool_settings(method: str, spec: dict[str, Any]) -> tuple[Any, ...]:
+    if method == "splitting":
+        return int(spec["particles"]), str(spec.get("score"))
+    return int(spec["samples"]), str(spec.get("performance") or PERFORMANCES[0])  # older folders: the robustness
+
+
+def pooled_runs(dirs: Sequence[Path], ref: Reference, method: str = "splitting"
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+    """(estimate, control steps, CPU seconds) of every run of the ``method`` folders ``dirs`` (splitting's AMS
+    runs or subset simulation's runs; folders in the order given, runs in replicate order; a folder's cost is
+    split evenly over its runs) and the runs' settings (:data:`POOLED_SETTINGS`), the same in every folder."""
     values, steps, cpu, manifests, settings = [], [], [], [], set()
     for d in dirs:
-        manifest, cell = _estimate_folder(d, "splitting", ref)
+        manifest, cell = _estimate_folder(d, method, ref)
         manifests.append(manifest)
-        runs = cell["runs"]
+        runs = [math.nan if v is None else v for v in cell["runs"]]
         values.extend(runs)
         steps.extend([cell["steps"] / len(runs)] * len(runs))
         cpu.extend([cell["cpu_s"] / len(runs)] * len(runs))
-        spec = store.read_json(Path(d) / ESTIMATE)["spec"]
-        settings.add((int(spec["particles"]), str(spec.get("score"))))
+        settings.add(_pool_settings(method, store.read_json(Path(d) / ESTIMATE)["spec"]))
     _check_seeds(manifests, dirs, ref)
+    names = POOLED_SETTINGS[method]
     if len(settings) != 1:
-        raise RunError(f"the splitting folders differ in (particles, score): {sorted(settings)}; pool one at a time")
-    particles, score = settings.pop()
+        raise RunError(f"the {method} folders differ in ({', '.join(names)}): {sorted(settings)}; pool one at a time")
     return (np.asarray(values, float), np.asarray(steps, float), np.asarray(cpu, float),
-            {"particles": particles, "score": score})
+            dict(zip(names, settings.pop(), strict=True)))
 
 
-def splitting_repetitions(dirs: Sequence[Path], ref: Reference, group: int, level: float = 0.95
-                          ) -> list[Repetition]:
-    """The pooled AMS runs of ``dirs`` cut into consecutive repetitions of ``group`` runs (a short
-    remainder is dropped), each with the Student t interval of :func:`splitting.from_runs`."""
+def pooled_repetitions(dirs: Sequence[Path], ref: Reference, group: int, level: float = 0.95,
+                       method: str = "splitting") -> list[Repetition]:
+    """The pooled runs of ``dirs`` cut into consecutive repetitions of ``group`` runs (a short remainder is
+    dropped), each with the Student t interval on its runs (:func:`splitting.t_interval`, the interval
+    ``mcverify estimate --replicates group`` reports for splitting and subset simulation alike)."""
     if group < 2:
         raise RunError(f"--group must be at least 2 (a t interval needs 2 runs), got {group}")
-    values, steps, cpu, _ = pooled_runs(dirs, ref)
+    values, steps, cpu, _ = pooled_runs(dirs, ref, method)
     if values.size < group:
-        raise RunError(f"--group {group} (AMS runs per repetition; 4 unless given) is more than the {values.size} runs "
-                       "the splitting folders hold: give more folders or a smaller --group")
+        raise RunError(f"--group {group} (runs per repetition; 4 unless given) is more than the {values.size} runs "
+                       f"the {method} folders hold: give more folders or a smaller --group")
     reps = []
     for start in range(0, values.size - group + 1, group):
         part = slice(start, start + group)
         mean, low, high, _, warnings = splitting.t_interval(values[part], level)
-        reps.append(Repetition(mean, low, high, float(steps[part].sum()), float(cpu[part].sum()), warnings))
+        reps.append(Repetition(mean, low, high, float(steps[part].sum()), float(cpu[part].sum()),
+                               warnings if method == "splitting" else []))
     return reps
 
 
-def pooled_summary(dirs: Sequence[Path], ref: Reference) -> dict[str, Any]:
-    """The runs taken one by one: each is unbiased, so their mean, with its standard error, checks the
-    bias of splitting on this cell without any interval; and how many runs estimate 0."""
-    values, steps, cpu, settings = pooled_runs(dirs, ref)
+def pooled_summary(dirs: Sequence[Path], ref: Reference, method: str = "splitting") -> dict[str, Any]:
+    """The runs taken one by one: each is unbiased (splitting) or nearly so (subset simulation, a bias of
+    order 1/N), so their mean, with its standard error, checks the estimator's bias on this cell without any
+    interval; and how many runs estimate 0."""
+    values, steps, cpu, settings = pooled_runs(dirs, ref, method)
     ok = np.isfinite(values)  # a run stopped by --max-iterations is no estimate (stored as null)
     capped = int((~ok).sum())
     values, steps, cpu = values[ok], steps[ok], cpu[ok]
@@ -280,7 +297,7 @@ def pooled_summary(dirs: Sequence[Path], ref: Reference) -> dict[str, Any]:
     # crude Monte Carlo needs per step of splitting for the same width (> 1: splitting is cheaper).
     splitting_work = (sd / ref.p) ** 2 * float(steps.mean())
     crude_work = (1 - ref.p) / ref.p * ref.mean_episode_steps
-    return {"runs": int(values.size), "capped_runs": capped, **settings, "mean": float(values.mean()),
+    return {"method": method, "runs": int(values.size), "capped_runs": capped, **settings, "mean": float(values.mean()),
             "standard_error": se,
             "bias": float(values.mean() / ref.p - 1), "bias_standard_error": se / ref.p,
             "zero_runs": int(np.sum(values == 0)), "steps_per_run": float(steps.mean()),
@@ -360,23 +377,23 @@ def _interval(k: int, n: int, level: float) -> list[float]:
 
 def run(reference_dir: Path, *, splitting_pools: Sequence[Sequence[Path]] = (),
         importance_dirs: Sequence[Path] = (), groups: Sequence[int] = (4,), level: float = 0.95,
-        sequential: Sequence[tuple[float, bool]] = ()) -> dict[str, Any]:
+        sequential: Sequence[tuple[float, bool]] = (), subset_pools: Sequence[Sequence[Path]] = ()) -> dict[str, Any]:
     """The measurements described in the module docstring, as plain data: ``estimators`` holds one
-    row per (estimator, runs per repetition); each splitting pool (folders of one setting) gives its rows."""
+    row per (estimator, runs per repetition); each splitting or subset pool (folders of one setting) gives its
+    rows, and its runs one by one go to ``pooled_runs``."""
     sequence = reference_sequence(reference_dir)
     ref = _reference(reference_dir, sequence, level)
     reference = {k: v for k, v in asdict(ref).items() if k != "params"}  # the model is the manifest's
-    out: dict[str, Any] = {"reference": reference, "level": level, "estimators": [], "splitting_runs": [],
+    out: dict[str, Any] = {"reference": reference, "level": level, "estimators": [], "pooled_runs": [],
                            "commit": provenance.environment_info().get("git_commit")}
-    for dirs in splitting_pools:
-        pooled = pooled_summary(dirs, ref)
-        out["splitting_runs"].append(pooled)
+    pools = [("splitting", dirs) for dirs in splitting_pools] + [("subset", dirs) for dirs in subset_pools]
+    for method, dirs in pools:
+        pooled = pooled_summary(dirs, ref, method)
+        out["pooled_runs"].append(pooled)
         for group in groups:
-            reps = splitting_repetitions(dirs, ref, group, level)
-            out["estimators"].append({"estimator": f"splitting ({pooled['score']}), {group} runs of "
-                                                   f"{pooled['particles']} particles",
-                                      "method": "splitting", "runs_per_repetition": group,
-                                      **summarise(reps, ref, level)})
+            reps = pooled_repetitions(dirs, ref, group, level, method)
+            out["estimators"].append({"estimator": _pool_name(pooled, group), "method": method,
+                                      "runs_per_repetition": group, **summarise(reps, ref, level)})
     if importance_dirs:
         reps = importance_repetitions(importance_dirs, ref)
         out["estimators"].append({"estimator": "importance", "method": "importance", **summarise(reps, ref, level)})
@@ -391,8 +408,15 @@ def run(reference_dir: Path, *, splitting_pools: Sequence[Sequence[Path]] = (),
         out["estimators"].append({"estimator": f"mc, stopped at half-width {width}", "method": "mc",
                                   "halfwidth": halfwidth, "relative": relative, **summarise(reps, ref, level)})
     if not out["estimators"]:
-        raise RunError("give at least one --splitting, --importance or --sequential to check against the reference")
+        raise RunError("give at least one --splitting, --subset, --importance or --sequential to check against the "
+                       "reference")
     return out
+
+
+def _pool_name(pooled: dict[str, Any], group: int) -> str:
+    if pooled["method"] == "splitting":
+        return f"splitting ({pooled['score']}), {group} runs of {pooled['particles']} particles"
+    return f"subset ({pooled['performance']}), {group} runs of {pooled['samples']} per stage"
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -402,10 +426,13 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--splitting", type=Path, nargs="+", action="append", default=[], metavar="DIR",
                    help="splitting estimate folders of the same cell, target, particles and score, distinct seeds "
                    "(repeat the option for another pool, e.g. another score)")
+    p.add_argument("--subset", type=Path, nargs="+", action="append", default=[], metavar="DIR",
+                   help="subset simulation estimate folders of the same cell, target, samples per stage and "
+                   "performance function, distinct seeds (repeat the option for another pool)")
     p.add_argument("--importance", type=Path, nargs="+", default=[], metavar="DIR",
                    help="importance estimate folders of the same cell and target, distinct seeds")
     p.add_argument("--group", type=options.positive_int, nargs="+", default=[4], metavar="R",
-                   help="splitting: AMS runs per repetition (the estimator's --replicates), one row per value "
+                   help="splitting, subset: runs per repetition (the estimator's --replicates), one row per value "
                    "(default 4)")
     p.add_argument("--sequential", type=options.halfwidth, nargs="+", default=[], metavar="H",
                    help="crude Monte Carlo with sequential stopping: the reference's episodes cut into consecutive "
@@ -423,7 +450,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     def body() -> int:
         args = _parser().parse_args(argv)
         res = run(args.reference, splitting_pools=args.splitting, importance_dirs=args.importance,
-                  groups=args.group, sequential=args.sequential)
+                  groups=args.group, sequential=args.sequential, subset_pools=args.subset)
         if args.json:
             files.write_json_atomic(args.json, res)
         if args.figure:

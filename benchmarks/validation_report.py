@@ -48,23 +48,31 @@ def markdown(res: dict[str, Any], command: str) -> str:
         lines += ["", "- mc rows: consecutive runs of `mcverify estimate --method mc --until-halfwidth H` over the "
                   "reference's own episodes in their pre-assigned order, each checked against the reference without "
                   "its episodes (leave-out, independent of it); CPU is not split per run (-)."]
-    if res["splitting_runs"]:
+    pools = res["pooled_runs"]
+    if pools:
         lines.append("")
-    for pooled in res["splitting_runs"]:
-        lines.append(f"- splitting ({pooled['score']}), the {pooled['runs']} AMS runs of {pooled['particles']} "
-                     f"particles one by one (each unbiased): mean {pooled['mean']:.4f} "
-                     f"± {pooled['standard_error']:.4f} (s.e.), bias {pooled['bias']:+.1%} "
-                     f"± {pooled['bias_standard_error']:.1%} against the reference; "
-                     f"{pooled['zero_runs']} runs estimate 0"
-                     + (f", {pooled['capped_runs']} stopped by --max-iterations left out" if pooled.get("capped_runs")
-                        else "") + "; relative standard deviation of a run "
-                     f"{pooled['run_relative_sd']:.2f}; {pooled['steps_per_run']:,.0f} control steps and "
-                     f"{pooled['cpu_s_per_run']:.0f} CPU-s per run; for the same width crude Monte Carlo needs "
-                     f"{pooled['steps_ratio_vs_crude']:.2f}x the control steps (from the runs' variance)")
+    lines += [_pooled_line(pooled) for pooled in pools]
     if res.get("importance"):
         lines += ["", _importance_line(res["importance"])]
     lines += ["", END_MARK, ""]
     return "\n".join(lines)
+
+
+def _pooled_line(pooled: dict[str, Any]) -> str:
+    """One pool's runs taken one by one."""
+    if pooled["method"] == "splitting":
+        what = (f"splitting ({pooled['score']}), the {pooled['runs']} AMS runs of {pooled['particles']} particles one "
+                "by one (each unbiased)")
+    else:
+        what = (f"subset ({pooled['performance']}), the {pooled['runs']} runs of {pooled['samples']} per stage one by "
+                "one (each biased by order 1/N at most)")
+    return (f"- {what}: mean {pooled['mean']:.4f} ± {pooled['standard_error']:.4f} (s.e.), bias {pooled['bias']:+.1%} "
+            f"± {pooled['bias_standard_error']:.1%} against the reference; {pooled['zero_runs']} runs estimate 0"
+            + (f", {pooled['capped_runs']} stopped by --max-iterations left out" if pooled.get("capped_runs") else "")
+            + f"; relative standard deviation of a run {pooled['run_relative_sd']:.2f}; "
+            f"{pooled['steps_per_run']:,.0f} control steps and {pooled['cpu_s_per_run']:.0f} CPU-s per run; for the "
+            f"same width crude Monte Carlo needs {pooled['steps_ratio_vs_crude']:.2f}x the control steps (from the "
+            "runs' variance)")
 
 
 def _importance_line(imp: dict[str, Any]) -> str:

@@ -1,6 +1,6 @@
 """``python -m benchmarks.validation``: the reference is the gap-free prefix of a crude estimate folder, the
-splitting runs are pooled into repetitions that equal the estimator's own interval, and folders that
-do not belong together are refused with one line."""
+splitting and subset simulation runs are pooled into repetitions that equal the estimator's own interval, and
+folders that do not belong together are refused with one line."""
 
 from __future__ import annotations
 
@@ -61,7 +61,7 @@ def test_pooled_runs_give_the_estimators_own_intervals(tmp_path):
     _splitting(tmp_path / "s1", 11, [0.1, 0.3, 0.2])
     _splitting(tmp_path / "s2", 12, [0.25, 0.0, 0.4, 0.9])
     ref = validation.reference(tmp_path / "ref")
-    reps = validation.splitting_repetitions([tmp_path / "s1", tmp_path / "s2"], ref, group=2)
+    reps = validation.pooled_repetitions([tmp_path / "s1", tmp_path / "s2"], ref, group=2)
     pooled = [0.1, 0.3, 0.2, 0.25, 0.0, 0.4, 0.9]
     assert len(reps) == 3  # the seventh run is a short remainder, dropped
     for rep, start in zip(reps, (0, 2, 4), strict=True):
@@ -90,29 +90,29 @@ def test_folders_that_do_not_belong_together_are_refused(tmp_path):
     _splitting(tmp_path / "c", 6, [0.1, 0.2], target="collision")
     ref = validation.reference(tmp_path / "ref")
     with pytest.raises(RunError, match="same seed 5"):
-        validation.splitting_repetitions([tmp_path / "a", tmp_path / "b"], ref, group=2)
+        validation.pooled_repetitions([tmp_path / "a", tmp_path / "b"], ref, group=2)
     with pytest.raises(RunError, match="estimates 'collision'"):
-        validation.splitting_repetitions([tmp_path / "c"], ref, group=2)
+        validation.pooled_repetitions([tmp_path / "c"], ref, group=2)
     with pytest.raises(RunError, match="not a crude Monte Carlo estimate"):
         validation.reference(tmp_path / "a")
     with pytest.raises(RunError, match="at least 2"):
-        validation.splitting_repetitions([tmp_path / "a"], ref, group=1)
+        validation.pooled_repetitions([tmp_path / "a"], ref, group=1)
     _splitting(tmp_path / "d", 7, [0.1, 0.2], score="h_ef_held")
     with pytest.raises(RunError, match="differ in"):
-        validation.splitting_repetitions([tmp_path / "a", tmp_path / "d"], ref, group=2)
+        validation.pooled_repetitions([tmp_path / "a", tmp_path / "d"], ref, group=2)
     with pytest.raises(RunError, match="more than the 2 runs"):
-        validation.splitting_repetitions([tmp_path / "a"], ref, group=3)
+        validation.pooled_repetitions([tmp_path / "a"], ref, group=3)
     # the reference's own seed: the estimator's episodes would replay the reference's
     _splitting(tmp_path / "e", 1, [0.1, 0.2])
     with pytest.raises(RunError, match="reference's seed 1"):
-        validation.splitting_repetitions([tmp_path / "e"], ref, group=2)
+        validation.pooled_repetitions([tmp_path / "e"], ref, group=2)
     # another model (a --set change): refused; a field the reference lacks (added later) is not compared
     _splitting(tmp_path / "f", 8, [0.1, 0.2], params={"barrier": {"epsilon": 0.3}, "noise": {"scale": 2.0}})
     with pytest.raises(RunError, match=r"another model than the reference: barrier.epsilon = 0.3 \(reference 0.1\)"):
-        validation.splitting_repetitions([tmp_path / "f"], ref, group=2)
+        validation.pooled_repetitions([tmp_path / "f"], ref, group=2)
     _splitting(tmp_path / "g", 9, [0.1, 0.2], params={"barrier": {"epsilon": 0.1}, "noise": {"scale": 2.0},
                                                       "mpc": {"ipm_central_attempt": "off"}})
-    assert len(validation.splitting_repetitions([tmp_path / "g"], ref, group=2)) == 1
+    assert len(validation.pooled_repetitions([tmp_path / "g"], ref, group=2)) == 1
 
 
 def test_cli_writes_the_section_and_refuses_bad_input_in_one_line(tmp_path, capsys):
@@ -206,3 +206,32 @@ def test_importance_repetitions_and_their_diagnostics(tmp_path, capsys):
     assert ("- importance, the 3 estimates: failing samples per estimate median 12 (4-20), their effective sample "
             "size median 10.5 (3.0-17.0); the one-sided anytime-valid lower bound is at or below p in 2 of 3 "
             "(median 0.1000)") in text
+
+
+def _subset(out: Path, seed: int, runs: list[float], performance: str = "margin-ladder", samples: int = 200) -> None:
+    # as subset simulation writes it: the target is in the spec and in the cell
+    _manifest(out, "subset", seed=seed)
+    spec = {"method": "subset", "samples": samples, "performance": performance}
+    files.write_json_atomic(out / ESTIMATE, {"spec": spec, "cells": [
+        {"cell": "all", "target": "ellipse", "runs": runs, "steps": 1000 * len(runs), "cpu_s": 60.0 * len(runs)}]})
+
+
+def test_subset_runs_are_pooled_into_the_estimators_own_t_intervals_and_reported(tmp_path, capsys):
+    _reference(tmp_path / "ref", [[True, False, False, False]] * 5)
+    _subset(tmp_path / "u1", 21, [0.2, 0.3, 0.25])
+    _subset(tmp_path / "u2", 22, [0.22, 0.35, 0.18])
+    ref = validation.reference(tmp_path / "ref")
+    reps = validation.pooled_repetitions([tmp_path / "u1", tmp_path / "u2"], ref, group=3, method="subset")
+    assert len(reps) == 2 and all(r.steps == 3000 for r in reps)
+    first = np.array([0.2, 0.3, 0.25])
+    half = 4.302652729911275 * first.std(ddof=1) / 3**0.5  # t(0.975, 2): what --replicates 3 reports
+    assert (reps[0].estimate, reps[0].low, reps[0].high) == pytest.approx((0.25, 0.25 - half, 0.25 + half))
+    _subset(tmp_path / "u3", 23, [0.2, 0.3], performance="robustness")
+    with pytest.raises(RunError, match=r"differ in \(samples, performance\)"):
+        validation.pooled_repetitions([tmp_path / "u1", tmp_path / "u3"], ref, group=2, method="subset")
+    args = [str(tmp_path / "ref"), "--subset", str(tmp_path / "u1"), str(tmp_path / "u2"), "--group", "3",
+            "--no-write"]
+    assert validation.main(args) == 0
+    out = capsys.readouterr().out
+    assert "| subset (margin-ladder), 3 runs of 200 per stage | 2 |" in out
+    assert "- subset (margin-ladder), the 6 runs of 200 per stage one by one" in out
