@@ -370,6 +370,14 @@ def code_line(folders: Sequence[Path]) -> str:
     return "Code, per folder: " + "; ".join(one(f) for f in folders) + "."
 
 
+def _crude_text(crude: Mapping[float, Crude]) -> str:
+    if not crude:
+        return "Crude Monte Carlo: no folder given (no estimate here is checked against it)."
+    seeds = ", ".join(str(seed) for c in crude.values() for seed in c.seeds)
+    return (f"Crude Monte Carlo: `mcverify run` folders (seeds {seeds}), the exact two-sided 95 % Clopper-Pearson "
+            "interval.")
+
+
 def _methods_text(points: Sequence[Estimate]) -> str:
     """What each estimator present did, in one sentence each."""
     def seeds(method: str) -> str:
@@ -410,9 +418,8 @@ def build(points: Sequence[Estimate], crude: Mapping[float, Crude], parameter: s
         f"## The rare cell by continuation along {parameter} (`python -m benchmarks.continuation`)", "",
         section.provenance_line(cmd), "",
         f"Cell: campaign {campaign['name']} ({campaign['source']}) with {parameter} moved; target "
-        f"{points[0].target}. Crude Monte Carlo: `mcverify run` folders (seeds "
-        f"{', '.join(str(seed) for c in crude.values() for seed in c.seeds) or '–'}), the exact two-sided 95 % "
-        f"Clopper-Pearson interval. {_methods_text(points)} Crude steps, same width: z² (1 - p) / (p r²) episodes "
+        f"{points[0].target}. {_crude_text(crude)} {_methods_text(points)} Crude steps, same width: z² (1 - p) / "
+        "(p r²) episodes "
         "of a nominal episode's mean length. Agreement: the two intervals overlap; estimates of one value are set "
         "side by side, never averaged. Stratified lower bound: `python -m benchmarks.stratified` folders, crude "
         "Monte Carlo inside boxes of the decisive draws, exact at 95 % (no estimate below it is credible; it cannot "
