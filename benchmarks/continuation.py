@@ -326,9 +326,17 @@ def figure(points: Sequence[Estimate], crude: Mapping[float, Crude], parameter: 
 
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     kinds = list(dict.fromkeys(s.label for s in sorted(points, key=_order)))
+    positive = [v for s in points for v in (s.estimate, s.high) if v > 0] + [
+        v for c in crude.values() for v in (c.rate, c.high) if v > 0] + [b.lower for b in (bounds or {}).values()
+                                                                         if b.lower > 0]
+    floor = min(positive) / 3.0 if positive else 1e-6  # where an estimate of 0 is drawn (a log axis has no 0)
     labelled = set()
     for s in sorted(points, key=lambda p: p.value):
         k = kinds.index(s.label)
+        if not s.estimate > 0:
+            ax.plot([s.value + 0.01 * (1 + 2 * k)], [floor], marker="v", color=f"C{(0, 2, 3, 4, 6, 7)[k % 6]}",
+                    linestyle="none", label=f"{s.label}: estimate 0")
+            continue
         low = max(s.low, s.estimate / 100.0)  # an interval can reach below 0: drawn down to the axis' floor
         ax.errorbar([s.value + 0.01 * (1 + 2 * k)], [s.estimate], yerr=[[s.estimate - low], [s.high - s.estimate]],
                     fmt="o^sdPh"[k % 6], color=f"C{(0, 2, 3, 4, 6, 7)[k % 6]}", capsize=3,

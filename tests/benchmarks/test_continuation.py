@@ -211,7 +211,8 @@ def test_an_extinct_splitting_estimate_shows_no_width_and_its_warning(tmp_path, 
     stored["cells"][0].update(relative_halfwidth=None, crude_steps_same_width=None, runs=[0.0] * 10, low=0.0,
                               high=0.0, warnings=[warning])
     files.write_json_atomic(out / folder.ESTIMATE, stored)  # as the estimator writes it: no width, a warning
-    args = ["--estimate", str(out), "--stratified", str(_bound(tmp_path, 1.1, 5.3e-5)), "--no-write"]
+    args = ["--estimate", str(out), "--stratified", str(_bound(tmp_path, 1.1, 5.3e-5)), "--figure",
+            str(tmp_path / "c.png"), "--no-write"]  # the figure draws the 0 at the axis' floor
     assert continuation.main(args) == 0
     text = capsys.readouterr().out
     row = next(line for line in text.splitlines() if line.startswith("| 1.1 |"))
@@ -220,3 +221,4 @@ def test_an_extinct_splitting_estimate_shows_no_width_and_its_warning(tmp_path, 
     assert "has no width to compare" in text
     assert "- Not credible at 1.1, splitting (score h_ef_run): its interval [0, 0] lies below the stratified lower " \
            "bound 5.3e-05, so it reads low." in text
+    assert (tmp_path / "c.png").stat().st_size > 0
