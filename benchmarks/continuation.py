@@ -18,6 +18,7 @@ but for the parameter."""
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -256,7 +257,7 @@ def _agreement(s: Estimate, c: Crude) -> str:
             f"estimate {'inside' if inside else 'outside'} crude's interval")
 
 
-def _order(s: Estimate) -> tuple[float, int, int, str]:
+def order(s: Estimate) -> tuple[float, int, int, str]:
     """Rows by value (largest first), then method, then what steered it (subset: in the order of
     ``--performance``'s choices)."""
     known = s.method == "subset" and s.steering in PERFORMANCES
@@ -270,7 +271,7 @@ def table(points: Sequence[Estimate], crude: Mapping[float, Crude], parameter: s
             "method (steered by)", "runs", "subset stages", "rel. half-width", "within-run CoV", "control steps",
             "CPU-s", "crude steps, same width", "factor", "against crude"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for s in sorted(points, key=_order):
+    for s in sorted(points, key=order):
         c = crude.get(s.value)
         pooled = f" ({len(c.folders)} runs pooled)" if c and len(c.folders) > 1 else ""
         crude_text = (f"{c.k}/{c.n} = {_g(c.rate)} [{_g(c.low)}, {_g(c.high)}], {c.steps:,} steps{pooled}"
@@ -289,11 +290,10 @@ def table(points: Sequence[Estimate], crude: Mapping[float, Crude], parameter: s
 def disagreements(points: Sequence[Estimate]) -> list[str]:
     """Per value, each pair of estimates whose intervals do not overlap (reported, never averaged)."""
     out = []
-    for i, a in enumerate(sorted(points, key=_order)):
-        for b in sorted(points, key=_order)[i + 1:]:
-            if a.value == b.value and (a.high < b.low or b.high < a.low):
-                out.append(f"at {a.value:g}: {a.label} {_g(a.estimate)} [{_g(a.low)}, {_g(a.high)}] and {b.label} "
-                           f"{_g(b.estimate)} [{_g(b.low)}, {_g(b.high)}] do not overlap.")
+    for a, b in itertools.combinations(sorted(points, key=order), 2):
+        if a.value == b.value and (a.high < b.low or b.high < a.low):
+            out.append(f"at {a.value:g}: {a.label} {_g(a.estimate)} [{_g(a.low)}, {_g(a.high)}] and {b.label} "
+                       f"{_g(b.estimate)} [{_g(b.low)}, {_g(b.high)}] do not overlap.")
     return out
 
 
@@ -301,7 +301,7 @@ def below_bound(points: Sequence[Estimate], bounds: Mapping[float, Stratified]) 
     """Estimates whose whole interval lies under the exact stratified lower bound of their value: they read
     low, whatever their own interval says."""
     return [f"at {s.value:g}, {s.label}: its interval [{_g(s.low)}, {_g(s.high)}] lies below the stratified lower "
-            f"bound {_g(bounds[s.value].lower)}, so it reads low." for s in sorted(points, key=_order)
+            f"bound {_g(bounds[s.value].lower)}, so it reads low." for s in sorted(points, key=order)
             if s.value in bounds and s.high < bounds[s.value].lower]
 
 
@@ -315,56 +315,6 @@ def beyond_crude(s: Estimate) -> str:
             f"({s.relative_halfwidth:.2f}) crude Monte Carlo needs {s.crude_steps:.3g} control steps, about "
             f"{cpu_h:.3g} CPU-hours at this machine's rate, against {s.cpu_s / 3600.0:.2g} for the estimate "
             f"({s.factor:.3g}x).")
-
-
-def figure(points: Sequence[Estimate], crude: Mapping[float, Crude], parameter: str, path: Path,
-           bounds: Mapping[float, Stratified] | None = None) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6.4, 4.2))
-    kinds = list(dict.fromkeys(s.label for s in sorted(points, key=_order)))
-    positive = [v for s in points for v in (s.estimate, s.high) if v > 0] + [
-        v for c in crude.values() for v in (c.rate, c.high) if v > 0] + [b.lower for b in (bounds or {}).values()
-                                                                         if b.lower > 0]
-    floor = min(positive) / 3.0 if positive else 1e-6  # where an estimate of 0 is drawn (a log axis has no 0)
-    labelled = set()
-    for s in sorted(points, key=lambda p: p.value):
-        k = kinds.index(s.label)
-        if not s.estimate > 0:
-            ax.plot([s.value + 0.01 * (1 + 2 * k)], [floor], marker="v", color=f"C{(0, 2, 3, 4, 6, 7)[k % 6]}",
-                    linestyle="none", label=f"{s.label}: estimate 0")
-            continue
-        low = max(s.low, s.estimate / 100.0)  # an interval can reach below 0: drawn down to the axis' floor
-        ax.errorbar([s.value + 0.01 * (1 + 2 * k)], [s.estimate], yerr=[[s.estimate - low], [s.high - s.estimate]],
-                    fmt="o^sdPh"[k % 6], color=f"C{(0, 2, 3, 4, 6, 7)[k % 6]}", capsize=3,
-                    label=None if s.label in labelled else s.label)
-        labelled.add(s.label)
-    crude_labels = set()
-    for c in sorted(crude.values(), key=lambda p: p.value):
-        label = "crude Monte Carlo" if c.k else "crude: upper bound"
-        shown = label if label not in crude_labels else None  # one legend entry per kind of crude point
-        crude_labels.add(label)
-        if c.k:
-            ax.errorbar([c.value - 0.01], [c.rate], yerr=[[c.rate - c.low], [c.high - c.rate]], fmt="X", color="C1",
-                        capsize=3, label=shown)
-        else:
-            ax.plot([c.value - 0.01], [c.high], marker="v", color="C1", label=shown)
-    for i, b in enumerate(sorted((bounds or {}).values(), key=lambda p: p.value)):
-        if b.lower > 0:  # a bound of 0 says nothing and has no place on a log axis
-            ax.plot([b.value - 0.02], [b.lower], marker="^", color="C5", linestyle="none",
-                    label="stratified lower bound" if i == 0 else None)
-    ax.set_yscale("log")
-    ax.set_xlabel(parameter)
-    ax.set_ylabel(f"P({points[0].target})")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize="small")
-    fig.tight_layout()
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 def code_line(folders: Sequence[Path]) -> str:
@@ -417,10 +367,10 @@ def build(points: Sequence[Estimate], crude: Mapping[float, Crude], parameter: s
           campaign: Mapping[str, Any], figure_path: Path | None,
           bounds: Mapping[float, Stratified] | None = None) -> str:
     bounds = bounds or {}
-    alone = [s for s in sorted(points, key=_order) if s.value not in crude]
+    alone = [s for s in sorted(points, key=order) if s.value not in crude]
     values = {s.value for s in points}
     bound_only = [b for b in sorted(bounds.values(), key=lambda p: -p.value) if b.value not in values]
-    folders = [p.folder for p in sorted(points, key=_order)] + [
+    folders = [p.folder for p in sorted(points, key=order)] + [
         f for c in sorted(crude.values(), key=lambda c: -c.value) for f in c.folders]
     return "\n".join([
         f"## The rare cell by continuation along {parameter} (`python -m benchmarks.continuation`)", "",
@@ -434,7 +384,7 @@ def build(points: Sequence[Estimate], crude: Mapping[float, Crude], parameter: s
         "say an estimate reads high).", "",
         table(points, crude, parameter, bounds), "",
         *(f"- Methods disagree {d}" for d in disagreements(points)),
-        *(f"- at {s.value:g}, {s.label} warns: {w}" for s in sorted(points, key=_order) for w in s.warnings),
+        *(f"- at {s.value:g}, {s.label} warns: {w}" for s in sorted(points, key=order) for w in s.warnings),
         *(f"- Not credible {line}" for line in below_bound(points, bounds)),
         *(f"- {beyond_crude(s)}" for s in alone),
         *(f"- at {b.value:g}: stratified lower bound >= {_g(b.lower)} ({_events(b)} in {b.episodes} episodes; "
@@ -477,6 +427,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         crude = pool([c for c, _ in crude_read])
         campaign = store.read_manifest(args.estimate[0])["campaign"]
         if args.figure:
+            from benchmarks.continuation_figure import figure  # noqa: PLC0415 - matplotlib only when drawing
+
             figure(points, crude, args.parameter, args.figure, bounds)
         text = build(points, crude, args.parameter, section.command(NAME, argv), campaign, args.figure, bounds)
         section.publish(NAME, section.wrap(NAME, text, args.section), args)
