@@ -11,7 +11,8 @@
     branching = 4              # children per frontier node and depth
     width = 4                  # frontier nodes kept per depth
     channels = ["front_y"]     # of front_x, front_y, front_v, opp_x, opp_v (default ["front_y"])
-    units = "bang_bang"        # or "uniform": each step's unit per channel (default "bang_bang")
+    units = "bang_bang"        # each step's sign per channel; "held": one sign per channel held through the
+                               # segment; "uniform": each step's value in [-1, 1] (default "bang_bang")
     score = "theorem5"         # the running score nodes are ranked by: "h_front" or "theorem5" (default "h_front")
     front_share = 1.0          # veh_f's share of its noise bounds handed to the adversary (default 1)
     opp_share = 0.0            # veh_o's (default 1)
@@ -34,8 +35,9 @@ from mcverify.errors import CampaignError
 #: Running scores a beam ranks nodes by: ``h_front`` (the lowest h_ef so far) and ``theorem5`` (the lowest
 #: graded Theorem 5 margin so far; +inf before any dual-planner step).
 SCORES: tuple[str, ...] = ("h_front", "theorem5")
-#: How a child's units are drawn per step and channel: a sign, or a uniform value in [-1, 1].
-UNITS: tuple[str, ...] = ("bang_bang", "uniform")
+#: How a child's units are drawn per channel: a sign per step, one sign held through the segment (a sustained
+#: error, which a per-step draw almost never gives over a whole segment), or a uniform value in [-1, 1] per step.
+UNITS: tuple[str, ...] = ("bang_bang", "held", "uniform")
 #: Largest branching and width a table may ask for (a guard against a typo, not a tuned limit).
 MAX_FAN = 1024
 _REQUIRED = ("window_s", "segment_s", "branching", "width")

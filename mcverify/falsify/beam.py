@@ -1,20 +1,23 @@
 """Sequential search over the per-step perception error: a beam search that branches from episode snapshots.
 
-Adaptive-stress-testing style (issue 49): the adversary acts only in a window of control steps
-``[first, last)`` (e.g. around the lane entry and the decision), cut into segments of
-``segment_steps``. The episode runs once, exactly measured, up to the window and is snapshotted
-(:mod:`mcverify.episode.snapshot`). At each depth every frontier node gets ``branching`` children, each
-a draw of the next segment's units (bang-bang signs or uniform values per chosen channel, from a
-generator keyed by (seed, restart, depth, parent rank, child)); a child restores its parent's snapshot and
-simulates only its own segment, so a node costs its own control steps. The root has ``max(branching, width)``
-children so that the first frontier is full: with ``branching = 1`` the beam is ``width`` independent random
-schedules sharing the prefix (the random-schedule baseline at the beam's cost). The ``width`` children with the
-lowest running score (:data:`SCORES`) form the next frontier; the others' snapshots are dropped as soon as
-they fall out, so at most ``2 width + 1`` snapshots are alive (the old frontier and the new). After the
-last segment every frontier node runs to the end of its episode with exact measurement, and its row's
-robustness of the requirement decides. The best node's whole schedule (zeros outside the window) is
-written into an ordinary run folder (:func:`mcverify.falsify.adversary.run_folder`), re-simulated from
-step 0, whose episode ``mcverify replay`` re-simulates bit for bit.
+Adaptive-stress-testing style (issue 49): the adversary acts only in a window of control steps ``[first, last)``
+(e.g. around the lane entry and the decision), cut into segments of ``segment_steps``. The episode runs once,
+exactly measured, up to the window and is snapshotted (:mod:`mcverify.episode.snapshot`). At each depth every
+frontier node gets ``branching`` children, each a draw of the next segment's units (bang-bang signs, signs held
+through the segment, or uniform values per chosen channel, from a generator keyed by (seed, restart, depth,
+parent rank, child)); a child restores its parent's snapshot and simulates only its own segment, so a node costs
+its own control steps. The root has ``max(branching, width)`` children so that the first frontier is full: with
+``branching = 1`` the beam is ``width`` independent random schedules sharing the prefix (the random-schedule
+baseline at the beam's cost). The ``width`` children with the lowest running score (:data:`SCORES`) form the next
+frontier; the others' snapshots are dropped as soon as they fall out, so at most ``2 width + 1`` snapshots are
+alive (the old frontier and the new). After the last segment the frontier nodes run, in rank order, to the end of
+their episodes with exact measurement, and their rows' robustness of the requirement decides. The best node
+always runs; the others run while the caller's allowance of control steps (the budget left) covers another run to
+the time limit, so a beam's cost bound (:meth:`BeamSpec.cost_bound`) counts one such run, not ``width`` (episodes
+usually end at the goal long before the limit, and a bound that counts every node would leave room for fewer
+restarts). The best node's whole schedule (zeros outside the window) is written into an ordinary run folder
+(:func:`mcverify.falsify.adversary.run_folder`), re-simulated from step 0, whose episode ``mcverify replay``
+re-simulates bit for bit.
 
 A requirement that is a running minimum (:data:`DECIDED_IN_PREFIX`: ``ellipse``, ``collision_front``,
 ``safe``, ``theorem5_certified``) is violated for good once a node's prefix violates it, so such a child ends
@@ -109,12 +112,17 @@ class BeamSpec:
         return [min(a + self.segment_steps, self.last_step) - a for a in starts]
 
     def cost_bound(self, steps: int) -> int:
-        """Most control steps the search can simulate on an episode of ``steps`` control steps: the prefix up to
-        the window, every child's segment, and every final frontier node run to the time limit (episodes
-        that end earlier, at the goal or inside the window, cost less). A resume's rebuilding is apart."""
+        """Most control steps the search can simulate on an episode of ``steps`` control steps when its allowance
+        is this bound: the prefix up to the window, every child's segment, and the best final node run to the
+        time limit (the other final nodes run only within a larger allowance; episodes that end earlier, at the
+        goal or inside the window, cost less). A resume's rebuilding is apart."""
         children = self.children_per_depth()
         segments = sum(n * k for n, k in zip(children, self.segment_lengths(), strict=True))
-        return self.first_step + segments + min(self.shape.width, children[-1]) * (steps - self.last_step)
+        return self.first_step + segments + self.tail_steps(steps)
+
+    def tail_steps(self, steps: int) -> int:
+        """Control steps from the window's end to the time limit: the most one final node's run can cost."""
+        return steps - self.last_step
 
     def to_json(self) -> dict[str, Any]:
         """The flat dict ``beam.json`` and ``result.json`` keep: the shape's fields inline, in the key order
@@ -245,17 +253,24 @@ def _children(spec: BeamSpec, node: Node, depth: int, rank: int, cols: list[int]
     for j in range(spec.root_children if depth == 0 else spec.shape.branching):
         rng = np.random.default_rng([spec.seed, spec.restart, depth, rank, j])
         size = (b - a, len(cols))
-        seg = rng.choice([-1.0, 1.0], size=size) if spec.shape.units == "bang_bang" else rng.uniform(-1.0, 1.0, size)
+        if spec.shape.units == "held":
+            seg = np.repeat(rng.choice([-1.0, 1.0], size=(1, len(cols))), b - a, axis=0)
+        elif spec.shape.units == "bang_bang":
+            seg = rng.choice([-1.0, 1.0], size=size)
+        else:
+            seg = rng.uniform(-1.0, 1.0, size)
         units = node.units.copy()
         units[a:b, cols] = seg
         out.append(units)
     return out
 
 
-def search(campaign: Campaign, spec: BeamSpec, folder: Path, *, stop_after_depths: int | None = None,
-           progress: Callable[[str], None] | None = None) -> BeamResult:
+def search(campaign: Campaign, spec: BeamSpec, folder: Path, *, allowance_steps: int | None = None,
+           stop_after_depths: int | None = None, progress: Callable[[str], None] | None = None) -> BeamResult:
     """Run (or resume, from the depth files in ``folder``) the beam search of ``spec`` on ``campaign``'s
-    target; ``stop_after_depths``: raise RunError after that many new depths (a test's interruption)."""
+    target; ``allowance_steps``: the control steps it may spend (None: no limit beyond every final node's
+    run; the caller checks that it covers :meth:`BeamSpec.cost_bound`); ``stop_after_depths``: raise RunError
+    after that many new depths (a test's interruption)."""
     loop = _Loop(campaign, spec)
     try:
         spec.check(loop.steps)
@@ -306,13 +321,26 @@ def search(campaign: Campaign, spec: BeamSpec, folder: Path, *, stop_after_depth
         if progress is not None:
             progress(f"beam depth {depth}/{spec.depths}: best {spec.shape.score} {frontier[0].score:.4g}, "
                      f"{cost} control steps")
-    for node in frontier:  # finish every frontier episode, exactly measured after the window
+    frontier, cost = _finish(loop, spec, frontier, cost, allowance_steps)
+    robs = [rb.robustness(n.row, spec.requirement) for n in frontier]
+    return BeamResult(spec, frontier, robs, cost, rebuild, loop.steps, peak, log)
+
+
+def _finish(loop: _Loop, spec: BeamSpec, frontier: list[Node], cost: int,
+            allowance_steps: int | None) -> tuple[list[Node], int]:
+    """The final frontier's episodes run to their ends (exactly measured after the window), in rank order: the
+    best always, each other while ``allowance_steps`` covers another run to the time limit; the nodes run and
+    the cost after them."""
+    done: list[Node] = []
+    for rank, node in enumerate(frontier):
         if node.row is None:
+            if rank and allowance_steps is not None and cost + spec.tail_steps(loop.steps) > allowance_steps:
+                break
             finished, steps = loop.run(node.units, node.snapshot, None)
             node.row, node.snapshot = finished.row, None
             cost += steps
-    robs = [rb.robustness(n.row, spec.requirement) for n in frontier]
-    return BeamResult(spec, frontier, robs, cost, rebuild, loop.steps, peak, log)
+        done.append(node)
+    return done, cost
 
 
 def _violated(node: Node, requirement: str) -> bool:

@@ -21,13 +21,14 @@ settings are refused rather than ignored.
 The budget: ``--budget N`` is in episode-equivalents (control steps over a whole episode's, the unit every
 method's cost is stated in) and is a ceiling. The beam's cost is bounded before it runs
 (:meth:`BeamSpec.cost_bound`), so a spec whose one beam could exceed the budget is refused up front rather than
-cut short inside a depth (which would leave no frontier to judge). Restarts: while no counterexample is found
-and the budget left covers another beam's bound, the beam restarts under the same seed with a new draw of every
-child (``BeamSpec.restart``; restart r's children are keyed by (seed, r, ...)). A beam's success is a draw of
-its children, so restarts turn a beam that succeeds at rate q into a search that fails only at (1 - q)^restarts.
-The chosen restart is the first with a counterexample, else the one with the lowest robustness. The control
-steps a resume spends rebuilding snapshots are stated apart and do not count against the budget.
-"""
+cut short inside a depth (which would leave no frontier to judge); the bound counts one final node run to the
+time limit, and the others run while the budget left covers another such run (the allowance of
+:func:`mcverify.falsify.beam.search`). Restarts: while no counterexample is found and the budget left covers
+another beam's bound, the beam restarts under the same seed with a new draw of every child (``BeamSpec.restart``;
+restart r's children are keyed by (seed, r, ...)). A beam's success is a draw of its children, so restarts turn a
+beam that succeeds at rate q into a search that fails only at (1 - q)^restarts. The chosen restart is the first
+with a counterexample, else the one with the lowest robustness. The control steps a resume spends rebuilding
+snapshots are stated apart and do not count against the budget. """
 
 from __future__ import annotations
 
@@ -110,8 +111,9 @@ def describe(config: SearchConfig) -> str:
         f"{config.requirement}, seed {config.seed}",
         *_spec_lines(spec, sim.control_period_s, steps),
         f"cost bound: {bound} control steps = {bound / steps:.3g} episode-equivalents per beam (the prefix to the "
-        "window, every child's segment, the final frontier run to the time limit; episodes that end sooner cost "
-        "less); the nodes run one after another in this process",
+        "window, every child's segment, the best final node run to the time limit; the other final nodes run "
+        "while the budget left covers another such run; episodes that end sooner cost less); the nodes run one "
+        "after another in this process",
         f"restarts: at least {config.budget * steps // bound} beam(s) fit the budget; without a counterexample the "
         "beam restarts with new draws while the budget left covers another beam's bound",
         cost.kernels_to_build(campaign.cells).text(),
@@ -171,8 +173,8 @@ def _run(config: SearchConfig, campaign: Campaign, spec: BeamSpec, out_dir: Path
     budget, bound = config.budget * steps, spec.cost_bound(steps)
     restarts: list[RestartSummary] = []
     while not restarts or (restarts[-1].best_robustness >= 0.0 and _spent(restarts) + bound <= budget):
-        restarts.append(_restart(campaign, dataclasses.replace(spec, restart=len(restarts)), out_dir, progress,
-                                 stop_after_depths))
+        restarts.append(_restart(campaign, dataclasses.replace(spec, restart=len(restarts)), out_dir,
+                                 budget - _spent(restarts), progress, stop_after_depths))
     summary = BeamSummary.of(config, campaign, spec, tuple(restarts))
     best_dir = out_dir / BEST
     if best_dir.exists():  # a write cut short before the search was marked finished: re-simulate it whole
@@ -200,15 +202,17 @@ def _spent(restarts: list[RestartSummary]) -> int:
     return sum(r.search_steps for r in restarts)
 
 
-def _restart(campaign: Campaign, spec: BeamSpec, out_dir: Path, progress: Callable[[str], None] | None,
-             stop_after_depths: int | None) -> RestartSummary:
-    """Restart ``spec.restart``: re-read when finished, else run (or resumed from its depth files) and kept."""
+def _restart(campaign: Campaign, spec: BeamSpec, out_dir: Path, allowance_steps: int,
+             progress: Callable[[str], None] | None, stop_after_depths: int | None) -> RestartSummary:
+    """Restart ``spec.restart`` with the budget left, ``allowance_steps``: re-read when finished, else run (or
+    resumed from its depth files) and kept."""
     folder = _restart_dir(out_dir, spec.restart)
     if (folder / RESTART).is_file():
         return RestartSummary.from_json(store.read_json(folder / RESTART))
     if progress is not None and spec.restart:
         progress(f"beam restart {spec.restart}: no counterexample yet, new draws of every child")
-    result = beam.search(campaign, spec, folder, stop_after_depths=stop_after_depths, progress=progress)
+    result = beam.search(campaign, spec, folder, allowance_steps=allowance_steps,
+                         stop_after_depths=stop_after_depths, progress=progress)
 
     def write(tmp: Path) -> None:
         with open(tmp, "wb") as fh:

@@ -27,7 +27,7 @@ def beam_run(tmp_path_factory):
     target = cli_case._campaign(tmp)
     out, said = tmp / "b", []
     trials = bench.run_trials([target], ["beam"], 1, 3, 7, out, progress=said.append)
-    assert said == [f"beam-cli beam trial 0: none in {cli_case.BOUND_STEPS / 30:.3g} episode-equivalents, min "
+    assert said == [f"beam-cli beam trial 0: none in {cli_case.BEAM_STEPS / 30:.3g} episode-equivalents, min "
                     f"robustness {trials[0].min_robustness:.4g}"]
     return target, out, trials
 
@@ -39,7 +39,7 @@ def test_a_beam_trial_is_its_folder_in_episode_equivalents(beam_run, monkeypatch
     summary = beam_folder.read_summary(where)
     assert (trial.target, trial.method, trial.seed, summary.seed, summary.budget) == ("beam-cli", "beam", 7, 7, 3)
     # both frontier episodes time out at step 29 (test_beam.py), so the search spends its whole bound
-    assert trial.episode_equivalents == summary.search_steps / 30 == cli_case.BOUND_STEPS / 30
+    assert trial.episode_equivalents == summary.search_steps / 30 == cli_case.BEAM_STEPS / 30
     assert trial.min_robustness == summary.best_robustness == min(n.robustness for n in summary.frontier)
     assert not trial.counts_episodes and trial.episodes == 0 and trial.curve == ()
     found = trial.min_robustness < 0.0

@@ -108,3 +108,14 @@ def test_each_score_ranks_a_node_by_its_own_running_value(score, expected):
     # before any dual-planner step the margin is NaN: theorem5 ranks such a node last
     fresh = beam._Loop._score(loop, None, {"min_h_front": 0.3, "theorem5_margin": float("nan")})
     assert fresh == {"h_front": 0.3, "theorem5": float("inf")}[score]
+
+
+def test_held_units_keep_one_sign_per_channel_through_each_segment(campaign, tmp_path):
+    """``units = "held"``: a child's segment holds one sign per chosen channel (a sustained error)."""
+    spec = dataclasses.replace(SPEC, shape=dataclasses.replace(SPEC.shape, units="held"))
+    root = beam.Node(np.zeros((30, 5)), 4, 0.0)
+    for depth in (0, 1):
+        for units in beam._children(spec, root, depth, 0, [0, 1]):
+            seg = units[5 + 5 * depth:10 + 5 * depth, :2]
+            assert set(np.unique(seg)) <= {-1.0, 1.0} and (seg == seg[0]).all()
+            assert not np.delete(units, np.s_[5 + 5 * depth:10 + 5 * depth], axis=0).any()

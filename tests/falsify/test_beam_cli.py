@@ -23,8 +23,10 @@ HEAD = ('[campaign]\nname = "beam-cli"\nseed = 3\nepisodes = {episodes}\n'
 # test_beam.py's SPEC in seconds: steps [5, 15), segments of 5, branching 2, width 2 (with --seed 7)
 BEAM = ('[falsify.beam]\nwindow_s = [0.5, 1.5]\nsegment_s = 0.5\nbranching = 2\nwidth = 2\n'
         'channels = ["front_x", "front_y"]\n')
-# the prefix (5 steps), 2 + 4 children of 5 steps, the 2 frontier nodes run from step 15 to the limit (30)
-BOUND_STEPS = 5 + 10 + 20 + 2 * 15
+# the prefix (5 steps), 2 + 4 children of 5 steps, the best frontier node run from step 15 to the limit (30)
+BOUND_STEPS = 5 + 10 + 20 + 15
+# what one beam spends when the budget left covers both frontier nodes' runs (both time out at step 29)
+BEAM_STEPS = 5 + 10 + 20 + 2 * 15
 
 
 def _campaign(tmp_path, beam_table: str = BEAM, episodes: int = 1, extra: str = "") -> str:
@@ -56,14 +58,15 @@ def test_a_beam_search_writes_its_folder_report_and_replayable_best(whole, capsy
     assert [line.split(":")[0] for line in lines if line.startswith("beam depth")] == ["beam depth 1/2",
                                                                                         "beam depth 2/2"]
     summary = beam_folder.read_summary(out)
-    # both frontier episodes time out at step 29 (test_beam.py), so the bound is reached exactly
-    assert summary.search_steps == BOUND_STEPS and summary.episode_equivalents == BOUND_STEPS / 30
+    # both frontier episodes time out at step 29 (test_beam.py), and the budget (90 steps) covers both runs
+    assert summary.search_steps == BEAM_STEPS and summary.episode_equivalents == BEAM_STEPS / 30
+    assert len(summary.restarts[0].frontier) == 2
     assert [d[2] for d in summary.restarts[0].depth_log] == [15, 35] and summary.peak_snapshots <= 5
     row = pq.read_table(out / "best" / "episodes.parquet").to_pylist()[0]
     assert row["min_h_front"] == summary.best_robustness  # ellipse's robustness is min h_ef
     report = (out / "report.md").read_text()
     for part in ("## Restarts", "| 0 (chosen) |", "## Depths of restart 0", "## Final frontier of restart 0",
-                 "(best)", f"{BOUND_STEPS} control steps",
+                 "(best)", f"{BEAM_STEPS} control steps", f"cost bound {BOUND_STEPS} control steps per beam",
                  f"mcverify replay {out / 'best'} 0", f"mcverify replay {out / 'best'} 0 --backend ipopt",
                  "control steps [5, 15) = [0.5, 1.5) s"):
         assert part in report, part
@@ -77,11 +80,11 @@ def test_a_beam_search_writes_its_folder_report_and_replayable_best(whole, capsy
 def test_resume_after_an_interruption_ends_where_the_uninterrupted_search_ends(whole, tmp_path, monkeypatch, capsys):
     real = beam.search
 
-    def interrupted(campaign, spec, out_dir, *, stop_after_depths=None, progress=None):
+    def interrupted(campaign, spec, out_dir, *, allowance_steps=None, stop_after_depths=None, progress=None):
         def cut(line: str) -> None:  # Ctrl-C right after the first depth file is written
             raise KeyboardInterrupt
 
-        return real(campaign, spec, out_dir, progress=cut)
+        return real(campaign, spec, out_dir, allowance_steps=allowance_steps, progress=cut)
 
     out = tmp_path / "cut"
     monkeypatch.setattr(beam, "search", interrupted)
@@ -103,16 +106,16 @@ def test_resume_after_an_interruption_ends_where_the_uninterrupted_search_ends(w
 
 def test_without_a_counterexample_the_beam_restarts_while_the_budget_covers_another_bound(whole, tmp_path,
                                                                                           monkeypatch, capsys):
-    """Budget 5 (150 steps): restart 0 spends its bound (65) and finds nothing, 65 + 65 <= 150 so restart 1 runs
-    with new draws, and 130 + 65 > 150 ends the search. Cut inside restart 1 and resumed, it ends the same."""
+    """Budget 5 (150 steps): restart 0 spends 65 and finds nothing, 65 + the bound 50 <= 150 so restart 1 runs
+    with new draws, and 130 + 50 > 150 ends the search. Cut inside restart 1 and resumed, it ends the same."""
     first = beam_folder.read_summary(whole[0])
     assert first.best_robustness >= 0.0  # the test episode has no counterexample
     real = beam.search
 
-    def cut_in_restart_1(campaign, spec, folder, *, stop_after_depths=None, progress=None):
-        if spec.restart == 1:
-            return real(campaign, spec, folder, stop_after_depths=1)  # RunError after its first depth
-        return real(campaign, spec, folder, progress=progress)
+    def cut_in_restart_1(campaign, spec, folder, *, allowance_steps=None, stop_after_depths=None, progress=None):
+        if spec.restart == 1:  # RunError after its first depth
+            return real(campaign, spec, folder, allowance_steps=allowance_steps, stop_after_depths=1)
+        return real(campaign, spec, folder, allowance_steps=allowance_steps, progress=progress)
 
     out = tmp_path / "restarts"
     monkeypatch.setattr(beam, "search", cut_in_restart_1)
@@ -121,7 +124,7 @@ def test_without_a_counterexample_the_beam_restarts_while_the_budget_covers_anot
     assert cli.main(["falsify", "--resume", str(out)]) == 0
     assert "3 depth(s) already stored" in capsys.readouterr().err  # restart 0's two, restart 1's first
     summary = beam_folder.read_summary(out)
-    assert [r.restart for r in summary.restarts] == [0, 1] and summary.search_steps == 2 * BOUND_STEPS
+    assert [r.restart for r in summary.restarts] == [0, 1] and summary.search_steps == 2 * BEAM_STEPS
     assert summary.restarts[0] == first.restarts[0]  # restart 0 is the budget-3 search, re-read after the cut
     assert summary.restarts[1].frontier != summary.restarts[0].frontier  # new draws of every child
     robs = [r.best_robustness for r in summary.restarts]
@@ -146,6 +149,17 @@ BAD = [
 ]
 
 
+def test_the_other_final_nodes_run_only_while_the_budget_left_covers_a_run(whole, tmp_path):
+    """Budget 2 (60 steps) covers the bound (50): the best final node runs (35 + 15 = 50 steps), the second
+    would need 15 more, beyond 60, so it is not run and the beam ends on the best node alone."""
+    out = tmp_path / "tight"
+    with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(io.StringIO()):
+        assert cli.main([*_args(_campaign(tmp_path), out), "--budget", "2"]) == 0
+    summary, roomy = beam_folder.read_summary(out), beam_folder.read_summary(whole[0])
+    assert summary.search_steps == BOUND_STEPS and len(summary.restarts) == 1
+    assert summary.restarts[0].frontier == roomy.restarts[0].frontier[:1]  # the same beam, its best node only
+
+
 @pytest.mark.parametrize(("table", "kw", "message"), BAD)
 def test_a_bad_beam_campaign_is_one_line(tmp_path, capsys, table, kw, message):
     out = tmp_path / "out"
@@ -156,8 +170,8 @@ def test_a_bad_beam_campaign_is_one_line(tmp_path, capsys, table, kw, message):
 
 
 @pytest.mark.parametrize(("more", "message"), [
-    (["--budget", "2"], "may spend up to 2.17 episode-equivalents (65 control steps of 30 per episode); give "
-                        "--budget 3"),
+    (["--budget", "1"], "may spend up to 1.67 episode-equivalents (50 control steps of 30 per episode); give "
+                        "--budget 2"),
     (["--workers", "2"], "drop --executor and --workers"),
 ])
 def test_a_budget_below_the_bound_and_workers_are_refused(tmp_path, capsys, more, message):
@@ -177,7 +191,7 @@ def test_a_dry_run_describes_the_beam_and_runs_nothing(tmp_path, capsys):
     assert cli.main([*_args(_campaign(tmp_path), out), "--dry-run"]) == 0
     text = capsys.readouterr().out
     for part in ("2 depth(s)", "children per depth (at most): 2, 4 (6 in all)", f"cost bound: {BOUND_STEPS} control "
-                 "steps = 2.17 episode-equivalents", "budget 3 episode-equivalents"):
+                 "steps = 1.67 episode-equivalents", "budget 3 episode-equivalents"):
         assert part in text, part
     assert not out.exists()
     assert cli.main(["run", _campaign(tmp_path), "--dry-run"]) == 0  # run's dry run checks the table too
