@@ -28,7 +28,8 @@ another beam's bound, the beam restarts under the same seed with a new draw of e
 restart r's children are keyed by (seed, r, ...)). A beam's success is a draw of its children, so restarts turn a
 beam that succeeds at rate q into a search that fails only at (1 - q)^restarts. The chosen restart is the first
 with a counterexample, else the one with the lowest robustness. The control steps a resume spends rebuilding
-snapshots are stated apart and do not count against the budget. """
+snapshots are stated apart and do not count against the budget.
+"""
 
 from __future__ import annotations
 

@@ -24,42 +24,31 @@ random's").
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import statistics
 from pathlib import Path
 
 from mcverify.analysis.intervals import one_sided_upper
-
-
-def _restarts(trial: Path) -> list[dict]:
-    return json.loads((trial / "beam" / "result.json").read_text())["restarts"]
-
-
-def _episode_steps(trial: Path) -> int:
-    return int(json.loads((trial / "beam" / "result.json").read_text())["full_episode_steps"])
+from mcverify.falsify import beam_folder
 
 
 def random_schedules(folder: Path) -> tuple[int, int, int, int, int]:
     """(judged schedules, violations, width, the cheapest restart's control steps, trials) over the trials."""
     trials = sorted(folder.glob("trial-[0-9][0-9]"))
-    restarts = [r for trial in trials for r in _restarts(trial)]
-    judged = [r["frontier"] for r in restarts]
-    n, k = sum(map(len, judged)), sum(node["robustness"] < 0.0 for nodes in judged for node in nodes)
-    width = max(map(len, judged))
+    restarts = [r for trial in trials for r in beam_folder.read_summary(trial).restarts]
+    n = sum(len(r.frontier) for r in restarts)
+    k = sum(node.robustness < 0.0 for r in restarts for node in r.frontier)
+    width = max(len(r.frontier) for r in restarts)
     # a restart cut short (by the budget, or at a counterexample) is not a whole restart's cost
-    cheapest = min(r["search_steps"] for r, nodes in zip(restarts, judged, strict=True) if len(nodes) == width)
+    cheapest = min(r.search_steps for r in restarts if len(r.frontier) == width)
     return n, k, width, cheapest, len(trials)
 
 
 def beam_median(folder: Path) -> tuple[float, int, int]:
-    """(median episode-equivalents to the first counterexample, failed trials counted as inf; successes; trials)."""
-    costs = []
-    for trial in sorted(folder.glob("trial-[0-9][0-9]")):
-        restarts = _restarts(trial)
-        found = any(min(node["robustness"] for node in r["frontier"]) < 0.0 for r in restarts)
-        steps = sum(r["search_steps"] for r in restarts)
-        costs.append(steps / _episode_steps(trial) if found else math.inf)
+    """(median episode-equivalents to the first counterexample, failed trials counted as inf; successes; trials),
+    each trial's cost read as benchmarks.falsify reads it (the whole search's, when it found one)."""
+    summaries = [beam_folder.read_summary(trial) for trial in sorted(folder.glob("trial-[0-9][0-9]"))]
+    costs = [s.episode_equivalents if s.best_robustness < 0.0 else math.inf for s in summaries]
     return statistics.median(costs), sum(math.isfinite(c) for c in costs), len(costs)
 
 
@@ -72,7 +61,7 @@ def main() -> None:
     n, k, width, cheapest, trials = random_schedules(root / "random-schedules")
     q_u = one_sided_upper(k, n)
     m = math.ceil(math.log(2.0) / -math.log1p(-q_u))
-    steps = _episode_steps(next((root / "random-schedules").glob("trial-[0-9][0-9]")))
+    steps = beam_folder.read_summary(next((root / "random-schedules").glob("trial-[0-9][0-9]"))).full_episode_steps
     floor_ep_eq = (m - 1) // width * cheapest / steps
     median, found, beam_trials = beam_median(root / "beam")
     print(f"random schedules: {k} violations in {n} judged schedules over {trials} trials ({width} per restart)")

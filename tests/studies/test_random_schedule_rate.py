@@ -10,6 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from mcverify.falsify import beam, beam_folder
+
 SCRIPT = Path(__file__).resolve().parents[2] / "studies" / "t3-ellipse-graze" / "random_schedule_rate.py"
 
 
@@ -21,12 +23,18 @@ def study():
     return module
 
 
+SPEC = beam.BeamSpec(first_step=5, last_step=15, segment_steps=5, requirement="ellipse",
+                     shape=beam.BeamShape(branching=1, width=4))
+
+
 def _trial(folder: Path, restarts: list[tuple[list[float], int]]) -> None:
-    """A trial folder whose result.json holds restarts of (judged robustness values, control steps)."""
+    """A trial folder whose beam/result.json holds restarts of (judged robustness values, control steps)."""
+    summaries = tuple(
+        beam_folder.RestartSummary(i, (), tuple(beam_folder.FrontierNode(r, r, "overtook", 30) for r in robs), 0,
+                                   steps, 0, 9) for i, (robs, steps) in enumerate(restarts))
+    summary = beam_folder.BeamSummary("t.toml", "ellipse", 0, 15, SPEC, 0.1, 100, summaries)
     (folder / "beam").mkdir(parents=True)
-    data = {"full_episode_steps": 100, "restarts": [
-        {"frontier": [{"robustness": r} for r in robs], "search_steps": steps} for robs, steps in restarts]}
-    (folder / "beam" / "result.json").write_text(json.dumps(data))
+    (folder / "beam" / "result.json").write_text(json.dumps(summary.to_json()))
 
 
 def test_schedules_are_counted_per_judged_node_and_only_whole_restarts_give_the_cost(study, tmp_path):
