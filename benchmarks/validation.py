@@ -3,10 +3,11 @@ reference on the closed loop, where crude Monte Carlo can answer (p about 0.01-0
 
 Inputs, all of one cell and one target event:
 
-- the **reference**: a crude Monte Carlo estimate folder (``mcverify estimate --method mc``,
-  finished or stopped). Its gap-free prefix of episodes, in their pre-assigned order, gives k events
-  in n episodes; n was set by the clock or the budget, not by the outcomes, so its interval is the
-  fixed-n Clopper-Pearson one;
+- the **reference**: a crude Monte Carlo folder of one cell, finished or stopped: an estimate folder
+  (``mcverify estimate --method mc``, whose target it is) or a run folder (``mcverify run``, with
+  ``--target``). Its gap-free prefix of episodes, in their pre-assigned order, gives k events in n
+  episodes; n was set by the clock or the budget, not by the outcomes, so its interval is the fixed-n
+  Clopper-Pearson one;
 - **splitting** folders (``mcverify estimate --method splitting``, distinct seeds, one setting of
   particles and score per pool; several pools give several rows): a pool's AMS runs are pooled
   (folders in the order given, runs in replicate order) and cut into consecutive repetitions of
@@ -50,7 +51,7 @@ from benchmarks.validation_report import figure, markdown
 from mcverify import files, provenance, store
 from mcverify.analysis import intervals
 from mcverify.analysis.columns import Columns, floats
-from mcverify.analysis.estimates import ordered_prefix, target_events
+from mcverify.analysis.estimates import TARGETS, ordered_prefix, target_events
 from mcverify.analysis.intervals import proportion_interval
 from mcverify.analysis.sequential import StopRule, sequential_estimate
 from mcverify.cli import options
@@ -104,9 +105,9 @@ def _manifest(run_dir: Path) -> dict[str, Any]:
     return store.read_manifest(Path(run_dir))
 
 
-def reference(run_dir: Path, level: float = 0.95) -> Reference:
-    """The reference of a crude Monte Carlo estimate folder with one cell (see the module docstring)."""
-    return _reference(run_dir, reference_sequence(run_dir), level)
+def reference(run_dir: Path, level: float = 0.95, target: str | None = None) -> Reference:
+    """The reference of a crude Monte Carlo folder with one cell (see the module docstring)."""
+    return _reference(run_dir, reference_sequence(run_dir, target), level)
 
 
 def _reference(run_dir: Path, sequence: tuple[dict[str, Any], str, np.ndarray, np.ndarray, int],
@@ -129,13 +130,13 @@ def _flat(tree: dict[str, Any], prefix: str = "") -> dict[str, Any]:
     return out
 
 
-def reference_sequence(run_dir: Path) -> tuple[dict[str, Any], str, np.ndarray, np.ndarray, int]:
+def reference_sequence(run_dir: Path, target: str | None = None
+                       ) -> tuple[dict[str, Any], str, np.ndarray, np.ndarray, int]:
     """(manifest, target, events, control steps, errors left out) of a crude reference folder: the
-    valid episodes of its gap-free prefix, in their pre-assigned order."""
+    valid episodes of its gap-free prefix, in their pre-assigned order. ``target`` is required for a run
+    folder; an estimate folder's is its own."""
     manifest = _manifest(run_dir)
-    spec = manifest.get("estimate") or {}
-    if spec.get("method") != "mc":
-        raise RunError(f"{run_dir} is not a crude Monte Carlo estimate (mcverify estimate --method mc)")
+    target = _reference_target(run_dir, manifest.get("estimate"), target)
     if len(manifest["cells"]) != 1:
         raise RunError(f"{run_dir} has {len(manifest['cells'])} cells; the reference must have one")
     tables = []
@@ -148,10 +149,24 @@ def reference_sequence(run_dir: Path) -> tuple[dict[str, Any], str, np.ndarray, 
     cols = Columns.from_table(pa.concat_tables(tables, promote_options="default"))
     cols = cols.take(np.argsort(floats(cols, "cell_episode"), kind="stable"))
     m = ordered_prefix(floats(cols, "cell_episode").astype(np.int64))
-    event, valid = target_events(cols, spec["target"])
+    event, valid = target_events(cols, target)
     event, valid = event[:m], valid[:m]
     steps = floats(cols, "steps")[:m][valid]
-    return manifest, spec["target"], event[valid], steps, int(m - valid.sum())
+    return manifest, target, event[valid], steps, int(m - valid.sum())
+
+
+def _reference_target(run_dir: Path, spec: dict[str, Any] | None, target: str | None) -> str:
+    """The event a reference counts: a crude estimate's own target, or ``target`` for a run folder."""
+    if spec is None:
+        if target is None:
+            raise RunError(f"{run_dir} is a run folder (mcverify run): give --target to say which event it counts")
+        return target
+    if spec.get("method") != "mc":
+        raise RunError(f"{run_dir} is a {spec.get('method')} estimate; the reference must be crude Monte Carlo "
+                       "(mcverify estimate --method mc, or a mcverify run folder)")
+    if target is not None and target != spec["target"]:
+        raise RunError(f"{run_dir} estimates {spec['target']!r}; --target {target} asks for another event")
+    return str(spec["target"])
 
 
 def sequential_repetitions(events: np.ndarray, steps: np.ndarray, halfwidth: float, relative: bool = False,
@@ -377,11 +392,12 @@ def _interval(k: int, n: int, level: float) -> list[float]:
 
 def run(reference_dir: Path, *, splitting_pools: Sequence[Sequence[Path]] = (),
         importance_dirs: Sequence[Path] = (), groups: Sequence[int] = (4,), level: float = 0.95,
-        sequential: Sequence[tuple[float, bool]] = (), subset_pools: Sequence[Sequence[Path]] = ()) -> dict[str, Any]:
+        sequential: Sequence[tuple[float, bool]] = (), subset_pools: Sequence[Sequence[Path]] = (),
+        target: str | None = None) -> dict[str, Any]:
     """The measurements described in the module docstring, as plain data: ``estimators`` holds one
     row per (estimator, runs per repetition); each splitting or subset pool (folders of one setting) gives its
     rows, and its runs one by one go to ``pooled_runs``."""
-    sequence = reference_sequence(reference_dir)
+    sequence = reference_sequence(reference_dir, target)
     ref = _reference(reference_dir, sequence, level)
     reference = {k: v for k, v in asdict(ref).items() if k != "params"}  # the model is the manifest's
     out: dict[str, Any] = {"reference": reference, "level": level, "estimators": [], "pooled_runs": [],
@@ -422,7 +438,10 @@ def _pool_name(pooled: dict[str, Any], group: int) -> str:
 def _parser() -> argparse.ArgumentParser:
     p = section.parser("validation", "The rare-event estimators against a crude Monte Carlo reference on one "
                                      "closed-loop cell: coverage, bias, relative error, cost.")
-    p.add_argument("reference", type=Path, help="crude Monte Carlo estimate folder (mcverify estimate --method mc)")
+    p.add_argument("reference", type=Path, help="crude Monte Carlo folder of one cell: an estimate folder "
+                   "(mcverify estimate --method mc) or a run folder (mcverify run, with --target)")
+    p.add_argument("--target", choices=TARGETS, default=None,
+                   help="the event a run-folder reference counts (an estimate folder's is its own)")
     p.add_argument("--splitting", type=Path, nargs="+", action="append", default=[], metavar="DIR",
                    help="splitting estimate folders of the same cell, target, particles and score, distinct seeds "
                    "(repeat the option for another pool, e.g. another score)")
@@ -450,7 +469,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     def body() -> int:
         args = _parser().parse_args(argv)
         res = run(args.reference, splitting_pools=args.splitting, importance_dirs=args.importance,
-                  groups=args.group, sequential=args.sequential, subset_pools=args.subset)
+                  groups=args.group, sequential=args.sequential, subset_pools=args.subset,
+                  target=args.target)
         if args.json:
             files.write_json_atomic(args.json, res)
         if args.figure:

@@ -13,7 +13,8 @@
     channels = ["front_y"]     # of front_x, front_y, front_v, opp_x, opp_v (default ["front_y"])
     units = "bang_bang"        # each step's sign per channel; "held": one sign per channel held through the
                                # segment; "uniform": each step's value in [-1, 1] (default "bang_bang")
-    score = "theorem5"         # the running score nodes are ranked by: "h_front" or "theorem5" (default "h_front")
+    score = "theorem5"         # the running score nodes are ranked by: "h_front", "theorem5" or "safe"
+                               # (default "h_front")
     front_share = 1.0          # veh_f's share of its noise bounds handed to the adversary (default 1)
     opp_share = 0.0            # veh_o's (default 1)
 
@@ -32,9 +33,10 @@ from typing import Any
 from mcverify.campaign.validate import _short
 from mcverify.errors import CampaignError
 
-#: Running scores a beam ranks nodes by: ``h_front`` (the lowest h_ef so far) and ``theorem5`` (the lowest
-#: graded Theorem 5 margin so far; +inf before any dual-planner step).
-SCORES: tuple[str, ...] = ("h_front", "theorem5")
+#: Running scores a beam ranks nodes by: ``h_front`` (the lowest h_ef so far), ``theorem5`` (the lowest graded
+#: Theorem 5 margin so far; +inf before any dual-planner step) and ``safe`` (the requirement's robustness so far:
+#: the footprint gaps to veh_f and veh_o in h_ef's unit beside h_ef, so a beam can act on veh_o's channels).
+SCORES: tuple[str, ...] = ("h_front", "theorem5", "safe")
 #: How a child's units are drawn per channel: a sign per step, one sign held through the segment (a sustained
 #: error, which a per-step draw almost never gives over a whole segment), or a uniform value in [-1, 1] per step.
 UNITS: tuple[str, ...] = ("bang_bang", "held", "uniform")

@@ -20,9 +20,9 @@ restarts). The best node's whole schedule (zeros outside the window) is written 
 re-simulates bit for bit.
 
 A requirement that is a running minimum (:data:`DECIDED_IN_PREFIX`: ``ellipse``, ``collision_front``,
-``safe``, ``theorem5_certified``) is violated for good once a node's prefix violates it, so such a child ends
-the search at once: it runs to the end of its episode and is the counterexample, and the cost to it is the
-search's cost so far (a beam judged only after its last depth would spend the rest for nothing).
+``collision_opp``, ``safe``, ``theorem5_certified``) is violated for good once a node's prefix violates it, so
+such a child ends the search at once: it runs to the end of its episode and is the counterexample, and the cost
+to it is the search's cost so far (a beam judged only after its last depth would spend the rest for nothing).
 
 Every cost is in control steps simulated. Resume: after each depth the frontier (units, end steps,
 scores) and the cost so far go to ``FOLDER/depth-NNN.npz``; a resumed search re-simulates each stored
@@ -172,6 +172,7 @@ def _ellipse_crossed(s: EpisodeSnapshot) -> bool:
 DECIDED_IN_PREFIX: dict[str, Callable[[EpisodeSnapshot], bool]] = {
     "ellipse": _ellipse_crossed,
     "collision_front": lambda s: bool(s.trace.collision_front),
+    "collision_opp": lambda s: bool(s.trace.collision_opp),
     "safe": lambda s: _ellipse_crossed(s) or bool(s.trace.collision_front) or bool(s.trace.collision_opp),
     "theorem5_certified": lambda s: s.state.both_certified_infeasible_steps > 0,
 }
@@ -239,11 +240,28 @@ class _Loop:
         return Node(units, end, self._score(snap, row), snap, row), branching.steps
 
     def _score(self, snap: EpisodeSnapshot | None, row: dict[str, Any] | None) -> float:
-        if self.spec.shape.score == "h_front":
-            value = float(snap.trace.min_h_front) if snap is not None else float(row["min_h_front"])
-        else:
-            value = float(snap.state.theorem5_margin) if snap is not None else float(row["theorem5_margin"])
-        return math.inf if math.isnan(value) else value
+        return running_score(self.spec.shape.score, running_row(snap) if snap is not None else row)
+
+
+def running_row(snap: EpisodeSnapshot) -> dict[str, Any]:
+    """The row columns a score reads, as they stand after the snapshot's step (running minima and flags). veh_o's
+    gap is +inf until veh_o exists, so an episode without veh_o never ranks on it."""
+    tr = snap.trace
+    return {"min_h_front": float(tr.min_h_front), "theorem5_margin": float(snap.state.theorem5_margin),
+            "min_gap_front_m": float(tr.min_gap_front_m), "collision_front": bool(tr.collision_front),
+            "min_gap_opp_any_m": float(tr.min_gap_opp_any_m), "collision_opp": bool(tr.collision_opp),
+            "opposing_kind": "running"}
+
+
+def running_score(score: str, row: dict[str, Any]) -> float:
+    """A node's rank (lower ranks first) under ``score`` (:data:`SCORES`): h_ef's running minimum, the lowest
+    Theorem 5 margin (+inf before any dual-planner step), or ``safe``'s robustness (veh_f's and veh_o's gaps in
+    h_ef's unit beside h_ef, :data:`mcverify.analysis.robustness.SAFE_GAP_SCALE_M`)."""
+    if score == "safe":
+        value = rb.ROBUSTNESS["safe"](row)
+    else:
+        value = float(row["min_h_front" if score == "h_front" else "theorem5_margin"])
+    return math.inf if math.isnan(value) else value
 
 
 def _children(spec: BeamSpec, node: Node, depth: int, rank: int, cols: list[int]) -> list[np.ndarray]:

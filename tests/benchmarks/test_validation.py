@@ -18,18 +18,20 @@ from mcverify.estimate.folder import ESTIMATE
 CAMPAIGN = "toy"
 
 
-def _manifest(out: Path, method: str, seed: int, target: str = "ellipse", params: dict | None = None) -> None:
+def _manifest(out: Path, method: str | None, seed: int, target: str = "ellipse", params: dict | None = None) -> None:
+    """A manifest of one cell; ``method`` None writes a run folder's (no estimate spec)."""
     out.mkdir(parents=True)
     cell = {"index": 0, "name": "all", "params": params or {"barrier": {"epsilon": 0.1}, "noise": {"scale": 2.0}}}
-    files.write_json_atomic(out / store.MANIFEST, {
-        "campaign": {"name": CAMPAIGN, "seed": seed}, "cells": [cell],
-        "estimate": {"method": method, "target": target}})
+    manifest = {"campaign": {"name": CAMPAIGN, "seed": seed}, "cells": [cell]}
+    if method is not None:
+        manifest["estimate"] = {"method": method, "target": target}
+    files.write_json_atomic(out / store.MANIFEST, manifest)
 
 
-def _reference(out: Path, events: list[list[bool]]) -> None:
-    """A crude estimate folder whose chunk i holds 4 episodes with the given ellipse violations; a
-    None chunk is left missing (a gap in the pre-assigned order)."""
-    _manifest(out, "mc", seed=1)
+def _reference(out: Path, events: list[list[bool]], method: str | None = "mc") -> None:
+    """A crude estimate folder (or, with ``method`` None, a run folder) whose chunk i holds 4 episodes
+    with the given ellipse violations; a None chunk is left missing (a gap in the pre-assigned order)."""
+    _manifest(out, method, seed=1)
     for i, chunk_events in enumerate(events):
         if chunk_events is None:
             continue
@@ -54,6 +56,22 @@ def test_reference_is_the_gap_free_prefix(tmp_path):
     # the fourth chunk lies after the gap: not part of the pre-assigned prefix
     assert (ref.n, ref.k, ref.p) == (8, 2, 0.25)
     assert ref.low < 0.25 < ref.high and ref.mean_episode_steps == 80
+
+
+def test_a_run_folder_is_a_reference_for_the_target_named(tmp_path):
+    _reference(tmp_path / "run", [[True, False, False, False], [False, False, True, False]], method=None)
+    ref = validation.reference(tmp_path / "run", target="ellipse")
+    assert (ref.target, ref.n, ref.k) == ("ellipse", 8, 2)
+    assert validation.reference(tmp_path / "run", target="collision").k == 0  # no collision flag in these rows
+    with pytest.raises(RunError, match="give --target"):
+        validation.reference(tmp_path / "run")
+
+
+def test_an_estimate_reference_counts_its_own_target(tmp_path):
+    _reference(tmp_path / "ref", [[True, False, False, False]])
+    assert validation.reference(tmp_path / "ref", target="ellipse").k == 1
+    with pytest.raises(RunError, match="asks for another event"):
+        validation.reference(tmp_path / "ref", target="collision")
 
 
 def test_pooled_runs_give_the_estimators_own_intervals(tmp_path):
@@ -93,7 +111,7 @@ def test_folders_that_do_not_belong_together_are_refused(tmp_path):
         validation.pooled_repetitions([tmp_path / "a", tmp_path / "b"], ref, group=2)
     with pytest.raises(RunError, match="estimates 'collision'"):
         validation.pooled_repetitions([tmp_path / "c"], ref, group=2)
-    with pytest.raises(RunError, match="not a crude Monte Carlo estimate"):
+    with pytest.raises(RunError, match="is a splitting estimate; the reference must be crude Monte Carlo"):
         validation.reference(tmp_path / "a")
     with pytest.raises(RunError, match="at least 2"):
         validation.pooled_repetitions([tmp_path / "a"], ref, group=1)

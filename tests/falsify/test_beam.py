@@ -6,12 +6,14 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import math
 import types
 
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
+from mcverify.analysis import robustness as rb
 from mcverify.campaign.replay import replay
 from mcverify.campaign.spec import campaign_from_dict
 from mcverify.errors import RunError
@@ -108,6 +110,27 @@ def test_each_score_ranks_a_node_by_its_own_running_value(score, expected):
     # before any dual-planner step the margin is NaN: theorem5 ranks such a node last
     fresh = beam._Loop._score(loop, None, {"min_h_front": 0.3, "theorem5_margin": float("nan")})
     assert fresh == {"h_front": 0.3, "theorem5": float("inf")}[score]
+
+
+def _snapshot(gap_opp_m: float, collision_opp: bool = False) -> types.SimpleNamespace:
+    trace = types.SimpleNamespace(min_h_front=0.4, min_gap_front_m=3.0, collision_front=False,
+                                  min_gap_opp_any_m=gap_opp_m, collision_opp=collision_opp)
+    return types.SimpleNamespace(trace=trace, state=types.SimpleNamespace(theorem5_margin=0.2))
+
+
+def test_the_safe_score_ranks_by_the_nearest_of_veh_f_veh_o_and_the_ellipse():
+    """``safe`` ranks a node by the requirement's robustness so far: veh_o's gap counts (in h_ef's unit) once
+    veh_o exists, a contact with it is a violation decided in the prefix, and the final row scores the same way."""
+    scale = rb.SAFE_GAP_SCALE_M
+    assert beam.running_score("safe", beam.running_row(_snapshot(math.inf))) == pytest.approx(0.4)  # no veh_o yet
+    assert beam.running_score("safe", beam.running_row(_snapshot(1.0))) == pytest.approx(1.0 / scale)
+    assert beam.running_score("safe", beam.running_row(_snapshot(0.0, True))) == rb.COLLISION_ROBUSTNESS_M / scale
+    assert beam.DECIDED_IN_PREFIX["collision_opp"](_snapshot(0.0, True))
+    assert not beam.DECIDED_IN_PREFIX["safe"](_snapshot(0.1))
+    row = {"min_h_front": 0.4, "min_gap_front_m": 3.0, "collision_front": False, "min_gap_opp_any_m": 1.0,
+           "collision_opp": False, "opposing_kind": "human"}
+    assert beam.running_score("safe", row) == pytest.approx(1.0 / scale)
+    assert beam.running_score("safe", {**row, "opposing_kind": "none", "min_gap_opp_any_m": math.nan}) == 0.4
 
 
 def test_held_units_keep_one_sign_per_channel_through_each_segment(campaign, tmp_path):
