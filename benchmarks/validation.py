@@ -459,6 +459,7 @@ def _parser() -> argparse.ArgumentParser:
                    "the reference without its episodes; one row per H, and the invalid fixed-n Clopper-Pearson "
                    "stopping beside it")
     section.add_output_options(p)
+    section.add_section_option(p, "validation", "validation_rare for a cell of another p")
     p.add_argument("--json", type=Path, default=None, help="also write every figure as JSON to this file")
     p.add_argument("--figure", type=Path, default=None, metavar="PNG",
                    help="also draw every repetition's interval against the reference into this PNG")
@@ -468,6 +469,7 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     def body() -> int:
         args = _parser().parse_args(argv)
+        section.check_section_name("validation", args.section)
         res = run(args.reference, splitting_pools=args.splitting, importance_dirs=args.importance,
                   groups=args.group, sequential=args.sequential, subset_pools=args.subset,
                   target=args.target)
@@ -475,7 +477,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             files.write_json_atomic(args.json, res)
         if args.figure:
             print(f"figure: {figure(res, args.figure)}", file=sys.stderr)
-        section.publish("validation", markdown(res, section.command("validation", argv)), args)
+        text = section.wrap("validation", markdown(res, section.command("validation", argv)), args.section)
+        section.publish("validation", text, args)
         return 0
 
     return section.run_main("validation", body)

@@ -10,8 +10,6 @@ from typing import Any
 
 from benchmarks import section
 
-BEGIN_MARK, END_MARK = section.markers("validation")
-
 
 def _num(x: float, fmt: str) -> str:
     return format(x, fmt) if math.isfinite(x) else "-"
@@ -23,7 +21,7 @@ def _pct(x: float) -> str:
 
 def markdown(res: dict[str, Any], command: str) -> str:
     ref = res["reference"]
-    lines = [BEGIN_MARK, "", "## Rare events: the estimators against crude Monte Carlo on the closed loop", "",
+    lines = ["## Rare events: the estimators against crude Monte Carlo on the closed loop", "",
              section.provenance_line(command), "",
              f"Cell `{ref['cell']}` of `{ref['campaign']}`, target "
              f"`{ref['target']}`.", "",
@@ -54,7 +52,6 @@ def markdown(res: dict[str, Any], command: str) -> str:
     lines += [_pooled_line(pooled) for pooled in pools]
     if res.get("importance"):
         lines += ["", _importance_line(res["importance"])]
-    lines += ["", END_MARK, ""]
     return "\n".join(lines)
 
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmarks import validation, validation_report
+from benchmarks import section, validation
 from mcverify import files, store
 from mcverify.errors import RunError
 from mcverify.estimate import splitting
@@ -142,10 +142,14 @@ def test_cli_writes_the_section_and_refuses_bad_input_in_one_line(tmp_path, caps
                  "--write", str(bench), "--figure", str(tmp_path / "fig.png")]) == 0
     assert (tmp_path / "fig.png").stat().st_size > 0
     text = bench.read_text()
-    assert "hand-written" in text and validation_report.BEGIN_MARK in text
+    assert "hand-written" in text and section.markers("validation")[0] in text
     assert "| splitting (h_ef), 2 runs of 4 particles | 2 |" in text
     assert "| splitting (h_ef), 4 runs of 4 particles | 1 |" in text
     assert "(h_ef), the 4 AMS runs of 4 particles one by one" in text
+    assert validation.main([str(tmp_path / "ref"), "--splitting", str(tmp_path / "s1"), "--write", str(bench),
+                            "--section", "validation_other"]) == 0
+    again = bench.read_text()
+    assert again.startswith(text.rstrip("\n")) and section.markers("validation", "validation_other")[0] in again
     capsys.readouterr()
     assert validation.main([str(tmp_path / "nowhere"), "--splitting", str(tmp_path / "s1")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
