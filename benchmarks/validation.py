@@ -3,11 +3,11 @@ reference on the closed loop, where crude Monte Carlo can answer (p about 0.01-0
 
 Inputs, all of one cell and one target event:
 
-- the **reference**: a crude Monte Carlo folder of one cell, finished or stopped: an estimate folder
-  (``mcverify estimate --method mc``, whose target it is) or a run folder (``mcverify run``, with
-  ``--target``). Its gap-free prefix of episodes, in their pre-assigned order, gives k events in n
-  episodes; n was set by the clock or the budget, not by the outcomes, so its interval is the fixed-n
-  Clopper-Pearson one;
+- the **reference**: crude Monte Carlo folders of one cell, finished or stopped: estimate folders
+  (``mcverify estimate --method mc``, whose target it is) or run folders (``mcverify run``, with
+  ``--target``). Each folder's gap-free prefix of episodes, in their pre-assigned order, and the folders one
+  after another (distinct seeds: independent episodes) give k events in n episodes; n was set by the clock or
+  the budget, not by the outcomes, so its interval is the fixed-n Clopper-Pearson one;
 - **splitting** folders (``mcverify estimate --method splitting``, distinct seeds, one setting of
   particles and score per pool; several pools give several rows): a pool's AMS runs are pooled
   (folders in the order given, runs in replicate order) and cut into consecutive repetitions of
@@ -66,7 +66,7 @@ class Reference:
     """The crude reference: k events of ``target`` in the first n episodes of ``cell``, p = k / n with
     its Clopper-Pearson interval, and the mean control steps of an episode."""
 
-    run_dir: str
+    run_dirs: tuple[str, ...]
     campaign: str
     cell: str
     target: str
@@ -77,8 +77,21 @@ class Reference:
     high: float
     errors: int
     mean_episode_steps: float
-    seed: int = -1  # the reference's campaign seed: an estimator run with it would replay its episodes
+    seeds: tuple[int, ...] = ()  # the folders' campaign seeds: an estimator run with one would replay its episodes
     params: dict[str, Any] = field(default_factory=dict)  # the cell's model, flattened (dotted keys)
+
+
+@dataclass(frozen=True)
+class CrudeSequence:
+    """The reference's episodes in order: whether each showed ``target``, its control steps, the errors left out,
+    and the first folder's manifest (the cell's)."""
+
+    manifest: dict[str, Any]
+    target: str
+    events: np.ndarray
+    steps: np.ndarray
+    errors: int
+    seeds: tuple[int, ...]
 
 
 @dataclass
@@ -105,19 +118,23 @@ def _manifest(run_dir: Path) -> dict[str, Any]:
     return store.read_manifest(Path(run_dir))
 
 
-def reference(run_dir: Path, level: float = 0.95, target: str | None = None) -> Reference:
-    """The reference of a crude Monte Carlo folder with one cell (see the module docstring)."""
-    return _reference(run_dir, reference_sequence(run_dir, target), level)
+def reference(run_dirs: Path | Sequence[Path], level: float = 0.95, target: str | None = None) -> Reference:
+    """The reference of crude Monte Carlo folders of one cell (see the module docstring)."""
+    dirs = _as_dirs(run_dirs)
+    return _reference(dirs, reference_sequence(dirs, target), level)
 
 
-def _reference(run_dir: Path, sequence: tuple[dict[str, Any], str, np.ndarray, np.ndarray, int],
-               level: float) -> Reference:
-    manifest, target, events, steps, errors = sequence
-    n, k = int(events.size), int(events.sum())
+def _as_dirs(run_dirs: Path | Sequence[Path]) -> list[Path]:
+    return [Path(run_dirs)] if isinstance(run_dirs, str | Path) else [Path(d) for d in run_dirs]
+
+
+def _reference(dirs: Sequence[Path], seq: CrudeSequence, level: float) -> Reference:
+    n, k = int(seq.events.size), int(seq.events.sum())
     ci = proportion_interval(k, n, level)
-    return Reference(str(run_dir), manifest["campaign"]["name"], manifest["cells"][0]["name"], target, n, k,
-                     k / n, ci.low, ci.high, errors, float(np.mean(steps)), int(manifest["campaign"]["seed"]),
-                     _flat(manifest["cells"][0].get("params", {})))
+    cell = seq.manifest["cells"][0]
+    return Reference(tuple(str(d) for d in dirs), seq.manifest["campaign"]["name"], cell["name"], seq.target, n, k,
+                     k / n, ci.low, ci.high, seq.errors, float(np.mean(seq.steps)), seq.seeds,
+                     _flat(cell.get("params", {})))
 
 
 def _flat(tree: dict[str, Any], prefix: str = "") -> dict[str, Any]:
@@ -130,11 +147,29 @@ def _flat(tree: dict[str, Any], prefix: str = "") -> dict[str, Any]:
     return out
 
 
-def reference_sequence(run_dir: Path, target: str | None = None
-                       ) -> tuple[dict[str, Any], str, np.ndarray, np.ndarray, int]:
-    """(manifest, target, events, control steps, errors left out) of a crude reference folder: the
-    valid episodes of its gap-free prefix, in their pre-assigned order. ``target`` is required for a run
-    folder; an estimate folder's is its own."""
+def reference_sequence(run_dirs: Path | Sequence[Path], target: str | None = None) -> CrudeSequence:
+    """The valid episodes of each crude folder's gap-free prefix, in their pre-assigned order, folder after folder.
+    ``target`` is required for run folders; an estimate folder's is its own. The folders must hold one cell, the
+    same in each, with the same target and distinct seeds."""
+    dirs = _as_dirs(run_dirs)
+    parts = [_folder_sequence(d, target) for d in dirs]
+    first = parts[0]
+    for d, part in zip(dirs[1:], parts[1:], strict=True):
+        if part.manifest["campaign"]["name"] != first.manifest["campaign"]["name"] or part.target != first.target:
+            raise RunError(f"{d} counts {part.target!r} of {part.manifest['campaign']['name']!r}; {dirs[0]} counts "
+                           f"{first.target!r} of {first.manifest['campaign']['name']!r}")
+        mine, theirs = (_flat(x.manifest["cells"][0].get("params", {})) for x in (part, first))
+        if mine != theirs:
+            differ = sorted(k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k))
+            raise RunError(f"{d} holds another cell than {dirs[0]} (they differ in {', '.join(differ[:3])})")
+    seeds = tuple(seed for part in parts for seed in part.seeds)
+    if len(set(seeds)) != len(seeds):
+        raise RunError("two reference folders have the same seed: the same episodes; give one of them")
+    return CrudeSequence(first.manifest, first.target, np.concatenate([p.events for p in parts]),
+                         np.concatenate([p.steps for p in parts]), sum(p.errors for p in parts), seeds)
+
+
+def _folder_sequence(run_dir: Path, target: str | None) -> CrudeSequence:
     manifest = _manifest(run_dir)
     target = _reference_target(run_dir, manifest.get("estimate"), target)
     if len(manifest["cells"]) != 1:
@@ -152,7 +187,8 @@ def reference_sequence(run_dir: Path, target: str | None = None
     event, valid = target_events(cols, target)
     event, valid = event[:m], valid[:m]
     steps = floats(cols, "steps")[:m][valid]
-    return manifest, target, event[valid], steps, int(m - valid.sum())
+    return CrudeSequence(manifest, target, event[valid], steps, int(m - valid.sum()),
+                         (int(manifest["campaign"]["seed"]),))
 
 
 def _reference_target(run_dir: Path, spec: dict[str, Any] | None, target: str | None) -> str:
@@ -231,7 +267,7 @@ def _check_seeds(manifests: Sequence[dict[str, Any]], dirs: Sequence[Path], ref:
     seen: dict[int, Path] = {}
     for manifest, d in zip(manifests, dirs, strict=True):
         seed = int(manifest["campaign"]["seed"])
-        if seed == ref.seed:
+        if seed in ref.seeds:
             raise RunError(f"{d} has the reference's seed {seed}: its episodes replay the reference's, so it is "
                            "not an independent check; run the estimator with another --seed")
         if seed in seen:
@@ -390,15 +426,16 @@ def _interval(k: int, n: int, level: float) -> list[float]:
     return [ci.low, ci.high]
 
 
-def run(reference_dir: Path, *, splitting_pools: Sequence[Sequence[Path]] = (),
+def run(reference_dirs: Path | Sequence[Path], *, splitting_pools: Sequence[Sequence[Path]] = (),
         importance_dirs: Sequence[Path] = (), groups: Sequence[int] = (4,), level: float = 0.95,
         sequential: Sequence[tuple[float, bool]] = (), subset_pools: Sequence[Sequence[Path]] = (),
         target: str | None = None) -> dict[str, Any]:
     """The measurements described in the module docstring, as plain data: ``estimators`` holds one
     row per (estimator, runs per repetition); each splitting or subset pool (folders of one setting) gives its
     rows, and its runs one by one go to ``pooled_runs``."""
-    sequence = reference_sequence(reference_dir, target)
-    ref = _reference(reference_dir, sequence, level)
+    dirs = _as_dirs(reference_dirs)
+    sequence = reference_sequence(dirs, target)
+    ref = _reference(dirs, sequence, level)
     reference = {k: v for k, v in asdict(ref).items() if k != "params"}  # the model is the manifest's
     out: dict[str, Any] = {"reference": reference, "level": level, "estimators": [], "pooled_runs": [],
                            "commit": provenance.environment_info().get("git_commit")}
@@ -414,7 +451,7 @@ def run(reference_dir: Path, *, splitting_pools: Sequence[Sequence[Path]] = (),
         reps = importance_repetitions(importance_dirs, ref)
         out["estimators"].append({"estimator": "importance", "method": "importance", **summarise(reps, ref, level)})
         out["importance"] = importance_summary(reps, ref)
-    _, _, events, steps, _ = sequence
+    events, steps = sequence.events, sequence.steps
     for halfwidth, relative in sequential:
         reps = sequential_repetitions(events, steps, halfwidth, relative, level)
         if not reps:
@@ -438,8 +475,9 @@ def _pool_name(pooled: dict[str, Any], group: int) -> str:
 def _parser() -> argparse.ArgumentParser:
     p = section.parser("validation", "The rare-event estimators against a crude Monte Carlo reference on one "
                                      "closed-loop cell: coverage, bias, relative error, cost.")
-    p.add_argument("reference", type=Path, help="crude Monte Carlo folder of one cell: an estimate folder "
-                   "(mcverify estimate --method mc) or a run folder (mcverify run, with --target)")
+    p.add_argument("reference", type=Path, nargs="+", help="crude Monte Carlo folders of one cell, distinct seeds, "
+                   "pooled: estimate folders (mcverify estimate --method mc) or run folders (mcverify run, with "
+                   "--target)")
     p.add_argument("--target", choices=TARGETS, default=None,
                    help="the event a run-folder reference counts (an estimate folder's is its own)")
     p.add_argument("--splitting", type=Path, nargs="+", action="append", default=[], metavar="DIR",

@@ -28,10 +28,11 @@ def _manifest(out: Path, method: str | None, seed: int, target: str = "ellipse",
     files.write_json_atomic(out / store.MANIFEST, manifest)
 
 
-def _reference(out: Path, events: list[list[bool]], method: str | None = "mc") -> None:
+def _reference(out: Path, events: list[list[bool]], method: str | None = "mc", seed: int = 1,
+               params: dict | None = None) -> None:
     """A crude estimate folder (or, with ``method`` None, a run folder) whose chunk i holds 4 episodes
     with the given ellipse violations; a None chunk is left missing (a gap in the pre-assigned order)."""
-    _manifest(out, method, seed=1)
+    _manifest(out, method, seed=seed, params=params)
     for i, chunk_events in enumerate(events):
         if chunk_events is None:
             continue
@@ -65,6 +66,24 @@ def test_a_run_folder_is_a_reference_for_the_target_named(tmp_path):
     assert validation.reference(tmp_path / "run", target="collision").k == 0  # no collision flag in these rows
     with pytest.raises(RunError, match="give --target"):
         validation.reference(tmp_path / "run")
+
+
+def test_reference_folders_of_one_cell_with_distinct_seeds_pool(tmp_path):
+    _reference(tmp_path / "a", [[True, False, False, False], None, [True, True, True, True]], method=None)
+    _reference(tmp_path / "b", [[False, False, True, False], [False] * 4], method=None, seed=2)
+    ref = validation.reference([tmp_path / "a", tmp_path / "b"], target="ellipse")
+    assert (ref.n, ref.k, ref.seeds) == (12, 2, (1, 2))  # a's prefix (4 episodes), then b's 8
+    seq = validation.reference_sequence([tmp_path / "a", tmp_path / "b"], "ellipse")
+    assert seq.events.tolist() == [True, False, False, False] + [False, False, True, False] + [False] * 4
+    _reference(tmp_path / "same", [[False] * 4], method=None)
+    with pytest.raises(RunError, match="same seed"):
+        validation.reference([tmp_path / "a", tmp_path / "same"], target="ellipse")
+    _reference(tmp_path / "other", [[False] * 4], method=None, seed=3, params={"noise": {"scale": 1.0}})
+    with pytest.raises(RunError, match="another cell"):
+        validation.reference([tmp_path / "a", tmp_path / "other"], target="ellipse")
+    _splitting(tmp_path / "s", 2, [0.1, 0.2])  # an estimator with one of the pooled folders' seeds
+    with pytest.raises(RunError, match="reference's seed 2"):
+        validation.pooled_repetitions([tmp_path / "s"], ref, group=2)
 
 
 def test_an_estimate_reference_counts_its_own_target(tmp_path):
