@@ -549,13 +549,17 @@ PEAK_RSS_TEXT = (
     "reports the value kept when it ran, a resumed one that of the run that finished it). It includes the "
     "interpreter, JAX, CasADi and whatever earlier trials left loaded in the benchmark process, so it is the "
     "footprint of running the search, not the search's data alone; a peak shorter than the interval can be missed.")
+def _beam_text(budget: int) -> str:
+    return BEAM_TEXT.format(budget=budget, decided=", ".join(beam.DECIDED_IN_PREFIX))
+
+
 #: What the section says when beam trials ran.
 BEAM_TEXT = (
     "Beam (`--method beam`, a beam search over the per-step error of one scenario): the same budget, {budget}, "
     "read as a ceiling in episode-equivalents on the beam's cost bound (a beam that could exceed it is refused "
     "before it runs). It simulates segments from snapshots rather than episodes one by one, so its episode "
     "columns read –. Its counterexample is the first child whose prefix already violates a running-minimum "
-    "requirement (ellipse, collision_front, safe, theorem5_certified: the search stops there and runs that child to "
+    "requirement ({decided}: the search stops there and runs that child to "
     "its episode's end), else the best final-frontier episode when its robustness is negative; its ep-eq to the "
     "first counterexample is the search's cost up to it, and it is `TRIAL/best` episode 0 (`mcverify replay`). Its "
     "lowest guide is the lowest running score (`[falsify.beam] score`) of the nodes it ended with. The seed of "
@@ -582,7 +586,7 @@ def markdown(trials: Sequence[Trial], *, budget: int, command: str, name: str = 
              "episode-equivalents (ep-eq: control steps simulated up to and including the counterexample's "
              "episode over a whole episode's; an episode that stops early costs less); mean and median over "
              "the successful trials, and the median over all trials with a failed trial counted as beyond "
-             "the budget. " + PEAK_RSS_TEXT, *([""] + [BEAM_TEXT.format(budget=budget)] if beamed else []), "",
+             "the budget. " + PEAK_RSS_TEXT, *([""] + [_beam_text(budget)] if beamed else []), "",
              "| target | method | trials | successes | success rate (95% CI) | mean ep-eq to 1st | "
              "median ep-eq to 1st | median ep-eq to 1st, all trials | median episodes to 1st | "
              "min robustness | episodes spent | ep-eq spent | peak RSS (MB) | confirmed by IPOPT |",
