@@ -173,7 +173,7 @@ DECIDED_IN_PREFIX: dict[str, Callable[[EpisodeSnapshot], bool]] = {
     "ellipse": _ellipse_crossed,
     "collision_front": lambda s: bool(s.trace.collision_front),
     "collision_opp": lambda s: bool(s.trace.collision_opp),
-    "safe": lambda s: _ellipse_crossed(s) or bool(s.trace.collision_front) or bool(s.trace.collision_opp),
+    "safe": lambda s: any(DECIDED_IN_PREFIX[name](s) for name in rb.SAFE_SET),  # the members of the row's safe
     "theorem5_certified": lambda s: s.state.both_certified_infeasible_steps > 0,
 }
 
@@ -245,7 +245,8 @@ class _Loop:
 
 def running_row(snap: EpisodeSnapshot) -> dict[str, Any]:
     """The row columns a score reads, as they stand after the snapshot's step (running minima and flags). veh_o's
-    gap is +inf until veh_o exists, so an episode without veh_o never ranks on it."""
+    gap is +inf until veh_o exists, so an episode without veh_o never ranks on it; ``opposing_kind`` is any value
+    but "none" so that the robustness reads that gap rather than assuming no veh_o."""
     tr = snap.trace
     return {"min_h_front": float(tr.min_h_front), "theorem5_margin": float(snap.state.theorem5_margin),
             "min_gap_front_m": float(tr.min_gap_front_m), "collision_front": bool(tr.collision_front),
