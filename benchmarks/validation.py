@@ -16,7 +16,9 @@ Inputs, all of one cell and one target event:
   repetitions of that estimator;
 - **subset** folders (``mcverify estimate --method subset``, distinct seeds, one setting of samples per
   stage and performance function per pool): pooled and cut into repetitions of ``group`` runs as splitting's
-  are, each exactly the estimate ``--replicates group`` would return (the t interval on the runs);
+  are, each exactly the estimate ``--replicates group`` would return (the t interval on the runs); with
+  ``--group 1`` each run alone is a repetition, with the interval of its within-run coefficient of variation
+  (the value the estimate reports beside its t interval), so R runs check that interval R times;
 - **importance** folders (``mcverify estimate --method importance``, distinct seeds): one estimate each;
 - **crude Monte Carlo with sequential stopping** (``--sequential H``): the reference's own episodes,
   in their pre-assigned order, cut into consecutive runs of ``mcverify estimate --method mc
@@ -45,6 +47,7 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
+import scipy.stats as sps
 
 from benchmarks import section
 from benchmarks.validation_report import figure, markdown
@@ -56,7 +59,7 @@ from mcverify.analysis.intervals import proportion_interval
 from mcverify.analysis.sequential import StopRule, sequential_estimate
 from mcverify.cli import options
 from mcverify.errors import RunError
-from mcverify.estimate import splitting
+from mcverify.estimate import splitting, subset_run
 from mcverify.estimate.folder import ESTIMATE
 from mcverify.requirements import PERFORMANCES
 
@@ -317,9 +320,10 @@ def pooled_repetitions(dirs: Sequence[Path], ref: Reference, group: int, level: 
                        method: str = "splitting") -> list[Repetition]:
     """The pooled runs of ``dirs`` cut into consecutive repetitions of ``group`` runs (a short remainder is
     dropped), each with the Student t interval on its runs (:func:`splitting.t_interval`, the interval
-    ``mcverify estimate --replicates group`` reports for splitting and subset simulation alike)."""
-    if group < 2:
-        raise RunError(f"--group must be at least 2 (a t interval needs 2 runs), got {group}")
+    ``mcverify estimate --replicates group`` reports for splitting and subset simulation alike); ``group`` 1:
+    :func:`within_run_repetitions`."""
+    if group == 1:
+        return within_run_repetitions(dirs, ref, level, method)
     values, steps, cpu, _ = pooled_runs(dirs, ref, method)
     if values.size < group:
         raise RunError(f"--group {group} (runs per repetition; 4 unless given) is more than the {values.size} runs "
@@ -331,6 +335,35 @@ def pooled_repetitions(dirs: Sequence[Path], ref: Reference, group: int, level: 
         reps.append(Repetition(mean, low, high, float(steps[part].sum()), float(cpu[part].sum()),
                                warnings if method == "splitting" else []))
     return reps
+
+
+def within_run_repetitions(dirs: Sequence[Path], ref: Reference, level: float = 0.95,
+                           method: str = "subset") -> list[Repetition]:
+    """Every subset simulation run alone, with the interval of its own within-run coefficient of variation
+    delta ([AB01], the chains' correlation included: the value ``mcverify estimate`` reports beside the t
+    interval): estimate x (1 -+ z delta), the low end clipped at 0 (``--group 1``). One run per repetition, so
+    a pool of R runs gives R repetitions of it."""
+    if method != "subset":
+        raise RunError(f"--group 1 (each run with its within-run interval) is subset simulation's; {method} runs "
+                       "have no within-run error: give --group 2 or more")
+    values, steps, cpu, _ = pooled_runs(dirs, ref, method)
+    covs = np.array([cov for d in dirs for cov in _run_covs(d, ref)], float)
+    z = float(sps.norm.ppf(0.5 + level / 2))
+    return [Repetition(float(v), max(0.0, float(v) * (1 - z * c)), float(v) * (1 + z * c), float(s), float(t),
+                       [] if math.isfinite(v) else ["a run that reached max_stages: no estimate"])
+            for v, c, s, t in zip(values, covs, steps, cpu, strict=True)]
+
+
+def _run_covs(run_dir: Path, ref: Reference) -> list[float]:
+    """The within-run coefficient of variation of each run of a subset folder's reference cell, in run order
+    (inf for a run with none: its interval is the whole half-line)."""
+    manifest, cell = _estimate_folder(run_dir, "subset", ref)
+    index = next(c["index"] for c in manifest["cells"] if c["name"] == ref.cell)
+    covs = []
+    for run_id in range(len(cell["runs"])):
+        record = store.read_json(subset_run.run_stem(Path(run_dir), index, run_id).with_suffix(".json"))["run"]
+        covs.append(math.inf if record["cov"] is None else float(record["cov"]))
+    return covs
 
 
 def pooled_summary(dirs: Sequence[Path], ref: Reference, method: str = "splitting") -> dict[str, Any]:
@@ -469,6 +502,8 @@ def run(reference_dirs: Path | Sequence[Path], *, splitting_pools: Sequence[Sequ
 def _pool_name(pooled: dict[str, Any], group: int) -> str:
     if pooled["method"] == "splitting":
         return f"splitting ({pooled['score']}), {group} runs of {pooled['particles']} particles"
+    if group == 1:
+        return f"subset ({pooled['performance']}), 1 run of {pooled['samples']} per stage, within-run interval"
     return f"subset ({pooled['performance']}), {group} runs of {pooled['samples']} per stage"
 
 
@@ -490,7 +525,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="importance estimate folders of the same cell and target, distinct seeds")
     p.add_argument("--group", type=options.positive_int, nargs="+", default=[4], metavar="R",
                    help="splitting, subset: runs per repetition (the estimator's --replicates), one row per value "
-                   "(default 4)")
+                   "(default 4); 1 (subset only): each run alone with its within-run interval")
     p.add_argument("--sequential", type=options.halfwidth, nargs="+", default=[], metavar="H",
                    help="crude Monte Carlo with sequential stopping: the reference's episodes cut into consecutive "
                    "runs of --until-halfwidth H (absolute, e.g. 0.08, or relative, e.g. 50%%), each checked against "

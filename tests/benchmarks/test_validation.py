@@ -4,6 +4,7 @@ folders that do not belong together are refused with one line."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +13,7 @@ import pytest
 from benchmarks import section, validation
 from mcverify import files, store
 from mcverify.errors import RunError
-from mcverify.estimate import splitting
+from mcverify.estimate import splitting, subset_run
 from mcverify.estimate.folder import ESTIMATE
 
 CAMPAIGN = "toy"
@@ -132,7 +133,7 @@ def test_folders_that_do_not_belong_together_are_refused(tmp_path):
         validation.pooled_repetitions([tmp_path / "c"], ref, group=2)
     with pytest.raises(RunError, match="is a splitting estimate; the reference must be crude Monte Carlo"):
         validation.reference(tmp_path / "a")
-    with pytest.raises(RunError, match="at least 2"):
+    with pytest.raises(RunError, match="subset simulation's; splitting runs have no within-run error"):
         validation.pooled_repetitions([tmp_path / "a"], ref, group=1)
     _splitting(tmp_path / "d", 7, [0.1, 0.2], score="h_ef_held")
     with pytest.raises(RunError, match="differ in"):
@@ -249,12 +250,17 @@ def test_importance_repetitions_and_their_diagnostics(tmp_path, capsys):
             "(median 0.1000)") in text
 
 
-def _subset(out: Path, seed: int, runs: list[float], performance: str = "margin-ladder", samples: int = 200) -> None:
-    # as subset simulation writes it: the target is in the spec and in the cell
+def _subset(out: Path, seed: int, runs: list[float], performance: str = "margin-ladder", samples: int = 200,
+            covs: list[float | None] | None = None) -> None:
+    # as subset simulation writes it: the target is in the spec and in the cell, each run's record in runs/
     _manifest(out, "subset", seed=seed)
     spec = {"method": "subset", "samples": samples, "performance": performance}
     files.write_json_atomic(out / ESTIMATE, {"spec": spec, "cells": [
         {"cell": "all", "target": "ellipse", "runs": runs, "steps": 1000 * len(runs), "cpu_s": 60.0 * len(runs)}]})
+    for run_id, cov in enumerate(covs or [0.5] * len(runs)):
+        path = subset_run.run_stem(out, 0, run_id).with_suffix(".json")
+        path.parent.mkdir(exist_ok=True)
+        files.write_json_atomic(path, {"run": {"estimate": runs[run_id], "cov": cov}})
 
 
 def test_subset_runs_are_pooled_into_the_estimators_own_t_intervals_and_reported(tmp_path, capsys):
@@ -276,3 +282,23 @@ def test_subset_runs_are_pooled_into_the_estimators_own_t_intervals_and_reported
     out = capsys.readouterr().out
     assert "| subset (margin-ladder), 3 runs of 200 per stage | 2 |" in out
     assert "- subset (margin-ladder), the 6 runs of 200 per stage one by one" in out
+
+
+def test_group_1_checks_each_subset_run_with_its_within_run_interval(tmp_path, capsys):
+    _reference(tmp_path / "ref", [[True, False, False, False]] * 5)  # p = 0.25
+    _subset(tmp_path / "u1", 21, [0.2, 0.5], covs=[0.2, 0.1])
+    _subset(tmp_path / "u2", 22, [0.3, 0.1], covs=[None, 1.0])
+    ref = validation.reference(tmp_path / "ref")
+    reps = validation.pooled_repetitions([tmp_path / "u1", tmp_path / "u2"], ref, group=1, method="subset")
+    z = 1.959963984540054
+    assert [(r.estimate, r.steps) for r in reps] == [(0.2, 1000), (0.5, 1000), (0.3, 1000), (0.1, 1000)]
+    assert (reps[0].low, reps[0].high) == pytest.approx((0.2 * (1 - 0.2 * z), 0.2 * (1 + 0.2 * z)))
+    assert (reps[1].low, reps[1].high) == pytest.approx((0.5 * (1 - 0.1 * z), 0.5 * (1 + 0.1 * z)))
+    assert (reps[2].low, reps[2].high) == (0.0, math.inf)  # a run without a CoV: no bound
+    assert (reps[3].low, reps[3].high) == pytest.approx((0.0, 0.1 * (1 + z)))  # the low end clipped at 0
+    args = [str(tmp_path / "ref"), "--subset", str(tmp_path / "u1"), str(tmp_path / "u2"), "--group", "1", "2",
+            "--no-write"]
+    assert validation.main(args) == 0
+    out = capsys.readouterr().out
+    assert "| subset (margin-ladder), 1 run of 200 per stage, within-run interval | 4 | 3/4 = 75% " in out
+    assert "| subset (margin-ladder), 2 runs of 200 per stage | 2 |" in out
