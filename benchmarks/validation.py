@@ -3,11 +3,11 @@ reference on the closed loop, where crude Monte Carlo can answer (p about 0.01-0
 
 Inputs, all of one cell and one target event:
 
-- the **reference**: crude Monte Carlo folders of one cell, finished or stopped: estimate folders
-  (``mcverify estimate --method mc``, whose target it is) or run folders (``mcverify run``, with
-  ``--target``). Each folder's gap-free prefix of episodes, in their pre-assigned order, and the folders one
-  after another (distinct seeds: independent episodes) give k events in n episodes; n was set by the clock or
-  the budget, not by the outcomes, so its interval is the fixed-n Clopper-Pearson one;
+- the **reference** (:mod:`benchmarks.validation_reference`): crude Monte Carlo folders of one cell, finished
+  or stopped: estimate folders (``mcverify estimate --method mc``, whose target it is) or run folders
+  (``mcverify run``, with ``--target``). Each folder's gap-free prefix of episodes, in their pre-assigned order,
+  and the folders one after another (distinct seeds: independent episodes) give k events in n episodes; n was
+  set by the clock or the budget, not by the outcomes, so its interval is the fixed-n Clopper-Pearson one;
 - **splitting** folders (``mcverify estimate --method splitting``, distinct seeds, one setting of
   particles and score per pool; several pools give several rows): a pool's AMS runs are pooled
   (folders in the order given, runs in replicate order) and cut into consecutive repetitions of
@@ -46,15 +46,21 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pyarrow as pa
 import scipy.stats as sps
 
 from benchmarks import section
+from benchmarks.validation_reference import (
+    Reference,
+    as_dirs,
+    flat_params,
+    manifest_of,
+    reference_of,
+    reference_sequence,
+)
 from benchmarks.validation_report import figure, markdown
 from mcverify import files, provenance, store
 from mcverify.analysis import intervals
-from mcverify.analysis.columns import Columns, floats
-from mcverify.analysis.estimates import TARGETS, ordered_prefix, target_events
+from mcverify.analysis.estimates import TARGETS
 from mcverify.analysis.intervals import proportion_interval
 from mcverify.analysis.sequential import StopRule, sequential_estimate
 from mcverify.cli import options
@@ -62,39 +68,6 @@ from mcverify.errors import RunError
 from mcverify.estimate import splitting, subset_run
 from mcverify.estimate.folder import ESTIMATE
 from mcverify.requirements import PERFORMANCES
-
-
-@dataclass(frozen=True)
-class Reference:
-    """The crude reference: k events of ``target`` in the first n episodes of ``cell``, p = k / n with
-    its Clopper-Pearson interval, and the mean control steps of an episode."""
-
-    run_dirs: tuple[str, ...]
-    campaign: str
-    cell: str
-    target: str
-    n: int
-    k: int
-    p: float
-    low: float
-    high: float
-    errors: int
-    mean_episode_steps: float
-    seeds: tuple[int, ...] = ()  # the folders' campaign seeds: an estimator run with one would replay its episodes
-    params: dict[str, Any] = field(default_factory=dict)  # the cell's model, flattened (dotted keys)
-
-
-@dataclass(frozen=True)
-class CrudeSequence:
-    """The reference's episodes in order: whether each showed ``target``, its control steps, the errors left out,
-    and the first folder's manifest (the cell's)."""
-
-    manifest: dict[str, Any]
-    target: str
-    events: np.ndarray
-    steps: np.ndarray
-    errors: int
-    seeds: tuple[int, ...]
 
 
 @dataclass
@@ -113,99 +86,6 @@ class Repetition:
     anytime_lower: float = math.nan
     failures: int = -1
     ess: float = math.nan
-
-
-def _manifest(run_dir: Path) -> dict[str, Any]:
-    if not (Path(run_dir) / store.MANIFEST).exists():
-        raise RunError(f"{run_dir} is not a run or estimate folder (no {store.MANIFEST})")
-    return store.read_manifest(Path(run_dir))
-
-
-def reference(run_dirs: Path | Sequence[Path], level: float = 0.95, target: str | None = None) -> Reference:
-    """The reference of crude Monte Carlo folders of one cell (see the module docstring)."""
-    dirs = _as_dirs(run_dirs)
-    return _reference(dirs, reference_sequence(dirs, target), level)
-
-
-def _as_dirs(run_dirs: Path | Sequence[Path]) -> list[Path]:
-    return [Path(run_dirs)] if isinstance(run_dirs, str | Path) else [Path(d) for d in run_dirs]
-
-
-def _reference(dirs: Sequence[Path], seq: CrudeSequence, level: float) -> Reference:
-    n, k = int(seq.events.size), int(seq.events.sum())
-    ci = proportion_interval(k, n, level)
-    cell = seq.manifest["cells"][0]
-    return Reference(tuple(str(d) for d in dirs), seq.manifest["campaign"]["name"], cell["name"], seq.target, n, k,
-                     k / n, ci.low, ci.high, seq.errors, float(np.mean(seq.steps)), seq.seeds,
-                     _flat(cell.get("params", {})))
-
-
-def _flat(tree: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for key, value in tree.items():
-        if isinstance(value, dict):
-            out.update(_flat(value, f"{prefix}{key}."))
-        else:
-            out[prefix + key] = value
-    return out
-
-
-def reference_sequence(run_dirs: Path | Sequence[Path], target: str | None = None) -> CrudeSequence:
-    """The valid episodes of each crude folder's gap-free prefix, in their pre-assigned order, folder after folder.
-    ``target`` is required for run folders; an estimate folder's is its own. The folders must hold one cell, the
-    same in each, with the same target and distinct seeds."""
-    dirs = _as_dirs(run_dirs)
-    parts = [_folder_sequence(d, target) for d in dirs]
-    first = parts[0]
-    for d, part in zip(dirs[1:], parts[1:], strict=True):
-        if part.manifest["campaign"]["name"] != first.manifest["campaign"]["name"] or part.target != first.target:
-            raise RunError(f"{d} counts {part.target!r} of {part.manifest['campaign']['name']!r}; {dirs[0]} counts "
-                           f"{first.target!r} of {first.manifest['campaign']['name']!r}")
-        mine, theirs = (_flat(x.manifest["cells"][0].get("params", {})) for x in (part, first))
-        if mine != theirs:
-            differ = sorted(k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k))
-            raise RunError(f"{d} holds another cell than {dirs[0]} (they differ in {', '.join(differ[:3])})")
-    seeds = tuple(seed for part in parts for seed in part.seeds)
-    if len(set(seeds)) != len(seeds):
-        raise RunError("two reference folders have the same seed: the same episodes; give one of them")
-    return CrudeSequence(first.manifest, first.target, np.concatenate([p.events for p in parts]),
-                         np.concatenate([p.steps for p in parts]), sum(p.errors for p in parts), seeds)
-
-
-def _folder_sequence(run_dir: Path, target: str | None) -> CrudeSequence:
-    manifest = _manifest(run_dir)
-    target = _reference_target(run_dir, manifest.get("estimate"), target)
-    if len(manifest["cells"]) != 1:
-        raise RunError(f"{run_dir} has {len(manifest['cells'])} cells; the reference must have one")
-    tables = []
-    for rec in store.read_ledger(Path(run_dir)).values():
-        chunk = store.Chunk(rec.cell_index, tuple(range(rec.first_episode, rec.last_episode + 1)))
-        if store.verify_chunk(Path(run_dir), chunk, rec):
-            tables.append(store.read_chunk(Path(run_dir), chunk))
-    if not tables:
-        raise RunError(f"{run_dir} holds no finished episode")
-    cols = Columns.from_table(pa.concat_tables(tables, promote_options="default"))
-    cols = cols.take(np.argsort(floats(cols, "cell_episode"), kind="stable"))
-    m = ordered_prefix(floats(cols, "cell_episode").astype(np.int64))
-    event, valid = target_events(cols, target)
-    event, valid = event[:m], valid[:m]
-    steps = floats(cols, "steps")[:m][valid]
-    return CrudeSequence(manifest, target, event[valid], steps, int(m - valid.sum()),
-                         (int(manifest["campaign"]["seed"]),))
-
-
-def _reference_target(run_dir: Path, spec: dict[str, Any] | None, target: str | None) -> str:
-    """The event a reference counts: a crude estimate's own target, or ``target`` for a run folder."""
-    if spec is None:
-        if target is None:
-            raise RunError(f"{run_dir} is a run folder (mcverify run): give --target to say which event it counts")
-        return target
-    if spec.get("method") != "mc":
-        raise RunError(f"{run_dir} is a {spec.get('method')} estimate; the reference must be crude Monte Carlo "
-                       "(mcverify estimate --method mc, or a mcverify run folder)")
-    if target is not None and target != spec["target"]:
-        raise RunError(f"{run_dir} estimates {spec['target']!r}; --target {target} asks for another event")
-    return str(spec["target"])
 
 
 def sequential_repetitions(events: np.ndarray, steps: np.ndarray, halfwidth: float, relative: bool = False,
@@ -246,7 +126,7 @@ def _first_stop(rest: np.ndarray, stop: StopRule, level: float) -> tuple[int, fl
 
 def _estimate_folder(run_dir: Path, method: str, ref: Reference) -> tuple[dict[str, Any], dict[str, Any]]:
     """(manifest, the one cell's result) of an estimate folder, checked against the reference."""
-    manifest = _manifest(run_dir)
+    manifest = manifest_of(run_dir)
     spec = manifest.get("estimate") or {}
     if spec.get("method") != method:
         raise RunError(f"{run_dir} is not a {method} estimate")
@@ -277,7 +157,7 @@ def _check_seeds(manifests: Sequence[dict[str, Any]], dirs: Sequence[Path], ref:
             raise RunError(f"{d} and {seen[seed]} have the same seed {seed}: their runs are not independent")
         seen[seed] = d
         cells = [c for c in manifest["cells"] if c["name"] == ref.cell]
-        mine = _flat(cells[0].get("params", {})) if cells else {}
+        mine = flat_params(cells[0].get("params", {})) if cells else {}
         differ = sorted(k for k in set(mine) & set(ref.params) if mine[k] != ref.params[k])
         if differ:
             shown = ", ".join(f"{k} = {mine[k]!r} (reference {ref.params[k]!r})" for k in differ[:3])
@@ -466,9 +346,9 @@ def run(reference_dirs: Path | Sequence[Path], *, splitting_pools: Sequence[Sequ
     """The measurements described in the module docstring, as plain data: ``estimators`` holds one
     row per (estimator, runs per repetition); each splitting or subset pool (folders of one setting) gives its
     rows, and its runs one by one go to ``pooled_runs``."""
-    dirs = _as_dirs(reference_dirs)
+    dirs = as_dirs(reference_dirs)
     sequence = reference_sequence(dirs, target)
-    ref = _reference(dirs, sequence, level)
+    ref = reference_of(dirs, sequence, level)
     reference = {k: v for k, v in asdict(ref).items() if k != "params"}  # the model is the manifest's
     out: dict[str, Any] = {"reference": reference, "level": level, "estimators": [], "pooled_runs": [],
                            "commit": provenance.environment_info().get("git_commit")}

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmarks import section, validation
+from benchmarks import section, validation, validation_reference
 from mcverify import files, store
 from mcverify.errors import RunError
 from mcverify.estimate import splitting, subset_run
@@ -54,7 +54,7 @@ def _splitting(out: Path, seed: int, runs: list[float], target: str = "ellipse",
 def test_reference_is_the_gap_free_prefix(tmp_path):
     _reference(tmp_path / "ref", [[True, False, False, False], [False, False, True, False], None,
                                   [True, True, True, True]])
-    ref = validation.reference(tmp_path / "ref")
+    ref = validation_reference.reference(tmp_path / "ref")
     # the fourth chunk lies after the gap: not part of the pre-assigned prefix
     assert (ref.n, ref.k, ref.p) == (8, 2, 0.25)
     assert ref.low < 0.25 < ref.high and ref.mean_episode_steps == 80
@@ -62,26 +62,26 @@ def test_reference_is_the_gap_free_prefix(tmp_path):
 
 def test_a_run_folder_is_a_reference_for_the_target_named(tmp_path):
     _reference(tmp_path / "run", [[True, False, False, False], [False, False, True, False]], method=None)
-    ref = validation.reference(tmp_path / "run", target="ellipse")
+    ref = validation_reference.reference(tmp_path / "run", target="ellipse")
     assert (ref.target, ref.n, ref.k) == ("ellipse", 8, 2)
-    assert validation.reference(tmp_path / "run", target="collision").k == 0  # no collision flag in these rows
+    assert validation_reference.reference(tmp_path / "run", target="collision").k == 0  # no collision flag here
     with pytest.raises(RunError, match="give --target"):
-        validation.reference(tmp_path / "run")
+        validation_reference.reference(tmp_path / "run")
 
 
 def test_reference_folders_of_one_cell_with_distinct_seeds_pool(tmp_path):
     _reference(tmp_path / "a", [[True, False, False, False], None, [True, True, True, True]], method=None)
     _reference(tmp_path / "b", [[False, False, True, False], [False] * 4], method=None, seed=2)
-    ref = validation.reference([tmp_path / "a", tmp_path / "b"], target="ellipse")
+    ref = validation_reference.reference([tmp_path / "a", tmp_path / "b"], target="ellipse")
     assert (ref.n, ref.k, ref.seeds) == (12, 2, (1, 2))  # a's prefix (4 episodes), then b's 8
-    seq = validation.reference_sequence([tmp_path / "a", tmp_path / "b"], "ellipse")
+    seq = validation_reference.reference_sequence([tmp_path / "a", tmp_path / "b"], "ellipse")
     assert seq.events.tolist() == [True, False, False, False] + [False, False, True, False] + [False] * 4
     _reference(tmp_path / "same", [[False] * 4], method=None)
     with pytest.raises(RunError, match="same seed"):
-        validation.reference([tmp_path / "a", tmp_path / "same"], target="ellipse")
+        validation_reference.reference([tmp_path / "a", tmp_path / "same"], target="ellipse")
     _reference(tmp_path / "other", [[False] * 4], method=None, seed=3, params={"noise": {"scale": 1.0}})
     with pytest.raises(RunError, match="another cell"):
-        validation.reference([tmp_path / "a", tmp_path / "other"], target="ellipse")
+        validation_reference.reference([tmp_path / "a", tmp_path / "other"], target="ellipse")
     _splitting(tmp_path / "s", 2, [0.1, 0.2])  # an estimator with one of the pooled folders' seeds
     with pytest.raises(RunError, match="reference's seed 2"):
         validation.pooled_repetitions([tmp_path / "s"], ref, group=2)
@@ -89,16 +89,16 @@ def test_reference_folders_of_one_cell_with_distinct_seeds_pool(tmp_path):
 
 def test_an_estimate_reference_counts_its_own_target(tmp_path):
     _reference(tmp_path / "ref", [[True, False, False, False]])
-    assert validation.reference(tmp_path / "ref", target="ellipse").k == 1
+    assert validation_reference.reference(tmp_path / "ref", target="ellipse").k == 1
     with pytest.raises(RunError, match="asks for another event"):
-        validation.reference(tmp_path / "ref", target="collision")
+        validation_reference.reference(tmp_path / "ref", target="collision")
 
 
 def test_pooled_runs_give_the_estimators_own_intervals(tmp_path):
     _reference(tmp_path / "ref", [[True, False, False, False]] * 5)
     _splitting(tmp_path / "s1", 11, [0.1, 0.3, 0.2])
     _splitting(tmp_path / "s2", 12, [0.25, 0.0, 0.4, 0.9])
-    ref = validation.reference(tmp_path / "ref")
+    ref = validation_reference.reference(tmp_path / "ref")
     reps = validation.pooled_repetitions([tmp_path / "s1", tmp_path / "s2"], ref, group=2)
     pooled = [0.1, 0.3, 0.2, 0.25, 0.0, 0.4, 0.9]
     assert len(reps) == 3  # the seventh run is a short remainder, dropped
@@ -126,13 +126,13 @@ def test_folders_that_do_not_belong_together_are_refused(tmp_path):
     _splitting(tmp_path / "a", 5, [0.1, 0.2])
     _splitting(tmp_path / "b", 5, [0.1, 0.2])
     _splitting(tmp_path / "c", 6, [0.1, 0.2], target="collision")
-    ref = validation.reference(tmp_path / "ref")
+    ref = validation_reference.reference(tmp_path / "ref")
     with pytest.raises(RunError, match="same seed 5"):
         validation.pooled_repetitions([tmp_path / "a", tmp_path / "b"], ref, group=2)
     with pytest.raises(RunError, match="estimates 'collision'"):
         validation.pooled_repetitions([tmp_path / "c"], ref, group=2)
     with pytest.raises(RunError, match="is a splitting estimate; the reference must be crude Monte Carlo"):
-        validation.reference(tmp_path / "a")
+        validation_reference.reference(tmp_path / "a")
     with pytest.raises(RunError, match="subset simulation's; splitting runs have no within-run error"):
         validation.pooled_repetitions([tmp_path / "a"], ref, group=1)
     _splitting(tmp_path / "d", 7, [0.1, 0.2], score="h_ef_held")
@@ -233,7 +233,7 @@ def test_importance_repetitions_and_their_diagnostics(tmp_path, capsys):
     _importance(folders[0], 11, 0.24, 0.15, 0.33, 0.10, 12, 10.5)
     _importance(folders[1], 12, 0.10, 0.05, 0.15, 0.02, 4, 3.0)  # misses p, low; its lower bound holds
     _importance(folders[2], 13, 0.40, 0.30, 0.50, 0.27, 20, 17.0)  # misses p, high; so does its lower bound
-    ref = validation.reference(tmp_path / "ref")
+    ref = validation_reference.reference(tmp_path / "ref")
     reps = validation.importance_repetitions(folders, ref)
     summary = validation.summarise(reps, ref)
     assert (summary["covered"], summary["with_warnings"]) == (1, 1)
@@ -267,7 +267,7 @@ def test_subset_runs_are_pooled_into_the_estimators_own_t_intervals_and_reported
     _reference(tmp_path / "ref", [[True, False, False, False]] * 5)
     _subset(tmp_path / "u1", 21, [0.2, 0.3, 0.25])
     _subset(tmp_path / "u2", 22, [0.22, 0.35, 0.18])
-    ref = validation.reference(tmp_path / "ref")
+    ref = validation_reference.reference(tmp_path / "ref")
     reps = validation.pooled_repetitions([tmp_path / "u1", tmp_path / "u2"], ref, group=3, method="subset")
     assert len(reps) == 2 and all(r.steps == 3000 for r in reps)
     first = np.array([0.2, 0.3, 0.25])
@@ -288,7 +288,7 @@ def test_group_1_checks_each_subset_run_with_its_within_run_interval(tmp_path, c
     _reference(tmp_path / "ref", [[True, False, False, False]] * 5)  # p = 0.25
     _subset(tmp_path / "u1", 21, [0.2, 0.5], covs=[0.2, 0.1])
     _subset(tmp_path / "u2", 22, [0.3, 0.1], covs=[None, 1.0])
-    ref = validation.reference(tmp_path / "ref")
+    ref = validation_reference.reference(tmp_path / "ref")
     reps = validation.pooled_repetitions([tmp_path / "u1", tmp_path / "u2"], ref, group=1, method="subset")
     z = 1.959963984540054
     assert [(r.estimate, r.steps) for r in reps] == [(0.2, 1000), (0.5, 1000), (0.3, 1000), (0.1, 1000)]
