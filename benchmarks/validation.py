@@ -49,14 +49,7 @@ import numpy as np
 import scipy.stats as sps
 
 from benchmarks import section
-from benchmarks.validation_reference import (
-    Reference,
-    as_dirs,
-    flat_params,
-    manifest_of,
-    reference_of,
-    reference_sequence,
-)
+from benchmarks.validation_reference import Reference, as_dirs, manifest_of, reference_of, reference_sequence
 from benchmarks.validation_report import figure, markdown
 from mcverify import files, provenance, store
 from mcverify.analysis import intervals
@@ -67,6 +60,7 @@ from mcverify.cli import options
 from mcverify.errors import RunError
 from mcverify.estimate import splitting, subset_run
 from mcverify.estimate.folder import ESTIMATE
+from mcverify.reporting.compare import flat_params
 from mcverify.requirements import PERFORMANCES
 
 

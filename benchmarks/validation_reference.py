@@ -18,6 +18,7 @@ from mcverify.analysis.columns import Columns, floats
 from mcverify.analysis.estimates import ordered_prefix, target_events
 from mcverify.analysis.intervals import proportion_interval
 from mcverify.errors import RunError
+from mcverify.reporting.compare import flat_params
 
 
 @dataclass(frozen=True)
@@ -79,17 +80,6 @@ def reference_of(dirs: Sequence[Path], seq: CrudeSequence, level: float) -> Refe
     return Reference(tuple(str(d) for d in dirs), seq.manifest["campaign"]["name"], cell["name"], seq.target, n, k,
                      k / n, ci.low, ci.high, seq.errors, float(np.mean(seq.steps)), seq.seeds,
                      flat_params(cell.get("params", {})))
-
-
-def flat_params(tree: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-    """A cell's nested model as dotted keys (``noise.scale``), for comparing two folders' cells."""
-    out: dict[str, Any] = {}
-    for key, value in tree.items():
-        if isinstance(value, dict):
-            out.update(flat_params(value, f"{prefix}{key}."))
-        else:
-            out[prefix + key] = value
-    return out
 
 
 def reference_sequence(run_dirs: Path | Sequence[Path], target: str | None = None) -> CrudeSequence:

@@ -88,7 +88,7 @@ class Run:
         """The cell's resolved model fields, flattened to ``section.field`` (empty if not recorded)."""
         for c in self.manifest.get("cells", []):
             if c["name"] == name:
-                return _flatten(c.get("params") or {})
+                return flat_params(c.get("params") or {})
         return {}
 
     def rows(self, name: str) -> pa.Table:
@@ -104,11 +104,12 @@ def load_run(run_dir: Path) -> Run:
     return Run(run_dir.resolve().name, manifest, store.read_episodes(run_dir))
 
 
-def _flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+def flat_params(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """A cell's nested model as dotted keys (``noise.scale``), for comparing two cells."""
     out: dict[str, Any] = {}
     for key, value in tree.items():
         if isinstance(value, Mapping):
-            out.update(_flatten(value, f"{prefix}{key}."))
+            out.update(flat_params(value, f"{prefix}{key}."))
         else:
             out[f"{prefix}{key}"] = value
     return out
