@@ -5,6 +5,7 @@ plain data)."""
 from __future__ import annotations
 
 import math
+import textwrap
 from pathlib import Path
 from typing import Any
 
@@ -83,23 +84,40 @@ def _importance_line(imp: dict[str, Any]) -> str:
     return line
 
 
+def _log_floor(rows: list[dict[str, Any]]) -> float | None:
+    """Where the estimates span more than two decades, the left end of a log axis (a third of the smallest
+    positive estimate or interval end); None keeps the axis linear."""
+    values = [v for row in rows for rep in row["intervals"] for v in rep if v > 0 and math.isfinite(v)]
+    if not values or max(values) / min(values) <= 100:
+        return None
+    return min(values) / 3
+
+
 def figure(res: dict[str, Any], path: Path) -> Path:
     """One panel per estimator row: every repetition's interval (sorted by estimate; red where it
     misses the reference's p) against the reference's p and its interval (grey band)."""
     from mcverify.reporting.figure_common import subplots  # noqa: PLC0415 - matplotlib only when drawing
 
     ref, rows = res["reference"], res["estimators"]
+    floor = _log_floor(rows)
     fig, axes = subplots(1, len(rows), figsize=(3.2 * len(rows), 4.2), sharex=True, squeeze=False)
     for ax, row in zip(axes[0], rows, strict=True):
         targets = row.get("reference_ps") or [ref["p"]] * len(row["intervals"])
         reps = sorted(zip(row["intervals"], targets, strict=True))
         for i, ((est, low, high), target) in enumerate(reps):
             colour = "tab:blue" if low <= target <= high else "tab:red"
+            if floor is not None:  # log scale: a value under the floor (0 included) is drawn at it, as "<"
+                if min(low, est) < floor:
+                    ax.plot([floor], [i], "<", color=colour, ms=3)
+                low, est = max(low, floor), max(est, floor)
             ax.plot([low, high], [i, i], color=colour, lw=1.2)
             ax.plot([est], [i], "o", color=colour, ms=2.5)
         ax.axvspan(ref["low"], ref["high"], color="0.85", zorder=0)
         ax.axvline(ref["p"], color="k", lw=1)
-        ax.set_title(f"{row['estimator']}\ncoverage {row['covered']}/{row['repetitions']}", fontsize=8)
+        if floor is not None:
+            ax.set_xscale("log")
+        ax.set_title(f"{textwrap.fill(row['estimator'], 40)}\ncoverage {row['covered']}/{row['repetitions']}",
+                     fontsize=8)
         ax.set_xlabel(f"P({ref['target']})")
         ax.set_yticks([])
     axes[0][0].set_ylabel("repetitions, sorted by estimate")

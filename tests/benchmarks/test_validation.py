@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmarks import section, validation, validation_reference
+from benchmarks import section, validation, validation_reference, validation_report
 from mcverify import files, store
 from mcverify.errors import RunError
 from mcverify.estimate import splitting, subset_run
@@ -302,3 +302,10 @@ def test_group_1_checks_each_subset_run_with_its_within_run_interval(tmp_path, c
     out = capsys.readouterr().out
     assert "| subset (margin-ladder), 1 run of 200 per stage, within-run interval | 4 | 3/4 = 75% " in out
     assert "| subset (margin-ladder), 2 runs of 200 per stage | 2 |" in out
+
+
+def test_the_figure_turns_to_a_log_axis_where_the_estimates_span_more_than_two_decades():
+    row = {"intervals": [[1e-3, 0.0, 3e-3], [2e-3, 1e-3, 4e-3]]}
+    assert validation_report._log_floor([row]) is None  # within two decades: linear
+    row["intervals"].append([1e-8, 0.0, 5e-8])
+    assert validation_report._log_floor([row]) == pytest.approx(1e-8 / 3)
