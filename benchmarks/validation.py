@@ -233,11 +233,8 @@ def _run_covs(run_dir: Path, ref: Reference) -> list[float]:
     (inf for a run with none: its interval is the whole half-line)."""
     manifest, cell = _estimate_folder(run_dir, "subset", ref)
     index = next(c["index"] for c in manifest["cells"] if c["name"] == ref.cell)
-    covs = []
-    for run_id in range(len(cell["runs"])):
-        record = store.read_json(subset_run.run_stem(Path(run_dir), index, run_id).with_suffix(".json"))["run"]
-        covs.append(math.inf if record["cov"] is None else float(record["cov"]))
-    return covs
+    stems = (subset_run.run_stem(Path(run_dir), index, run_id) for run_id in range(len(cell["runs"])))
+    return [subset_run.as_run(store.read_json(stem.with_suffix(".json"))["run"]).cov for stem in stems]
 
 
 def pooled_summary(dirs: Sequence[Path], ref: Reference, method: str = "splitting") -> dict[str, Any]:

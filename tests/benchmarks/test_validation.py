@@ -260,7 +260,8 @@ def _subset(out: Path, seed: int, runs: list[float], performance: str = "margin-
     for run_id, cov in enumerate(covs or [0.5] * len(runs)):
         path = subset_run.run_stem(out, 0, run_id).with_suffix(".json")
         path.parent.mkdir(exist_ok=True)
-        files.write_json_atomic(path, {"run": {"estimate": runs[run_id], "cov": cov}})
+        files.write_json_atomic(path, {"run": {"estimate": runs[run_id], "cov": cov, "stages": [], "evaluations": 0,
+                                               "steps": 0, "capped": False}})
 
 
 def test_subset_runs_are_pooled_into_the_estimators_own_t_intervals_and_reported(tmp_path, capsys):
